@@ -1,0 +1,30 @@
+# Compile rules shared by every octofuse target.
+#
+# The warnings list is pinned (not -Weverything, not whatever a compiler adds later) so a compiler
+# upgrade does not break the build by itself.
+set(OCTOFUSE_WARNINGS
+    -Wall -Wextra -Wpedantic -Wshadow -Wnon-virtual-dtor -Woverloaded-virtual -Wcast-align
+    -Wformat=2 -Wimplicit-fallthrough -Wmissing-declarations -Wundef -Wvla)
+if(OCTOFUSE_WERROR)
+  list(APPEND OCTOFUSE_WARNINGS -Werror)
+endif()
+
+# Bit-identical results across x86 and ARM need the same rounding: no FMA contraction, no fast-math.
+set(OCTOFUSE_FP_FLAGS -ffp-contract=off -fno-fast-math)
+
+if(OCTOFUSE_SANITIZE)
+  add_compile_options(-fsanitize=address,undefined -fno-omit-frame-pointer
+                      -fno-sanitize-recover=undefined)
+  add_link_options(-fsanitize=address,undefined)
+endif()
+
+# lib/ and ports/: the firmware rules (no exceptions, no RTTI).
+function(octofuse_strict_target target)
+  target_compile_options(${target} PRIVATE ${OCTOFUSE_WARNINGS} ${OCTOFUSE_FP_FLAGS}
+                                           -fno-exceptions -fno-rtti)
+endfunction()
+
+# Tests and examples: same warnings, exceptions allowed (Catch2 needs them).
+function(octofuse_host_target target)
+  target_compile_options(${target} PRIVATE ${OCTOFUSE_WARNINGS} ${OCTOFUSE_FP_FLAGS})
+endfunction()

@@ -1,0 +1,91 @@
+#pragma once
+// IndexPool<T>: a fixed number of slots over arena storage, addressed by 32-bit index (half the
+// size of a pointer on aarch64, and stable across a memcpy of the whole pool). allocate() reports
+// resource_exhausted when every slot is taken; released slots are reused last-in first-out, so
+// the sequence of indices is deterministic for a given sequence of calls.
+
+#include <cstddef>
+#include <cstdint>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/core/check.hpp"
+#include "octofuse/core/result.hpp"
+
+namespace octofuse {
+
+template <typename T>
+class IndexPool {
+ public:
+  static constexpr std::uint32_t kInvalidIndex = 0xFFFFFFFFu;
+
+  // Carves storage for `capacity` slots from `arena` (a LinearArena or an ArenaSizer).
+  template <typename Arena>
+  Status reserve(Arena& arena, std::uint32_t capacity) {
+    Result<T*> slots = arena.template allocate_array<T>(capacity);
+    if (!slots.ok()) return slots.status();
+    Result<std::uint32_t*> links = arena.template allocate_array<std::uint32_t>(capacity);
+    if (!links.ok()) return links.status();
+    slots_ = slots.value();
+    free_next_ = links.value();
+    capacity_ = capacity;
+    reset();
+    return ok_status();
+  }
+
+  // Forgets every allocation (slots keep their bytes until reallocated).
+  void reset() {
+    used_ = 0;
+    fresh_ = 0;
+    free_head_ = kInvalidIndex;
+  }
+
+  // A slot, value-initialised, or resource_exhausted (the pool is unchanged then).
+  Result<std::uint32_t> allocate() {
+    std::uint32_t index;
+    if (free_head_ != kInvalidIndex) {
+      index = free_head_;
+      free_head_ = free_next_[index];
+    } else if (fresh_ < capacity_) {
+      index = fresh_++;
+    } else {
+      ++refused_;
+      return StatusCode::resource_exhausted;
+    }
+    ++used_;
+    slots_[index] = T();
+    return index;
+  }
+
+  void release(std::uint32_t index) {
+    OCTOFUSE_CHECK(index < fresh_ && used_ > 0);
+    free_next_[index] = free_head_;
+    free_head_ = index;
+    --used_;
+  }
+
+  T& operator[](std::uint32_t index) {
+    OCTOFUSE_CHECK(index < fresh_);
+    return slots_[index];
+  }
+  const T& operator[](std::uint32_t index) const {
+    OCTOFUSE_CHECK(index < fresh_);
+    return slots_[index];
+  }
+
+  std::uint32_t capacity() const { return capacity_; }
+  std::uint32_t used() const { return used_; }
+  bool full() const { return used_ == capacity_; }
+  // Allocation requests refused because the pool was full, since reserve().
+  std::uint64_t refused() const { return refused_; }
+
+ private:
+  T* slots_ = nullptr;
+  std::uint32_t* free_next_ = nullptr;
+  std::uint32_t capacity_ = 0;
+  std::uint32_t used_ = 0;
+  std::uint32_t fresh_ = 0;  // slots [0, fresh_) have been handed out at least once
+  std::uint32_t free_head_ = kInvalidIndex;
+  std::uint64_t refused_ = 0;
+};
+
+}  // namespace octofuse

@@ -1,0 +1,34 @@
+#pragma once
+// Per-pixel surface samples: what ray-casting produces and what ICP associates against. Both
+// images have the same size. A pixel is invalid when its normal is the zero vector (its vertex
+// is then unspecified). The frame of the points is part of the variable name at each use
+// (`model_W`, `live_C`).
+
+#include <Eigen/Core>
+
+#include "octofuse/image/image_view.hpp"
+
+namespace octofuse {
+
+struct SurfaceMap {
+  ImageView<Eigen::Vector3f> vertices;  // metres
+  ImageView<Eigen::Vector3f> normals;   // unit length, or zero where invalid
+
+  int width() const { return vertices.width; }
+  int height() const { return vertices.height; }
+  bool valid(int x, int y) const { return !normals(x, y).isZero(0.0f); }
+};
+
+struct ConstSurfaceMap {
+  ImageView<const Eigen::Vector3f> vertices;
+  ImageView<const Eigen::Vector3f> normals;
+
+  ConstSurfaceMap() = default;
+  ConstSurfaceMap(const SurfaceMap& m)  // NOLINT: implicit, like T* -> const T*
+      : vertices(m.vertices), normals(m.normals) {}
+  int width() const { return vertices.width; }
+  int height() const { return vertices.height; }
+  bool valid(int x, int y) const { return !normals(x, y).isZero(0.0f); }
+};
+
+}  // namespace octofuse

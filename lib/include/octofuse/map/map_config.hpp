@@ -1,0 +1,46 @@
+#pragma once
+// What fixes the map's geometry and memory: the cube (origin, finest voxel size, 2^d voxels per
+// side) and the two pool capacities. Everything the octree reserves follows from this struct.
+
+#include <cstdint>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/status.hpp"
+
+namespace octofuse {
+
+// Voxels per block side (8) and its log2; blocks are the octree's leaves.
+inline constexpr int kBlockSide = 8;
+inline constexpr int kBlockSideLog2 = 3;
+// Coarsest scale inside a block: scale s has voxels 2^s finest voxels wide (0 = 8^3 ... 3 = 1^3).
+inline constexpr int kMaxBlockScale = 3;
+// Morton keys hold 21 bits per axis, which bounds the depth.
+inline constexpr int kMinVoxelDepth = 4;
+inline constexpr int kMaxVoxelDepth = 21;
+
+struct MapConfig {
+  float voxel_size_m = 0.01f;  // finest voxel edge
+  int voxel_depth = 10;        // d: 2^d finest voxels per cube side, kMinVoxelDepth..kMaxVoxelDepth
+  // World position of the cube's minimum corner; voxel (0,0,0) spans [origin, origin + voxel).
+  Eigen::Vector3f origin_W = Eigen::Vector3f::Zero();
+  std::uint32_t block_capacity = 4096;  // voxel blocks in the pool
+  std::uint32_t node_capacity = 4096;   // inner octree nodes in the pool (the root included)
+
+  int voxels_per_side() const { return 1 << voxel_depth; }
+  float size_m() const { return voxel_size_m * static_cast<float>(voxels_per_side()); }
+  // Tree level of the blocks (root = level 0): each level halves the octant side.
+  int block_level() const { return voxel_depth - kBlockSideLog2; }
+  float block_size_m() const { return voxel_size_m * static_cast<float>(kBlockSide); }
+
+  // A cube centred on `centre_W` (the usual choice: the first camera position).
+  static MapConfig centred(const Eigen::Vector3f& centre_W, float voxel_size_m, int voxel_depth,
+                           std::uint32_t block_capacity, std::uint32_t node_capacity);
+};
+
+// ok, or invalid_argument when the voxel size is not finite and positive, the depth is outside
+// [kMinVoxelDepth, kMaxVoxelDepth], the origin is not finite, or a capacity is zero (or the
+// node capacity is above 2^31, the block capacity above 2^30).
+Status validate(const MapConfig& config);
+
+}  // namespace octofuse

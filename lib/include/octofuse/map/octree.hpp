@@ -1,0 +1,532 @@
+#pragma once
+// The map: an octree over a cube of 2^d finest voxels per side. Inner nodes come from a node pool,
+// leaves are mip-mapped 8^3 voxel blocks from a block pool, and a hash of block coordinates finds
+// a block without walking the tree. All three are carved from an arena at reserve() and never
+// grow: when a pool is full, allocation is refused, counted and reported, and the map stays valid.
+//
+// Inner nodes carry a summary of what is below them (mean, min and max normalised TSDF over
+// observed children, mean weight), kept up to date by propagate_summaries() after integration,
+// so ray-casting can skip empty space and coarse queries see the data.
+//
+// Threading: lookups and voxel reads/writes of distinct blocks may run concurrently; allocate(),
+// clear() and propagate_summaries() must not overlap anything else.
+
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/core/check.hpp"
+#include "octofuse/core/pool.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/map/block_hash.hpp"
+#include "octofuse/map/keys.hpp"
+#include "octofuse/map/map_config.hpp"
+#include "octofuse/map/voxel.hpp"
+#include "octofuse/map/voxel_block.hpp"
+
+namespace octofuse {
+
+// Aggregate of an octant's observed content. `weight_mean` 0 means nothing below was observed
+// (then tsdf_min > tsdf_max and the means are defaults).
+struct NodeSummary {
+  float tsdf_mean = 1.0f;
+  float weight_mean = 0.0f;
+  float tsdf_min = 1.0f;
+  float tsdf_max = -1.0f;
+
+  bool observed() const { return weight_mean > 0.0f; }
+};
+
+struct OctreeNode {
+  // Children by child index (bit 0 = +x, bit 1 = +y, bit 2 = +z): node indices, or block indices
+  // for nodes at level block_level - 1; kNoIndex where not allocated.
+  std::uint32_t children[8] = {kNoIndex, kNoIndex, kNoIndex, kNoIndex,
+                               kNoIndex, kNoIndex, kNoIndex, kNoIndex};
+  std::uint32_t parent = kNoIndex;  // kNoIndex for the root
+  std::uint32_t visit_stamp = 0;    // scratch for propagate_summaries()
+  std::uint64_t morton = 0;         // of the minimum corner (finest voxels)
+  std::uint8_t level = 0;
+  std::uint8_t padding_[7] = {};
+  NodeSummary summary;
+
+  Key key() const { return Key{morton, level}; }
+};
+
+// What one allocate() call did.
+struct AllocationCounts {
+  std::uint32_t new_blocks = 0;
+  std::uint32_t new_nodes = 0;
+  std::uint32_t already_allocated = 0;  // keys whose octant existed
+  std::uint32_t refused = 0;            // keys not allocated because a pool was full
+  std::uint32_t rejected = 0;           // keys outside the cube or at an invalid level
+};
+
+struct MapMemory {
+  std::size_t bytes_reserved = 0;   // everything reserve() took from the arena
+  std::size_t bytes_used = 0;       // the part holding allocated nodes and blocks
+  std::size_t bytes_per_block = 0;  // sizeof(VoxelBlock<VoxelT>)
+  std::uint32_t blocks_used = 0;
+  std::uint32_t block_capacity = 0;
+  std::uint32_t nodes_used = 0;
+  std::uint32_t node_capacity = 0;
+  std::uint64_t refusals = 0;  // allocation requests refused since reserve()/clear()
+};
+
+// Where a voxel falls in the tree: the deepest allocated octant containing it. `level` is -1
+// outside the cube; block_level when a block holds it (block != kNoIndex); otherwise the level
+// of the deepest allocated inner node (`node`), whose child towards the voxel is absent, so the
+// free octant around the voxel is octant_size_voxels(level + 1, voxel_depth) voxels wide.
+struct OctantLookup {
+  int level = -1;
+  std::uint32_t node = kNoIndex;
+  std::uint32_t block = kNoIndex;
+};
+
+template <typename VoxelT>
+class Octree {
+ public:
+  using Voxel = VoxelT;
+  using Block = VoxelBlock<VoxelT>;
+
+  // Exactly what reserve() takes from a LinearArena whose current offset is
+  // kArenaAlignment-aligned.
+  static std::size_t bytes_required(const MapConfig& config) {
+    ArenaSizer sizer;
+    Octree probe;
+    if (!probe.reserve(sizer, config).ok()) return 0;
+    return sizer.bytes_used();
+  }
+
+  // Carves the pools, hash and scratch from `arena` (LinearArena or ArenaSizer) and creates the
+  // root. invalid_argument: validate(config) failed; resource_exhausted: the arena is too small.
+  template <typename Arena>
+  Status reserve(Arena& arena, const MapConfig& config) {
+    OCTOFUSE_TRY(validate(config));
+    const std::size_t start = arena.bytes_used();
+    // Keep every reservation aligned so the sizer's count is exact for any starting offset.
+    OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
+    OCTOFUSE_TRY(nodes_.reserve(arena, config.node_capacity));
+    OCTOFUSE_TRY(blocks_.reserve(arena, config.block_capacity));
+    OCTOFUSE_TRY(hash_.reserve(arena, config.block_capacity));
+    Result<std::uint32_t*> a = arena.template allocate_array<std::uint32_t>(config.node_capacity);
+    OCTOFUSE_TRY(a);
+    Result<std::uint32_t*> b = arena.template allocate_array<std::uint32_t>(config.node_capacity);
+    OCTOFUSE_TRY(b);
+    Result<std::uint32_t*> order =
+        arena.template allocate_array<std::uint32_t>(config.block_capacity);
+    OCTOFUSE_TRY(order);
+    OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
+    scratch_a_ = a.value();
+    scratch_b_ = b.value();
+    block_order_ = order.value();
+    config_ = config;
+    bytes_reserved_ = arena.bytes_used() - start;
+    reserved_ = true;
+    reset_contents(/*clear_hash=*/false);
+    return ok_status();
+  }
+
+  bool reserved() const { return reserved_; }
+  // Forgets every block and node (keeps the root); memory stays reserved.
+  void clear() {
+    OCTOFUSE_CHECK(reserved_);
+    reset_contents(/*clear_hash=*/true);
+  }
+
+  const MapConfig& config() const { return config_; }
+  int voxel_depth() const { return config_.voxel_depth; }
+  int block_level() const { return config_.block_level(); }
+  float voxel_size_m() const { return config_.voxel_size_m; }
+  int voxels_per_side() const { return config_.voxels_per_side(); }
+
+  // --- Coordinates. Voxel (i,j,k) spans origin + [i, i+1) * voxel_size; its sample is its centre.
+  bool contains_voxel(const Eigen::Vector3i& voxel) const {
+    const int n = voxels_per_side();
+    return voxel.x() >= 0 && voxel.y() >= 0 && voxel.z() >= 0 && voxel.x() < n && voxel.y() < n &&
+           voxel.z() < n;
+  }
+  bool contains_point(const Eigen::Vector3f& p_W) const {
+    return contains_voxel(point_to_voxel(p_W));
+  }
+  // Continuous voxel coordinates: voxel (i,j,k)'s centre is at (i+0.5, j+0.5, k+0.5).
+  Eigen::Vector3f point_to_voxel_f(const Eigen::Vector3f& p_W) const {
+    return (p_W - config_.origin_W) / config_.voxel_size_m;
+  }
+  // Finest voxel containing p_W (floor); may lie outside the cube (check contains_voxel).
+  Eigen::Vector3i point_to_voxel(const Eigen::Vector3f& p_W) const {
+    const Eigen::Vector3f v = point_to_voxel_f(p_W);
+    // Clamp before the cast so far-away or non-finite points cannot overflow an int.
+    const float limit = 4.0f * static_cast<float>(voxels_per_side());
+    auto to_int = [limit](float f) {
+      if (!(f > -limit)) return -1;
+      if (!(f < limit)) return static_cast<int>(limit);
+      return static_cast<int>(std::floor(f));
+    };
+    return {to_int(v.x()), to_int(v.y()), to_int(v.z())};
+  }
+  // out_of_range when p_W is outside the cube (or not finite).
+  Result<Eigen::Vector3i> voxel_of_point(const Eigen::Vector3f& p_W) const {
+    const Eigen::Vector3i v = point_to_voxel(p_W);
+    if (!contains_voxel(v)) return StatusCode::out_of_range;
+    return v;
+  }
+  // Centre of the voxel at `scale` (0 = finest; 0..voxel_depth) containing finest voxel `voxel`.
+  Eigen::Vector3f voxel_centre_W(const Eigen::Vector3i& voxel, int scale = 0) const {
+    const Eigen::Vector3i snapped = snap_to_scale(voxel, scale);
+    const float half = 0.5f * static_cast<float>(1 << scale);
+    return config_.origin_W +
+           (snapped.cast<float>() + Eigen::Vector3f::Constant(half)) * config_.voxel_size_m;
+  }
+  Eigen::Vector3f block_centre_W(const Eigen::Vector3i& block_coords) const {
+    return config_.origin_W +
+           (block_coords.cast<float>() * 8.0f + Eigen::Vector3f::Constant(4.0f)) *
+               config_.voxel_size_m;
+  }
+  bool contains_block(const Eigen::Vector3i& block_coords) const {
+    const int n = voxels_per_side() >> kBlockSideLog2;
+    return block_coords.x() >= 0 && block_coords.y() >= 0 && block_coords.z() >= 0 &&
+           block_coords.x() < n && block_coords.y() < n && block_coords.z() < n;
+  }
+  Key block_key(const Eigen::Vector3i& block_coords) const {
+    return Key{morton_encode(block_to_voxel(block_coords)),
+               static_cast<std::uint8_t>(block_level())};
+  }
+
+  // --- Allocation.
+  // Allocates the octants for `keys` (any order, duplicates allowed but wasteful): a key at
+  // block_level gets a voxel block, a key above it an inner node (level 0 is the root, which
+  // always exists); missing ancestors are created on the way. Keys are processed in the given
+  // order, which fixes the pool indices (pass them sorted for a canonical map).
+  // Returns ok; resource_exhausted when a pool refused at least one key (those keys are skipped,
+  // everything else is allocated and existing data is untouched); out_of_range when some key
+  // lay outside the cube or below block_level (skipped) and nothing was refused.
+  Status allocate(const Key* keys, std::size_t count, AllocationCounts* counts = nullptr) {
+    OCTOFUSE_CHECK(reserved_);
+    AllocationCounts local;
+    for (std::size_t i = 0; i < count; ++i) allocate_one(keys[i], local);
+    if (counts != nullptr) *counts = local;
+    if (local.refused > 0) return StatusCode::resource_exhausted;
+    if (local.rejected > 0) return StatusCode::out_of_range;
+    return ok_status();
+  }
+  // The block at `block_coords`, allocated if needed: its index, or out_of_range (outside the
+  // cube) / resource_exhausted (pool full).
+  Result<std::uint32_t> allocate_block(const Eigen::Vector3i& block_coords) {
+    if (!contains_block(block_coords)) return StatusCode::out_of_range;
+    const std::uint32_t found = find_block_index(block_coords);
+    if (found != kNoIndex) return found;
+    AllocationCounts local;
+    allocate_one(block_key(block_coords), local);
+    if (local.refused > 0) return StatusCode::resource_exhausted;
+    return find_block_index(block_coords);
+  }
+
+  // --- Lookup (O(1) through the hash).
+  std::uint32_t find_block_index(const Eigen::Vector3i& block_coords) const {
+    if (!contains_block(block_coords)) return kNoIndex;
+    return hash_.find(morton_encode(block_coords));
+  }
+  Block* find_block(const Eigen::Vector3i& block_coords) {
+    const std::uint32_t i = find_block_index(block_coords);
+    return i == kNoIndex ? nullptr : &blocks_[i];
+  }
+  const Block* find_block(const Eigen::Vector3i& block_coords) const {
+    const std::uint32_t i = find_block_index(block_coords);
+    return i == kNoIndex ? nullptr : &blocks_[i];
+  }
+  Block* find_block_at_voxel(const Eigen::Vector3i& voxel) {
+    return contains_voxel(voxel) ? find_block(voxel_to_block(voxel)) : nullptr;
+  }
+  const Block* find_block_at_voxel(const Eigen::Vector3i& voxel) const {
+    return contains_voxel(voxel) ? find_block(voxel_to_block(voxel)) : nullptr;
+  }
+  Block* find_block_at_point(const Eigen::Vector3f& p_W) {
+    return find_block_at_voxel(point_to_voxel(p_W));
+  }
+  const Block* find_block_at_point(const Eigen::Vector3f& p_W) const {
+    return find_block_at_voxel(point_to_voxel(p_W));
+  }
+  // The block with this key (key.level must be block_level), or null.
+  const Block* find_block(const Key& key) const {
+    if (key.level != block_level()) return nullptr;
+    return find_block_at_voxel(key_corner_voxel(key));
+  }
+  Block* find_block(const Key& key) {
+    if (key.level != block_level()) return nullptr;
+    return find_block_at_voxel(key_corner_voxel(key));
+  }
+
+  // The voxel at `scale` (0..3) containing finest voxel `voxel`, or null when outside the cube
+  // or in an unallocated block. Reads whatever that scale holds (see the block's current_scale).
+  const VoxelT* voxel(const Eigen::Vector3i& voxel, int scale = 0) const {
+    OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
+    const Block* b = find_block_at_voxel(voxel);
+    return b == nullptr ? nullptr : &b->at_voxel(voxel, scale);
+  }
+  VoxelT* voxel(const Eigen::Vector3i& voxel, int scale = 0) {
+    OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
+    Block* b = find_block_at_voxel(voxel);
+    return b == nullptr ? nullptr : &b->at_voxel(voxel, scale);
+  }
+  // The neighbour `step` voxels of scale `scale` away (crosses block borders), or null.
+  const VoxelT* neighbour(const Eigen::Vector3i& voxel, int scale,
+                          const Eigen::Vector3i& step) const {
+    return this->voxel(snap_to_scale(voxel, scale) + step * (1 << scale), scale);
+  }
+
+  // Deepest allocated octant containing `voxel` (see OctantLookup).
+  OctantLookup lookup(const Eigen::Vector3i& voxel) const {
+    OctantLookup out;
+    if (!contains_voxel(voxel)) return out;
+    const int depth = voxel_depth();
+    std::uint32_t node = 0;
+    for (int level = 0;; ++level) {
+      const int bit = depth - level - 1;
+      const int child = ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
+                        (((voxel.z() >> bit) & 1) << 2);
+      const std::uint32_t next = nodes_[node].children[child];
+      if (level + 1 == block_level()) {
+        out.level = next == kNoIndex ? level : level + 1;
+        out.node = node;
+        out.block = next;
+        return out;
+      }
+      if (next == kNoIndex) {
+        out.level = level;
+        out.node = node;
+        return out;
+      }
+      node = next;
+    }
+  }
+  // Inner node with this key (level < block_level), or kNoIndex.
+  std::uint32_t find_node_index(const Key& key) const {
+    if (key.level >= block_level()) return kNoIndex;
+    const Eigen::Vector3i corner = key_corner_voxel(key);
+    if (!contains_voxel(corner)) return kNoIndex;
+    std::uint32_t node = 0;
+    for (int level = 0; level < key.level; ++level) {
+      node =
+          nodes_[node]
+              .children[child_index(parent_key_at(key, level + 1, voxel_depth()), voxel_depth())];
+      if (node == kNoIndex) return kNoIndex;
+    }
+    return node;
+  }
+  static constexpr std::uint32_t root_index() { return 0; }
+  const OctreeNode& node(std::uint32_t index) const { return nodes_[index]; }
+
+  // --- Iteration. Blocks are numbered 0..block_count()-1 in allocation order, which is
+  // deterministic for a deterministic sequence of allocate() calls.
+  std::uint32_t block_count() const { return blocks_.used(); }
+  Block& block(std::uint32_t index) { return blocks_[index]; }
+  const Block& block(std::uint32_t index) const { return blocks_[index]; }
+  std::uint32_t node_count() const { return nodes_.used(); }
+  template <typename Fn>
+  void for_each_block(Fn&& fn) {
+    for (std::uint32_t i = 0; i < block_count(); ++i) fn(blocks_[i]);
+  }
+  template <typename Fn>
+  void for_each_block(Fn&& fn) const {
+    for (std::uint32_t i = 0; i < block_count(); ++i) fn(blocks_[i]);
+  }
+
+  // --- Summaries.
+  // Recomputes a block's tsdf_min/tsdf_max over the observed voxels at its current scale.
+  static void update_block_summary(Block& block) {
+    const int scale = block.current_scale;
+    const VoxelT* v = block.scale_begin(scale);
+    float lo = 1.0f;
+    float hi = -1.0f;
+    for (int i = 0; i < block_scale_count(scale); ++i) {
+      if (!voxel_observed(v[i])) continue;
+      const float t = voxel_tsdf(v[i]);
+      lo = t < lo ? t : lo;
+      hi = t > hi ? t : hi;
+    }
+    block.tsdf_min = lo;
+    block.tsdf_max = hi;
+  }
+  // Refreshes the summaries of every inner node above the given blocks, bottom-up to the root
+  // (each node once). A block contributes its scale-3 voxel (mean and weight) and its
+  // tsdf_min/max; a node contributes its summary. Means are over observed children only; a node
+  // whose children are all unobserved keeps its summary.
+  void propagate_summaries(const std::uint32_t* block_indices, std::size_t count) {
+    ++stamp_;
+    std::uint32_t* current = scratch_a_;
+    std::uint32_t* next = scratch_b_;
+    std::size_t current_count = 0;
+    for (std::size_t i = 0; i < count; ++i) {
+      const std::uint32_t p = blocks_[block_indices[i]].parent_node;
+      if (nodes_[p].visit_stamp == stamp_) continue;
+      nodes_[p].visit_stamp = stamp_;
+      current[current_count++] = p;
+    }
+    bool children_are_blocks = true;
+    while (current_count > 0) {
+      std::size_t next_count = 0;
+      for (std::size_t i = 0; i < current_count; ++i) {
+        OctreeNode& n = nodes_[current[i]];
+        summarise_node(n, children_are_blocks);
+        if (n.parent == kNoIndex) continue;
+        OctreeNode& p = nodes_[n.parent];
+        if (p.visit_stamp == stamp_) continue;
+        p.visit_stamp = stamp_;
+        next[next_count++] = n.parent;
+      }
+      std::uint32_t* swap = current;
+      current = next;
+      next = swap;
+      current_count = next_count;
+      children_are_blocks = false;
+    }
+  }
+
+  // --- Memory.
+  MapMemory memory() const {
+    MapMemory m;
+    m.bytes_reserved = bytes_reserved_;
+    m.bytes_per_block = sizeof(Block);
+    m.blocks_used = blocks_.used();
+    m.block_capacity = blocks_.capacity();
+    m.nodes_used = nodes_.used();
+    m.node_capacity = nodes_.capacity();
+    m.bytes_used = sizeof(Block) * m.blocks_used + sizeof(OctreeNode) * m.nodes_used;
+    m.refusals = refusals_;
+    return m;
+  }
+  std::uint64_t refusals() const { return refusals_; }
+
+ private:
+  void reset_contents(bool clear_hash) {
+    nodes_.reset();
+    blocks_.reset();
+    if (clear_hash) hash_.clear();
+    refusals_ = 0;
+    stamp_ = 0;
+    Result<std::uint32_t> root = nodes_.allocate();
+    OCTOFUSE_CHECK(root.ok() && root.value() == 0);
+    nodes_[0].level = 0;
+    nodes_[0].morton = 0;
+  }
+
+  void allocate_one(const Key& key, AllocationCounts& counts) {
+    const int depth = voxel_depth();
+    const int leaf = block_level();
+    const Eigen::Vector3i corner = key_corner_voxel(key);
+    if (key.level > leaf || !contains_voxel(corner)) {
+      ++counts.rejected;
+      return;
+    }
+    if (key.level == leaf && hash_.find(morton_encode(voxel_to_block(corner))) != kNoIndex) {
+      ++counts.already_allocated;
+      return;
+    }
+    if (key.level == 0) {
+      ++counts.already_allocated;
+      return;
+    }
+    std::uint32_t node = 0;
+    for (int level = 1; level <= key.level; ++level) {
+      const Key here = parent_key_at(key, level, depth);
+      const int child = child_index(here, depth);
+      const std::uint32_t existing = nodes_[node].children[child];
+      if (existing != kNoIndex) {
+        if (level == key.level) ++counts.already_allocated;
+        node = existing;
+        continue;
+      }
+      if (level == leaf) {
+        Result<std::uint32_t> b = blocks_.allocate();
+        if (!b.ok()) {
+          ++counts.refused;
+          ++refusals_;
+          return;
+        }
+        Block& block = blocks_[b.value()];
+        block.coords = voxel_to_block(corner);
+        block.morton = here.morton;
+        block.parent_node = node;
+        const Status inserted = hash_.insert(morton_encode(block.coords), b.value());
+        OCTOFUSE_CHECK(inserted.ok());  // the hash holds as many entries as the pool
+        nodes_[node].children[child] = b.value();
+        ++counts.new_blocks;
+        return;
+      }
+      Result<std::uint32_t> n = nodes_.allocate();
+      if (!n.ok()) {
+        ++counts.refused;
+        ++refusals_;
+        return;
+      }
+      OctreeNode& fresh = nodes_[n.value()];
+      fresh.parent = node;
+      fresh.morton = here.morton;
+      fresh.level = static_cast<std::uint8_t>(level);
+      nodes_[node].children[child] = n.value();
+      ++counts.new_nodes;
+      node = n.value();
+    }
+  }
+
+  void summarise_node(OctreeNode& n, bool children_are_blocks) {
+    float sum_tsdf = 0.0f;
+    float sum_weight = 0.0f;
+    float lo = 1.0f;
+    float hi = -1.0f;
+    int observed = 0;
+    for (int c = 0; c < 8; ++c) {
+      const std::uint32_t child = n.children[c];
+      if (child == kNoIndex) continue;
+      float mean;
+      float weight;
+      float child_lo;
+      float child_hi;
+      if (children_are_blocks) {
+        const Block& b = blocks_[child];
+        const VoxelT& coarse = b.voxels[block_scale_offset(kMaxBlockScale)];
+        mean = voxel_tsdf(coarse);
+        weight = voxel_weight(coarse);
+        child_lo = b.tsdf_min;
+        child_hi = b.tsdf_max;
+      } else {
+        const NodeSummary& s = nodes_[child].summary;
+        mean = s.tsdf_mean;
+        weight = s.weight_mean;
+        child_lo = s.tsdf_min;
+        child_hi = s.tsdf_max;
+      }
+      if (!(weight > 0.0f)) continue;
+      ++observed;
+      sum_tsdf += mean;
+      sum_weight += weight;
+      lo = child_lo < lo ? child_lo : lo;
+      hi = child_hi > hi ? child_hi : hi;
+    }
+    if (observed == 0) return;
+    n.summary.tsdf_mean = sum_tsdf / static_cast<float>(observed);
+    n.summary.weight_mean = std::ceil(sum_weight / static_cast<float>(observed));
+    n.summary.tsdf_min = lo;
+    n.summary.tsdf_max = hi;
+  }
+
+  MapConfig config_;
+  IndexPool<OctreeNode> nodes_;
+  IndexPool<Block> blocks_;
+  BlockHash hash_;
+  std::uint32_t* scratch_a_ = nullptr;
+  std::uint32_t* scratch_b_ = nullptr;
+  std::uint32_t* block_order_ = nullptr;
+  std::size_t bytes_reserved_ = 0;
+  std::uint64_t refusals_ = 0;
+  std::uint32_t stamp_ = 0;
+  bool reserved_ = false;
+};
+
+extern template class Octree<TsdfVoxel>;
+extern template class Octree<MultiresVoxel>;
+
+}  // namespace octofuse

@@ -1,0 +1,82 @@
+#pragma once
+// A leaf of the octree: 8^3 voxels plus their mip levels 4^3, 2^3 and 1^3, stored contiguously
+// (585 voxels, level offsets 0 / 512 / 576 / 584; +14% over a single-resolution block). Voxels are
+// cell-centred, so a voxel at scale s+1 covers exactly 8 voxels at scale s and its value is their
+// mean. Inside a level of side n = 8 >> s the index is x + y*n + z*n^2, (x, y, z) local to the
+// block in voxels of that scale.
+
+#include <cstdint>
+
+#include <Eigen/Core>
+
+#include "octofuse/map/map_config.hpp"
+#include "octofuse/map/voxel.hpp"
+
+namespace octofuse {
+
+inline constexpr int kBlockVoxelCount = 585;
+inline constexpr int kBlockFinestVoxelCount = 512;
+
+// Start of scale s's voxels inside a block.
+constexpr int block_scale_offset(int scale) {
+  return scale == 0 ? 0 : scale == 1 ? 512 : scale == 2 ? 576 : 584;
+}
+// Voxels per side at scale s (8, 4, 2, 1).
+constexpr int block_scale_side(int scale) {
+  return kBlockSide >> scale;
+}
+// Number of voxels at scale s (512, 64, 8, 1).
+constexpr int block_scale_count(int scale) {
+  return block_scale_side(scale) * block_scale_side(scale) * block_scale_side(scale);
+}
+// Index into a block's voxel array of local voxel (x, y, z) at scale s (coordinates in voxels of
+// that scale, each in [0, 8 >> s)).
+constexpr int block_voxel_index(int x, int y, int z, int scale) {
+  return block_scale_offset(scale) + x + y * block_scale_side(scale) +
+         z * block_scale_side(scale) * block_scale_side(scale);
+}
+// Same, from finest-voxel coordinates local to the block ([0, 8) each), snapped to scale s.
+constexpr int block_voxel_index_finest(int x, int y, int z, int scale) {
+  return block_voxel_index(x >> scale, y >> scale, z >> scale, scale);
+}
+
+inline constexpr std::int8_t kNeverIntegrated = -1;
+inline constexpr std::uint32_t kNoIndex = 0xFFFFFFFFu;
+
+template <typename VoxelT>
+struct VoxelBlock {
+  using Voxel = VoxelT;
+
+  Eigen::Vector3i coords = Eigen::Vector3i::Zero();  // block coordinates (finest voxel / 8)
+  std::uint64_t morton = 0;                          // Morton code of the minimum finest voxel
+  std::uint32_t parent_node = kNoIndex;              // index of the inner node holding this block
+  std::uint32_t last_updated_frame = 0;              // frame index of the last integration
+  std::int8_t current_scale = 0;                     // scale the block was last integrated at, 0..3
+  std::int8_t min_scale = kNeverIntegrated;  // finest scale ever integrated, -1 until the first
+  std::uint8_t padding_[2] = {};
+  // Summary of the observed voxels at current_scale, kept by the integrator for empty-space
+  // skipping: min and max normalised TSDF (1 / -1 when nothing is observed, so min > max).
+  float tsdf_min = 1.0f;
+  float tsdf_max = -1.0f;
+  VoxelT voxels[kBlockVoxelCount] = {};
+
+  bool integrated() const { return min_scale != kNeverIntegrated; }
+  // Minimum finest voxel of the block, cube coordinates.
+  Eigen::Vector3i min_voxel() const { return coords * kBlockSide; }
+
+  VoxelT& at(int x, int y, int z, int scale) { return voxels[block_voxel_index(x, y, z, scale)]; }
+  const VoxelT& at(int x, int y, int z, int scale) const {
+    return voxels[block_voxel_index(x, y, z, scale)];
+  }
+  // Voxel at scale s containing finest voxel `voxel` (cube coordinates, inside this block).
+  VoxelT& at_voxel(const Eigen::Vector3i& voxel, int scale) {
+    return voxels[block_voxel_index_finest(voxel.x() & 7, voxel.y() & 7, voxel.z() & 7, scale)];
+  }
+  const VoxelT& at_voxel(const Eigen::Vector3i& voxel, int scale) const {
+    return voxels[block_voxel_index_finest(voxel.x() & 7, voxel.y() & 7, voxel.z() & 7, scale)];
+  }
+  VoxelT* scale_begin(int scale) { return voxels + block_scale_offset(scale); }
+  const VoxelT* scale_begin(int scale) const { return voxels + block_scale_offset(scale); }
+};
+
+}  // namespace octofuse

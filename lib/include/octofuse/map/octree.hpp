@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <type_traits>
 
 #include <Eigen/Core>
 
@@ -115,17 +116,16 @@ class Octree {
     OCTOFUSE_TRY(a);
     Result<std::uint32_t*> b = arena.template allocate_array<std::uint32_t>(config.node_capacity);
     OCTOFUSE_TRY(b);
-    Result<std::uint32_t*> order =
-        arena.template allocate_array<std::uint32_t>(config.block_capacity);
-    OCTOFUSE_TRY(order);
     OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
     scratch_a_ = a.value();
     scratch_b_ = b.value();
-    block_order_ = order.value();
     config_ = config;
     bytes_reserved_ = arena.bytes_used() - start;
-    reserved_ = true;
-    reset_contents(/*clear_hash=*/false);
+    // A sizer hands out no memory: nothing to initialise, and the octree stays unusable.
+    if constexpr (!std::is_same_v<Arena, ArenaSizer>) {
+      reserved_ = true;
+      reset_contents(/*clear_hash=*/false);
+    }
     return ok_status();
   }
 
@@ -519,7 +519,6 @@ class Octree {
   BlockHash hash_;
   std::uint32_t* scratch_a_ = nullptr;
   std::uint32_t* scratch_b_ = nullptr;
-  std::uint32_t* block_order_ = nullptr;
   std::size_t bytes_reserved_ = 0;
   std::uint64_t refusals_ = 0;
   std::uint32_t stamp_ = 0;

@@ -1,0 +1,322 @@
+#include "octofuse/map/octree.hpp"
+
+#include <algorithm>
+#include <random>
+
+#include <catch2/catch.hpp>
+
+#include "octofuse/map/mip.hpp"
+#include "support/alloc_counter.hpp"
+#include "unit/map/arena_buffer.hpp"
+
+namespace octofuse {
+namespace {
+
+MapConfig small_config(std::uint32_t blocks = 64, std::uint32_t nodes = 256) {
+  MapConfig config;
+  config.voxel_size_m = 0.01f;
+  config.voxel_depth = 8;  // 256 voxels, 2.56 m
+  config.origin_W = Eigen::Vector3f(-1.28f, -1.28f, -1.28f);
+  config.block_capacity = blocks;
+  config.node_capacity = nodes;
+  return config;
+}
+
+template <typename VoxelT>
+struct MapFixture {
+  explicit MapFixture(const MapConfig& config) : buffer(Octree<VoxelT>::bytes_required(config)) {
+    REQUIRE(map.reserve(buffer.arena(), config).ok());
+  }
+  test::ArenaBuffer buffer;
+  Octree<VoxelT> map;
+};
+
+TEST_CASE("bytes_required is exact", "[map][octree]") {
+  for (const MapConfig& config : {small_config(), small_config(1000, 3000)}) {
+    const std::size_t need = Octree<MultiresVoxel>::bytes_required(config);
+    REQUIRE(need > 0);
+    CHECK(need >= config.block_capacity * sizeof(VoxelBlock<MultiresVoxel>));
+    test::ArenaBuffer exact(need);
+    Octree<MultiresVoxel> map;
+    REQUIRE(map.reserve(exact.arena(), config).ok());
+    CHECK(exact.arena().bytes_used() == need);
+    CHECK(map.memory().bytes_reserved == need);
+
+    test::ArenaBuffer short_by_one(need - 1);
+    Octree<MultiresVoxel> too_big;
+    CHECK(too_big.reserve(short_by_one.arena(), config) == StatusCode::resource_exhausted);
+  }
+  // The single-resolution map is smaller per block.
+  CHECK(Octree<TsdfVoxel>::bytes_required(small_config()) <
+        Octree<MultiresVoxel>::bytes_required(small_config()));
+}
+
+TEST_CASE("invalid configs are refused", "[map][octree]") {
+  MapConfig bad = small_config();
+  bad.voxel_depth = 3;
+  CHECK(validate(bad) == StatusCode::invalid_argument);
+  bad = small_config();
+  bad.voxel_depth = 22;
+  CHECK(validate(bad) == StatusCode::invalid_argument);
+  bad = small_config();
+  bad.voxel_size_m = 0.0f;
+  CHECK(validate(bad) == StatusCode::invalid_argument);
+  bad = small_config();
+  bad.block_capacity = 0;
+  CHECK(validate(bad) == StatusCode::invalid_argument);
+  bad = small_config();
+  bad.origin_W.x() = std::numeric_limits<float>::quiet_NaN();
+  CHECK(validate(bad) == StatusCode::invalid_argument);
+  CHECK(Octree<TsdfVoxel>::bytes_required(bad) == 0);
+  CHECK(validate(small_config()).ok());
+  MapConfig deep = small_config();
+  deep.voxel_depth = 16;
+  CHECK(validate(deep).ok());
+}
+
+TEST_CASE("centred config puts the centre in the middle of the cube", "[map][octree]") {
+  const MapConfig c = MapConfig::centred({1.0f, 2.0f, 3.0f}, 0.002f, 12, 10, 10);
+  CHECK(c.size_m() == Approx(8.192f));
+  CHECK(c.origin_W.x() == Approx(1.0f - 4.096f));
+  CHECK(c.block_level() == 9);
+}
+
+TEST_CASE("coordinate conversions are cell-centred", "[map][octree]") {
+  MapFixture<TsdfVoxel> f(small_config());
+  const Octree<TsdfVoxel>& map = f.map;
+  constexpr float kTolerance_m = 1e-6f;
+  CHECK(map.point_to_voxel({-1.28f + 0.005f, 0.0f, 1.2799f}) == Eigen::Vector3i(0, 128, 255));
+  CHECK((map.voxel_centre_W({0, 0, 0}) - Eigen::Vector3f::Constant(-1.275f)).norm() < kTolerance_m);
+  // The scale-2 voxel containing finest voxel 5 spans voxels 4..7: centre at 6.0 voxels.
+  CHECK(map.voxel_centre_W({5, 0, 0}, 2).x() == Approx(-1.28f + 0.06f));
+  CHECK(map.block_centre_W({1, 0, 0}).x() == Approx(-1.28f + 0.12f));
+  CHECK(map.voxel_of_point({0.0f, 0.0f, 0.0f}).ok());
+  CHECK(map.voxel_of_point({1.3f, 0.0f, 0.0f}).status() == StatusCode::out_of_range);
+  CHECK(map.voxel_of_point({-1.2801f, 0.0f, 0.0f}).status() == StatusCode::out_of_range);
+  CHECK(map.voxel_of_point({std::numeric_limits<float>::quiet_NaN(), 0.0f, 0.0f}).status() ==
+        StatusCode::out_of_range);
+  CHECK(map.voxel_of_point({1e30f, -1e30f, 0.0f}).status() == StatusCode::out_of_range);
+}
+
+TEST_CASE("allocating the same key twice gives one block", "[map][octree]") {
+  MapFixture<MultiresVoxel> f(small_config());
+  Octree<MultiresVoxel>& map = f.map;
+  const Key key = map.block_key({3, 4, 5});
+  const Key keys[] = {key, key};
+  AllocationCounts counts;
+  REQUIRE(map.allocate(keys, 2, &counts).ok());
+  CHECK(counts.new_blocks == 1);
+  CHECK(counts.already_allocated == 1);
+  CHECK(map.block_count() == 1);
+  REQUIRE(map.allocate(&key, 1, &counts).ok());
+  CHECK(counts.new_blocks == 0);
+  CHECK(map.block_count() == 1);
+  // Depth 8, blocks at level 5: the root plus levels 1..4.
+  CHECK(map.node_count() == 5);
+  VoxelBlock<MultiresVoxel>* block = map.find_block(Eigen::Vector3i(3, 4, 5));
+  REQUIRE(block != nullptr);
+  CHECK(block->coords == Eigen::Vector3i(3, 4, 5));
+  CHECK(map.find_block(key) == block);
+  CHECK(map.find_block_at_voxel({24, 39, 47}) == block);
+  CHECK(map.find_block_at_voxel({24, 39, 48}) == nullptr);
+  CHECK(map.find_block_at_point(map.voxel_centre_W({31, 32, 40})) == block);
+  Result<std::uint32_t> again = map.allocate_block({3, 4, 5});
+  REQUIRE(again.ok());
+  CHECK(&map.block(again.value()) == block);
+}
+
+TEST_CASE("exhaustion at exactly the capacity leaves earlier blocks intact", "[map][octree]") {
+  constexpr std::uint32_t kCapacity = 10;
+  MapFixture<TsdfVoxel> f(small_config(kCapacity, 256));
+  Octree<TsdfVoxel>& map = f.map;
+  for (std::uint32_t i = 0; i < kCapacity; ++i) {
+    Result<std::uint32_t> b = map.allocate_block({static_cast<int>(i), 1, 2});
+    REQUIRE(b.ok());
+    map.block(b.value()).voxels[0] = TsdfVoxel{0.5f, static_cast<float>(i + 1)};
+  }
+  CHECK(map.refusals() == 0);
+  CHECK(map.allocate_block({20, 1, 2}).status() == StatusCode::resource_exhausted);
+  CHECK(map.refusals() == 1);
+  const Key keys[] = {map.block_key({21, 1, 2}), map.block_key({0, 1, 2})};
+  AllocationCounts counts;
+  CHECK(map.allocate(keys, 2, &counts) == StatusCode::resource_exhausted);
+  CHECK(counts.refused == 1);
+  CHECK(counts.already_allocated == 1);
+  CHECK(map.refusals() == 2);
+  CHECK(map.block_count() == kCapacity);
+  CHECK(map.find_block(Eigen::Vector3i(20, 1, 2)) == nullptr);
+  for (std::uint32_t i = 0; i < kCapacity; ++i) {
+    const VoxelBlock<TsdfVoxel>* b = map.find_block(Eigen::Vector3i(static_cast<int>(i), 1, 2));
+    REQUIRE(b != nullptr);
+    CHECK(b->voxels[0].weight == static_cast<float>(i + 1));
+  }
+  const MapMemory m = map.memory();
+  CHECK(m.blocks_used == kCapacity);
+  CHECK(m.block_capacity == kCapacity);
+  CHECK(m.refusals == 2);
+  CHECK(m.bytes_used ==
+        kCapacity * sizeof(VoxelBlock<TsdfVoxel>) + m.nodes_used * sizeof(OctreeNode));
+}
+
+TEST_CASE("a full node pool refuses, counts, and the map stays usable", "[map][octree]") {
+  // Depth 8: a block needs 4 inner nodes below the root. 6 nodes fit one chain plus one more.
+  MapFixture<TsdfVoxel> f(small_config(64, 6));
+  Octree<TsdfVoxel>& map = f.map;
+  REQUIRE(map.allocate_block({0, 0, 0}).ok());
+  CHECK(map.allocate_block({31, 31, 31}).status() == StatusCode::resource_exhausted);
+  CHECK(map.refusals() == 1);
+  REQUIRE(map.allocate_block({1, 0, 0}).ok());  // shares the chain
+  CHECK(map.block_count() == 2);
+}
+
+TEST_CASE("out-of-cube keys and points never write", "[map][octree]") {
+  MapFixture<TsdfVoxel> f(small_config());
+  Octree<TsdfVoxel>& map = f.map;
+  CHECK(map.allocate_block({32, 0, 0}).status() == StatusCode::out_of_range);
+  CHECK(map.allocate_block({-1, 0, 0}).status() == StatusCode::out_of_range);
+  const Key outside = key_of_voxel({300, 0, 0}, map.block_level(), 9);
+  const Key too_fine = key_of_voxel({0, 0, 0}, map.block_level() + 1, map.voxel_depth());
+  const Key keys[] = {outside, too_fine};
+  AllocationCounts counts;
+  CHECK(map.allocate(keys, 2, &counts) == StatusCode::out_of_range);
+  CHECK(counts.rejected == 2);
+  CHECK(map.block_count() == 0);
+  CHECK(map.node_count() == 1);
+  CHECK(map.voxel({-1, 0, 0}) == nullptr);
+  CHECK(map.voxel({256, 0, 0}) == nullptr);
+  CHECK(map.find_block_at_point({5.0f, 0.0f, 0.0f}) == nullptr);
+  CHECK(map.lookup({0, 0, 256}).level == -1);
+}
+
+TEST_CASE("voxel access at any scale and across block borders", "[map][octree]") {
+  MapFixture<MultiresVoxel> f(small_config());
+  Octree<MultiresVoxel>& map = f.map;
+  REQUIRE(map.allocate_block({1, 1, 1}).ok());
+  REQUIRE(map.allocate_block({2, 1, 1}).ok());
+  MultiresVoxel* v = map.voxel({15, 8, 8}, 0);
+  REQUIRE(v != nullptr);
+  v->x = 0.25f;
+  map.voxel({16, 8, 8}, 0)->x = -0.5f;
+  map.voxel({16, 8, 8}, 3)->x = 0.75f;  // the whole second block at scale 3
+  const Octree<MultiresVoxel>& cmap = map;
+  const Eigen::Vector3i step_x(1, 0, 0);
+  CHECK(cmap.neighbour({15, 8, 8}, 0, step_x)->x == -0.5f);
+  CHECK(cmap.neighbour({16, 8, 8}, 0, -step_x)->x == 0.25f);
+  CHECK(cmap.neighbour({9, 10, 11}, 3, step_x)->x == 0.75f);
+  CHECK(cmap.neighbour({16, 8, 8}, 3, step_x) == nullptr);  // block (3,1,1) absent
+  CHECK(cmap.voxel({23, 15, 15}, 3) == cmap.voxel({16, 8, 8}, 3));
+}
+
+TEST_CASE("lookup finds the deepest allocated octant", "[map][octree]") {
+  MapFixture<TsdfVoxel> f(small_config());
+  Octree<TsdfVoxel>& map = f.map;
+  REQUIRE(map.allocate_block({0, 0, 0}).ok());
+  OctantLookup hit = map.lookup({3, 4, 5});
+  CHECK(hit.level == map.block_level());
+  CHECK(hit.block == map.find_block_index({0, 0, 0}));
+  CHECK(map.node(hit.node).level == map.block_level() - 1);
+  // Voxel 8 is in the sibling block, absent: the deepest octant is the block's parent.
+  OctantLookup sibling = map.lookup({8, 0, 0});
+  CHECK(sibling.level == map.block_level() - 1);
+  CHECK(sibling.block == kNoIndex);
+  // Far corner: only the root holds it; the empty octant is half the cube.
+  OctantLookup far = map.lookup({255, 255, 255});
+  CHECK(far.level == 0);
+  CHECK(far.node == Octree<TsdfVoxel>::root_index());
+  CHECK(octant_size_voxels(far.level + 1, map.voxel_depth()) == 128);
+
+  const Key node_key = key_of_voxel({0, 0, 0}, 2, map.voxel_depth());
+  const std::uint32_t n = map.find_node_index(node_key);
+  REQUIRE(n != kNoIndex);
+  CHECK(map.node(n).key() == node_key);
+  CHECK(map.find_node_index(key_of_voxel({200, 0, 0}, 2, map.voxel_depth())) == kNoIndex);
+  // Allocating an inner node key directly.
+  const Key inner = key_of_voxel({128, 128, 128}, 3, map.voxel_depth());
+  AllocationCounts counts;
+  REQUIRE(map.allocate(&inner, 1, &counts).ok());
+  CHECK(counts.new_nodes == 3);
+  CHECK(map.lookup({130, 129, 140}).level == 3);
+}
+
+TEST_CASE("iteration order is the allocation order and is deterministic", "[map][octree]") {
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> coord(0, 31);
+  Key keys[40];
+  MapFixture<TsdfVoxel> a(small_config());
+  MapFixture<TsdfVoxel> b(small_config());
+  for (Key& k : keys) k = a.map.block_key({coord(rng), coord(rng), coord(rng)});
+  std::sort(std::begin(keys), std::end(keys));
+  REQUIRE(a.map.allocate(keys, 40).ok());
+  REQUIRE(b.map.allocate(keys, 40).ok());
+  REQUIRE(a.map.block_count() == b.map.block_count());
+  std::uint64_t previous = 0;
+  for (std::uint32_t i = 0; i < a.map.block_count(); ++i) {
+    CHECK(a.map.block(i).coords == b.map.block(i).coords);
+    if (i > 0) CHECK(a.map.block(i).morton > previous);  // sorted keys -> Morton order
+    previous = a.map.block(i).morton;
+  }
+  std::uint32_t visited = 0;
+  a.map.for_each_block([&visited](VoxelBlock<TsdfVoxel>&) { ++visited; });
+  CHECK(visited == a.map.block_count());
+}
+
+TEST_CASE("node summaries propagate up to the root", "[map][octree]") {
+  MapFixture<MultiresVoxel> f(small_config());
+  Octree<MultiresVoxel>& map = f.map;
+  const std::uint32_t b0 = map.allocate_block({0, 0, 0}).value();
+  const std::uint32_t b1 = map.allocate_block({1, 0, 0}).value();
+  const std::uint32_t b2 = map.allocate_block({31, 31, 31}).value();  // stays unobserved
+  for (std::uint32_t idx : {b0, b1}) {
+    VoxelBlock<MultiresVoxel>& block = map.block(idx);
+    const float value = idx == b0 ? 0.5f : -0.25f;
+    for (int i = 0; i < kBlockFinestVoxelCount; ++i) block.voxels[i] = {value, value, 4.0f, 0.0f};
+    propagate_block_up(block, 0, kMaxBlockScale);
+    Octree<MultiresVoxel>::update_block_summary(block);
+  }
+  const std::uint32_t all[] = {b0, b1, b2};
+  map.propagate_summaries(all, 3);
+  const OctreeNode& parent = map.node(map.block(b0).parent_node);
+  CHECK(parent.summary.tsdf_mean == 0.125f);
+  CHECK(parent.summary.weight_mean == 4.0f);
+  CHECK(parent.summary.tsdf_min == -0.25f);
+  CHECK(parent.summary.tsdf_max == 0.5f);
+  const NodeSummary& root = map.node(Octree<MultiresVoxel>::root_index()).summary;
+  CHECK(root.tsdf_mean == 0.125f);  // the unobserved branch does not dilute it
+  CHECK(root.tsdf_min == -0.25f);
+  CHECK_FALSE(map.node(map.block(b2).parent_node).summary.observed());
+}
+
+TEST_CASE("clear forgets blocks and keeps the memory", "[map][octree]") {
+  MapFixture<TsdfVoxel> f(small_config(4, 64));
+  for (int i = 0; i < 4; ++i) REQUIRE(f.map.allocate_block({i, 0, 0}).ok());
+  CHECK(f.map.allocate_block({9, 0, 0}).status() == StatusCode::resource_exhausted);
+  f.map.clear();
+  CHECK(f.map.block_count() == 0);
+  CHECK(f.map.refusals() == 0);
+  CHECK(f.map.find_block(Eigen::Vector3i(0, 0, 0)) == nullptr);
+  REQUIRE(f.map.allocate_block({9, 0, 0}).ok());
+  CHECK(f.map.block(0).voxels[0].weight == 0.0f);
+}
+
+TEST_CASE("no heap allocation after reserve across 10000 allocations and lookups",
+          "[map][octree]") {
+  MapConfig config = small_config(10000, 20000);
+  config.voxel_depth = 10;
+  MapFixture<MultiresVoxel> f(config);
+  std::mt19937 rng(1);
+  std::uniform_int_distribution<int> coord(0, 31);
+  test::AllocationScope scope;
+  std::uint32_t found = 0;
+  for (int i = 0; i < 10000; ++i) {
+    const Eigen::Vector3i b(coord(rng), coord(rng), coord(rng));
+    Result<std::uint32_t> index = f.map.allocate_block(b);
+    REQUIRE(index.ok());
+    found += f.map.find_block(b) != nullptr ? 1u : 0u;
+    found += f.map.voxel(block_to_voxel(b), 2) != nullptr ? 1u : 0u;
+  }
+  CHECK(scope.allocations() == 0);
+  CHECK(found == 20000);
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -1,0 +1,128 @@
+#include "octofuse/ports/host/trajectory_io.hpp"
+
+#include <cerrno>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+
+namespace octofuse::host {
+namespace {
+
+bool write_pose(std::FILE* file, const TimedPose& pose) {
+  const Eigen::Vector3d t = pose.T_W_C.translation();
+  Eigen::Quaterniond q(pose.T_W_C.rotation());
+  q.normalize();
+  // %.9g keeps sub-micrometre positions; TUM tools accept any float syntax.
+  return std::fprintf(file, "%.6f %.9g %.9g %.9g %.9g %.9g %.9g %.9g\n", pose.timestamp_s, t.x(),
+                      t.y(), t.z(), q.x(), q.y(), q.z(), q.w()) > 0;
+}
+
+}  // namespace
+
+TumTrajectoryWriter::~TumTrajectoryWriter() {
+  close().ignore();
+}
+
+Status TumTrajectoryWriter::open(const char* path) {
+  close().ignore();
+  std::snprintf(path_, sizeof(path_), "%s", path);
+  file_ = std::fopen(path, "w");
+  if (file_ == nullptr) {
+    error_.set("%s: cannot create (%s)", path, std::strerror(errno));
+    return StatusCode::unavailable;
+  }
+  if (std::fputs("# timestamp tx ty tz qx qy qz qw (camera to world)\n", file_) < 0) {
+    error_.set("%s: write failed", path_);
+    return StatusCode::data_loss;
+  }
+  return ok_status();
+}
+
+Status TumTrajectoryWriter::append(const TimedPose& pose) {
+  if (file_ == nullptr) {
+    error_.set("trajectory writer: not open");
+    return StatusCode::failed_precondition;
+  }
+  if (!write_pose(file_, pose)) {
+    error_.set("%s: write failed", path_);
+    return StatusCode::data_loss;
+  }
+  return ok_status();
+}
+
+Status TumTrajectoryWriter::close() {
+  if (file_ == nullptr) return ok_status();
+  const bool ok = std::fclose(file_) == 0;
+  file_ = nullptr;
+  if (!ok) {
+    error_.set("%s: write failed on close", path_);
+    return StatusCode::data_loss;
+  }
+  return ok_status();
+}
+
+Status write_tum_trajectory(const char* path, const std::vector<TimedPose>& poses,
+                            ErrorText* error) {
+  TumTrajectoryWriter writer;
+  Status status = writer.open(path);
+  for (std::size_t i = 0; status.ok() && i < poses.size(); ++i) status = writer.append(poses[i]);
+  if (status.ok()) status = writer.close();
+  if (!status.ok() && error != nullptr) error->set("%s", writer.last_error());
+  return status;
+}
+
+Status read_tum_trajectory(const char* path, std::vector<TimedPose>* poses, ErrorText* error) {
+  ErrorText scratch;
+  ErrorText& err = error != nullptr ? *error : scratch;
+  poses->clear();
+  std::FILE* file = std::fopen(path, "r");
+  if (file == nullptr) {
+    err.set("%s: cannot open (%s)", path, std::strerror(errno));
+    return StatusCode::unavailable;
+  }
+  char line[1024];
+  int line_number = 0;
+  Status status;
+  while (std::fgets(line, sizeof(line), file) != nullptr) {
+    ++line_number;
+    const char* p = line;
+    while (*p == ' ' || *p == '\t') ++p;
+    if (*p == '#' || *p == '\n' || *p == '\r' || *p == '\0') continue;
+    double v[8];
+    int parsed = 0;
+    for (; parsed < 8; ++parsed) {
+      char* end = nullptr;
+      v[parsed] = std::strtod(p, &end);
+      if (end == p || !std::isfinite(v[parsed])) break;
+      p = end;
+    }
+    if (parsed != 8) {
+      err.set("%s:%d: expected 8 numbers (timestamp tx ty tz qx qy qz qw), got %d", path,
+              line_number, parsed);
+      status = StatusCode::data_loss;
+      break;
+    }
+    Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
+    const double norm = q.norm();
+    if (!(norm > 1e-6)) {
+      err.set("%s:%d: quaternion has zero length", path, line_number);
+      status = StatusCode::data_loss;
+      break;
+    }
+    if (!poses->empty() && v[0] < poses->back().timestamp_s) {
+      err.set("%s:%d: timestamp %.6f goes backwards (previous %.6f)", path, line_number, v[0],
+              poses->back().timestamp_s);
+      status = StatusCode::data_loss;
+      break;
+    }
+    TimedPose pose;
+    pose.timestamp_s = v[0];
+    pose.T_W_C.linear() = q.normalized().toRotationMatrix();
+    pose.T_W_C.translation() = Eigen::Vector3d(v[1], v[2], v[3]);
+    poses->push_back(pose);
+  }
+  std::fclose(file);
+  return status;
+}
+
+}  // namespace octofuse::host

@@ -1,0 +1,112 @@
+#pragma once
+// Ray-casting the map from a camera (paper section 4.4): per pixel, march from near to far,
+// jump over unallocated octants in one step (the octree says how big the free octant is), step
+// max(f * mu, voxel) near the surface, sample by multi-resolution trilinear interpolation
+// (interpolation.hpp), find the + to - zero crossing by linear interpolation and take the normal
+// from TSDF gradients at the same scale logic.
+//
+// Output, in buffers reserved at init: a SurfaceMap in the world frame (what ICP associates
+// against) and an 8-bit image of the interpolation scale per pixel (kNoScale where invalid).
+//
+// Work bound: an optional per-frame step budget. Rows are independent tasks and each row gets a
+// fixed share of the budget (budget / height, the remainder to the first rows), so the result
+// does not depend on the worker count. When a row's share runs out, its remaining pixels stay
+// invalid and the stats say how many.
+
+#include <cstddef>
+#include <cstdint>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/parallel.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/image/image_view.hpp"
+#include "octofuse/image/surface_map.hpp"
+#include "octofuse/map/octree.hpp"
+#include "octofuse/math/camera.hpp"
+#include "octofuse/math/se3.hpp"
+#include "octofuse/render/shade.hpp"
+
+namespace octofuse {
+
+struct RaycastConfig {
+  int width = 320;  // working resolution
+  int height = 240;
+  float near_m = 0.4f;  // along the optical axis
+  float far_m = 4.0f;
+  float mu_m = 0.08f;             // truncation distance the map was fused with
+  std::uint64_t step_budget = 0;  // march steps per frame over all pixels; 0 = unbounded
+};
+
+struct RaycastStats {
+  std::uint64_t steps = 0;  // march steps taken (samples and empty-space jumps)
+  std::uint32_t valid_pixels = 0;
+  std::uint32_t budget_cut_pixels = 0;  // left invalid because their row's step share ran out
+  std::uint32_t scale_pixels[4] = {};   // valid pixels per interpolation scale
+
+  bool budget_hit() const { return budget_cut_pixels > 0; }
+};
+
+// ok, or invalid_argument for a non-positive size, near/far not 0 < near < far, mu not > 0.
+Status validate(const RaycastConfig& config);
+
+template <typename VoxelT>
+class Raycaster {
+ public:
+  // Exactly what reserve() takes from a LinearArena with a kArenaAlignment-aligned offset.
+  static std::size_t bytes_required(const RaycastConfig& config) {
+    ArenaSizer sizer;
+    Raycaster probe;
+    if (!probe.reserve(sizer, config).ok()) return 0;
+    return sizer.bytes_used();
+  }
+
+  // Carves the output images and per-row counters. invalid_argument: validate(config) failed;
+  // resource_exhausted: the arena is too small.
+  template <typename Arena>
+  Status reserve(Arena& arena, const RaycastConfig& config) {
+    OCTOFUSE_TRY(validate(config));
+    const std::size_t pixels =
+        static_cast<std::size_t>(config.width) * static_cast<std::size_t>(config.height);
+    const std::size_t rows = static_cast<std::size_t>(config.height);
+    OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
+    Result<Eigen::Vector3f*> vertices = arena.template allocate_array<Eigen::Vector3f>(pixels);
+    OCTOFUSE_TRY(vertices);
+    Result<Eigen::Vector3f*> normals = arena.template allocate_array<Eigen::Vector3f>(pixels);
+    OCTOFUSE_TRY(normals);
+    Result<std::uint8_t*> scales = arena.template allocate_array<std::uint8_t>(pixels);
+    OCTOFUSE_TRY(scales);
+    Result<RaycastStats*> row_stats =
+        arena.template allocate_array<RaycastStats>(rows, kArenaAlignment);
+    OCTOFUSE_TRY(row_stats);
+    OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
+    config_ = config;
+    surface_W_.vertices = ImageView<Eigen::Vector3f>(vertices.value(), config.width, config.height);
+    surface_W_.normals = ImageView<Eigen::Vector3f>(normals.value(), config.width, config.height);
+    scale_ = ImageView<std::uint8_t>(scales.value(), config.width, config.height);
+    row_stats_ = row_stats.value();
+    return ok_status();
+  }
+
+  // Ray-casts `map` from the camera at T_W_C (camera to world). `camera` must have the reserved
+  // width and height. Returns the frame's stats, or invalid_argument (camera invalid or of
+  // another size, pose not finite) / failed_precondition (not reserved). Allocates nothing.
+  Result<RaycastStats> raycast(const Octree<VoxelT>& map, const PinholeCamera& camera,
+                               const Se3d& T_W_C, const WorkerTeam& team);
+
+  const RaycastConfig& config() const { return config_; }
+  // Valid until the next raycast().
+  SurfaceMap surface_W() const { return surface_W_; }
+  ImageView<const std::uint8_t> scale_image() const { return scale_; }
+
+ private:
+  RaycastConfig config_;
+  SurfaceMap surface_W_;
+  ImageView<std::uint8_t> scale_;
+  RaycastStats* row_stats_ = nullptr;
+};
+
+extern template class Raycaster<TsdfVoxel>;
+extern template class Raycaster<MultiresVoxel>;
+
+}  // namespace octofuse

@@ -1,0 +1,234 @@
+#include "octofuse/render/raycaster.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "octofuse/render/interpolation.hpp"
+
+namespace octofuse {
+namespace {
+
+// Past an empty octant's far face by this fraction of a voxel, so the next lookup lands inside
+// the following octant despite rounding.
+constexpr float kExitNudge_voxels = 1e-3f;
+
+struct Ray {
+  Eigen::Vector3f origin_W;
+  Eigen::Vector3f dir_W;  // unit
+};
+
+// Entry/exit distances of the ray through the axis-aligned box [lo, hi]; false when it misses.
+bool clip_to_box(const Ray& ray, const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, float& t0,
+                 float& t1) {
+  for (int a = 0; a < 3; ++a) {
+    const float d = ray.dir_W[a];
+    const float o = ray.origin_W[a];
+    if (d == 0.0f) {
+      if (o < lo[a] || o > hi[a]) return false;
+      continue;
+    }
+    float ta = (lo[a] - o) / d;
+    float tb = (hi[a] - o) / d;
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+  }
+  return t0 <= t1;
+}
+
+// Distance along the ray at which it leaves the box [lo, hi] it is inside.
+float exit_distance(const Ray& ray, const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) {
+  float t = std::numeric_limits<float>::max();
+  for (int a = 0; a < 3; ++a) {
+    const float d = ray.dir_W[a];
+    if (d > 0.0f) t = std::min(t, (hi[a] - ray.origin_W[a]) / d);
+    if (d < 0.0f) t = std::min(t, (lo[a] - ray.origin_W[a]) / d);
+  }
+  return t;
+}
+
+struct PixelHit {
+  Eigen::Vector3f p_W;
+  Eigen::Vector3f n_W;
+  int scale;
+};
+
+enum class MarchResult { hit, miss, out_of_steps };
+
+template <typename VoxelT>
+MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const Ray& ray,
+                  float t_near, float t_far, std::uint64_t& steps_left, std::uint64_t& steps,
+                  PixelHit& hit) {
+  const float voxel_m = map.voxel_size_m();
+  const Eigen::Vector3f cube_lo = map.config().origin_W;
+  const Eigen::Vector3f cube_hi = cube_lo + Eigen::Vector3f::Constant(map.config().size_m());
+  float t0 = t_near;
+  float t1 = t_far;
+  if (!clip_to_box(ray, cube_lo, cube_hi, t0, t1)) return MarchResult::miss;
+
+  float t = t0;
+  bool have_prev = false;
+  float prev_t = 0.0f;
+  float prev_f = 0.0f;
+  TsdfSample sample;
+  while (t <= t1) {
+    if (steps_left == 0) return MarchResult::out_of_steps;
+    --steps_left;
+    ++steps;
+    const Eigen::Vector3f p_W = ray.origin_W + t * ray.dir_W;
+    const Eigen::Vector3i voxel = map.point_to_voxel(p_W);
+    if (!map.contains_voxel(voxel)) return MarchResult::miss;
+    if (map.find_block_index(voxel_to_block(voxel)) == kNoIndex) {
+      // Free octant: jump to its far face in one step.
+      const OctantLookup where = map.lookup(voxel);
+      const int free_level = std::min(where.level + 1, map.block_level());
+      const int size = octant_size_voxels(free_level, map.voxel_depth());
+      const Eigen::Vector3i corner((voxel.x() / size) * size, (voxel.y() / size) * size,
+                                   (voxel.z() / size) * size);
+      const Eigen::Vector3f lo = cube_lo + corner.cast<float>() * voxel_m;
+      const Eigen::Vector3f hi = lo + Eigen::Vector3f::Constant(static_cast<float>(size) * voxel_m);
+      t = std::max(exit_distance(ray, lo, hi), t) + kExitNudge_voxels * voxel_m;
+      have_prev = false;
+      continue;
+    }
+    if (!sample_tsdf(map, p_W, sample)) {
+      t += voxel_m;
+      have_prev = false;
+      continue;
+    }
+    const float f = sample.tsdf;
+    if (have_prev && prev_f > 0.0f && f <= 0.0f) {
+      // Zero crossing by linear interpolation between the last two samples.
+      const float t_hit = prev_t + (t - prev_t) * prev_f / (prev_f - f);
+      const Eigen::Vector3f p_hit_W = ray.origin_W + t_hit * ray.dir_W;
+      TsdfSample at_hit;
+      if (!sample_tsdf(map, p_hit_W, at_hit)) at_hit = sample;
+      // Normal by central differences of the field at the hit's scale; each sample may itself
+      // fall back coarser. Missing neighbours: use the trilinear cell's gradient.
+      const float h = voxel_m * static_cast<float>(1 << at_hit.scale);
+      Eigen::Vector3f gradient = at_hit.gradient;
+      Eigen::Vector3f central;
+      bool complete = true;
+      for (int a = 0; a < 3 && complete; ++a) {
+        Eigen::Vector3f offset = Eigen::Vector3f::Zero();
+        offset[a] = h;
+        TsdfSample plus;
+        TsdfSample minus;
+        complete =
+            sample_tsdf(map, p_hit_W + offset, plus) && sample_tsdf(map, p_hit_W - offset, minus);
+        central[a] = plus.tsdf - minus.tsdf;
+      }
+      if (complete && central.squaredNorm() > 0.0f) gradient = central;
+      const float norm = gradient.norm();
+      if (!(norm > 0.0f) || !std::isfinite(norm)) return MarchResult::miss;
+      hit.p_W = p_hit_W;
+      hit.n_W = gradient / norm;
+      hit.scale = at_hit.scale;
+      return MarchResult::hit;
+    }
+    have_prev = true;
+    prev_t = t;
+    prev_f = f;
+    const float cell_m = voxel_m * static_cast<float>(1 << sample.scale);
+    t += std::max(f * config.mu_m, cell_m);
+  }
+  return MarchResult::miss;
+}
+
+template <typename VoxelT>
+struct RowJob {
+  const Octree<VoxelT>* map;
+  const RaycastConfig* config;
+  const PinholeCamera* camera;
+  Eigen::Matrix3f R_W_C;
+  Eigen::Vector3f t_W_C;
+  SurfaceMap surface_W;
+  ImageView<std::uint8_t> scale;
+  RaycastStats* row_stats;
+
+  void operator()(std::size_t task) const {
+    const int y = static_cast<int>(task);
+    RaycastStats& stats = row_stats[task];
+    stats = RaycastStats{};
+    const std::uint64_t budget = config->step_budget;
+    const std::uint64_t rows = static_cast<std::uint64_t>(config->height);
+    std::uint64_t steps_left = std::numeric_limits<std::uint64_t>::max();
+    if (budget != 0) steps_left = budget / rows + (task < budget % rows ? 1u : 0u);
+    for (int x = 0; x < config->width; ++x) {
+      surface_W.vertices(x, y) = Eigen::Vector3f::Zero();
+      surface_W.normals(x, y) = Eigen::Vector3f::Zero();
+      scale(x, y) = kNoScale;
+      if (steps_left == 0) {
+        ++stats.budget_cut_pixels;
+        continue;
+      }
+      const Eigen::Vector3f dir_C =
+          camera->back_project(static_cast<float>(x), static_cast<float>(y), 1.0f);
+      // Depth limits along z become distances along the unit ray.
+      const float length = dir_C.norm();
+      Ray ray{t_W_C, R_W_C * (dir_C / length)};
+      PixelHit hit;
+      const MarchResult r = march(*map, *config, ray, config->near_m * length,
+                                  config->far_m * length, steps_left, stats.steps, hit);
+      if (r == MarchResult::out_of_steps) {
+        ++stats.budget_cut_pixels;
+        continue;
+      }
+      if (r != MarchResult::hit) continue;
+      // The hit must be in front of the camera (z > 0), a check a reference omitted.
+      const Eigen::Vector3f p_C = R_W_C.transpose() * (hit.p_W - t_W_C);
+      if (!(p_C.z() > 0.0f)) continue;
+      surface_W.vertices(x, y) = hit.p_W;
+      surface_W.normals(x, y) = hit.n_W;
+      scale(x, y) = static_cast<std::uint8_t>(hit.scale);
+      ++stats.valid_pixels;
+      ++stats.scale_pixels[hit.scale];
+    }
+  }
+};
+
+}  // namespace
+
+Status validate(const RaycastConfig& config) {
+  if (config.width <= 0 || config.height <= 0) return StatusCode::invalid_argument;
+  if (!(config.near_m > 0.0f) || !(config.far_m > config.near_m) || !std::isfinite(config.far_m)) {
+    return StatusCode::invalid_argument;
+  }
+  if (!(config.mu_m > 0.0f) || !std::isfinite(config.mu_m)) return StatusCode::invalid_argument;
+  return ok_status();
+}
+
+template <typename VoxelT>
+Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
+                                                const PinholeCamera& camera, const Se3d& T_W_C,
+                                                const WorkerTeam& team) {
+  if (row_stats_ == nullptr || !map.reserved()) return StatusCode::failed_precondition;
+  if (!camera.valid() || camera.width != config_.width || camera.height != config_.height) {
+    return StatusCode::invalid_argument;
+  }
+  if (!T_W_C.matrix().allFinite()) return StatusCode::invalid_argument;
+  RowJob<VoxelT> job{&map,
+                     &config_,
+                     &camera,
+                     T_W_C.linear().cast<float>(),
+                     T_W_C.translation().cast<float>(),
+                     surface_W_,
+                     scale_,
+                     row_stats_};
+  team.for_each_task(static_cast<std::size_t>(config_.height), job);
+  RaycastStats total;
+  for (int y = 0; y < config_.height; ++y) {
+    const RaycastStats& row = row_stats_[y];
+    total.steps += row.steps;
+    total.valid_pixels += row.valid_pixels;
+    total.budget_cut_pixels += row.budget_cut_pixels;
+    for (int s = 0; s < 4; ++s) total.scale_pixels[s] += row.scale_pixels[s];
+  }
+  return total;
+}
+
+template class Raycaster<TsdfVoxel>;
+template class Raycaster<MultiresVoxel>;
+
+}  // namespace octofuse

@@ -1,0 +1,285 @@
+#include "octofuse/render/raycaster.hpp"
+
+#include <catch2/catch.hpp>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <memory>
+
+#include <Eigen/Geometry>
+
+#include "support/alloc_counter.hpp"
+#include "unit/render/analytic_map.hpp"
+
+namespace octofuse {
+namespace {
+
+constexpr float kVoxel_m = 0.01f;
+constexpr float kMu_m = 0.05f;
+constexpr float kDepthTolerance_m = 0.25f * kVoxel_m;
+constexpr float kNormalTolerance_deg = 3.0f;
+constexpr float kPlaneZ_m = 1.0f;
+
+MapConfig test_map_config() {
+  MapConfig config;
+  config.voxel_size_m = kVoxel_m;
+  config.voxel_depth = 8;  // 2.56 m cube
+  config.origin_W = Eigen::Vector3f(-1.28f, -1.28f, 0.0f);
+  config.block_capacity = 20000;
+  config.node_capacity = 20000;
+  return config;
+}
+
+PinholeCamera test_camera() {
+  PinholeCamera camera;
+  camera.fx = 50.0f;
+  camera.fy = 50.0f;
+  camera.cx = 31.5f;
+  camera.cy = 23.5f;
+  camera.width = 64;
+  camera.height = 48;
+  return camera;
+}
+
+template <typename VoxelT>
+struct OwnedRaycaster {
+  std::unique_ptr<std::uint8_t, void (*)(void*)> memory{nullptr, std::free};
+  Raycaster<VoxelT> raycaster;
+
+  explicit OwnedRaycaster(const RaycastConfig& config) {
+    const std::size_t bytes = Raycaster<VoxelT>::bytes_required(config);
+    REQUIRE(bytes > 0);
+    memory.reset(static_cast<std::uint8_t*>(std::aligned_alloc(kArenaAlignment, bytes)));
+    LinearArena arena(memory.get(), bytes);
+    REQUIRE(raycaster.reserve(arena, config).ok());
+    REQUIRE(arena.bytes_used() == bytes);
+  }
+};
+
+RaycastConfig test_raycast_config() {
+  RaycastConfig config;
+  config.width = 64;
+  config.height = 48;
+  config.near_m = 0.1f;
+  config.far_m = 3.0f;
+  config.mu_m = kMu_m;
+  return config;
+}
+
+float angle_deg(const Eigen::Vector3f& a, const Eigen::Vector3f& b) {
+  const float c = std::max(-1.0f, std::min(1.0f, a.normalized().dot(b.normalized())));
+  return std::acos(c) * 180.0f / static_cast<float>(M_PI);
+}
+
+auto plane_sdf = [](const Eigen::Vector3f& p_W) { return kPlaneZ_m - p_W.z(); };
+
+TEMPLATE_TEST_CASE("a plane ray-casts to its exact depth and normal", "", TsdfVoxel,
+                   MultiresVoxel) {
+  const int scale = GENERATE(0, 1, 2);
+  test::OwnedMap<TestType> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, plane_sdf, [scale](const Eigen::Vector3i&) { return scale; });
+  OwnedRaycaster<TestType> rc(test_raycast_config());
+  const WorkerTeam team(1);
+  const Se3d T_W_C = Se3d::Identity();
+  Result<RaycastStats> stats = rc.raycaster.raycast(owned.map, test_camera(), T_W_C, team);
+  REQUIRE(stats.ok());
+  REQUIRE(stats->valid_pixels == 64u * 48u);
+  REQUIRE(stats->scale_pixels[scale] == 64u * 48u);
+  REQUIRE_FALSE(stats->budget_hit());
+  const SurfaceMap surface = rc.raycaster.surface_W();
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      REQUIRE(surface.valid(x, y));
+      REQUIRE(std::fabs(surface.vertices(x, y).z() - kPlaneZ_m) < kDepthTolerance_m);
+      // On the ray of pixel (x, y).
+      const Eigen::Vector2f px = test_camera().project(surface.vertices(x, y));
+      REQUIRE(std::fabs(px.x() - static_cast<float>(x)) < 1e-2f);
+      REQUIRE(std::fabs(px.y() - static_cast<float>(y)) < 1e-2f);
+      REQUIRE(angle_deg(surface.normals(x, y), Eigen::Vector3f(0, 0, -1)) < kNormalTolerance_deg);
+      REQUIRE(rc.raycaster.scale_image()(x, y) == scale);
+    }
+  }
+}
+
+TEMPLATE_TEST_CASE("a sphere ray-casts to the analytic intersection; misses are invalid", "",
+                   TsdfVoxel, MultiresVoxel) {
+  const Eigen::Vector3f centre_W(0.1f, -0.05f, 1.2f);
+  constexpr float kRadius_m = 0.3f;
+  auto sdf = [&](const Eigen::Vector3f& p_W) { return (p_W - centre_W).norm() - kRadius_m; };
+  test::OwnedMap<TestType> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, sdf, [](const Eigen::Vector3i&) { return 0; });
+  OwnedRaycaster<TestType> rc(test_raycast_config());
+  const WorkerTeam team(1);
+  // Camera a little rotated and shifted, to exercise the pose.
+  Se3d T_W_C = Se3d::Identity();
+  T_W_C.linear() = Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  T_W_C.translation() = Eigen::Vector3d(0.05, 0.0, 0.1);
+  Result<RaycastStats> stats = rc.raycaster.raycast(owned.map, test_camera(), T_W_C, team);
+  REQUIRE(stats.ok());
+  const SurfaceMap surface = rc.raycaster.surface_W();
+  const PinholeCamera camera = test_camera();
+  const Eigen::Matrix3f R = T_W_C.linear().cast<float>();
+  const Eigen::Vector3f o = T_W_C.translation().cast<float>();
+  int hits = 0;
+  int misses = 0;
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      const Eigen::Vector3f d =
+          (R * camera.back_project(static_cast<float>(x), static_cast<float>(y), 1.0f))
+              .normalized();
+      // Analytic ray-sphere intersection.
+      const Eigen::Vector3f oc = o - centre_W;
+      const float b = oc.dot(d);
+      const float disc = b * b - (oc.squaredNorm() - kRadius_m * kRadius_m);
+      // Grazing rays are ambiguous at voxel resolution: only judge clear hits and misses.
+      const float margin_m = 2.0f * kVoxel_m;
+      const float clear_hit =
+          (b * b - (oc.squaredNorm() - (kRadius_m - margin_m) * (kRadius_m - margin_m)));
+      const float clear_miss =
+          (b * b - (oc.squaredNorm() - (kRadius_m + margin_m) * (kRadius_m + margin_m)));
+      if (clear_hit >= 0.0f) {
+        const float t = -b - std::sqrt(disc);
+        const Eigen::Vector3f expected_W = o + t * d;
+        REQUIRE(surface.valid(x, y));
+        REQUIRE((surface.vertices(x, y) - expected_W).norm() < kDepthTolerance_m);
+        REQUIRE(angle_deg(surface.normals(x, y), expected_W - centre_W) < kNormalTolerance_deg);
+        ++hits;
+      } else if (clear_miss < 0.0f) {
+        REQUIRE_FALSE(surface.valid(x, y));
+        REQUIRE(rc.raycaster.scale_image()(x, y) == kNoScale);
+        ++misses;
+      }
+    }
+  }
+  REQUIRE(hits > 500);
+  REQUIRE(misses > 100);
+  REQUIRE(stats->valid_pixels >= static_cast<std::uint32_t>(hits));
+}
+
+TEST_CASE("across a scale change the scale image shows each side's scale and depth stays exact") {
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  // Blocks left of x = 0 at scale 0, right of it at scale 2.
+  const int split = static_cast<int>(std::lround(1.28f / (8 * kVoxel_m)));
+  test::fill_band(owned.map, kMu_m, plane_sdf,
+                  [split](const Eigen::Vector3i& b) { return b.x() < split ? 0 : 2; });
+  OwnedRaycaster<MultiresVoxel> rc(test_raycast_config());
+  const WorkerTeam team(1);
+  Result<RaycastStats> stats =
+      rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(stats.ok());
+  REQUIRE(stats->valid_pixels == 64u * 48u);
+  const SurfaceMap surface = rc.raycaster.surface_W();
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      REQUIRE(std::fabs(surface.vertices(x, y).z() - kPlaneZ_m) < kDepthTolerance_m);
+      const float x_W = surface.vertices(x, y).x();
+      const std::uint8_t s = rc.raycaster.scale_image()(x, y);
+      // Well inside each side the scale is that side's; near the seam the coarser grid is used.
+      if (x_W < -0.05f) REQUIRE(s == 0);
+      if (x_W > 0.0f) REQUIRE(s == 2);
+    }
+  }
+  REQUIRE(stats->scale_pixels[0] > 0);
+  REQUIRE(stats->scale_pixels[2] > 0);
+  REQUIRE(stats->scale_pixels[0] + stats->scale_pixels[2] == 64u * 48u);
+}
+
+TEST_CASE("the step budget is respected and cuts pixels; a loose budget changes nothing") {
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, plane_sdf, [](const Eigen::Vector3i&) { return 0; });
+  const WorkerTeam team(1);
+  OwnedRaycaster<MultiresVoxel> free_rc(test_raycast_config());
+  Result<RaycastStats> unbounded =
+      free_rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(unbounded.ok());
+  REQUIRE_FALSE(unbounded->budget_hit());
+
+  RaycastConfig tight = test_raycast_config();
+  tight.step_budget = unbounded->steps / 3;
+  OwnedRaycaster<MultiresVoxel> tight_rc(tight);
+  Result<RaycastStats> cut =
+      tight_rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(cut.ok());
+  REQUIRE(cut->steps <= tight.step_budget);
+  REQUIRE(cut->budget_hit());
+  REQUIRE(cut->valid_pixels + cut->budget_cut_pixels == 64u * 48u);
+  REQUIRE(cut->valid_pixels > 0);
+  // Pixels that were finished are the same as without a budget.
+  const SurfaceMap a = free_rc.raycaster.surface_W();
+  const SurfaceMap b = tight_rc.raycaster.surface_W();
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      if (b.valid(x, y)) REQUIRE(a.vertices(x, y) == b.vertices(x, y));
+    }
+  }
+
+  RaycastConfig loose = test_raycast_config();
+  loose.step_budget = unbounded->steps * 2;
+  OwnedRaycaster<MultiresVoxel> loose_rc(loose);
+  Result<RaycastStats> full =
+      loose_rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(full.ok());
+  REQUIRE_FALSE(full->budget_hit());
+  REQUIRE(full->steps == unbounded->steps);
+  REQUIRE(full->valid_pixels == unbounded->valid_pixels);
+}
+
+TEST_CASE("1 and 2 workers give bit-identical images, and a ray-cast allocates nothing") {
+  const Eigen::Vector3f centre_W(0.0f, 0.0f, 1.0f);
+  auto sdf = [&](const Eigen::Vector3f& p_W) { return (p_W - centre_W).norm() - 0.35f; };
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, sdf,
+                  [](const Eigen::Vector3i& b) { return (b.x() + b.y()) % 3; });
+  RaycastConfig config = test_raycast_config();
+  config.step_budget = 40000;
+  OwnedRaycaster<MultiresVoxel> one(config);
+  OwnedRaycaster<MultiresVoxel> two(config);
+  const WorkerTeam team1(1);
+  const WorkerTeam team2(2);
+  Se3d T_W_C = Se3d::Identity();
+  T_W_C.translation() = Eigen::Vector3d(0.02, -0.03, 0.0);
+  REQUIRE(one.raycaster.raycast(owned.map, test_camera(), T_W_C, team1).ok());
+  REQUIRE(two.raycaster.raycast(owned.map, test_camera(), T_W_C, team2).ok());
+  const std::size_t n = 64 * 48;
+  const SurfaceMap a = one.raycaster.surface_W();
+  const SurfaceMap b = two.raycaster.surface_W();
+  REQUIRE(std::memcmp(a.vertices.data, b.vertices.data, n * sizeof(Eigen::Vector3f)) == 0);
+  REQUIRE(std::memcmp(a.normals.data, b.normals.data, n * sizeof(Eigen::Vector3f)) == 0);
+  REQUIRE(std::memcmp(one.raycaster.scale_image().data, two.raycaster.scale_image().data, n) == 0);
+
+  test::AllocationScope scope;
+  for (int i = 0; i < 3; ++i) {
+    Result<RaycastStats> stats = two.raycaster.raycast(owned.map, test_camera(), T_W_C, team2);
+    REQUIRE(stats.ok());
+  }
+  REQUIRE(scope.allocations() == 0);
+}
+
+TEST_CASE("bad input is a Status, not a crash") {
+  test::OwnedMap<TsdfVoxel> owned(test_map_config());
+  OwnedRaycaster<TsdfVoxel> rc(test_raycast_config());
+  const WorkerTeam team(1);
+  PinholeCamera wrong = test_camera();
+  wrong.width = 32;
+  REQUIRE(rc.raycaster.raycast(owned.map, wrong, Se3d::Identity(), team).status() ==
+          StatusCode::invalid_argument);
+  Se3d nan_pose = Se3d::Identity();
+  nan_pose.translation().x() = std::nan("");
+  REQUIRE(rc.raycaster.raycast(owned.map, test_camera(), nan_pose, team).status() ==
+          StatusCode::invalid_argument);
+  Raycaster<TsdfVoxel> unreserved;
+  REQUIRE(unreserved.raycast(owned.map, test_camera(), Se3d::Identity(), team).status() ==
+          StatusCode::failed_precondition);
+  RaycastConfig bad = test_raycast_config();
+  bad.far_m = bad.near_m;
+  REQUIRE(validate(bad) == StatusCode::invalid_argument);
+  // An empty map: every pixel invalid.
+  Result<RaycastStats> stats =
+      rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(stats.ok());
+  REQUIRE(stats->valid_pixels == 0u);
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -18,6 +18,24 @@ if(OCTOFUSE_SANITIZE)
   add_link_options(-fsanitize=address,undefined)
 endif()
 
+# libFuzzer: coverage instrumentation everywhere; the fuzz targets link -fsanitize=fuzzer themselves.
+if(OCTOFUSE_FUZZ)
+  if(NOT CMAKE_CXX_COMPILER_ID MATCHES "Clang")
+    message(FATAL_ERROR "OCTOFUSE_FUZZ=ON needs clang (use the fuzz preset)")
+  endif()
+  add_compile_options(-fsanitize=fuzzer-no-link)
+endif()
+
+# Eigen makes rebuilds slow; reuse objects across build folders when ccache is there.
+option(OCTOFUSE_CCACHE "Compile through ccache when it is installed" ON)
+if(OCTOFUSE_CCACHE AND NOT CMAKE_CXX_COMPILER_LAUNCHER)
+  find_program(OCTOFUSE_CCACHE_PROGRAM ccache)
+  if(OCTOFUSE_CCACHE_PROGRAM)
+    set(CMAKE_C_COMPILER_LAUNCHER ${OCTOFUSE_CCACHE_PROGRAM})
+    set(CMAKE_CXX_COMPILER_LAUNCHER ${OCTOFUSE_CCACHE_PROGRAM})
+  endif()
+endif()
+
 # lib/ and ports/: the firmware rules (no exceptions, no RTTI).
 function(octofuse_strict_target target)
   target_compile_options(${target} PRIVATE ${OCTOFUSE_WARNINGS} ${OCTOFUSE_FP_FLAGS}

@@ -1,0 +1,36 @@
+# cmake -DNM=<nm> -DLIBRARIES=<a.a;b.a> -P scan_exceptions.cmake
+# Fails when any library defines or references the exception machinery: __cxa_throw,
+# __cxa_allocate_exception or std::__throw_* (mangled _ZSt<len>__throw_*).
+if(NOT NM OR NOT LIBRARIES)
+  message(FATAL_ERROR "scan_exceptions: NM and LIBRARIES are required")
+endif()
+
+set(pattern "__cxa_throw|__cxa_allocate_exception|_ZSt[0-9]+__throw_[A-Za-z_]+|std::__throw_[A-Za-z_]+")
+set(offenders)
+foreach(library ${LIBRARIES})
+  if(NOT EXISTS ${library})
+    message(FATAL_ERROR "scan_exceptions: ${library} does not exist (not built?)")
+  endif()
+  execute_process(COMMAND ${NM} -A ${library} OUTPUT_VARIABLE symbols ERROR_VARIABLE nm_error
+                  RESULT_VARIABLE nm_result)
+  if(NOT nm_result EQUAL 0)
+    message(FATAL_ERROR "scan_exceptions: ${NM} failed on ${library}: ${nm_error}")
+  endif()
+  string(REPLACE "\n" ";" lines "${symbols}")
+  set(hits 0)
+  foreach(line ${lines})
+    if(line MATCHES "${pattern}")
+      list(APPEND offenders "${line}")
+      math(EXPR hits "${hits} + 1")
+    endif()
+  endforeach()
+  get_filename_component(name ${library} NAME)
+  message(STATUS "scan_exceptions: ${name}: ${hits} exception symbol(s)")
+endforeach()
+
+if(offenders)
+  list(REMOVE_DUPLICATES offenders)
+  string(REPLACE ";" "\n  " text "${offenders}")
+  message(FATAL_ERROR "scan_exceptions: exception machinery referenced (object: symbol):\n  ${text}")
+endif()
+message(STATUS "scan_exceptions: clean")

@@ -1,0 +1,65 @@
+#pragma once
+// Runs the pipeline over a source and writes what DESIGN.md section 6 promises into a folder:
+// trajectory.txt (TUM), mesh.ply, render.png, stats.json, stage_times.svg. Shared by
+// octofuse-replay, octofuse-live and octofuse-bench.
+
+#include <atomic>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "octofuse/pipeline/pipeline.hpp"
+#include "octofuse/ports/host/trajectory_io.hpp"
+#include "sources.hpp"
+
+namespace octofuse::examples {
+
+struct RunOptions {
+  std::string source_spec = "sim:desk";
+  SourceOptions source;
+  std::string out_dir;  // empty: write nothing
+  MapKind map_kind = MapKind::multires;
+  float voxel_size_m = 0.01f;
+  float mu_m = 0.0f;         // 0: 8 voxels
+  float map_size_m = 8.0f;   // cube side (rounded up to a power of two of voxels)
+  long max_frames = -1;      // stop after this many frames; -1 = the whole source
+  int threads = 1;
+  PoseSource pose_source = PoseSource::track;
+  std::uint32_t max_blocks = 0;  // block pool capacity; 0 = from voxel size and map memory
+  float map_memory_mb = 1024.0f; // used when max_blocks is 0
+  PipelineBudget budget;
+  bool bilateral = false;
+  bool write_mesh = true;
+  bool write_frames = false;  // render_NNNNNN.png every frame
+  bool progress = true;       // a progress line on stderr when it is a terminal
+  const std::atomic<bool>* stop = nullptr;  // set from a signal handler to end early
+};
+
+struct RunSummary {
+  std::vector<FrameStats> frames;
+  std::vector<host::TimedPose> trajectory;    // one per processed frame
+  std::vector<host::TimedPose> ground_truth;  // where the source had it
+  std::uint64_t frames_skipped_by_source = 0;  // FrameOutcome::skip
+  std::uint64_t frames_rejected = 0;
+  std::uint64_t frames_lost = 0;
+  std::uint64_t frames_nearly_empty = 0;
+  bool have_ate = false;
+  double ate_rmse_m = 0.0;
+  double ate_max_m = 0.0;
+  std::size_t arena_bytes = 0;
+  MapMemory map_memory;
+  std::size_t mesh_vertices = 0;
+  std::size_t mesh_triangles = 0;
+  double wall_s = 0.0;
+};
+
+// 0 on success; otherwise prints "error: ..." and returns the exit code.
+int run_pipeline(const RunOptions& options, RunSummary* summary);
+
+// Median, p90, p99, max of a sample (sorted copy); zeros for an empty one.
+struct Percentiles {
+  double median = 0.0, p90 = 0.0, p99 = 0.0, max = 0.0;
+};
+Percentiles percentiles(std::vector<double> values);
+
+}  // namespace octofuse::examples

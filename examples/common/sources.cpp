@@ -1,0 +1,82 @@
+#include "sources.hpp"
+
+#include "octofuse/core/error_text.hpp"
+
+#if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
+#include "octofuse/ports/sim/sim_source.hpp"
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+#include "octofuse/ports/replay/replay_source.hpp"
+#endif
+
+namespace octofuse::examples {
+namespace {
+
+bool starts_with(const std::string& text, const char* prefix) {
+  return text.rfind(prefix, 0) == 0;
+}
+
+}  // namespace
+
+std::string supported_sources() {
+  std::string out;
+#if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
+  out += "                       sim:desk | sim:room (built-in scenes with ground truth)\n";
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+  out += "                       tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE (recordings)\n";
+#endif
+  return out;
+}
+
+std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOptions& options,
+                                         std::string* error) {
+  ErrorText text;
+#if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
+  if (starts_with(spec, "sim:")) {
+    sim::SimConfig config;
+    if (!sim::sim_config_from_spec(spec.c_str(), &config, &text).ok()) {
+      *error = text.c_str();
+      return nullptr;
+    }
+    if (options.frames > 0) config.frame_count = static_cast<int>(options.frames);
+    config.seed = options.seed;
+    config.noise.enabled = config.noise.enabled && options.sim_noise;
+    if (options.have_intrinsics) {
+      config.camera.fx = static_cast<float>(options.intrinsics[0]);
+      config.camera.fy = static_cast<float>(options.intrinsics[1]);
+      config.camera.cx = static_cast<float>(options.intrinsics[2]);
+      config.camera.cy = static_cast<float>(options.intrinsics[3]);
+    }
+    return std::make_unique<sim::SimSource>(config);
+  }
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+  if (starts_with(spec, "tum:") || starts_with(spec, "7scenes:") || starts_with(spec, "icl:") ||
+      starts_with(spec, "raw:")) {
+    replay::ReplayConfig config;
+    if (!replay::parse_replay_spec(spec.c_str(), &config, &text).ok()) {
+      *error = text.c_str();
+      return nullptr;
+    }
+    if (options.have_intrinsics) {
+      config.has_intrinsics = true;
+      config.intrinsics.fx = static_cast<float>(options.intrinsics[0]);
+      config.intrinsics.fy = static_cast<float>(options.intrinsics[1]);
+      config.intrinsics.cx = static_cast<float>(options.intrinsics[2]);
+      config.intrinsics.cy = static_cast<float>(options.intrinsics[3]);
+    }
+    if (options.depth_scale > 0.0) config.depth_units_per_m = static_cast<float>(options.depth_scale);
+    config.pacing = options.real_time ? replay::Pacing::real_time
+                                      : replay::Pacing::as_fast_as_possible;
+    return std::make_unique<replay::ReplaySource>(config);
+  }
+#endif
+  (void)options;
+  (void)text;
+  *error = "unknown or unsupported source '" + spec + "'; this build supports:\n" +
+           supported_sources();
+  return nullptr;
+}
+
+}  // namespace octofuse::examples

@@ -1,0 +1,78 @@
+#pragma once
+// Settings, per-frame budgets and the per-frame report of depth fusion, plus the multires scale
+// selection rule (paper 4.3.1, DESIGN.md section 4).
+
+#include <cstdint>
+
+#include "octofuse/core/status.hpp"
+
+namespace octofuse {
+
+struct FusionConfig {
+  float mu_m = 0.08f;   // truncation distance (default 8 voxels at 1 cm)
+  float near_m = 0.4f;  // depth samples outside [near, far] are ignored
+  float far_m = 4.0f;
+  float y_max = 100.0f;  // weight cap
+  // Allocation marches every n-th pixel's ray in x and y (1 = every pixel).
+  int allocation_pixel_step = 1;
+  // Distinct blocks one frame may touch (existing and new together); sizes the per-frame key
+  // list and set. Rays beyond it are dropped and counted (IntegrationReport::keys_dropped).
+  std::uint32_t max_blocks_per_frame = 1u << 17;
+  // Relative margin around the scale thresholds a block's ratio must pass before its scale
+  // changes (avoids flicker when the camera hovers at a threshold).
+  float scale_hysteresis = 0.1f;
+  // >= 0: every multires block integrates at this scale, ignoring distance (tests, experiments).
+  int fixed_scale = -1;
+  // Fixed number of tasks the block list is split into (independent of the worker count, so
+  // results are bit-identical for any number of workers).
+  int task_count = 32;
+};
+
+// ok, or invalid_argument for non-finite/non-positive mu, near >= far, near <= 0, y_max < 1, a
+// step < 1, a zero block count, hysteresis outside [0, 1), fixed_scale > 3, task_count < 1.
+Status validate(const FusionConfig& config);
+
+// Per-frame work bounds. When one binds the integrator degrades in this fixed order and says so
+// in the report: (1) new blocks beyond max_new_blocks are not allocated (the farthest first);
+// (2) over max_voxel_updates, multires blocks integrate one scale coarser, farthest first, and
+// then the farthest blocks are skipped (single-res: skipped); (3) blocks beyond
+// max_integrated_blocks (the farthest) are skipped.
+struct FusionBudget {
+  std::uint32_t max_new_blocks = 0xFFFFFFFFu;
+  std::uint32_t max_integrated_blocks = 0xFFFFFFFFu;
+  std::uint64_t max_voxel_updates = ~std::uint64_t{0};
+};
+
+struct IntegrationReport {
+  // ok; invalid_argument (bad image, camera or pose: nothing was done); failed_precondition
+  // (reserve() not called or the image size differs from the reserved one); resource_exhausted
+  // (the block pool, or the per-frame block list, was full: the frame was integrated into what
+  // fits and the map is intact).
+  Status status;
+  std::uint32_t blocks_touched = 0;    // distinct blocks the rays' bands crossed inside the cube
+  std::uint32_t blocks_requested = 0;  // of those, not yet allocated
+  std::uint32_t blocks_allocated = 0;  // newly allocated this frame
+  std::uint32_t blocks_integrated = 0;
+  std::uint32_t blocks_per_scale[4] = {0, 0, 0, 0};  // integrated, by scale
+  std::uint32_t blocks_refined = 0;                  // multires: integrated finer than last time
+  std::uint32_t blocks_coarsened = 0;                // multires: integrated coarser than last time
+  std::uint32_t pool_refusals = 0;                   // new blocks the map's pools refused
+  std::uint32_t keys_dropped = 0;                    // blocks beyond max_blocks_per_frame
+  std::uint32_t rays_outside_cube = 0;               // band samples that left the map's cube
+  std::uint32_t budget_blocks_not_allocated = 0;
+  std::uint32_t budget_blocks_coarsened = 0;
+  std::uint32_t budget_blocks_skipped = 0;
+  bool budget_hit = false;
+  std::uint64_t voxels_updated = 0;  // TSDF updates applied
+};
+
+// Scale from the pixel footprint ratio r = z / (fx * voxel_size_m): r < 1.5 -> 0, < 3 -> 1,
+// < 6 -> 2, else 3.
+int scale_for_ratio(float r);
+
+// The scale a block integrates at this frame. current_scale < 0: never integrated (takes the
+// raw scale). Otherwise the scale moves only when r passes a threshold by the relative
+// `hysteresis` margin, refines by at most one step, and may coarsen by several.
+int select_scale(float r, int current_scale, float hysteresis);
+
+}  // namespace octofuse

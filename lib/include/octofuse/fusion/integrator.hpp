@@ -1,0 +1,155 @@
+#pragma once
+// Depth fusion into the octree map (paper 4.3). One class template serves both maps:
+// Integrator<TsdfVoxel> is the single-resolution baseline (every block at scale 0),
+// Integrator<MultiresVoxel> the adaptive-resolution fusion (per-block scale from the pixel
+// footprint, down-propagation on refinement, up-propagation after every update).
+//
+// Per frame: (1) march each valid pixel's ray over the band depth +- mu and collect the distinct
+// blocks it crosses; (2) allocate the missing ones (sorted by Morton code, so pool indices are
+// deterministic); (3) pick each block's scale and apply the budgets; (4) integrate the blocks in a
+// fixed number of tasks over the WorkerTeam (each block is written by one task only, so the map is
+// bit-identical for any worker count); (5) refresh the octree's node summaries.
+//
+// Memory: reserve() carves everything from the arena; integrate() allocates nothing.
+
+#include <cstddef>
+#include <cstdint>
+#include <type_traits>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/core/parallel.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/fusion/fusion_config.hpp"
+#include "octofuse/image/image_view.hpp"
+#include "octofuse/map/keys.hpp"
+#include "octofuse/map/octree.hpp"
+#include "octofuse/math/camera.hpp"
+#include "octofuse/math/se3.hpp"
+
+namespace octofuse {
+
+namespace fusion_internal {
+
+// One block a frame touched.
+struct FrameBlock {
+  Eigen::Vector3i coords = Eigen::Vector3i::Zero();
+  std::uint64_t morton = 0;        // of the block coordinates (the map's hash key)
+  std::uint32_t block = kNoIndex;  // pool index once allocated
+  float z_m = 0.0f;                // depth of the block centre in the camera frame
+  std::int8_t scale = 0;           // scale to integrate at this frame
+  std::int8_t skip = 0;            // 1: dropped by a budget
+  std::uint8_t padding[2] = {};
+};
+
+// Per-frame set of block Morton codes; an entry belongs to the current frame when its stamp
+// matches, so nothing is cleared between frames.
+struct FrameSetEntry {
+  std::uint64_t morton = 0;
+  std::uint32_t stamp = 0;
+  std::uint32_t padding = 0;
+};
+
+// What one task counted; summed in task order.
+struct TaskTally {
+  std::uint64_t voxels_updated = 0;
+  std::uint32_t blocks_per_scale[4] = {0, 0, 0, 0};
+  std::uint32_t refined = 0;
+  std::uint32_t coarsened = 0;
+};
+
+}  // namespace fusion_internal
+
+template <typename VoxelT>
+class Integrator {
+ public:
+  static constexpr bool kMultires = IsMultiresVoxel<VoxelT>::value;
+
+  // Exactly what reserve() takes from a LinearArena at a kArenaAlignment-aligned offset.
+  static std::size_t bytes_required(const FusionConfig& config, int image_width, int image_height) {
+    ArenaSizer sizer;
+    Integrator probe;
+    if (!probe.reserve(sizer, config, image_width, image_height).ok()) return 0;
+    return sizer.bytes_used();
+  }
+
+  // invalid_argument: validate(config) failed or the image size is not positive;
+  // resource_exhausted: the arena is too small.
+  template <typename Arena>
+  Status reserve(Arena& arena, const FusionConfig& config, int image_width, int image_height) {
+    OCTOFUSE_TRY(validate(config));
+    if (image_width <= 0 || image_height <= 0) return StatusCode::invalid_argument;
+    using namespace fusion_internal;
+    std::size_t set_size = 16;
+    while (set_size < 2 * static_cast<std::size_t>(config.max_blocks_per_frame)) set_size *= 2;
+    OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
+    Result<FrameSetEntry*> set = arena.template allocate_array<FrameSetEntry>(set_size);
+    OCTOFUSE_TRY(set);
+    Result<FrameBlock*> blocks =
+        arena.template allocate_array<FrameBlock>(config.max_blocks_per_frame);
+    OCTOFUSE_TRY(blocks);
+    Result<Key*> keys = arena.template allocate_array<Key>(config.max_blocks_per_frame);
+    OCTOFUSE_TRY(keys);
+    Result<std::uint32_t*> indices =
+        arena.template allocate_array<std::uint32_t>(config.max_blocks_per_frame);
+    OCTOFUSE_TRY(indices);
+    Result<TaskTally*> tallies =
+        arena.template allocate_array<TaskTally>(static_cast<std::size_t>(config.task_count));
+    OCTOFUSE_TRY(tallies);
+    OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
+    config_ = config;
+    width_ = image_width;
+    height_ = image_height;
+    set_ = set.value();
+    set_mask_ = set_size - 1;
+    frame_blocks_ = blocks.value();
+    keys_ = keys.value();
+    block_indices_ = indices.value();
+    tallies_ = tallies.value();
+    stamp_ = 0;
+    reserved_ = !std::is_same_v<Arena, ArenaSizer>;
+    return ok_status();
+  }
+
+  // Fuses one depth image (metres, 0 or non-finite = no measurement; size = the reserved size)
+  // seen by `camera` (same resolution) from pose T_W_C, as frame `frame_index`. See
+  // IntegrationReport for the status codes. Never allocates heap memory.
+  IntegrationReport integrate(Octree<VoxelT>& map, ImageView<const float> depth_m,
+                              const PinholeCamera& camera, const Se3d& T_W_C,
+                              std::uint32_t frame_index, const FusionBudget& budget,
+                              const WorkerTeam& team);
+
+  const FusionConfig& config() const { return config_; }
+
+ private:
+  struct Frame;
+  std::uint32_t collect_blocks(const Octree<VoxelT>& map, const Frame& frame,
+                               IntegrationReport& report);
+  bool insert_frame_block(std::uint64_t morton, const Eigen::Vector3i& coords,
+                          IntegrationReport& report);
+  void apply_budgets(std::uint32_t count, const FusionBudget& budget, IntegrationReport& report);
+  static void integrate_block(VoxelBlock<VoxelT>& block, int scale, const Frame& frame,
+                              fusion_internal::TaskTally& tally);
+
+  FusionConfig config_;
+  int width_ = 0;
+  int height_ = 0;
+  fusion_internal::FrameSetEntry* set_ = nullptr;
+  std::size_t set_mask_ = 0;
+  fusion_internal::FrameBlock* frame_blocks_ = nullptr;
+  std::uint32_t frame_block_count_ = 0;
+  Key* keys_ = nullptr;
+  std::uint32_t* block_indices_ = nullptr;
+  fusion_internal::TaskTally* tallies_ = nullptr;
+  std::uint32_t stamp_ = 0;
+  bool reserved_ = false;
+};
+
+extern template class Integrator<TsdfVoxel>;
+extern template class Integrator<MultiresVoxel>;
+
+using SingleResIntegrator = Integrator<TsdfVoxel>;
+using MultiresIntegrator = Integrator<MultiresVoxel>;
+
+}  // namespace octofuse

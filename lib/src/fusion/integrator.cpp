@@ -1,0 +1,437 @@
+#include "octofuse/fusion/integrator.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "octofuse/fusion/propagation.hpp"
+#include "octofuse/map/mip.hpp"
+
+namespace octofuse {
+
+using fusion_internal::FrameBlock;
+using fusion_internal::FrameSetEntry;
+using fusion_internal::TaskTally;
+
+// Everything the per-block kernel needs, in float, fixed for the frame.
+template <typename VoxelT>
+struct Integrator<VoxelT>::Frame {
+  const float* depth = nullptr;
+  std::ptrdiff_t stride = 0;
+  int width = 0;
+  int height = 0;
+  float fx = 0, fy = 0, cx = 0, cy = 0;
+  Eigen::Matrix3f R_C_W;
+  Eigen::Vector3f t_C_W;
+  Eigen::Matrix3f R_W_C;
+  Eigen::Vector3f t_W_C;
+  Eigen::Vector3f origin_W;
+  float voxel_size_m = 0;
+  float mu_m = 0;
+  float inv_mu = 0;
+  float near_m = 0;
+  float far_m = 0;
+  float y_max = 0;
+};
+
+namespace {
+
+std::uint64_t hash_morton(std::uint64_t m) {
+  return (m * 0x9E3779B97F4A7C15ull) >> 20;
+}
+
+bool pose_ok(const Se3d& T) {
+  return T.matrix().allFinite() && is_rigid(T.matrix(), 1e-3);
+}
+
+// The TSDF update of one voxel (eq. 2-3); false when the sample does not apply.
+template <typename VoxelT>
+inline bool update_voxel(VoxelT& v, const Eigen::Vector3f& p_C, const float* depth,
+                         std::ptrdiff_t stride, int width, int height, float fx, float fy, float cx,
+                         float cy, float near_m, float far_m, float mu_m, float inv_mu,
+                         float y_max) {
+  const float z = p_C.z();
+  if (!(z > 0.0f)) return false;
+  const float inv_z = 1.0f / z;
+  const float xn = p_C.x() * inv_z;
+  const float yn = p_C.y() * inv_z;
+  const float u = fx * xn + cx;
+  const float w = fy * yn + cy;
+  if (!(u >= -0.5f && w >= -0.5f && u < static_cast<float>(width) - 0.5f &&
+        w < static_cast<float>(height) - 0.5f)) {
+    return false;
+  }
+  const int ui = static_cast<int>(u + 0.5f);
+  const int vi = static_cast<int>(w + 0.5f);
+  const float measured = depth[vi * stride + ui];
+  if (!(measured >= near_m && measured <= far_m)) return false;
+  const float d = (measured - z) * std::sqrt(1.0f + xn * xn + yn * yn);
+  if (d < -mu_m) return false;
+  const float f = std::min(1.0f, d * inv_mu);
+  if constexpr (IsMultiresVoxel<VoxelT>::value) {
+    v.x = std::clamp((v.y * v.x + f) / (v.y + 1.0f), -1.0f, 1.0f);
+    v.y = std::min(y_max, v.y + 1.0f);
+    v.delta_y += 1.0f;  // only for applied updates (a reference counted rejected ones too)
+  } else {
+    v.tsdf = std::clamp((v.weight * v.tsdf + f) / (v.weight + 1.0f), -1.0f, 1.0f);
+    v.weight = std::min(y_max, v.weight + 1.0f);
+  }
+  return true;
+}
+
+}  // namespace
+
+template <typename VoxelT>
+void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, const Frame& f,
+                                         TaskTally& tally) {
+  if constexpr (kMultires) {
+    if (block.integrated()) {
+      const int previous = block.current_scale;
+      if (scale < previous) {
+        ++tally.refined;
+        for (int l = previous; l > scale; --l) propagate_block_down(block, l, f.y_max);
+      } else if (scale > previous) {
+        ++tally.coarsened;
+      }
+    }
+  }
+  const int n = block_scale_side(scale);
+  const float vs = f.voxel_size_m * static_cast<float>(1 << scale);
+  const Eigen::Vector3f first_W = f.origin_W +
+                                  block.coords.template cast<float>() * (8.0f * f.voxel_size_m) +
+                                  Eigen::Vector3f::Constant(0.5f * vs);
+  const Eigen::Vector3f base_C = f.R_C_W * first_W + f.t_C_W;
+  const Eigen::Vector3f dx = f.R_C_W.col(0) * vs;
+  const Eigen::Vector3f dy = f.R_C_W.col(1) * vs;
+  const Eigen::Vector3f dz = f.R_C_W.col(2) * vs;
+  VoxelT* voxels = block.scale_begin(scale);
+  std::uint32_t updated = 0;
+  float lo = 1.0f;
+  float hi = -1.0f;
+  float sum = 0.0f;
+  float sum_weight = 0.0f;
+  int observed = 0;
+  int i = 0;
+  for (int z = 0; z < n; ++z) {
+    for (int y = 0; y < n; ++y) {
+      Eigen::Vector3f p_C = base_C + static_cast<float>(y) * dy + static_cast<float>(z) * dz;
+      for (int x = 0; x < n; ++x, ++i, p_C += dx) {
+        VoxelT& v = voxels[i];
+        if (update_voxel(v, p_C, f.depth, f.stride, f.width, f.height, f.fx, f.fy, f.cx, f.cy,
+                         f.near_m, f.far_m, f.mu_m, f.inv_mu, f.y_max)) {
+          ++updated;
+        }
+        if (!voxel_observed(v)) continue;
+        const float t = voxel_tsdf(v);
+        lo = std::min(lo, t);
+        hi = std::max(hi, t);
+        if constexpr (!kMultires) {
+          sum += t;
+          sum_weight += voxel_weight(v);
+          ++observed;
+        }
+      }
+    }
+  }
+  if constexpr (kMultires) {
+    propagate_block_up(block, scale, kMaxBlockScale);
+  } else {
+    // Single-res blocks keep only scale 0; their block mean goes in the scale-3 slot so the
+    // octree's node summaries see it.
+    if (observed > 0) {
+      TsdfVoxel& mean = block.voxels[block_scale_offset(kMaxBlockScale)];
+      mean.tsdf = sum / static_cast<float>(observed);
+      mean.weight = std::ceil(sum_weight / static_cast<float>(observed));
+    }
+  }
+  block.tsdf_min = lo;
+  block.tsdf_max = hi;
+  block.current_scale = static_cast<std::int8_t>(scale);
+  if (!block.integrated() || scale < block.min_scale) {
+    block.min_scale = static_cast<std::int8_t>(scale);
+  }
+  tally.voxels_updated += updated;
+  ++tally.blocks_per_scale[scale];
+}
+
+template <typename VoxelT>
+bool Integrator<VoxelT>::insert_frame_block(std::uint64_t morton, const Eigen::Vector3i& coords,
+                                            IntegrationReport& report) {
+  std::size_t slot = hash_morton(morton) & set_mask_;
+  while (true) {
+    FrameSetEntry& e = set_[slot];
+    if (e.stamp != stamp_) break;
+    if (e.morton == morton) return false;
+    slot = (slot + 1) & set_mask_;
+  }
+  if (frame_block_count_ >= config_.max_blocks_per_frame) {
+    ++report.keys_dropped;
+    return false;
+  }
+  set_[slot].morton = morton;
+  set_[slot].stamp = stamp_;
+  FrameBlock& b = frame_blocks_[frame_block_count_++];
+  b = FrameBlock();
+  b.coords = coords;
+  b.morton = morton;
+  return true;
+}
+
+template <typename VoxelT>
+std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, const Frame& f,
+                                                 IntegrationReport& report) {
+  const float inv_block = 1.0f / (8.0f * f.voxel_size_m);
+  const int step = config_.allocation_pixel_step;
+  std::uint64_t last_morton = ~std::uint64_t{0};
+  for (int v = 0; v < f.height; v += step) {
+    const float* row = f.depth + v * f.stride;
+    for (int u = 0; u < f.width; u += step) {
+      const float depth = row[u];
+      if (!(depth >= f.near_m && depth <= f.far_m)) continue;
+      // Ray through the pixel with unit z; the band +- mu along the ray is +- mu/|ray| in z.
+      const Eigen::Vector3f ray_C((static_cast<float>(u) - f.cx) / f.fx,
+                                  (static_cast<float>(v) - f.cy) / f.fy, 1.0f);
+      const float half_band_z = f.mu_m / ray_C.norm();
+      const Eigen::Vector3f p0_W = f.R_W_C * (ray_C * (depth - half_band_z)) + f.t_W_C;
+      const Eigen::Vector3f p1_W = f.R_W_C * (ray_C * (depth + half_band_z)) + f.t_W_C;
+      // Amanatides-Woo traversal of the block grid from p0 to p1 (block units).
+      const Eigen::Vector3f a = (p0_W - f.origin_W) * inv_block;
+      const Eigen::Vector3f b = (p1_W - f.origin_W) * inv_block;
+      const Eigen::Vector3f dir = b - a;
+      Eigen::Vector3i cell(static_cast<int>(std::floor(a.x())), static_cast<int>(std::floor(a.y())),
+                           static_cast<int>(std::floor(a.z())));
+      const Eigen::Vector3i last(static_cast<int>(std::floor(b.x())),
+                                 static_cast<int>(std::floor(b.y())),
+                                 static_cast<int>(std::floor(b.z())));
+      int step_axis[3];
+      float t_max[3];
+      float t_delta[3];
+      for (int k = 0; k < 3; ++k) {
+        if (dir[k] > 0.0f) {
+          step_axis[k] = 1;
+          t_max[k] = (static_cast<float>(cell[k] + 1) - a[k]) / dir[k];
+          t_delta[k] = 1.0f / dir[k];
+        } else if (dir[k] < 0.0f) {
+          step_axis[k] = -1;
+          t_max[k] = (static_cast<float>(cell[k]) - a[k]) / dir[k];
+          t_delta[k] = -1.0f / dir[k];
+        } else {
+          step_axis[k] = 0;
+          t_max[k] = 2.0f;
+          t_delta[k] = 2.0f;
+        }
+      }
+      const int max_cells = (last - cell).cwiseAbs().sum() + 1;
+      for (int c = 0; c < max_cells; ++c) {
+        if (map.contains_block(cell)) {
+          const std::uint64_t morton = morton_encode(cell);
+          if (morton != last_morton) {
+            last_morton = morton;
+            insert_frame_block(morton, cell, report);
+          }
+        } else {
+          ++report.rays_outside_cube;
+        }
+        if (cell == last) break;
+        int k = t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
+        if (t_max[k] > 1.0f) break;
+        cell[k] += step_axis[k];
+        t_max[k] += t_delta[k];
+      }
+    }
+  }
+  return frame_block_count_;
+}
+
+template <typename VoxelT>
+void Integrator<VoxelT>::apply_budgets(std::uint32_t count, const FusionBudget& budget,
+                                       IntegrationReport& report) {
+  std::uint64_t cost = 0;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    cost += static_cast<std::uint64_t>(block_scale_count(frame_blocks_[i].scale));
+  }
+  if (count <= budget.max_integrated_blocks && cost <= budget.max_voxel_updates) return;
+  report.budget_hit = true;
+  // Nearest first; ties by Morton code so the order is total and deterministic.
+  std::sort(frame_blocks_, frame_blocks_ + count, [](const FrameBlock& l, const FrameBlock& r) {
+    return l.z_m != r.z_m ? l.z_m < r.z_m : l.morton < r.morton;
+  });
+  if constexpr (kMultires) {
+    for (std::uint32_t i = count; i-- > 0 && cost > budget.max_voxel_updates;) {
+      FrameBlock& b = frame_blocks_[i];
+      if (b.scale >= kMaxBlockScale) continue;
+      cost -=
+          static_cast<std::uint64_t>(block_scale_count(b.scale) - block_scale_count(b.scale + 1));
+      ++b.scale;
+      ++report.budget_blocks_coarsened;
+    }
+  }
+  std::uint32_t kept = count;
+  while (kept > 0 && (cost > budget.max_voxel_updates || kept > budget.max_integrated_blocks)) {
+    --kept;
+    cost -= static_cast<std::uint64_t>(block_scale_count(frame_blocks_[kept].scale));
+    frame_blocks_[kept].skip = 1;
+    ++report.budget_blocks_skipped;
+  }
+}
+
+template <typename VoxelT>
+IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<const float> depth,
+                                                const PinholeCamera& camera, const Se3d& T_W_C,
+                                                std::uint32_t frame_index,
+                                                const FusionBudget& budget,
+                                                const WorkerTeam& team) {
+  IntegrationReport report;
+  if (!reserved_ || !map.reserved()) {
+    report.status = StatusCode::failed_precondition;
+    return report;
+  }
+  if (depth.empty() || !camera.valid() || camera.width != depth.width ||
+      camera.height != depth.height || !pose_ok(T_W_C)) {
+    report.status = StatusCode::invalid_argument;
+    return report;
+  }
+  if (depth.width != width_ || depth.height != height_) {
+    report.status = StatusCode::failed_precondition;
+    return report;
+  }
+
+  Frame f;
+  f.depth = depth.data;
+  f.stride = depth.stride;
+  f.width = depth.width;
+  f.height = depth.height;
+  f.fx = camera.fx;
+  f.fy = camera.fy;
+  f.cx = camera.cx;
+  f.cy = camera.cy;
+  const Se3d T_C_W = T_W_C.inverse();
+  f.R_C_W = T_C_W.linear().cast<float>();
+  f.t_C_W = T_C_W.translation().cast<float>();
+  f.R_W_C = T_W_C.linear().cast<float>();
+  f.t_W_C = T_W_C.translation().cast<float>();
+  f.origin_W = map.config().origin_W;
+  f.voxel_size_m = map.voxel_size_m();
+  f.mu_m = config_.mu_m;
+  f.inv_mu = 1.0f / config_.mu_m;
+  f.near_m = config_.near_m;
+  f.far_m = config_.far_m;
+  f.y_max = config_.y_max;
+
+  // 1. Blocks the bands cross.
+  ++stamp_;
+  if (stamp_ == 0) {  // wrapped: old stamps could alias, start clean
+    for (std::size_t i = 0; i <= set_mask_; ++i) set_[i] = FrameSetEntry();
+    stamp_ = 1;
+  }
+  frame_block_count_ = 0;
+  const std::uint32_t touched = collect_blocks(map, f, report);
+  report.blocks_touched = touched;
+
+  // 2. Allocate the missing ones: nearest first under the budget, then in Morton order.
+  std::uint32_t missing = 0;
+  for (std::uint32_t i = 0; i < touched; ++i) {
+    FrameBlock& b = frame_blocks_[i];
+    b.block = map.find_block_index(b.coords);
+    const Eigen::Vector3f centre_C = f.R_C_W * map.block_centre_W(b.coords) + f.t_C_W;
+    b.z_m = centre_C.z();
+    if (b.block == kNoIndex) ++missing;
+  }
+  report.blocks_requested = missing;
+  if (missing > 0) {
+    // Move the missing blocks to the front, keeping the relative order of both parts.
+    std::stable_partition(frame_blocks_, frame_blocks_ + touched,
+                          [](const FrameBlock& b) { return b.block == kNoIndex; });
+    std::uint32_t to_allocate = missing;
+    if (missing > budget.max_new_blocks) {
+      std::sort(frame_blocks_, frame_blocks_ + missing,
+                [](const FrameBlock& l, const FrameBlock& r) {
+                  return l.z_m != r.z_m ? l.z_m < r.z_m : l.morton < r.morton;
+                });
+      to_allocate = budget.max_new_blocks;
+      report.budget_blocks_not_allocated = missing - to_allocate;
+      report.budget_hit = true;
+    }
+    std::sort(frame_blocks_, frame_blocks_ + to_allocate,
+              [](const FrameBlock& l, const FrameBlock& r) { return l.morton < r.morton; });
+    const int level = map.block_level();
+    for (std::uint32_t i = 0; i < to_allocate; ++i) {
+      keys_[i] = Key{morton_encode(block_to_voxel(frame_blocks_[i].coords)),
+                     static_cast<std::uint8_t>(level)};
+    }
+    AllocationCounts counts;
+    const Status allocated = map.allocate(keys_, to_allocate, &counts);
+    report.blocks_allocated = counts.new_blocks;
+    report.pool_refusals = counts.refused;
+    if (allocated.code() == StatusCode::resource_exhausted) {
+      report.status = StatusCode::resource_exhausted;
+    }
+    for (std::uint32_t i = 0; i < to_allocate; ++i) {
+      frame_blocks_[i].block = map.find_block_index(frame_blocks_[i].coords);
+    }
+  }
+  if (report.keys_dropped > 0) report.status = StatusCode::resource_exhausted;
+  // Keep only blocks that exist now.
+  std::uint32_t count = 0;
+  for (std::uint32_t i = 0; i < touched; ++i) {
+    if (frame_blocks_[i].block != kNoIndex) frame_blocks_[count++] = frame_blocks_[i];
+  }
+
+  // 3. Scales.
+  const float inv_footprint = 1.0f / (camera.fx * map.voxel_size_m());
+  for (std::uint32_t i = 0; i < count; ++i) {
+    FrameBlock& b = frame_blocks_[i];
+    if constexpr (kMultires) {
+      if (config_.fixed_scale >= 0) {
+        b.scale = static_cast<std::int8_t>(config_.fixed_scale);
+      } else {
+        const VoxelBlock<VoxelT>& block = map.block(b.block);
+        const int current = block.integrated() ? block.current_scale : -1;
+        b.scale = static_cast<std::int8_t>(
+            select_scale(b.z_m * inv_footprint, current, config_.scale_hysteresis));
+      }
+    } else {
+      b.scale = 0;
+    }
+  }
+  apply_budgets(count, budget, report);
+
+  // 4. Integrate, in a fixed number of tasks.
+  const std::size_t tasks =
+      std::min<std::size_t>(static_cast<std::size_t>(config_.task_count), count);
+  for (std::size_t t = 0; t < tasks; ++t) tallies_[t] = TaskTally();
+  auto task_fn = [&](std::size_t task) {
+    const TaskRange range = task_range(count, task, tasks);
+    TaskTally& tally = tallies_[task];
+    for (std::size_t i = range.begin; i < range.end; ++i) {
+      const FrameBlock& b = frame_blocks_[i];
+      if (b.skip != 0) continue;
+      VoxelBlock<VoxelT>& block = map.block(b.block);
+      integrate_block(block, b.scale, f, tally);
+      block.last_updated_frame = frame_index;
+    }
+  };
+  team.for_each_task(tasks, task_fn);
+  for (std::size_t t = 0; t < tasks; ++t) {
+    const TaskTally& tally = tallies_[t];
+    report.voxels_updated += tally.voxels_updated;
+    for (int s = 0; s < 4; ++s) {
+      report.blocks_per_scale[s] += tally.blocks_per_scale[s];
+      report.blocks_integrated += tally.blocks_per_scale[s];
+    }
+    report.blocks_refined += tally.refined;
+    report.blocks_coarsened += tally.coarsened;
+  }
+
+  // 5. Node summaries above the integrated blocks.
+  std::uint32_t integrated = 0;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    if (frame_blocks_[i].skip == 0) block_indices_[integrated++] = frame_blocks_[i].block;
+  }
+  map.propagate_summaries(block_indices_, integrated);
+  return report;
+}
+
+template class Integrator<TsdfVoxel>;
+template class Integrator<MultiresVoxel>;
+
+}  // namespace octofuse

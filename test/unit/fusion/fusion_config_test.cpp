@@ -1,0 +1,60 @@
+#include "octofuse/fusion/fusion_config.hpp"
+
+#include <catch2/catch.hpp>
+
+namespace octofuse {
+namespace {
+
+TEST_CASE("scale from the footprint ratio at the thresholds", "[fusion][scale]") {
+  CHECK(scale_for_ratio(0.0f) == 0);
+  CHECK(scale_for_ratio(1.4999f) == 0);
+  CHECK(scale_for_ratio(1.5f) == 1);
+  CHECK(scale_for_ratio(2.9999f) == 1);
+  CHECK(scale_for_ratio(3.0f) == 2);
+  CHECK(scale_for_ratio(5.9999f) == 2);
+  CHECK(scale_for_ratio(6.0f) == 3);
+  CHECK(scale_for_ratio(100.0f) == 3);
+}
+
+TEST_CASE("scale selection: hysteresis, one refinement step, immediate coarsening",
+          "[fusion][scale]") {
+  constexpr float kHysteresis = 0.1f;
+  // A block never integrated takes the raw scale.
+  CHECK(select_scale(5.0f, -1, kHysteresis) == 2);
+  // Just past a threshold but inside the margin: no change either way.
+  CHECK(select_scale(1.6f, 0, kHysteresis) == 0);  // 1.6 / 1.1 < 1.5
+  CHECK(select_scale(1.4f, 1, kHysteresis) == 1);  // 1.4 * 1.1 >= 1.5
+  // Beyond the margin: changes.
+  CHECK(select_scale(1.7f, 0, kHysteresis) == 1);  // 1.7 / 1.1 > 1.5
+  CHECK(select_scale(1.3f, 1, kHysteresis) == 0);  // 1.3 * 1.1 < 1.5
+  // Refinement: one step per frame even when the ratio asks for more.
+  CHECK(select_scale(0.5f, 3, kHysteresis) == 2);
+  CHECK(select_scale(0.5f, 2, kHysteresis) == 1);
+  // Coarsening may jump.
+  CHECK(select_scale(10.0f, 0, kHysteresis) == 3);
+  // No hysteresis: exact thresholds.
+  CHECK(select_scale(1.5f, 0, 0.0f) == 1);
+  CHECK(select_scale(1.4999f, 1, 0.0f) == 0);
+}
+
+TEST_CASE("fusion config validation", "[fusion][config]") {
+  FusionConfig c;
+  CHECK(validate(c).ok());
+  c.mu_m = 0.0f;
+  CHECK(validate(c) == StatusCode::invalid_argument);
+  c = FusionConfig();
+  c.near_m = 5.0f;
+  CHECK(validate(c) == StatusCode::invalid_argument);
+  c = FusionConfig();
+  c.fixed_scale = 4;
+  CHECK(validate(c) == StatusCode::invalid_argument);
+  c = FusionConfig();
+  c.max_blocks_per_frame = 0;
+  CHECK(validate(c) == StatusCode::invalid_argument);
+  c = FusionConfig();
+  c.scale_hysteresis = 1.0f;
+  CHECK(validate(c) == StatusCode::invalid_argument);
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -14,6 +14,20 @@
 
 namespace octofuse {
 
+// The scale a block is read at: where it was last integrated for multi-resolution maps (clamped
+// against corrupt values), always 0 for single-resolution ones. Whether a block was integrated at
+// all is left to the voxel weights (0 = unobserved), so a block the integrator never touched
+// reads as unobserved either way.
+template <typename VoxelT>
+int block_read_scale(const VoxelBlock<VoxelT>& block) {
+  if constexpr (IsMultiresVoxel<VoxelT>::value) {
+    const int s = block.current_scale;
+    return s < 0 ? 0 : s > kMaxBlockScale ? kMaxBlockScale : s;
+  } else {
+    return 0;
+  }
+}
+
 struct TsdfSample {
   float tsdf = 1.0f;                                   // normalised by mu
   Eigen::Vector3f gradient = Eigen::Vector3f::Zero();  // of the trilinear cell, per metre
@@ -27,8 +41,8 @@ bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W, TsdfSamp
   const Eigen::Vector3f q = map.point_to_voxel_f(p_W);  // finest voxel units
   const Eigen::Vector3i voxel = map.point_to_voxel(p_W);
   const VoxelBlock<VoxelT>* home = map.find_block_at_voxel(voxel);
-  if (home == nullptr || !home->integrated()) return false;
-  int scale = home->current_scale;
+  if (home == nullptr) return false;
+  int scale = block_read_scale(*home);
   while (scale <= kMaxBlockScale) {
     const int size = 1 << scale;
     // Continuous coordinates on the grid of this scale, whose samples sit at voxel centres.
@@ -54,11 +68,12 @@ bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W, TsdfSamp
         cached = map.find_block(block_coords);
         cached_coords = block_coords;
       }
-      if (cached == nullptr || !cached->integrated()) {
+      if (cached == nullptr) {
         ok = false;
         break;
       }
-      if (cached->current_scale > needed) needed = cached->current_scale;
+      const int cached_scale = block_read_scale(*cached);
+      if (cached_scale > needed) needed = cached_scale;
       const VoxelT& v = cached->at_voxel(corner, scale);
       if (!voxel_observed(v)) {
         ok = false;

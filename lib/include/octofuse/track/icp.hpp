@@ -1,0 +1,118 @@
+#pragma once
+// Point-to-plane ICP of a live depth pyramid against a ray-cast model, coarse to fine.
+//
+// Each iteration transforms the live vertices by the current estimate T_W_C, projects them into
+// the reference camera (the pose T_W_Cref the model was ray-cast from, level-0 intrinsics; coarse
+// levels associate into the same level-0 model), rejects pairs farther apart than
+// max_distance_m or whose normals disagree (dot < min_normal_dot), and accumulates the 6x6 normal
+// equations of r = n_W . (T_W_C p_C - q_W) in double. The rows are split into kTrackTasks fixed
+// chunks whose partial sums are added in task order, so the pose is bit-identical for any worker
+// count. The increment (left-multiplied, twist (v, w)) comes from an LDLT solve and is applied
+// with se3_exp; a level stops when the increment's norm drops below convergence_norm.
+//
+// After the last level the residual is evaluated once more at the final estimate: tracking is
+// lost when the RMS residual exceeds lost_max_rms_m or the inliers are fewer than
+// lost_min_inlier_fraction of the level-0 pixels; T_W_C then keeps the value passed in.
+
+#include <cstddef>
+#include <cstdint>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/core/parallel.hpp"
+#include "octofuse/core/status.hpp"
+#include "octofuse/image/depth_pyramid.hpp"
+#include "octofuse/image/surface_map.hpp"
+#include "octofuse/math/camera.hpp"
+#include "octofuse/math/se3.hpp"
+
+namespace octofuse {
+
+// Row chunks of one association pass, independent of the worker count.
+inline constexpr int kTrackTasks = 16;
+
+struct TrackConfig {
+  int iterations[kPyramidLevels] = {4, 5, 10};  // per level, index 0 = finest; 0 skips a level
+  float max_distance_m = 0.1f;                  // association gate on |p_W - q_W|
+  float min_normal_dot = 0.8f;                  // association gate on n_live_W . n_model_W
+  double convergence_norm = 1e-5;               // stop a level when |twist| falls below this
+  float lost_max_rms_m = 0.02f;                 // RMS point-to-plane residual
+  float lost_min_inlier_fraction = 0.15f;       // of all level-0 pixels
+
+  // True when every field is finite and in range (iterations >= 0, gates >= 0, dot in [-1, 1]).
+  bool valid() const;
+};
+
+enum class TrackOutcome : std::uint8_t {
+  tracked = 0,
+  lost_residual,  // RMS residual above lost_max_rms_m
+  lost_inliers,   // too few associated pixels (view does not match the model)
+  lost_singular,  // the normal equations could not be solved (degenerate geometry)
+  failed,         // bad arguments: see status
+};
+
+// Stable lower-case name ("tracked", "lost_inliers", ...); never null.
+const char* track_outcome_name(TrackOutcome outcome);
+
+struct TrackReport {
+  Status status;  // ok, or why nothing was attempted
+  TrackOutcome outcome = TrackOutcome::failed;
+  int iterations[kPyramidLevels] = {0, 0, 0};  // Gauss-Newton steps taken per level
+  float rms_residual_m = 0.0f;                 // at the estimate, level 0
+  float inlier_fraction = 0.0f;                // inliers / level-0 pixels
+  std::uint32_t inliers = 0;                   // level-0 pairs that passed the gates
+
+  bool tracked() const { return outcome == TrackOutcome::tracked; }
+};
+
+class IcpTracker {
+ public:
+  // Carves the per-task reduction buffers from `arena` (LinearArena or ArenaSizer) for a live
+  // pyramid whose level 0 is `width` x `height`. Returns invalid_argument for a bad config or
+  // size, resource_exhausted when the arena is too small.
+  template <typename Arena>
+  Status reserve(Arena& arena, const TrackConfig& config, int width, int height);
+
+  // Estimates T_W_C (in: initial guess, out: estimate; unchanged unless tracked). `model_W` holds
+  // world-frame vertices and normals ray-cast at T_W_Cref with `camera_level0` (same size).
+  // report.status: ok; invalid_argument when sizes do not match reserve(), the camera is not
+  // valid or a pose is not rigid/finite (outcome failed); failed_precondition before reserve().
+  TrackReport track(const DepthPyramid& live, ConstSurfaceMap model_W,
+                    const PinholeCamera& camera_level0, const Se3d& T_W_Cref, Se3d& T_W_C,
+                    const WorkerTeam& team);
+
+  const TrackConfig& config() const { return config_; }
+  // Changes iteration counts etc. between frames (a per-frame budget); invalid_argument if bad.
+  Status set_config(const TrackConfig& config);
+
+  // One task's share of the normal equations: upper triangle of J^T J (row-major), J^T r,
+  // sum of r^2 and the pair count.
+  struct alignas(64) Partial {  // one cache line set per task: no false sharing
+    double jtj[21];
+    double jtr[6];
+    double residual_sq;
+    std::uint32_t count;
+  };
+
+ private:
+  TrackConfig config_;
+  Partial* partials_ = nullptr;  // kTrackTasks entries
+  int width_ = 0;
+  int height_ = 0;
+  bool reserved_ = false;
+};
+
+template <typename Arena>
+Status IcpTracker::reserve(Arena& arena, const TrackConfig& config, int width, int height) {
+  reserved_ = false;
+  if (!config.valid() || width <= 0 || height <= 0) return StatusCode::invalid_argument;
+  Result<Partial*> partials = arena.template allocate_array<Partial>(kTrackTasks, kArenaAlignment);
+  if (!partials.ok()) return partials.status();
+  config_ = config;
+  partials_ = partials.value();
+  width_ = width;
+  height_ = height;
+  reserved_ = partials_ != nullptr;  // an ArenaSizer hands out no memory
+  return ok_status();
+}
+
+}  // namespace octofuse

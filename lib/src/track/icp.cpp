@@ -1,0 +1,230 @@
+#include "octofuse/track/icp.hpp"
+
+#include <cmath>
+
+#include <Eigen/Cholesky>
+
+namespace octofuse {
+
+namespace {
+
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+
+// Everything one association pass reads; shared by all tasks.
+struct Pass {
+  ImageView<const Eigen::Vector3f> vertices_C;
+  ImageView<const Eigen::Vector3f> normals_C;
+  ConstSurfaceMap model_W;
+  PinholeCamera camera;  // level 0, the model's
+  Eigen::Matrix3f R_W_C;
+  Eigen::Vector3f t_W_C;
+  Eigen::Matrix3f R_Cref_W;
+  Eigen::Vector3f t_Cref_W;
+  float max_distance_sq_m2;
+  float min_normal_dot;
+};
+
+void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
+  for (double& v : out.jtj) v = 0.0;
+  for (double& v : out.jtr) v = 0.0;
+  out.residual_sq = 0.0;
+  out.count = 0;
+  const int width = pass.vertices_C.width;
+  const TaskRange rows =
+      task_range(static_cast<std::size_t>(pass.vertices_C.height), task, kTrackTasks);
+  const int model_w = pass.model_W.width();
+  const int model_h = pass.model_W.height();
+  for (std::size_t row = rows.begin; row < rows.end; ++row) {
+    const int y = static_cast<int>(row);
+    const Eigen::Vector3f* v_row = pass.vertices_C.row(y);
+    const Eigen::Vector3f* n_row = pass.normals_C.row(y);
+    for (int x = 0; x < width; ++x) {
+      const Eigen::Vector3f& n_C = n_row[x];
+      if (n_C.isZero(0.0f)) continue;
+      const Eigen::Vector3f p_W = pass.R_W_C * v_row[x] + pass.t_W_C;
+      const Eigen::Vector3f p_Cref = pass.R_Cref_W * p_W + pass.t_Cref_W;
+      if (!(p_Cref.z() > 0.0f)) continue;
+      const Eigen::Vector2f px = pass.camera.project(p_Cref);
+      if (!pass.camera.in_image(px)) continue;  // also rejects NaN
+      const int u = static_cast<int>(std::floor(px.x() + 0.5f));
+      const int v = static_cast<int>(std::floor(px.y() + 0.5f));
+      if (u < 0 || v < 0 || u >= model_w || v >= model_h) continue;
+      const Eigen::Vector3f& n_model_W = pass.model_W.normals(u, v);
+      if (n_model_W.isZero(0.0f)) continue;
+      const Eigen::Vector3f diff_W = p_W - pass.model_W.vertices(u, v);
+      if (!(diff_W.squaredNorm() <= pass.max_distance_sq_m2)) continue;
+      const Eigen::Vector3f n_live_W = pass.R_W_C * n_C;
+      if (!(n_live_W.dot(n_model_W) >= pass.min_normal_dot)) continue;
+
+      const double r = static_cast<double>(n_model_W.dot(diff_W));
+      const Eigen::Vector3f p_cross_n = p_W.cross(n_model_W);
+      const double j[6] = {n_model_W.x(), n_model_W.y(), n_model_W.z(),
+                           p_cross_n.x(), p_cross_n.y(), p_cross_n.z()};
+      int k = 0;
+      for (int a = 0; a < 6; ++a) {
+        for (int b = a; b < 6; ++b) out.jtj[k++] += j[a] * j[b];
+        out.jtr[a] += j[a] * r;
+      }
+      out.residual_sq += r * r;
+      ++out.count;
+    }
+  }
+}
+
+// Sums the task partials in task order.
+IcpTracker::Partial reduce(const IcpTracker::Partial* partials) {
+  IcpTracker::Partial total = partials[0];
+  for (int t = 1; t < kTrackTasks; ++t) {
+    const IcpTracker::Partial& p = partials[t];
+    for (int k = 0; k < 21; ++k) total.jtj[k] += p.jtj[k];
+    for (int k = 0; k < 6; ++k) total.jtr[k] += p.jtr[k];
+    total.residual_sq += p.residual_sq;
+    total.count += p.count;
+  }
+  return total;
+}
+
+// The Gauss-Newton step, or false when the system is singular or the pairs too few.
+bool solve_step(const IcpTracker::Partial& total, Vector6d& twist) {
+  if (total.count < 6) return false;
+  Matrix6d A;
+  int k = 0;
+  for (int a = 0; a < 6; ++a) {
+    for (int b = a; b < 6; ++b) {
+      A(a, b) = total.jtj[k];
+      A(b, a) = total.jtj[k];
+      ++k;
+    }
+  }
+  Vector6d g;
+  for (int a = 0; a < 6; ++a) g(a) = total.jtr[a];
+  const Eigen::LDLT<Matrix6d> ldlt(A);
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return false;
+  // A pivot many orders below the largest means an unconstrained direction (one plane in view).
+  const Vector6d pivots = ldlt.vectorD();
+  if (!(pivots.minCoeff() > 1e-9 * pivots.maxCoeff())) return false;
+  twist = ldlt.solve(-g);
+  return twist.allFinite();
+}
+
+}  // namespace
+
+bool TrackConfig::valid() const {
+  for (int it : iterations) {
+    if (it < 0) return false;
+  }
+  return std::isfinite(max_distance_m) && max_distance_m >= 0.0f && std::isfinite(min_normal_dot) &&
+         min_normal_dot >= -1.0f && min_normal_dot <= 1.0f && std::isfinite(convergence_norm) &&
+         convergence_norm >= 0.0 && std::isfinite(lost_max_rms_m) && lost_max_rms_m >= 0.0f &&
+         std::isfinite(lost_min_inlier_fraction) && lost_min_inlier_fraction >= 0.0f &&
+         lost_min_inlier_fraction <= 1.0f;
+}
+
+const char* track_outcome_name(TrackOutcome outcome) {
+  switch (outcome) {
+    case TrackOutcome::tracked:
+      return "tracked";
+    case TrackOutcome::lost_residual:
+      return "lost_residual";
+    case TrackOutcome::lost_inliers:
+      return "lost_inliers";
+    case TrackOutcome::lost_singular:
+      return "lost_singular";
+    case TrackOutcome::failed:
+      return "failed";
+  }
+  return "unknown";
+}
+
+Status IcpTracker::set_config(const TrackConfig& config) {
+  if (!config.valid()) return StatusCode::invalid_argument;
+  config_ = config;
+  return ok_status();
+}
+
+TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
+                              const PinholeCamera& camera_level0, const Se3d& T_W_Cref, Se3d& T_W_C,
+                              const WorkerTeam& team) {
+  TrackReport report;
+  if (!reserved_) {
+    report.status = StatusCode::failed_precondition;
+    return report;
+  }
+  bool args_ok = camera_level0.valid() && !model_W.vertices.empty() && !model_W.normals.empty() &&
+                 model_W.vertices.width == camera_level0.width &&
+                 model_W.vertices.height == camera_level0.height &&
+                 model_W.normals.width == camera_level0.width &&
+                 model_W.normals.height == camera_level0.height && is_rigid(T_W_Cref.matrix()) &&
+                 is_rigid(T_W_C.matrix());
+  for (int level = 0; level < kPyramidLevels && args_ok; ++level) {
+    const int w = width_ >> level;
+    const int h = height_ >> level;
+    const ImageView<Eigen::Vector3f>& v = live.vertices_C[level];
+    const ImageView<Eigen::Vector3f>& n = live.normals_C[level];
+    args_ok =
+        !v.empty() && !n.empty() && v.width == w && v.height == h && n.width == w && n.height == h;
+  }
+  if (!args_ok) {
+    report.status = StatusCode::invalid_argument;
+    return report;
+  }
+
+  Pass pass;
+  pass.model_W = model_W;
+  pass.camera = camera_level0;
+  const Se3d T_Cref_W = T_W_Cref.inverse();
+  pass.R_Cref_W = T_Cref_W.linear().cast<float>();
+  pass.t_Cref_W = T_Cref_W.translation().cast<float>();
+  pass.max_distance_sq_m2 = config_.max_distance_m * config_.max_distance_m;
+  pass.min_normal_dot = config_.min_normal_dot;
+
+  Partial* partials = partials_;
+  auto run_pass = [&](int level, const Se3d& T_W_C_estimate) {
+    pass.vertices_C = live.vertices_C[level];
+    pass.normals_C = live.normals_C[level];
+    pass.R_W_C = T_W_C_estimate.linear().cast<float>();
+    pass.t_W_C = T_W_C_estimate.translation().cast<float>();
+    auto task_fn = [&](std::size_t task) { accumulate_rows(pass, task, partials[task]); };
+    team.for_each_task(kTrackTasks, task_fn);
+    return reduce(partials);
+  };
+
+  Se3d estimate = T_W_C;
+  bool singular = false;
+  for (int level = kPyramidLevels - 1; level >= 0; --level) {
+    for (int it = 0; it < config_.iterations[level]; ++it) {
+      const Partial total = run_pass(level, estimate);
+      Vector6d twist;
+      if (!solve_step(total, twist)) {
+        singular = level == 0;
+        break;
+      }
+      estimate = se3_exp(twist) * estimate;
+      ++report.iterations[level];
+      if (twist.norm() < config_.convergence_norm) break;
+    }
+  }
+
+  const Partial final_total = run_pass(0, estimate);
+  const double pixels = static_cast<double>(width_) * static_cast<double>(height_);
+  report.status = ok_status();
+  report.inliers = final_total.count;
+  report.inlier_fraction = static_cast<float>(final_total.count / pixels);
+  report.rms_residual_m =
+      final_total.count > 0
+          ? static_cast<float>(std::sqrt(final_total.residual_sq / final_total.count))
+          : 0.0f;
+  if (report.inlier_fraction < config_.lost_min_inlier_fraction || final_total.count == 0) {
+    report.outcome = TrackOutcome::lost_inliers;
+  } else if (singular) {
+    report.outcome = TrackOutcome::lost_singular;
+  } else if (report.rms_residual_m > config_.lost_max_rms_m) {
+    report.outcome = TrackOutcome::lost_residual;
+  } else {
+    report.outcome = TrackOutcome::tracked;
+    T_W_C = estimate;
+  }
+  return report;
+}
+
+}  // namespace octofuse

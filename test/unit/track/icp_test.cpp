@@ -1,0 +1,329 @@
+#include "octofuse/track/icp.hpp"
+
+#include <catch2/catch.hpp>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "analytic_scene.hpp"
+#include "support/alloc_counter.hpp"
+
+namespace octofuse {
+namespace {
+
+constexpr double kTranslationTolerance_m = 1e-3;
+constexpr double kRotationTolerance_deg = 0.1;
+// Already aligned: only float rounding of the rendered data remains.
+constexpr double kIdentityTranslationTolerance_m = 5e-5;
+constexpr double kIdentityRotationTolerance_deg = 5e-3;
+constexpr double kPi = 3.14159265358979323846;
+
+PinholeCamera vga_camera() {
+  PinholeCamera camera;
+  camera.fx = 525.0f;
+  camera.fy = 525.0f;
+  camera.cx = 319.5f;
+  camera.cy = 239.5f;
+  camera.width = 640;
+  camera.height = 480;
+  return camera;
+}
+
+Se3d make_pose(const Eigen::Vector3d& translation_m, const Eigen::Vector3d& axis,
+               double angle_deg) {
+  Se3d T = Se3d::Identity();
+  T.linear() = Eigen::AngleAxisd(angle_deg * kPi / 180.0, axis.normalized()).toRotationMatrix();
+  T.translation() = translation_m;
+  return T;
+}
+
+// A reference pose looking into the corner scene and a live pose a few mm and 1.5 degrees off.
+Se3d reference_pose() {
+  return make_pose(Eigen::Vector3d(0.05, -0.1, 0.1), Eigen::Vector3d(0.2, -1.0, 0.1), 5.0);
+}
+Se3d offset_pose() {
+  return reference_pose() *
+         make_pose(Eigen::Vector3d(0.004, -0.003, 0.005), Eigen::Vector3d(0.3, 1.0, 0.2), 1.5);
+}
+
+double translation_error_m(const Se3d& a, const Se3d& b) {
+  return (a.translation() - b.translation()).norm();
+}
+double rotation_error_deg(const Se3d& a, const Se3d& b) {
+  const Eigen::AngleAxisd aa(Eigen::Matrix3d(a.linear().transpose() * b.linear()));
+  return std::abs(aa.angle()) * 180.0 / kPi;
+}
+
+// A 64-byte aligned buffer and arena of exactly the bytes ArenaSizer reports.
+struct ArenaBuffer {
+  explicit ArenaBuffer(std::size_t bytes) : storage(bytes + kArenaAlignment) {
+    void* aligned = reinterpret_cast<void*>(
+        align_up(reinterpret_cast<std::uintptr_t>(storage.data()), kArenaAlignment));
+    arena = LinearArena(aligned, bytes);
+  }
+  std::vector<std::uint8_t> storage;
+  LinearArena arena;
+};
+
+// Pre-processor and tracker reserved for VGA input at QVGA working resolution.
+struct TrackFixture {
+  explicit TrackFixture(const TrackConfig& track_config = TrackConfig{},
+                        const PreprocessConfig& pre_config = PreprocessConfig{})
+      : buffer(bytes_for(track_config, pre_config)) {
+    REQUIRE(pre.reserve(buffer.arena, pre_config, 640, 480).ok());
+    REQUIRE(tracker.reserve(buffer.arena, track_config, 320, 240).ok());
+    REQUIRE(buffer.arena.bytes_used() == buffer.arena.capacity());
+  }
+  static std::size_t bytes_for(const TrackConfig& track_config,
+                               const PreprocessConfig& pre_config) {
+    ArenaSizer sizer;
+    DepthPreprocessor p;
+    IcpTracker t;
+    REQUIRE(p.reserve(sizer, pre_config, 640, 480).ok());
+    REQUIRE(t.reserve(sizer, track_config, 320, 240).ok());
+    return sizer.bytes_used();
+  }
+  // Renders the live depth at T_W_C_live (VGA) and pre-processes it.
+  void set_live(const test::AnalyticScene& scene, const Se3d& T_W_C_live, int workers = 1,
+                float noise_m = 0.0f) {
+    live_depth = test::render_depth(scene, vga_camera(), T_W_C_live);
+    if (noise_m > 0.0f) {
+      std::mt19937 rng(7);
+      std::uniform_real_distribution<float> noise(-noise_m, noise_m);
+      for (float& d : live_depth) {
+        if (d > 0.0f) d += noise(rng);
+      }
+    }
+    const WorkerTeam team(workers);
+    REQUIRE(
+        pre.process(ImageView<const float>(live_depth.data(), 640, 480), vga_camera(), team).ok());
+  }
+  PinholeCamera camera_level0() const { return vga_camera().downsampled(2); }
+
+  ArenaBuffer buffer;
+  DepthPreprocessor pre;
+  IcpTracker tracker;
+  std::vector<float> live_depth;
+};
+
+TEST_CASE("ArenaSizer gives the exact bytes the tracker takes") {
+  ArenaSizer sizer;
+  IcpTracker tracker;
+  REQUIRE(tracker.reserve(sizer, TrackConfig{}, 320, 240).ok());
+  ArenaBuffer exact(sizer.bytes_used());
+  REQUIRE(tracker.reserve(exact.arena, TrackConfig{}, 320, 240).ok());
+  CHECK(exact.arena.bytes_used() == sizer.bytes_used());
+  ArenaBuffer short_buffer(sizer.bytes_used() - 1);
+  CHECK(tracker.reserve(short_buffer.arena, TrackConfig{}, 320, 240) ==
+        StatusCode::resource_exhausted);
+  TrackConfig bad;
+  bad.min_normal_dot = 2.0f;
+  CHECK(tracker.reserve(sizer, bad, 320, 240) == StatusCode::invalid_argument);
+  bad = TrackConfig{};
+  bad.iterations[1] = -1;
+  CHECK(tracker.set_config(bad) == StatusCode::invalid_argument);
+}
+
+TEST_CASE("ICP recovers a known small offset on a synthetic pair") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const Se3d T_W_C_true = offset_pose();
+  REQUIRE(translation_error_m(T_W_Cref, T_W_C_true) > 4e-3);
+  REQUIRE(rotation_error_deg(T_W_Cref, T_W_C_true) > 1.4);
+  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  f.set_live(scene, T_W_C_true);
+
+  Se3d T_W_C = T_W_Cref;  // the guess: the previous pose
+  const WorkerTeam team(1);
+  const TrackReport report =
+      f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref, T_W_C, team);
+  REQUIRE(report.status.ok());
+  CHECK(report.outcome == TrackOutcome::tracked);
+  CHECK(translation_error_m(T_W_C, T_W_C_true) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(T_W_C, T_W_C_true) < kRotationTolerance_deg);
+  CHECK(report.iterations[2] >= 1);
+  CHECK(report.iterations[0] >= 1);
+  CHECK(report.inlier_fraction > 0.8f);
+  CHECK(report.rms_residual_m < 1e-3f);
+  CHECK(report.inliers == static_cast<std::uint32_t>(report.inlier_fraction * 320 * 240 + 0.5f));
+}
+
+TEST_CASE("ICP stays at the identity when already aligned") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  f.set_live(scene, T_W_Cref);
+  Se3d T_W_C = T_W_Cref;
+  const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                             T_W_Cref, T_W_C, WorkerTeam(1));
+  REQUIRE(report.tracked());
+  CHECK(translation_error_m(T_W_C, T_W_Cref) < kIdentityTranslationTolerance_m);
+  CHECK(rotation_error_deg(T_W_C, T_W_Cref) < kIdentityRotationTolerance_deg);
+  CHECK(report.iterations[0] <= f.tracker.config().iterations[0]);
+}
+
+TEST_CASE("ICP with depth noise still lands within a millimetre, and the RMS gate works") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const Se3d T_W_C_true = offset_pose();
+  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  constexpr float kNoise_m = 0.004f;  // uniform +- 4 mm per VGA pixel
+  f.set_live(scene, T_W_C_true, 1, kNoise_m);
+
+  Se3d T_W_C = T_W_Cref;
+  const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                             T_W_Cref, T_W_C, WorkerTeam(1));
+  REQUIRE(report.tracked());
+  CHECK(translation_error_m(T_W_C, T_W_C_true) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(T_W_C, T_W_C_true) < kRotationTolerance_deg);
+  // Averaging 4 samples of +-4 mm uniform noise leaves about 1.2 mm RMS.
+  CHECK(report.rms_residual_m > 0.5e-3f);
+  CHECK(report.rms_residual_m < 2.5e-3f);
+
+  // The same frame against a stricter RMS threshold: lost, pose kept bit for bit.
+  TrackConfig strict;
+  strict.lost_max_rms_m = 0.5e-3f;
+  REQUIRE(f.tracker.set_config(strict).ok());
+  Se3d kept = T_W_Cref;
+  const TrackReport lost = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                           T_W_Cref, kept, WorkerTeam(1));
+  CHECK(lost.status.ok());
+  CHECK(lost.outcome == TrackOutcome::lost_residual);
+  CHECK(kept.matrix() == T_W_Cref.matrix());
+}
+
+TEST_CASE("a live view that does not match the model is reported lost and the pose is kept") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  // The live camera sees a wall 0.6 m in front of it that the model does not have.
+  test::AnalyticScene other;
+  other.planes.push_back({Eigen::Vector3d(0.0, 0.0, 1.0), 0.6});
+  f.set_live(other, Se3d::Identity());
+
+  const Se3d guess = offset_pose();
+  Se3d T_W_C = guess;
+  const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                             T_W_Cref, T_W_C, WorkerTeam(1));
+  CHECK(report.status.ok());
+  CHECK_FALSE(report.tracked());
+  CHECK(report.outcome == TrackOutcome::lost_inliers);
+  CHECK(report.inlier_fraction < 0.15f);
+  CHECK(T_W_C.matrix() == guess.matrix());
+}
+
+TEST_CASE("a single plane in view is degenerate and reported as such") {
+  test::AnalyticScene wall;
+  wall.planes.push_back({Eigen::Vector3d(0.0, 0.0, 1.0), 2.0});
+  TrackFixture f;
+  const Se3d T_W_Cref = Se3d::Identity();
+  const test::RenderedModel model = test::render_model(wall, f.camera_level0(), T_W_Cref);
+  f.set_live(wall, T_W_Cref);
+  Se3d T_W_C = T_W_Cref;
+  const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                             T_W_Cref, T_W_C, WorkerTeam(1));
+  CHECK(report.status.ok());
+  CHECK(report.outcome == TrackOutcome::lost_singular);
+  CHECK(T_W_C.matrix() == T_W_Cref.matrix());
+}
+
+TEST_CASE("1 and 2 workers give bit-identical poses and reports") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  f.set_live(scene, offset_pose(), 1, 0.004f);
+
+  Se3d one = T_W_Cref;
+  Se3d two = T_W_Cref;
+  const TrackReport r1 = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref,
+                                         one, WorkerTeam(1));
+  const TrackReport r2 = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref,
+                                         two, WorkerTeam(2));
+  REQUIRE(r1.tracked());
+  CHECK(std::memcmp(one.matrix().data(), two.matrix().data(), sizeof(double) * 16) == 0);
+  CHECK(r1.rms_residual_m == r2.rms_residual_m);
+  CHECK(r1.inliers == r2.inliers);
+  for (int level = 0; level < kPyramidLevels; ++level) {
+    CHECK(r1.iterations[level] == r2.iterations[level]);
+  }
+}
+
+TEST_CASE("track allocates nothing after reserve") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  f.set_live(scene, offset_pose());
+  const WorkerTeam team1(1);
+  const WorkerTeam team2(2);
+  Se3d T_W_C = T_W_Cref;
+  test::AllocationScope scope;
+  const TrackReport r1 =
+      f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref, T_W_C, team1);
+  T_W_C = T_W_Cref;
+  const TrackReport r2 =
+      f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref, T_W_C, team2);
+  const std::uint64_t allocations = scope.allocations();
+  CHECK(allocations == 0);
+  CHECK(r1.tracked());
+  CHECK(r2.tracked());
+}
+
+TEST_CASE("bad arguments are refused without touching the pose") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  f.set_live(scene, T_W_Cref);
+  const WorkerTeam team(1);
+
+  SECTION("before reserve") {
+    IcpTracker unreserved;
+    Se3d T_W_C = T_W_Cref;
+    const TrackReport r =
+        unreserved.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref, T_W_C, team);
+    CHECK(r.status == StatusCode::failed_precondition);
+    CHECK(r.outcome == TrackOutcome::failed);
+  }
+  SECTION("model of another size than the camera") {
+    PinholeCamera camera = f.camera_level0();
+    camera.width = 160;
+    Se3d T_W_C = T_W_Cref;
+    const TrackReport r =
+        f.tracker.track(f.pre.pyramid(), model.map(), camera, T_W_Cref, T_W_C, team);
+    CHECK(r.status == StatusCode::invalid_argument);
+    CHECK(T_W_C.matrix() == T_W_Cref.matrix());
+  }
+  SECTION("a non-finite guess") {
+    Se3d T_W_C = T_W_Cref;
+    T_W_C.translation().x() = std::numeric_limits<double>::quiet_NaN();
+    const TrackReport r =
+        f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref, T_W_C, team);
+    CHECK(r.status == StatusCode::invalid_argument);
+    CHECK(std::isnan(T_W_C.translation().x()));
+  }
+  SECTION("a pyramid of another size than reserved") {
+    IcpTracker small;
+    ArenaSizer sizer;
+    REQUIRE(small.reserve(sizer, TrackConfig{}, 160, 120).ok());
+    ArenaBuffer buffer(sizer.bytes_used());
+    REQUIRE(small.reserve(buffer.arena, TrackConfig{}, 160, 120).ok());
+    Se3d T_W_C = T_W_Cref;
+    const TrackReport r =
+        small.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref, T_W_C, team);
+    CHECK(r.status == StatusCode::invalid_argument);
+  }
+  CHECK(std::string(track_outcome_name(TrackOutcome::lost_inliers)) == "lost_inliers");
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
+#include <utility>
 #include <sys/stat.h>
 
 #include "octofuse/mesh/mesher.hpp"
@@ -125,6 +126,22 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
 }
 
 template <typename VoxelT>
+bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText* error) {
+  const PinholeCamera& camera = pipeline.working_camera();
+  std::vector<Rgb8> rgb(static_cast<std::size_t>(camera.width) * camera.height);
+  ImageView<Rgb8> view(rgb.data(), camera.width, camera.height);
+  const Eigen::Vector3f light_W = pipeline.reference_T_W_C().translation().template cast<float>();
+  if (!shade_by_scale(pipeline.surface_W(), pipeline.scale_image(), light_W, view).ok()) {
+    error->set("cannot shade the ray-cast");
+    return false;
+  }
+  return host::write_png_rgb8(path.c_str(), reinterpret_cast<const std::uint8_t*>(rgb.data()),
+                              camera.width, camera.height,
+                              static_cast<std::ptrdiff_t>(camera.width * sizeof(Rgb8)), error)
+      .ok();
+}
+
+template <typename VoxelT>
 int run_typed(const RunOptions& options, RunSummary* summary) {
   std::string error;
   std::unique_ptr<DepthSource> source = make_source(options.source_spec, options.source, &error);
@@ -230,13 +247,19 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       truth.T_W_C.matrix() = frame.T_W_C_ground_truth;
       summary->ground_truth.push_back(truth);
     }
+    if (options.write_frames && !options.out_dir.empty()) {
+      char name[64];
+      std::snprintf(name, sizeof(name), "frames/render_%06ld.png", processed - 1);
+      ErrorText png_error;
+      if ((processed == 1 && !make_dir(join(options.out_dir, "frames"))) ||
+          !write_render(pipeline, join(options.out_dir, name), &png_error)) {
+        return error_exit("cannot write " + join(options.out_dir, name));
+      }
+    }
     if (show_progress) {
       std::fprintf(stderr, "\rframe %5ld  %-8s  %6.1f ms  blocks %u/%u  ", processed,
                    frame_result_name(stats.result), stats.times.total_ms, stats.memory.blocks_used,
                    stats.memory.block_capacity);
-    }
-    if (options.write_frames && !options.out_dir.empty()) {
-      // Written below with the same code as the final render.
     }
   }
   if (show_progress) std::fprintf(stderr, "\n");
@@ -262,29 +285,9 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
   }
 
-  if (options.out_dir.empty()) return 0;
-
-  // render.png: the last ray-cast, shaded and coloured by interpolation scale.
-  {
-    const PinholeCamera& camera = pipeline.working_camera();
-    std::vector<Rgb8> rgb(static_cast<std::size_t>(camera.width) * camera.height);
-    ImageView<Rgb8> view(rgb.data(), camera.width, camera.height);
-    const Eigen::Vector3f light_W = pipeline.reference_T_W_C().translation().template cast<float>();
-    if (shade_by_scale(pipeline.surface_W(), pipeline.scale_image(), light_W, view).ok()) {
-      ErrorText png_error;
-      const std::string path = join(options.out_dir, "render.png");
-      if (!host::write_png_rgb8(path.c_str(), reinterpret_cast<const std::uint8_t*>(rgb.data()),
-                                camera.width, camera.height,
-                                static_cast<std::ptrdiff_t>(camera.width * sizeof(Rgb8)),
-                                &png_error)
-               .ok()) {
-        return error_exit(png_error.c_str());
-      }
-    }
-  }
-
   // mesh.ply
-  if (options.write_mesh) {
+  const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
+  if (write_mesh_file || options.keep_mesh) {
     MeshConfig mesh_config;
     mesh_config.vertex_capacity = 1u << 23;
     const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
@@ -303,11 +306,30 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     mesh.indices = sink.indices.data();
     mesh.triangle_count = sink.indices.size() / 3;
     mesh.vertex_scale = sink.scales.data();
-    ErrorText ply_error;
-    const std::string path = join(options.out_dir, "mesh.ply");
-    if (!host::write_ply(path.c_str(), mesh, &ply_error).ok()) return error_exit(ply_error.c_str());
+    if (write_mesh_file) {
+      ErrorText ply_error;
+      const std::string path = join(options.out_dir, "mesh.ply");
+      if (!host::write_ply(path.c_str(), mesh, &ply_error).ok()) {
+        return error_exit(ply_error.c_str());
+      }
+    }
     summary->mesh_vertices = mesh.vertex_count;
     summary->mesh_triangles = mesh.triangle_count;
+    if (options.keep_mesh) {
+      summary->mesh_positions = std::move(sink.positions);
+      summary->mesh_indices = std::move(sink.indices);
+    }
+  }
+
+
+  if (options.out_dir.empty()) return 0;
+
+  // render.png: the last ray-cast, shaded and coloured by interpolation scale.
+  {
+    ErrorText png_error;
+    if (!write_render(pipeline, join(options.out_dir, "render.png"), &png_error)) {
+      return error_exit(png_error.c_str());
+    }
   }
 
   // stats.json

@@ -30,7 +30,8 @@ struct RunOptions {
   PipelineBudget budget;
   bool bilateral = false;
   bool write_mesh = true;
-  bool write_frames = false;  // render_NNNNNN.png every frame
+  bool write_frames = false;  // frames/render_NNNNNN.png after every frame
+  bool keep_mesh = false;     // keep the mesh in RunSummary (for evaluation)
   bool progress = true;       // a progress line on stderr when it is a terminal
   const std::atomic<bool>* stop = nullptr;  // set from a signal handler to end early
 };
@@ -50,6 +51,8 @@ struct RunSummary {
   MapMemory map_memory;
   std::size_t mesh_vertices = 0;
   std::size_t mesh_triangles = 0;
+  std::vector<Eigen::Vector3f> mesh_positions;  // with keep_mesh
+  std::vector<std::uint32_t> mesh_indices;
   double wall_s = 0.0;
 };
 

@@ -36,6 +36,7 @@ void print_usage() {
       "  --budget-new-blocks N, --budget-blocks N, --budget-raycast-steps N,\n"
       "  --budget-icp A,B,C   per-frame work budgets (ICP: finest,middle,coarsest)\n"
       "  --no-mesh            skip mesh.ply\n"
+      "  --write-frames       also write DIR/frames/render_NNNNNN.png for every frame\n"
       "  --quiet              no progress line\n",
       octofuse::examples::supported_sources().c_str());
 }
@@ -154,6 +155,8 @@ int main(int argc, char** argv) {
       options.source.sim_noise = false;
     } else if (arg == "--real-time") {
       options.source.real_time = true;
+    } else if (arg == "--write-frames") {
+      options.write_frames = true;
     } else if (arg == "--no-mesh") {
       options.write_mesh = false;
     } else if (arg == "--quiet") {

@@ -1,0 +1,371 @@
+// octofuse-bench: the numbers users compare. Runs a fixed matrix of settings over the built-in
+// scenes (and 7-Scenes redkitchen when given), each cell several times interleaved with the cell
+// it is compared against, and writes a markdown table, a JSON file and per-run stage-time plots.
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <sys/stat.h>
+#include <thread>
+#include <vector>
+
+#include "cli.hpp"
+#include "octofuse/ports/host/json_writer.hpp"
+#include "octofuse/ports/host/mesh_eval.hpp"
+#include "octofuse/ports/sim/scenes.hpp"
+#include "runner.hpp"
+
+namespace {
+
+using octofuse::examples::Percentiles;
+using octofuse::examples::RunOptions;
+using octofuse::examples::RunSummary;
+using octofuse::examples::percentiles;
+
+struct Cell {
+  std::string scene;  // source spec
+  octofuse::MapKind map = octofuse::MapKind::multires;
+  float voxel_m = 0.01f;
+  int threads = 1;
+  octofuse::PoseSource poses = octofuse::PoseSource::track;
+  long frames = 0;
+
+  std::string label() const {
+    char text[160];
+    std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s", scene.c_str(),
+                  map == octofuse::MapKind::multires ? "multires" : "single",
+                  static_cast<double>(voxel_m) * 1000.0, threads,
+                  poses == octofuse::PoseSource::track ? "track" : "gt-poses");
+    return text;
+  }
+  std::string slug() const {
+    std::string s = label();
+    for (char& c : s) {
+      if (c == ' ' || c == ':' || c == '/') c = '_';
+    }
+    return s;
+  }
+};
+
+struct Repeat {
+  Percentiles stage[5];  // preprocess, track, integrate, raycast, total
+  double fps = 0.0;
+  double peak_rss_mb = 0.0;
+  RunSummary summary;
+  double mesh_rmse_m = -1.0;
+  double thin_recall = -1.0;
+};
+
+const char* kStageNames[5] = {"preprocess", "track", "integrate", "raycast", "total"};
+
+// Resets the kernel's peak-RSS mark for this process (Linux >= 4.0) so each run reports its own.
+void reset_peak_rss() {
+  std::ofstream clear("/proc/self/clear_refs");
+  if (clear) clear << "5";
+}
+
+double peak_rss_mb() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line)) {
+    if (line.rfind("VmHWM:", 0) == 0) return std::atof(line.c_str() + 6) / 1024.0;
+  }
+  return 0.0;
+}
+
+std::string cpu_model() {
+  std::ifstream info("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(info, line)) {
+    if (line.rfind("model name", 0) == 0) return line.substr(line.find(':') + 2);
+  }
+  return "unknown";
+}
+
+double median_of(std::vector<double> v) { return percentiles(std::move(v)).median; }
+double spread_of(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v.back() - v.front();
+}
+
+struct SimEvaluation {
+  octofuse::sim::SimWorld world;
+  std::vector<Eigen::Vector3d> thin_samples_W;
+};
+
+double scene_sdf(const Eigen::Vector3d& p_W, const void* context) {
+  return static_cast<const SimEvaluation*>(context)->world.scene.distance_m(p_W);
+}
+
+bool load_sim_evaluation(const std::string& spec, SimEvaluation* eval) {
+  octofuse::sim::SceneId id;
+  const std::string name = spec.substr(4);
+  if (!octofuse::sim::scene_id_from_name(name.c_str(), &id).ok()) return false;
+  if (!octofuse::sim::build_world(id, &eval->world).ok()) return false;
+  std::vector<Eigen::Vector3d> samples(20000);
+  const std::size_t n = eval->world.scene.sample_surface(octofuse::sim::kThinParts, 7,
+                                                         samples.data(), samples.size());
+  samples.resize(n);
+  eval->thin_samples_W = std::move(samples);
+  return true;
+}
+
+Repeat run_cell(const Cell& cell, const std::string& out_dir, const SimEvaluation* eval,
+                int* exit_code) {
+  RunOptions options;
+  options.source_spec = cell.scene;
+  options.source.frames = cell.frames;
+  options.max_frames = cell.frames;
+  options.map_kind = cell.map;
+  options.voxel_size_m = cell.voxel_m;
+  options.threads = cell.threads;
+  options.pose_source = cell.poses;
+  options.out_dir = out_dir;
+  options.write_mesh = false;
+  options.keep_mesh = eval != nullptr;
+  options.progress = false;
+  options.map_memory_mb = cell.voxel_m < 0.005f ? 2048.0f : 1024.0f;
+  Repeat r;
+  reset_peak_rss();
+  *exit_code = octofuse::examples::run_pipeline(options, &r.summary);
+  r.peak_rss_mb = peak_rss_mb();
+  std::vector<double> stage[5];
+  for (const octofuse::FrameStats& s : r.summary.frames) {
+    stage[0].push_back(s.times.validate_ms + s.times.preprocess_ms);
+    stage[1].push_back(s.times.track_ms);
+    stage[2].push_back(s.times.integrate_ms);
+    stage[3].push_back(s.times.raycast_ms);
+    stage[4].push_back(s.times.total_ms);
+  }
+  for (int i = 0; i < 5; ++i) r.stage[i] = percentiles(stage[i]);
+  r.fps = r.stage[4].median > 0.0 ? 1000.0 / r.stage[4].median : 0.0;
+  if (eval != nullptr && !r.summary.mesh_positions.empty()) {
+    octofuse::host::MeshView mesh;
+    mesh.vertices = r.summary.mesh_positions.data();
+    mesh.vertex_count = r.summary.mesh_positions.size();
+    mesh.indices = r.summary.mesh_indices.data();
+    mesh.triangle_count = r.summary.mesh_indices.size() / 3;
+    r.mesh_rmse_m = octofuse::host::mesh_accuracy(mesh, &scene_sdf, eval).rmse_m;
+    // A thin-structure sample counts as recovered when a mesh vertex lies within 2 voxels.
+    r.thin_recall = octofuse::host::mesh_completeness(mesh, eval->thin_samples_W,
+                                                      2.0 * static_cast<double>(cell.voxel_m))
+                        .fraction;
+  }
+  r.summary.mesh_positions.clear();
+  r.summary.mesh_indices.clear();
+  return r;
+}
+
+void usage() {
+  std::printf(
+      "usage: octofuse-bench [--quick] [--data DIR] [--out DIR] [--repeats N] [--frames N]\n"
+      "  --quick        one small comparison (sim:desk, 1 cm, multires vs single), ~1 minute\n"
+      "  --data DIR     folder holding 7scenes-redkitchen (adds it to the matrix)\n"
+      "  --out DIR      where bench.md, bench.json and the plots go (default bench-out)\n"
+      "  --repeats N    runs per cell, interleaved with the compared cell (default 3)\n"
+      "  --frames N     frames per run (default: 120; quick: 40)\n"
+      "  --voxels LIST  finest voxel sizes in metres, comma separated (default 0.01,0.002)\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  bool quick = false;
+  std::string data_dir, out_dir = "bench-out";
+  long repeats = -1, frames = -1;
+  std::vector<float> voxels = {0.01f, 0.002f};
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    std::int64_t n = 0;
+    if (arg == "--quick") {
+      quick = true;
+    } else if (arg == "--data" && i + 1 < argc) {
+      data_dir = argv[++i];
+    } else if (arg == "--out" && i + 1 < argc) {
+      out_dir = argv[++i];
+    } else if (arg == "--repeats" && i + 1 < argc &&
+               octofuse::cli::parse_int(argv[i + 1], 1, 100, n)) {
+      repeats = n;
+      ++i;
+    } else if (arg == "--frames" && i + 1 < argc &&
+               octofuse::cli::parse_int(argv[i + 1], 2, 100000, n)) {
+      frames = n;
+      ++i;
+    } else if (arg == "--voxels" && i + 1 < argc) {
+      voxels.clear();
+      std::stringstream list(argv[++i]);
+      std::string item;
+      double v = 0.0;
+      while (std::getline(list, item, ',')) {
+        if (!octofuse::cli::parse_double(item, 1e-4, 1.0, v)) {
+          return octofuse::cli::fail("--voxels needs metres like 0.01,0.002");
+        }
+        voxels.push_back(static_cast<float>(v));
+      }
+    } else if (arg == "-h" || arg == "--help") {
+      usage();
+      return 0;
+    } else {
+      return octofuse::cli::fail("unknown or incomplete option '" + arg + "' (see --help)");
+    }
+  }
+  if (repeats < 0) repeats = quick ? 1 : 3;
+  if (frames < 0) frames = quick ? 40 : 120;
+  if (::mkdir(out_dir.c_str(), 0755) != 0 && errno != EEXIST) {
+    return octofuse::cli::fail("cannot create " + out_dir);
+  }
+
+  // The matrix: pairs of cells that differ in one setting sit next to each other and are
+  // interleaved on every repeat.
+  std::vector<Cell> cells;
+  std::vector<std::string> scenes = {"sim:desk"};
+  if (!quick) scenes.push_back("sim:room");
+  if (!data_dir.empty()) scenes.push_back("7scenes:" + data_dir + "/7scenes-redkitchen");
+  if (quick) voxels = {0.01f};
+  for (const std::string& scene : scenes) {
+    for (float voxel : voxels) {
+      for (int threads : quick ? std::vector<int>{1} : std::vector<int>{1, 2}) {
+        for (auto poses : quick ? std::vector<octofuse::PoseSource>{octofuse::PoseSource::track}
+                                : std::vector<octofuse::PoseSource>{
+                                      octofuse::PoseSource::track,
+                                      octofuse::PoseSource::ground_truth}) {
+          for (auto map : {octofuse::MapKind::multires, octofuse::MapKind::single_res}) {
+            cells.push_back(Cell{scene, map, voxel, threads, poses, frames});
+          }
+        }
+      }
+    }
+  }
+
+  std::vector<SimEvaluation> evals(scenes.size());
+  std::vector<bool> have_eval(scenes.size(), false);
+  for (std::size_t s = 0; s < scenes.size(); ++s) {
+    if (scenes[s].rfind("sim:", 0) == 0) have_eval[s] = load_sim_evaluation(scenes[s], &evals[s]);
+  }
+  auto eval_for = [&](const Cell& cell) -> const SimEvaluation* {
+    for (std::size_t s = 0; s < scenes.size(); ++s) {
+      if (scenes[s] == cell.scene && have_eval[s]) return &evals[s];
+    }
+    return nullptr;
+  };
+
+  std::vector<std::vector<Repeat>> results(cells.size());
+  for (long r = 0; r < repeats; ++r) {
+    for (std::size_t c = 0; c < cells.size(); ++c) {
+      std::fprintf(stderr, "[repeat %ld/%ld] %s ...\n", r + 1, repeats, cells[c].label().c_str());
+      const std::string run_dir = out_dir + "/" + cells[c].slug();
+      int exit_code = 0;
+      Repeat rep = run_cell(cells[c], r == 0 ? run_dir : std::string(), eval_for(cells[c]),
+                            &exit_code);
+      if (exit_code != 0) {
+        return octofuse::cli::fail("run failed: " + cells[c].label());
+      }
+      results[c].push_back(std::move(rep));
+    }
+  }
+
+  // Report: medians over repeats; spread = max - min of the per-repeat medians.
+  const unsigned cores = std::thread::hardware_concurrency();
+  std::ostringstream md;
+  md << "Machine: " << cpu_model() << ", " << cores << " cores. Frames per run: " << frames
+     << ", repeats: " << repeats << " (medians over repeats; +- is the spread of the repeats).\n\n";
+  md << "| scene | map | voxel | threads | poses | preprocess | track | integrate | ray-cast | "
+        "total median (p90/p99/max) ms | fps | map MB used/reserved | peak RSS MB | ATE cm | "
+        "lost | mesh RMSE mm | thin recall |\n";
+  md << "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  octofuse::host::JsonWriter json;
+  json.begin_object();
+  json.key("machine").begin_object();
+  json.key("cpu").value(cpu_model().c_str());
+  json.key("cores").value(static_cast<std::int64_t>(cores));
+  json.end_object();
+  json.key("frames").value(static_cast<std::int64_t>(frames));
+  json.key("repeats").value(static_cast<std::int64_t>(repeats));
+  json.key("cells").begin_array();
+  for (std::size_t c = 0; c < cells.size(); ++c) {
+    const Cell& cell = cells[c];
+    const std::vector<Repeat>& reps = results[c];
+    std::vector<double> per_stage[5][4], fps, rss, ate, rmse, recall;
+    for (const Repeat& rep : reps) {
+      for (int s = 0; s < 5; ++s) {
+        per_stage[s][0].push_back(rep.stage[s].median);
+        per_stage[s][1].push_back(rep.stage[s].p90);
+        per_stage[s][2].push_back(rep.stage[s].p99);
+        per_stage[s][3].push_back(rep.stage[s].max);
+      }
+      fps.push_back(rep.fps);
+      rss.push_back(rep.peak_rss_mb);
+      if (rep.summary.have_ate) ate.push_back(rep.summary.ate_rmse_m);
+      if (rep.mesh_rmse_m >= 0.0) rmse.push_back(rep.mesh_rmse_m);
+      if (rep.thin_recall >= 0.0) recall.push_back(rep.thin_recall);
+    }
+    const RunSummary& first = reps.front().summary;
+    const double used_mb = static_cast<double>(first.map_memory.bytes_used) / 1048576.0;
+    const double reserved_mb = static_cast<double>(first.map_memory.bytes_reserved) / 1048576.0;
+    char row[1024];
+    std::snprintf(
+        row, sizeof(row),
+        "| %s | %s | %g mm | %d | %s | %.1f | %.1f | %.1f | %.1f | %.1f +-%.1f (%.1f/%.1f/%.1f) | "
+        "%.1f | %.0f/%.0f | %.0f | %s | %llu | %s | %s |\n",
+        cell.scene.substr(0, cell.scene.find('/')).c_str(),
+        cell.map == octofuse::MapKind::multires ? "multires" : "single",
+        static_cast<double>(cell.voxel_m) * 1000.0, cell.threads,
+        cell.poses == octofuse::PoseSource::track ? "ICP" : "ground truth",
+        median_of(per_stage[0][0]), median_of(per_stage[1][0]), median_of(per_stage[2][0]),
+        median_of(per_stage[3][0]), median_of(per_stage[4][0]), spread_of(per_stage[4][0]),
+        median_of(per_stage[4][1]), median_of(per_stage[4][2]), median_of(per_stage[4][3]),
+        median_of(fps), used_mb, reserved_mb, median_of(rss),
+        ate.empty() ? "-" : std::to_string(std::round(median_of(ate) * 1000.0) / 10.0).substr(0, 5).c_str(),
+        static_cast<unsigned long long>(first.frames_lost),
+        rmse.empty() ? "-" : std::to_string(std::round(median_of(rmse) * 10000.0) / 10.0).substr(0, 5).c_str(),
+        recall.empty() ? "-" : std::to_string(median_of(recall)).substr(0, 4).c_str());
+    md << row;
+
+    json.begin_object();
+    json.key("label").value(cell.label().c_str());
+    json.key("scene").value(cell.scene.c_str());
+    json.key("map").value(cell.map == octofuse::MapKind::multires ? "multires" : "single");
+    json.key("voxel_size_m").value(static_cast<double>(cell.voxel_m));
+    json.key("threads").value(cell.threads);
+    json.key("poses").value(cell.poses == octofuse::PoseSource::track ? "icp" : "ground_truth");
+    json.key("frames").value(static_cast<std::uint64_t>(first.frames.size()));
+    for (int s = 0; s < 5; ++s) {
+      json.key(kStageNames[s]).begin_object();
+      json.key("median_ms").value(median_of(per_stage[s][0]));
+      json.key("p90_ms").value(median_of(per_stage[s][1]));
+      json.key("p99_ms").value(median_of(per_stage[s][2]));
+      json.key("max_ms").value(median_of(per_stage[s][3]));
+      json.key("spread_of_medians_ms").value(spread_of(per_stage[s][0]));
+      json.end_object();
+    }
+    json.key("fps").value(median_of(fps));
+    json.key("map_bytes_used").value(static_cast<std::uint64_t>(first.map_memory.bytes_used));
+    json.key("map_bytes_reserved")
+        .value(static_cast<std::uint64_t>(first.map_memory.bytes_reserved));
+    json.key("arena_bytes").value(static_cast<std::uint64_t>(first.arena_bytes));
+    json.key("peak_rss_mb").value(median_of(rss));
+    json.key("frames_lost").value(first.frames_lost);
+    if (!ate.empty()) json.key("ate_rmse_m").value(median_of(ate));
+    if (!rmse.empty()) json.key("mesh_rmse_m").value(median_of(rmse));
+    if (!recall.empty()) json.key("thin_recall").value(median_of(recall));
+    json.end_object();
+  }
+  json.end_array();
+  json.end_object();
+
+  const std::string md_path = out_dir + "/bench.md";
+  std::ofstream(md_path) << md.str();
+  octofuse::ErrorText error;
+  if (!json.write_file((out_dir + "/bench.json").c_str(), &error).ok()) {
+    return octofuse::cli::fail(error.c_str());
+  }
+  std::printf("%s\nwrote %s, %s/bench.json and a stage_times.svg per cell\n", md.str().c_str(),
+              md_path.c_str(), out_dir.c_str());
+  return 0;
+}

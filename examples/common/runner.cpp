@@ -289,7 +289,10 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
   if (write_mesh_file || options.keep_mesh) {
     MeshConfig mesh_config;
-    mesh_config.vertex_capacity = 1u << 23;
+    // Dual marching cubes yields well under 256 vertices per block: size the de-duplication
+    // table from the map instead of for the worst case.
+    mesh_config.vertex_capacity = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(
+        std::uint64_t{256} * pipeline.map().memory().blocks_used, 1u << 16, 1u << 26));
     const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
     AlignedBuffer mesh_buffer(bytes);
     LinearArena arena(mesh_buffer.data, bytes);

@@ -38,6 +38,17 @@ class LinearArena {
     return first;
   }
 
+  // Like allocate_array but constructs nothing: for storage whose objects are created (placement
+  // new) before use, such as pool slots, so pages of a large reservation stay untouched until
+  // used.
+  template <typename T>
+  Result<T*> allocate_array_uninitialized(std::size_t count, std::size_t alignment = alignof(T)) {
+    static_assert(std::is_trivially_destructible_v<T>, "arena objects are never destroyed");
+    Result<void*> raw = allocate_bytes(sizeof(T) * count, alignment);
+    if (!raw.ok()) return raw.status();
+    return static_cast<T*>(raw.value());
+  }
+
   Result<void*> allocate_bytes(std::size_t bytes, std::size_t alignment);
 
   std::size_t capacity() const { return capacity_; }
@@ -58,6 +69,10 @@ class ArenaSizer {
     static_assert(std::is_trivially_destructible_v<T>, "arena objects are never destroyed");
     used_ = align_up(used_, alignment) + sizeof(T) * count;
     return static_cast<T*>(nullptr);
+  }
+  template <typename T>
+  Result<T*> allocate_array_uninitialized(std::size_t count, std::size_t alignment = alignof(T)) {
+    return allocate_array<T>(count, alignment);
   }
   Result<void*> allocate_bytes(std::size_t bytes, std::size_t alignment) {
     used_ = align_up(used_, alignment) + bytes;

@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <new>
 
 #include "octofuse/core/arena.hpp"
 #include "octofuse/core/check.hpp"
@@ -21,7 +22,9 @@ class IndexPool {
   // Carves storage for `capacity` slots from `arena` (a LinearArena or an ArenaSizer).
   template <typename Arena>
   Status reserve(Arena& arena, std::uint32_t capacity) {
-    Result<T*> slots = arena.template allocate_array<T>(capacity);
+    // Slots are assigned T() in allocate(): leave them untouched so a large pool costs no
+    // resident memory until it fills.
+    Result<T*> slots = arena.template allocate_array_uninitialized<T>(capacity);
     if (!slots.ok()) return slots.status();
     Result<std::uint32_t*> links = arena.template allocate_array<std::uint32_t>(capacity);
     if (!links.ok()) return links.status();
@@ -52,7 +55,7 @@ class IndexPool {
       return StatusCode::resource_exhausted;
     }
     ++used_;
-    slots_[index] = T();
+    new (&slots_[index]) T();  // starts the slot's lifetime (reserve() constructed nothing)
     return index;
   }
 

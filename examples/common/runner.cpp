@@ -152,7 +152,14 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   if (!options.out_dir.empty() && !make_dir(options.out_dir)) {
     return error_exit("cannot create output folder " + options.out_dir);
   }
-  const PinholeCamera input_camera = source->intrinsics();
+  PinholeCamera input_camera = source->intrinsics();
+  if (options.source.have_intrinsics) {
+    // Live sources learn their size only when opened; the override keeps it.
+    input_camera.fx = static_cast<float>(options.source.intrinsics[0]);
+    input_camera.fy = static_cast<float>(options.source.intrinsics[1]);
+    input_camera.cx = static_cast<float>(options.source.intrinsics[2]);
+    input_camera.cy = static_cast<float>(options.source.intrinsics[3]);
+  }
   const auto start_time = std::chrono::steady_clock::now();
 
   std::unique_ptr<host::TumTrajectoryWriter> trajectory_file;
@@ -169,6 +176,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   DepthFrame frame;
   long processed = 0;
   int consecutive_failures = 0;
+  long frames_since_status = 0;
+  auto last_status = std::chrono::steady_clock::now();
   for (;;) {
     if (options.stop != nullptr && options.stop->load()) break;
     if (options.max_frames >= 0 && processed >= options.max_frames) break;
@@ -254,6 +263,20 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       if ((processed == 1 && !make_dir(join(options.out_dir, "frames"))) ||
           !write_render(pipeline, join(options.out_dir, name), &png_error)) {
         return error_exit("cannot write " + join(options.out_dir, name));
+      }
+    }
+    if (options.live_status) {
+      ++frames_since_status;
+      const auto now = std::chrono::steady_clock::now();
+      const double since_s = std::chrono::duration<double>(now - last_status).count();
+      if (since_s >= 1.0) {
+        std::printf("%.1f fps  frame %ld  %s  pipeline %.1f ms  blocks %u\n",
+                    static_cast<double>(frames_since_status) / since_s, processed,
+                    frame_result_name(stats.result), stats.times.total_ms,
+                    stats.memory.blocks_used);
+        std::fflush(stdout);
+        frames_since_status = 0;
+        last_status = now;
       }
     }
     if (show_progress) {

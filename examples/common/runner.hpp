@@ -33,6 +33,7 @@ struct RunOptions {
   bool write_frames = false;  // frames/render_NNNNNN.png after every frame
   bool keep_mesh = false;     // keep the mesh in RunSummary (for evaluation)
   bool progress = true;       // a progress line on stderr when it is a terminal
+  bool live_status = false;   // once a second on stdout: frame rate and tracking state
   const std::atomic<bool>* stop = nullptr;  // set from a signal handler to end early
 };
 

@@ -8,6 +8,15 @@
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
 #include "octofuse/ports/replay/replay_source.hpp"
 #endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
+#include "octofuse/ports/openni2/openni2_source.hpp"
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_V4L2)
+#include "octofuse/ports/v4l2/v4l2_source.hpp"
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_LIBCAMERA)
+#include "octofuse/ports/libcamera/libcamera_source.hpp"
+#endif
 
 namespace octofuse::examples {
 namespace {
@@ -25,6 +34,15 @@ std::string supported_sources() {
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
   out += "                       tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE (recordings)\n";
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
+  out += "                       openni2[:URI] | oni:FILE (OpenNI2 camera or recording)\n";
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_V4L2)
+  out += "                       v4l2:/dev/videoN (16-bit depth over V4L2)\n";
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_LIBCAMERA)
+  out += "                       libcamera[:ID] (16-bit depth through libcamera)\n";
 #endif
   return out;
 }
@@ -70,6 +88,34 @@ std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOp
     config.pacing = options.real_time ? replay::Pacing::real_time
                                       : replay::Pacing::as_fast_as_possible;
     return std::make_unique<replay::ReplaySource>(config);
+  }
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
+  if (spec == "openni2" || starts_with(spec, "openni2:") || starts_with(spec, "oni:")) {
+    // The options struct borrows the URI; the source copies it in its constructor.
+    const std::string uri = spec == "openni2" ? std::string() : spec.substr(spec.find(':') + 1);
+    if (starts_with(spec, "oni:") && uri.empty()) {
+      *error = "oni: needs a recording file";
+      return nullptr;
+    }
+    ports::OpenNi2Options openni;
+    openni.uri = uri.empty() ? nullptr : uri.c_str();
+    return ports::make_openni2_source(openni);
+  }
+#endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_V4L2)
+  if (starts_with(spec, "v4l2:")) {
+    const std::string device = spec.substr(5);
+    if (device.empty()) {
+      *error = "v4l2: needs a device such as /dev/video0";
+      return nullptr;
+    }
+    ports::V4l2Options v4l2_options;
+    if (options.depth_scale > 0.0) {
+      v4l2_options.metres_per_unit = static_cast<float>(1.0 / options.depth_scale);
+    }
+    // --intrinsics is applied by the runner once the size is negotiated.
+    return ports::make_v4l2_source(device.c_str(), v4l2_options);
   }
 #endif
   (void)options;

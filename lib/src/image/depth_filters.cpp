@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-#include <Eigen/Geometry>
+#include <Eigen/Geometry>  // cross()
 
 namespace octofuse {
 

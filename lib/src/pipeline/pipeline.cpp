@@ -24,6 +24,9 @@ PipelineConfig default_pipeline_config(const PinholeCamera& input_camera, float 
   // Nodes: at most one per 2 blocks in practice (8 children, shared upper levels); keep slack.
   const std::uint32_t node_capacity = block_capacity / 2 + 1024;
   c.map = MapConfig::centred(centre_W, voxel_size_m, voxel_depth, block_capacity, node_capacity);
+  // Recorded poses are often printed with few digits (7-Scenes: R^T R off by 4e-4); 1e-3 still
+  // rejects anything that is not a rotation.
+  c.validator.rigid_tolerance = 1e-3;
   c.fusion.mu_m = 8.0f * voxel_size_m;
   c.fusion.near_m = c.validator.near_m;
   c.fusion.far_m = c.validator.far_m;
@@ -39,9 +42,26 @@ Status validate(const PipelineConfig& config) {
   for (int level = 0; level < kPyramidLevels; ++level) {
     if (config.budget.icp_iterations[level] < 0) return StatusCode::invalid_argument;
   }
-  if (!is_rigid(config.initial_T_W_C.matrix())) return StatusCode::invalid_argument;
+  if (!is_rigid(config.initial_T_W_C.matrix(), config.validator.rigid_tolerance)) {
+    return StatusCode::invalid_argument;
+  }
   return ok_status();
 }
+
+namespace {
+double elapsed_ms(std::int64_t from_us, std::int64_t to_us) {
+  return static_cast<double>(to_us - from_us) * 1e-3;
+}
+
+// A validated (near-)rigid matrix as an exact rigid transform, so small errors in recorded
+// poses do not accumulate in the map.
+Se3d rigid_from(const Eigen::Matrix4d& T) {
+  Se3d out = Se3d::Identity();
+  out.linear() = orthonormalize(T.topLeftCorner<3, 3>());
+  out.translation() = T.topRightCorner<3, 1>();
+  return out;
+}
+}  // namespace
 
 template <typename VoxelT>
 template <typename Arena>
@@ -108,7 +128,7 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   clock_ = clock;
   team_ = WorkerTeam(config.workers);
   working_camera_ = config.input_camera.downsampled(config.preprocess.downsample_factor);
-  T_W_C_ = config.initial_T_W_C;
+  T_W_C_ = rigid_from(config.initial_T_W_C.matrix());
   T_W_Cref_ = T_W_C_;
   have_reference_ = false;
   frame_index_ = 0;
@@ -117,11 +137,6 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   return ok_status();
 }
 
-namespace {
-double elapsed_ms(std::int64_t from_us, std::int64_t to_us) {
-  return static_cast<double>(to_us - from_us) * 1e-3;
-}
-}  // namespace
 
 template <typename VoxelT>
 Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out) {
@@ -157,7 +172,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
 
   // 3. Pose.
   Se3d ground_truth = Se3d::Identity();
-  if (frame.has_ground_truth) ground_truth.matrix() = frame.T_W_C_ground_truth;
+  if (frame.has_ground_truth) ground_truth = rigid_from(frame.T_W_C_ground_truth);
   FrameResult result = FrameResult::tracked;
   if (!have_reference_) {
     result = FrameResult::first;

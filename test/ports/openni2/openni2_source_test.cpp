@@ -208,8 +208,10 @@ long long driver_frames_acquired() {
 // node (freed on release). That is inside OpenNI2, on the driver's thread, and no port can avoid
 // it; the frame buffers themselves come from the port's pool. So the test counts every
 // allocation in the process and requires that they are exactly those nodes: none from the port
-// (next(), wait, read, copy, release) or from the test driver. The counter and the allocation
-// happen on another thread, hence the one-frame allowance at each end of the window.
+// (next(), wait, read, copy, release) or from the test driver. The allocation and the count of a
+// frame happen one after the other on the driver's thread, so a frame straddling either end of
+// the window may be in one number and not the other: allocations lie in [acquired - 2,
+// acquired + 1].
 TEST_CASE("openni2: no heap allocation per frame after open() beyond OpenNI2's own") {
   OpenNi2Options options;
   options.width = 320;
@@ -229,7 +231,7 @@ TEST_CASE("openni2: no heap allocation per frame after open() beyond OpenNI2's o
   const long long acquired = driver_frames_acquired() - acquired_before;
   CHECK(frames == 30);
   CHECK(acquired >= 30);
-  CHECK(static_cast<long long>(allocations) >= acquired - 1);
+  CHECK(static_cast<long long>(allocations) >= acquired - 2);
   CHECK(static_cast<long long>(allocations) <= acquired + 1);
   CHECK(bytes == allocations * 24);
 }
@@ -253,13 +255,11 @@ TEST_CASE("openni2: a recording made with OpenNI2's recorder replays through lib
   REQUIRE(oniRecorderAttachStream(recorder, stream, FALSE) == ONI_STATUS_OK);
   REQUIRE(oniStreamStart(stream) == ONI_STATUS_OK);
   REQUIRE(oniRecorderStart(recorder) == ONI_STATUS_OK);
-  int first_recorded = -1;
   for (int k = 0; k < kFramesToRecord; ++k) {
     int ready = -1;
     REQUIRE(oniWaitForAnyStream(&stream, 1, &ready, 2000) == ONI_STATUS_OK);
     OniFrame* frame = nullptr;
     REQUIRE(oniStreamReadFrame(stream, &frame) == ONI_STATUS_OK);
-    if (first_recorded < 0) first_recorded = frame->frameIndex;
     oniFrameRelease(frame);
   }
   oniRecorderStop(recorder);
@@ -286,6 +286,7 @@ TEST_CASE("openni2: a recording made with OpenNI2's recorder replays through lib
 
   int frames = 0;
   long long last_timestamp_us = -1;
+  int last_index = 0;
   for (;;) {
     DepthFrame frame;
     const NextFrame got = replay.next(frame);
@@ -294,7 +295,10 @@ TEST_CASE("openni2: a recording made with OpenNI2's recorder replays through lib
     ++frames;
     // The file keeps the pixels exactly; which ramp frame each is shows in pixel (0, 0).
     const int index = frame.depth_raw(0, 0) - ramp::ramp_depth_mm(0, 0, 0);
-    CHECK(index >= first_recorded);
+    // Every recorded frame comes back once, in order (the recorder may have caught frames the
+    // reading loop above never saw, so indices need not start where that loop did).
+    CHECK(index > last_index);
+    last_index = index;
     bool exact = true;
     for (int v = 0; v < 240; ++v) {
       for (int u = 0; u < 320; ++u)

@@ -338,25 +338,28 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   }
   report.blocks_requested = missing;
   if (missing > 0) {
-    // Move the missing blocks to the front, keeping the relative order of both parts.
-    std::stable_partition(frame_blocks_, frame_blocks_ + touched,
-                          [](const FrameBlock& b) { return b.block == kNoIndex; });
+    // block_indices_ is free until step 5: it lists the missing blocks' positions here.
+    std::uint32_t* order = block_indices_;
+    std::uint32_t m = 0;
+    for (std::uint32_t i = 0; i < touched; ++i) {
+      if (frame_blocks_[i].block == kNoIndex) order[m++] = i;
+    }
+    const FrameBlock* fb = frame_blocks_;
     std::uint32_t to_allocate = missing;
     if (missing > budget.max_new_blocks) {
-      std::sort(frame_blocks_, frame_blocks_ + missing,
-                [](const FrameBlock& l, const FrameBlock& r) {
-                  return l.z_m != r.z_m ? l.z_m < r.z_m : l.morton < r.morton;
-                });
+      std::sort(order, order + missing, [fb](std::uint32_t l, std::uint32_t r) {
+        return fb[l].z_m != fb[r].z_m ? fb[l].z_m < fb[r].z_m : fb[l].morton < fb[r].morton;
+      });
       to_allocate = budget.max_new_blocks;
       report.budget_blocks_not_allocated = missing - to_allocate;
       report.budget_hit = true;
     }
-    std::sort(frame_blocks_, frame_blocks_ + to_allocate,
-              [](const FrameBlock& l, const FrameBlock& r) { return l.morton < r.morton; });
+    std::sort(order, order + to_allocate,
+              [fb](std::uint32_t l, std::uint32_t r) { return fb[l].morton < fb[r].morton; });
     const int level = map.block_level();
     for (std::uint32_t i = 0; i < to_allocate; ++i) {
-      keys_[i] = Key{morton_encode(block_to_voxel(frame_blocks_[i].coords)),
-                     static_cast<std::uint8_t>(level)};
+      keys_[i] =
+          Key{morton_encode(block_to_voxel(fb[order[i]].coords)), static_cast<std::uint8_t>(level)};
     }
     AllocationCounts counts;
     const Status allocated = map.allocate(keys_, to_allocate, &counts);
@@ -366,7 +369,8 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
       report.status = StatusCode::resource_exhausted;
     }
     for (std::uint32_t i = 0; i < to_allocate; ++i) {
-      frame_blocks_[i].block = map.find_block_index(frame_blocks_[i].coords);
+      FrameBlock& b = frame_blocks_[order[i]];
+      b.block = map.find_block_index(b.coords);
     }
   }
   if (report.keys_dropped > 0) report.status = StatusCode::resource_exhausted;

@@ -1,0 +1,529 @@
+#include "octofuse/fusion/integrator.hpp"
+
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <vector>
+
+#include <catch2/catch.hpp>
+
+#include "octofuse/map/mip.hpp"
+#include "support/alloc_counter.hpp"
+#include "unit/fusion/analytic_scene.hpp"
+#include "unit/map/arena_buffer.hpp"
+
+namespace octofuse {
+namespace {
+
+using test::AnalyticScene;
+
+// A map and an integrator over one arena, sized by bytes_required.
+template <typename VoxelT>
+struct Fusion {
+  Fusion(const MapConfig& map_config, const FusionConfig& fusion_config, const PinholeCamera& cam)
+      : camera(cam),
+        buffer(Octree<VoxelT>::bytes_required(map_config) +
+               Integrator<VoxelT>::bytes_required(fusion_config, cam.width, cam.height)) {
+    REQUIRE(map.reserve(buffer.arena(), map_config).ok());
+    REQUIRE(integrator.reserve(buffer.arena(), fusion_config, cam.width, cam.height).ok());
+    REQUIRE(buffer.arena().bytes_used() == buffer.bytes());
+  }
+
+  IntegrationReport fuse(const AnalyticScene& scene, const Se3d& T_W_C,
+                         const FusionBudget& budget = FusionBudget(), int workers = 1) {
+    scene.render(camera, T_W_C, depth);
+    WorkerTeam team(workers);
+    return fuse_rendered(T_W_C, budget, team);
+  }
+  IntegrationReport fuse_rendered(const Se3d& T_W_C, const FusionBudget& budget,
+                                  const WorkerTeam& team) {
+    ImageView<const float> view(depth.data(), camera.width, camera.height);
+    return integrator.integrate(map, view, camera, T_W_C, frame++, budget, team);
+  }
+
+  PinholeCamera camera;
+  test::ArenaBuffer buffer;
+  Octree<VoxelT> map;
+  Integrator<VoxelT> integrator;
+  std::vector<float> depth;
+  std::uint32_t frame = 0;
+};
+
+MapConfig map_config(float voxel_size_m, int depth, std::uint32_t blocks) {
+  return MapConfig::centred(Eigen::Vector3f(0.0f, 0.0f, 1.0f), voxel_size_m, depth, blocks, blocks);
+}
+
+FusionConfig fusion_config(float mu_m, int fixed_scale = -1) {
+  FusionConfig c;
+  c.mu_m = mu_m;
+  c.fixed_scale = fixed_scale;
+  c.max_blocks_per_frame = 1u << 15;
+  c.far_m = 6.0f;
+  return c;
+}
+
+// Zero crossing (front to back, + to -) along world z at the voxel column through finest voxel
+// `column` at `scale`, by linear interpolation between voxel centres; NaN when there is none.
+template <typename VoxelT>
+double zero_crossing_z(const Octree<VoxelT>& map, Eigen::Vector3i column, int scale, int z_begin,
+                       int z_end) {
+  const int step = 1 << scale;
+  const VoxelT* previous = nullptr;
+  double previous_z = 0.0;
+  for (int z = z_begin; z < z_end; z += step) {
+    column.z() = z;
+    const VoxelT* v = map.voxel(column, scale);
+    const double centre_z = map.voxel_centre_W(column, scale).z();
+    if (v != nullptr && voxel_observed(*v) && previous != nullptr && voxel_observed(*previous) &&
+        voxel_tsdf(*previous) > 0.0f && voxel_tsdf(*v) <= 0.0f) {
+      const double a = voxel_tsdf(*previous);
+      const double b = voxel_tsdf(*v);
+      return previous_z + (centre_z - previous_z) * a / (a - b);
+    }
+    previous = v;
+    previous_z = centre_z;
+  }
+  return std::nan("");
+}
+
+TEST_CASE("a plane fused at each scale crosses zero within a quarter voxel of it",
+          "[fusion][integrator]") {
+  constexpr double kPlaneZ_m = 1.237;
+  constexpr float kVoxel_m = 0.01f;
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  for (int scale = 0; scale <= kMaxBlockScale; ++scale) {
+    CAPTURE(scale);
+    Fusion<MultiresVoxel> fusion(map_config(kVoxel_m, 8, 8000), fusion_config(8 * kVoxel_m, scale),
+                                 camera);
+    for (int i = 0; i < 2; ++i) {
+      const IntegrationReport r =
+          fusion.fuse(scene, test::looking_along_z({0.01 * i, -0.02 * i, 0.1}));
+      REQUIRE(r.status.ok());
+      REQUIRE(r.blocks_integrated > 0);
+      CHECK(r.blocks_per_scale[scale] == r.blocks_integrated);
+    }
+    const double kTolerance_m = 0.25 * kVoxel_m * (1 << scale);
+    // Columns across the view, read at the fused scale and every coarser one.
+    for (int s = scale; s <= kMaxBlockScale; ++s) {
+      for (const Eigen::Vector3i& column :
+           {Eigen::Vector3i(128, 128, 0), Eigen::Vector3i(100, 150, 0),
+            Eigen::Vector3i(150, 110, 0)}) {
+        CAPTURE(s, column.transpose());
+        const double z = zero_crossing_z(fusion.map, column, s, 0, 256);
+        REQUIRE(std::isfinite(z));
+        CHECK(std::abs(z - kPlaneZ_m) <= 0.25 * kVoxel_m * (1 << s));
+      }
+    }
+    (void)kTolerance_m;
+  }
+}
+
+TEST_CASE("single-resolution fusion of a plane crosses zero within a quarter voxel",
+          "[fusion][integrator]") {
+  constexpr double kPlaneZ_m = 1.161;
+  constexpr float kVoxel_m = 0.01f;
+  constexpr double kTolerance_m = 0.25 * kVoxel_m;
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
+  Fusion<TsdfVoxel> fusion(map_config(kVoxel_m, 8, 8000), fusion_config(8 * kVoxel_m),
+                           test::test_camera(160, 120, 131.0f));
+  const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0, 0, 0.2}));
+  REQUIRE(r.status.ok());
+  CHECK(r.blocks_per_scale[0] == r.blocks_integrated);
+  CHECK(r.blocks_allocated == r.blocks_requested);
+  CHECK(r.voxels_updated > 0);
+  for (int x = 100; x < 160; x += 7) {
+    const double z = zero_crossing_z(fusion.map, Eigen::Vector3i(x, 128, 0), 0, 0, 256);
+    REQUIRE(std::isfinite(z));
+    CHECK(std::abs(z - kPlaneZ_m) <= kTolerance_m);
+  }
+}
+
+TEST_CASE("a sphere fused at each scale crosses zero within a quarter voxel of it",
+          "[fusion][integrator]") {
+  constexpr float kVoxel_m = 0.01f;
+  const Eigen::Vector3d centre(0.003, -0.002, 1.5);
+  constexpr double kRadius_m = 0.3;
+  AnalyticScene scene;
+  scene.spheres.push_back({centre, kRadius_m});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  for (int scale = 0; scale <= kMaxBlockScale; ++scale) {
+    CAPTURE(scale);
+    Fusion<MultiresVoxel> fusion(map_config(kVoxel_m, 8, 8000), fusion_config(8 * kVoxel_m, scale),
+                                 camera);
+    for (int i = 0; i < 2; ++i) {
+      REQUIRE(fusion.fuse(scene, test::looking_along_z({0.02 * i, 0.0, 0.2})).status.ok());
+    }
+    const double kTolerance_m = 0.25 * kVoxel_m * (1 << scale);
+    // Columns near the sphere's axis, facing the camera.
+    for (const Eigen::Vector3i& column :
+         {Eigen::Vector3i(128, 128, 0), Eigen::Vector3i(136, 120, 0),
+          Eigen::Vector3i(120, 136, 0)}) {
+      const Eigen::Vector3f c = fusion.map.voxel_centre_W(column, scale);
+      const double dx = c.x() - centre.x();
+      const double dy = c.y() - centre.y();
+      const double truth = centre.z() - std::sqrt(kRadius_m * kRadius_m - dx * dx - dy * dy);
+      const double z = zero_crossing_z(fusion.map, column, scale, 0, 256);
+      CAPTURE(column.transpose(), truth, z);
+      REQUIRE(std::isfinite(z));
+      CHECK(std::abs(z - truth) <= kTolerance_m);
+    }
+  }
+}
+
+// Every voxel at scale s+1 equals the eq. 4 mean of its observed children, bit for bit.
+template <typename Block>
+void require_consistent_mips(const Block& block, int from_scale) {
+  for (int s = from_scale; s < kMaxBlockScale; ++s) {
+    const int n = block_scale_side(s + 1);
+    for (int z = 0; z < n; ++z)
+      for (int y = 0; y < n; ++y)
+        for (int x = 0; x < n; ++x) {
+          float sum = 0.0f;
+          float weight = 0.0f;
+          int observed = 0;
+          for (int c = 0; c < 8; ++c) {
+            const MultiresVoxel& child =
+                block.at(2 * x + (c & 1), 2 * y + ((c >> 1) & 1), 2 * z + ((c >> 2) & 1), s);
+            if (!voxel_observed(child)) continue;
+            sum += child.x;
+            weight += child.y;
+            ++observed;
+          }
+          if (observed == 0) continue;
+          const MultiresVoxel& parent = block.at(x, y, z, s + 1);
+          REQUIRE(parent.x == sum / static_cast<float>(observed));
+          REQUIRE(parent.y == std::ceil(weight / static_cast<float>(observed)));
+          REQUIRE(parent.x_last == parent.x);
+          REQUIRE(parent.delta_y == 0.0f);
+        }
+  }
+}
+
+TEST_CASE("after integration parents are exactly the mean of observed children, up to the root",
+          "[fusion][integrator]") {
+  AnalyticScene scene;
+  scene.spheres.push_back({Eigen::Vector3d(0.05, 0.0, 1.4), 0.25});
+  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f),
+                               test::test_camera(160, 120, 131.0f));
+  REQUIRE(fusion.fuse(scene, test::looking_along_z({0, 0, 0.3})).status.ok());
+  REQUIRE(fusion.fuse(scene, test::looking_along_z({0.05, 0, 0.3})).status.ok());
+  std::uint32_t checked = 0;
+  for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    if (!b.integrated()) continue;
+    require_consistent_mips(b, b.current_scale);
+    ++checked;
+  }
+  CHECK(checked > 10);
+  // The root sees the surface (a reference stopped at the block's parent).
+  const NodeSummary& root = fusion.map.node(Octree<MultiresVoxel>::root_index()).summary;
+  CHECK(root.observed());
+  CHECK(root.tsdf_min < 0.0f);
+  CHECK(root.tsdf_max > 0.0f);
+}
+
+TEST_CASE("delta_y counts applied updates only", "[fusion][integrator]") {
+  // A plane at z = 1.03: voxels more than mu behind it (in the block the band ends in) are
+  // never updated.
+  constexpr double kPlaneZ_m = 1.03;
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
+  constexpr int kFrames = 3;
+  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f, 0),
+                               test::test_camera(160, 120, 131.0f));
+  for (int i = 0; i < kFrames; ++i) {
+    REQUIRE(fusion.fuse(scene, test::looking_along_z({0, 0, 0.3})).status.ok());
+  }
+  const Octree<MultiresVoxel>& map = fusion.map;
+  const Eigen::Vector3i column(128, 128, 0);
+  int applied = 0;
+  int rejected = 0;
+  for (int z = 0; z < 256; ++z) {
+    const Eigen::Vector3i v(column.x(), column.y(), z);
+    const MultiresVoxel* voxel = map.voxel(v, 0);
+    if (voxel == nullptr) continue;
+    const double d = kPlaneZ_m - map.voxel_centre_W(v).z();
+    if (d < -0.08 - 0.005) {
+      CHECK(voxel->delta_y == 0.0f);
+      CHECK(voxel->y == 0.0f);
+      ++rejected;
+    } else if (d > -0.08 + 0.005) {
+      CHECK(voxel->delta_y == static_cast<float>(kFrames));
+      CHECK(voxel->y == static_cast<float>(kFrames));
+      ++applied;
+    }
+  }
+  CHECK(applied > 5);
+  CHECK(rejected > 0);
+}
+
+TEST_CASE("refinement down-propagates, then up-propagates in the same frame",
+          "[fusion][integrator]") {
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.0});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const MapConfig mc = map_config(0.01f, 8, 8000);
+  // Fuse at scale 1 first, then at scale 0 (a refine of every block).
+  Fusion<MultiresVoxel> fusion(mc, fusion_config(0.08f, 1), camera);
+  REQUIRE(fusion.fuse(scene, test::looking_along_z({0, 0, 0.3})).status.ok());
+  Integrator<MultiresVoxel> fine;
+  std::vector<unsigned char> extra(
+      align_up(Integrator<MultiresVoxel>::bytes_required(fusion_config(0.08f, 0), 160, 120),
+               kArenaAlignment) +
+      kArenaAlignment);
+  void* aligned = reinterpret_cast<void*>(
+      align_up(reinterpret_cast<std::uintptr_t>(extra.data()), kArenaAlignment));
+  LinearArena arena(aligned, extra.size() - kArenaAlignment);
+  REQUIRE(fine.reserve(arena, fusion_config(0.08f, 0), 160, 120).ok());
+  scene.render(camera, test::looking_along_z({0, 0, 0.3}), fusion.depth);
+  const IntegrationReport r =
+      fine.integrate(fusion.map, ImageView<const float>(fusion.depth.data(), 160, 120), camera,
+                     test::looking_along_z({0, 0, 0.3}), 1, FusionBudget(), WorkerTeam(1));
+  REQUIRE(r.status.ok());
+  CHECK(r.blocks_refined == r.blocks_integrated);
+  CHECK(r.blocks_per_scale[0] == r.blocks_integrated);
+  for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    if (!b.integrated()) continue;
+    CHECK(b.current_scale == 0);
+    CHECK(b.min_scale == 0);
+    require_consistent_mips(b, 0);  // coarse levels are fresh after the refining frame
+  }
+  // Interpolated-then-updated voxels: the plane still crosses within a quarter voxel.
+  const double z = zero_crossing_z(fusion.map, Eigen::Vector3i(128, 128, 0), 0, 0, 256);
+  CHECK(std::abs(z - 1.0) <= 0.25 * 0.01);
+}
+
+TEST_CASE("the thin-structure promise: close, far at scale 3, close again keeps the detail",
+          "[fusion][integrator][thin]") {
+  // A thin pole (radius 1.5 cm, 3 finest voxels) in front of a wall. Footprint ratio
+  // r = z / (fx * voxel) = z / 0.655 m: scale 0 below 0.98 m, scale 3 beyond 3.93 m.
+  constexpr float kVoxel_m = 0.005f;
+  constexpr double kPoleRadius_m = 0.015;
+  const Eigen::Vector3d pole(0.0025, 0.0, 1.5025);
+  AnalyticScene scene;
+  scene.cylinders.push_back({pole, kPoleRadius_m, -1.0, 1.0});
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 2.0});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  MapConfig mc = MapConfig::centred(Eigen::Vector3f(0.0f, 0.0f, 0.0f), kVoxel_m, 11, 60000, 60000);
+  FusionConfig fc = fusion_config(8 * kVoxel_m);
+  fc.max_blocks_per_frame = 1u << 16;
+  Fusion<MultiresVoxel> fusion(mc, fc, camera);
+  const Se3d close = test::looking_along_z({0, 0, 0.75});
+  const Se3d far = test::looking_along_z({0, 0, -3.0});
+  auto front_surface = [&]() {
+    // Along z through the pole's axis (the pole's front at z = 1.4875).
+    const Eigen::Vector3i column =
+        fusion.map.point_to_voxel(Eigen::Vector3f(static_cast<float>(pole.x()), 0.0f, 0.0f));
+    const int z0 = fusion.map.point_to_voxel(Eigen::Vector3f(0, 0, 1.3f)).z();
+    const int z1 = fusion.map.point_to_voxel(Eigen::Vector3f(0, 0, 1.6f)).z();
+    return zero_crossing_z(fusion.map, column, 0, z0, z1);
+  };
+  const double truth = pole.z() - kPoleRadius_m;
+  constexpr double kTolerance_m = 0.25 * kVoxel_m;
+  const Eigen::Vector3i pole_voxel = fusion.map.point_to_voxel(
+      Eigen::Vector3f(static_cast<float>(pole.x()), 0.0f, static_cast<float>(truth)));
+  for (int i = 0; i < 20; ++i) REQUIRE(fusion.fuse(scene, close).status.ok());
+  REQUIRE(fusion.map.find_block_at_voxel(pole_voxel)->current_scale == 0);
+  const double before = front_surface();
+  REQUIRE(std::abs(before - truth) <= kTolerance_m);
+
+  for (int i = 0; i < 5; ++i) REQUIRE(fusion.fuse(scene, far).status.ok());
+  REQUIRE(fusion.map.find_block_at_voxel(pole_voxel)->current_scale == 3);
+  // At scale 3 (4 cm voxels) a 3 cm pole is below the resolution of the current scale.
+
+  for (int i = 0; i < 6; ++i) REQUIRE(fusion.fuse(scene, close).status.ok());
+  const VoxelBlock<MultiresVoxel>* block = fusion.map.find_block_at_voxel(pole_voxel);
+  CHECK(block->current_scale == 0);
+  CHECK(block->min_scale == 0);
+  const double after = front_surface();
+  CAPTURE(truth, before, after);
+  REQUIRE(std::isfinite(after));
+  // The coarse frames' change reaches the fine voxels as one delta (eq. 5), which shifts the
+  // crossing a little; the detail itself (a 3 cm pole in 4 cm coarse voxels) survives.
+  constexpr double kAfterTolerance_m = kVoxel_m;
+  CHECK(std::abs(after - truth) <= kAfterTolerance_m);
+}
+
+TEST_CASE("results are bit-identical for 1 and 2 workers", "[fusion][integrator][threads]") {
+  AnalyticScene scene;
+  scene.spheres.push_back({Eigen::Vector3d(0.1, 0.0, 1.3), 0.3});
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.9});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  Fusion<MultiresVoxel> one(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
+  Fusion<MultiresVoxel> two(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
+  for (int i = 0; i < 6; ++i) {
+    // Moving back then forward: blocks change scale both ways.
+    const Se3d pose = test::looking_along_z({0.02 * i, 0.0, -0.6 + 0.25 * (i % 4)});
+    const IntegrationReport a = one.fuse(scene, pose, FusionBudget(), 1);
+    const IntegrationReport b = two.fuse(scene, pose, FusionBudget(), 2);
+    REQUIRE(a.status.ok());
+    REQUIRE(b.status.ok());
+    REQUIRE(a.voxels_updated == b.voxels_updated);
+    REQUIRE(a.blocks_integrated == b.blocks_integrated);
+  }
+  REQUIRE(one.map.block_count() == two.map.block_count());
+  for (std::uint32_t i = 0; i < one.map.block_count(); ++i) {
+    REQUIRE(std::memcmp(&one.map.block(i), &two.map.block(i), sizeof(VoxelBlock<MultiresVoxel>)) ==
+            0);
+  }
+  for (std::uint32_t i = 0; i < one.map.node_count(); ++i) {
+    const NodeSummary& a = one.map.node(i).summary;
+    const NodeSummary& b = two.map.node(i).summary;
+    REQUIRE(std::memcmp(&a, &b, sizeof(NodeSummary)) == 0);
+  }
+}
+
+TEST_CASE("no heap allocation per frame", "[fusion][integrator][alloc]") {
+  AnalyticScene scene;
+  scene.spheres.push_back({Eigen::Vector3d(0.0, 0.0, 1.2), 0.2});
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.8});
+  const PinholeCamera camera = test::test_camera(80, 60, 65.0f);
+  // Coarse voxels keep this many-frame test quick in debug builds.
+  Fusion<MultiresVoxel> multires(map_config(0.05f, 7, 2000), fusion_config(0.4f), camera);
+  Fusion<TsdfVoxel> single(map_config(0.05f, 7, 2000), fusion_config(0.4f), camera);
+  WorkerTeam team(2);
+  constexpr int kFrames = 120;
+  std::vector<std::vector<float>> images(8);
+  for (int k = 0; k < 8; ++k) {
+    scene.render(camera, test::looking_along_z({0.01 * k, 0.0, -0.8 + 0.2 * k}), images[k]);
+  }
+  test::AllocationScope scope;
+  for (int i = 0; i < kFrames; ++i) {
+    const int k = i % 8;
+    const Se3d pose = test::looking_along_z({0.01 * k, 0.0, -0.8 + 0.2 * k});
+    multires.depth.swap(images[k]);
+    single.depth.swap(multires.depth);
+    REQUIRE(single.fuse_rendered(pose, FusionBudget(), team).status.ok());
+    multires.depth.swap(single.depth);
+    REQUIRE(multires.fuse_rendered(pose, FusionBudget(), team).status.ok());
+    images[k].swap(multires.depth);
+  }
+  CHECK(scope.allocations() == 0);
+}
+
+TEST_CASE("a full block pool is reported and the map stays usable", "[fusion][integrator]") {
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.0});
+  constexpr std::uint32_t kBlocks = 40;
+  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, kBlocks), fusion_config(0.08f),
+                               test::test_camera(160, 120, 131.0f));
+  const IntegrationReport first = fusion.fuse(scene, test::looking_along_z({0, 0, 0.3}));
+  CHECK(first.status == StatusCode::resource_exhausted);
+  CHECK(first.blocks_requested > kBlocks);
+  CHECK(first.blocks_allocated == kBlocks);
+  CHECK(first.pool_refusals == first.blocks_requested - kBlocks);
+  CHECK(first.blocks_integrated == kBlocks);
+  CHECK(fusion.map.block_count() == kBlocks);
+  const IntegrationReport second = fusion.fuse(scene, test::looking_along_z({0, 0, 0.3}));
+  CHECK(second.status == StatusCode::resource_exhausted);
+  CHECK(second.blocks_allocated == 0);
+  CHECK(second.blocks_integrated == kBlocks);
+  for (std::uint32_t i = 0; i < kBlocks; ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    CHECK(b.last_updated_frame == 1);
+  }
+}
+
+TEST_CASE("budgets bind in the documented order", "[fusion][integrator][budget]") {
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0.3, 0, 1).normalized(), 1.0});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const Se3d pose = test::looking_along_z({0, 0, 0.3});
+
+  SECTION("new blocks: the nearest are allocated") {
+    Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
+    FusionBudget budget;
+    budget.max_new_blocks = 20;
+    const IntegrationReport r = fusion.fuse(scene, pose, budget);
+    CHECK(r.status.ok());
+    CHECK(r.budget_hit);
+    CHECK(r.blocks_allocated == 20);
+    CHECK(r.budget_blocks_not_allocated == r.blocks_requested - 20);
+    // Every allocated block is at least as near as every one left out.
+    float farthest_kept = 0.0f;
+    for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+      const Eigen::Vector3f c = fusion.map.block_centre_W(fusion.map.block(i).coords);
+      farthest_kept = std::max(farthest_kept, c.z() - 0.3f);
+    }
+    const IntegrationReport all = fusion.fuse(scene, pose);
+    CHECK(all.blocks_allocated == r.budget_blocks_not_allocated);
+    for (std::uint32_t i = 20; i < fusion.map.block_count(); ++i) {
+      const Eigen::Vector3f c = fusion.map.block_centre_W(fusion.map.block(i).coords);
+      CHECK(c.z() - 0.3f >= farthest_kept);
+    }
+  }
+  SECTION("voxel updates: the farthest blocks go one scale coarser, then are skipped") {
+    Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f, 0), camera);
+    const IntegrationReport free_run = fusion.fuse(scene, pose);
+    const std::uint32_t n = free_run.blocks_integrated;
+    FusionBudget budget;
+    budget.max_voxel_updates = 512ull * n - 400;  // forces a few blocks to scale 1
+    const IntegrationReport r = fusion.fuse(scene, pose, budget);
+    CHECK(r.budget_hit);
+    CHECK(r.budget_blocks_coarsened == 1);
+    CHECK(r.blocks_per_scale[1] == 1);
+    CHECK(r.budget_blocks_skipped == 0);
+    budget.max_voxel_updates = 64ull * n / 2;  // even all at scale 1 is too much
+    const IntegrationReport tight = fusion.fuse(scene, pose, budget);
+    CHECK(tight.budget_blocks_coarsened == n);
+    CHECK(tight.budget_blocks_skipped > 0);
+    CHECK(tight.blocks_integrated + tight.budget_blocks_skipped == n);
+    CHECK(64ull * tight.blocks_integrated <= budget.max_voxel_updates);
+  }
+  SECTION("integrated blocks: the farthest are skipped") {
+    Fusion<TsdfVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
+    const IntegrationReport free_run = fusion.fuse(scene, pose);
+    FusionBudget budget;
+    budget.max_integrated_blocks = 10;
+    const IntegrationReport r = fusion.fuse(scene, pose, budget);
+    CHECK(r.budget_hit);
+    CHECK(r.blocks_integrated == 10);
+    CHECK(r.budget_blocks_skipped == free_run.blocks_integrated - 10);
+  }
+}
+
+TEST_CASE("bad input is refused without touching the map", "[fusion][integrator]") {
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.0});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
+  scene.render(camera, Se3d::Identity(), fusion.depth);
+  const ImageView<const float> view(fusion.depth.data(), 160, 120);
+  WorkerTeam team(1);
+  Se3d bad_pose = Se3d::Identity();
+  bad_pose.matrix()(0, 3) = std::numeric_limits<double>::quiet_NaN();
+  CHECK(fusion.integrator.integrate(fusion.map, view, camera, bad_pose, 0, FusionBudget(), team)
+            .status == StatusCode::invalid_argument);
+  Se3d skew = Se3d::Identity();
+  skew.matrix()(0, 0) = 2.0;
+  CHECK(
+      fusion.integrator.integrate(fusion.map, view, camera, skew, 0, FusionBudget(), team).status ==
+      StatusCode::invalid_argument);
+  PinholeCamera wrong = camera;
+  wrong.width = 80;
+  CHECK(fusion.integrator
+            .integrate(fusion.map, view, wrong, Se3d::Identity(), 0, FusionBudget(), team)
+            .status == StatusCode::invalid_argument);
+  const ImageView<const float> small(fusion.depth.data(), 80, 60);
+  PinholeCamera small_camera = test::test_camera(80, 60, 65.0f);
+  CHECK(fusion.integrator
+            .integrate(fusion.map, small, small_camera, Se3d::Identity(), 0, FusionBudget(), team)
+            .status == StatusCode::failed_precondition);
+  CHECK(fusion.map.block_count() == 0);
+  // NaN and negative depths are no measurement.
+  for (std::size_t i = 0; i < fusion.depth.size(); ++i) {
+    fusion.depth[i] = (i % 2 == 0) ? std::numeric_limits<float>::quiet_NaN() : -1.0f;
+  }
+  const IntegrationReport r = fusion.integrator.integrate(
+      fusion.map, view, camera, Se3d::Identity(), 0, FusionBudget(), team);
+  CHECK(r.status.ok());
+  CHECK(r.blocks_touched == 0);
+  CHECK(fusion.map.block_count() == 0);
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -191,6 +191,10 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
 
   Se3d estimate = T_W_C;
   bool singular = false;
+  // Residual statistics for the report: from the converged level-0 pass (the estimate moved by
+  // less than convergence_norm after it), else from one more pass at the final estimate.
+  Partial final_total;
+  bool have_final = false;
   for (int level = kPyramidLevels - 1; level >= 0; --level) {
     for (int it = 0; it < config_.iterations[level]; ++it) {
       const Partial total = run_pass(level, estimate);
@@ -201,11 +205,17 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       }
       estimate = se3_exp(twist) * estimate;
       ++report.iterations[level];
-      if (twist.norm() < config_.convergence_norm) break;
+      if (twist.norm() < config_.convergence_norm) {
+        if (level == 0) {
+          final_total = total;
+          have_final = true;
+        }
+        break;
+      }
     }
   }
+  if (!have_final) final_total = run_pass(0, estimate);
 
-  const Partial final_total = run_pass(0, estimate);
   const double pixels = static_cast<double>(width_) * static_cast<double>(height_);
   report.status = ok_status();
   report.inliers = final_total.count;

@@ -261,5 +261,45 @@ TEST_CASE("process is bit-identical for 1 and 2 workers and allocates nothing") 
   }
 }
 
+TEST_CASE("garbage depth (NaN, infinities, negatives, huge values) gives a clean pyramid") {
+  std::mt19937 rng(99);
+  const float specials[] = {std::numeric_limits<float>::quiet_NaN(),
+                            std::numeric_limits<float>::infinity(),
+                            -std::numeric_limits<float>::infinity(),
+                            -1.0f,
+                            0.0f,
+                            1e30f,
+                            std::numeric_limits<float>::denorm_min(),
+                            std::numeric_limits<float>::max()};
+  std::uniform_int_distribution<int> pick(0, 15);
+  std::uniform_real_distribution<float> depth_m(0.3f, 5.0f);
+  std::vector<float> depth(640 * 480);
+  for (float& d : depth) {
+    const int k = pick(rng);
+    d = k < 8 ? specials[k] : depth_m(rng);
+  }
+  PreprocessConfig config;
+  config.bilateral = true;
+  PreprocessorFixture fixture(config, 640, 480);
+  REQUIRE(fixture.pre
+              .process(ImageView<const float>(depth.data(), 640, 480), vga_camera(), WorkerTeam(1))
+              .ok());
+  const DepthPyramid& p = fixture.pre.pyramid();
+  for (int level = 0; level < kPyramidLevels; ++level) {
+    int bad = 0;
+    for (int y = 0; y < p.depth_m[level].height; ++y) {
+      for (int x = 0; x < p.depth_m[level].width; ++x) {
+        const float d = p.depth_m[level](x, y);
+        bad += !(d == 0.0f || valid_depth(d));
+        bad += !p.vertices_C[level](x, y).allFinite();
+        const Eigen::Vector3f n = p.normals_C[level](x, y);
+        bad += !(n.isZero(0.0f) || std::abs(n.norm() - 1.0f) < kNormalTolerance);
+      }
+    }
+    INFO("level " << level);
+    CHECK(bad == 0);
+  }
+}
+
 }  // namespace
 }  // namespace octofuse

@@ -325,5 +325,27 @@ TEST_CASE("bad arguments are refused without touching the pose") {
   CHECK(std::string(track_outcome_name(TrackOutcome::lost_inliers)) == "lost_inliers");
 }
 
+TEST_CASE("a corrupt model (NaN vertices, non-unit normals) never crashes or poisons the pose") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (std::size_t i = 0; i < model.vertices_W.size(); i += 3) {
+    model.vertices_W[i] = Eigen::Vector3f(nan, 0.0f, 1.0f);
+    model.normals_W[i + 1] = Eigen::Vector3f(nan, nan, nan);
+  }
+  f.set_live(scene, offset_pose());
+  Se3d T_W_C = T_W_Cref;
+  const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                             T_W_Cref, T_W_C, WorkerTeam(1));
+  CHECK(report.status.ok());
+  CHECK(T_W_C.matrix().allFinite());
+  CHECK(std::isfinite(report.rms_residual_m));
+  // A third of the pairs are gone, the rest still pin the pose down.
+  CHECK(report.tracked());
+  CHECK(translation_error_m(T_W_C, offset_pose()) < kTranslationTolerance_m);
+}
+
 }  // namespace
 }  // namespace octofuse

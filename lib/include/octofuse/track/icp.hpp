@@ -10,9 +10,10 @@
 // count. The increment (left-multiplied, twist (v, w)) comes from an LDLT solve and is applied
 // with se3_exp; a level stops when the increment's norm drops below convergence_norm.
 //
-// After the last level the residual is evaluated once more at the final estimate: tracking is
-// lost when the RMS residual exceeds lost_max_rms_m or the inliers are fewer than
-// lost_min_inlier_fraction of the level-0 pixels; T_W_C then keeps the value passed in.
+// The reported residual and inliers are those of the last level-0 pass when it converged, else
+// of one more pass at the final estimate. Tracking is lost when the RMS residual exceeds
+// lost_max_rms_m or the inliers are fewer than lost_min_inlier_fraction of the level-0 pixels;
+// T_W_C then keeps the value passed in.
 
 #include <cstddef>
 #include <cstdint>

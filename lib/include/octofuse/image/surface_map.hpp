@@ -3,6 +3,8 @@
 // images have the same size. A pixel is invalid when its normal is the zero vector (its vertex
 // is then unspecified). The frame of the points is part of the variable name at each use
 // (`model_W`, `live_C`).
+// Normals point into free space (towards the sensor that saw the surface), as TSDF gradients do:
+// ICP's normal-agreement gate compares live and model normals with their signs.
 
 #include <Eigen/Core>
 

@@ -108,8 +108,7 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       }
       options.threads = static_cast<int>(integer);
     } else if (arg == "--intrinsics") {
-      if (!need_value(&value) ||
-          !cli::parse_intrinsics(value, options.source.intrinsics)) {
+      if (!need_value(&value) || !cli::parse_intrinsics(value, options.source.intrinsics)) {
         return fail("--intrinsics needs fx,fy,cx,cy with fx, fy > 0");
       }
       options.source.have_intrinsics = true;
@@ -119,8 +118,7 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       }
       options.source.depth_scale = number;
     } else if (arg == "--seed") {
-      if (!need_value(&value) ||
-          !cli::parse_int(value, 0, INT64_MAX, integer)) {
+      if (!need_value(&value) || !cli::parse_int(value, 0, INT64_MAX, integer)) {
         return fail("--seed needs a non-negative integer");
       }
       options.source.seed = static_cast<unsigned long long>(integer);
@@ -140,8 +138,8 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       int levels[3];
       if (!need_value(&value) ||
           std::sscanf(value.c_str(), "%d,%d,%d", &levels[0], &levels[1], &levels[2]) != 3 ||
-          levels[0] < 0 || levels[1] < 0 || levels[2] < 0 || levels[0] > 100 ||
-          levels[1] > 100 || levels[2] > 100) {
+          levels[0] < 0 || levels[1] < 0 || levels[2] < 0 || levels[0] > 100 || levels[1] > 100 ||
+          levels[2] > 100) {
         return fail("--budget-icp needs three iteration counts A,B,C in [0, 100]");
       }
       for (int l = 0; l < 3; ++l) options.budget.icp_iterations[l] = levels[l];
@@ -171,12 +169,13 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
   std::vector<double> totals;
   for (const auto& s : summary.frames) totals.push_back(s.times.total_ms);
   const auto total = percentiles(totals);
-  std::printf("%zu frames (%llu lost, %llu rejected, %llu skipped by the source) in %.1f s; "
-              "per frame median %.1f ms, p99 %.1f ms\n",
-              summary.frames.size(), static_cast<unsigned long long>(summary.frames_lost),
-              static_cast<unsigned long long>(summary.frames_rejected),
-              static_cast<unsigned long long>(summary.frames_skipped_by_source), summary.wall_s,
-              total.median, total.p99);
+  std::printf(
+      "%zu frames (%llu lost, %llu rejected, %llu skipped by the source) in %.1f s; "
+      "per frame median %.1f ms, p99 %.1f ms\n",
+      summary.frames.size(), static_cast<unsigned long long>(summary.frames_lost),
+      static_cast<unsigned long long>(summary.frames_rejected),
+      static_cast<unsigned long long>(summary.frames_skipped_by_source), summary.wall_s,
+      total.median, total.p99);
   std::printf("map: %u blocks of %u (%.1f MB used, %.1f MB reserved)\n",
               summary.map_memory.blocks_used, summary.map_memory.block_capacity,
               static_cast<double>(summary.map_memory.bytes_used) / 1048576.0,

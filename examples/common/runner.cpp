@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <sys/stat.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -9,7 +10,6 @@
 #include <cstdlib>
 #include <memory>
 #include <utility>
-#include <sys/stat.h>
 
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/json_writer.hpp"
@@ -31,8 +31,8 @@ std::int64_t steady_now_us(void*) {
 struct AlignedBuffer {
   void* data = nullptr;
   explicit AlignedBuffer(std::size_t bytes) {
-    data = std::aligned_alloc(kArenaAlignment, align_up(std::max<std::size_t>(bytes, 1),
-                                                        kArenaAlignment));
+    data = std::aligned_alloc(kArenaAlignment,
+                              align_up(std::max<std::size_t>(bytes, 1), kArenaAlignment));
   }
   ~AlignedBuffer() { std::free(data); }
   AlignedBuffer(const AlignedBuffer&) = delete;
@@ -69,7 +69,9 @@ int voxel_depth_for(float map_size_m, float voxel_size_m) {
   return depth;
 }
 
-std::string join(const std::string& dir, const char* name) { return dir + "/" + name; }
+std::string join(const std::string& dir, const char* name) {
+  return dir + "/" + name;
+}
 
 bool make_dir(const std::string& path) {
   if (::mkdir(path.c_str(), 0755) == 0) return true;
@@ -208,8 +210,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       }
       PipelineConfig config =
           default_pipeline_config(input_camera, options.voxel_size_m, depth, blocks, centre_W);
-      config.map_kind = std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires
-                                                              : MapKind::single_res;
+      config.map_kind =
+          std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires : MapKind::single_res;
       if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;
       config.workers = options.threads;
       config.pose_source = options.pose_source;
@@ -347,7 +349,6 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
   }
 
-
   if (options.out_dir.empty()) return 0;
 
   // render.png: the last ray-cast, shaded and coloured by interpolation scale.
@@ -397,7 +398,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("raycast").value(percentiles(raycast).median);
     json.end_object();
     json.key("arena_bytes").value(static_cast<std::uint64_t>(summary->arena_bytes));
-    json.key("map_bytes_reserved").value(static_cast<std::uint64_t>(summary->map_memory.bytes_reserved));
+    json.key("map_bytes_reserved")
+        .value(static_cast<std::uint64_t>(summary->map_memory.bytes_reserved));
     json.key("map_bytes_used").value(static_cast<std::uint64_t>(summary->map_memory.bytes_used));
     json.key("pool_blocks_used").value(static_cast<std::uint64_t>(summary->map_memory.blocks_used));
     json.key("pool_block_capacity")

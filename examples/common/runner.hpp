@@ -20,13 +20,13 @@ struct RunOptions {
   std::string out_dir;  // empty: write nothing
   MapKind map_kind = MapKind::multires;
   float voxel_size_m = 0.01f;
-  float mu_m = 0.0f;         // 0: 8 voxels
-  float map_size_m = 8.0f;   // cube side (rounded up to a power of two of voxels)
-  long max_frames = -1;      // stop after this many frames; -1 = the whole source
+  float mu_m = 0.0f;        // 0: 8 voxels
+  float map_size_m = 8.0f;  // cube side (rounded up to a power of two of voxels)
+  long max_frames = -1;     // stop after this many frames; -1 = the whole source
   int threads = 1;
   PoseSource pose_source = PoseSource::track;
-  std::uint32_t max_blocks = 0;  // block pool capacity; 0 = from voxel size and map memory
-  float map_memory_mb = 1024.0f; // used when max_blocks is 0
+  std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
+  float map_memory_mb = 1024.0f;  // used when max_blocks is 0
   PipelineBudget budget;
   bool bilateral = false;
   bool write_mesh = true;
@@ -39,8 +39,8 @@ struct RunOptions {
 
 struct RunSummary {
   std::vector<FrameStats> frames;
-  std::vector<host::TimedPose> trajectory;    // one per processed frame
-  std::vector<host::TimedPose> ground_truth;  // where the source had it
+  std::vector<host::TimedPose> trajectory;     // one per processed frame
+  std::vector<host::TimedPose> ground_truth;   // where the source had it
   std::uint64_t frames_skipped_by_source = 0;  // FrameOutcome::skip
   std::uint64_t frames_rejected = 0;
   std::uint64_t frames_lost = 0;

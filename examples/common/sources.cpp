@@ -84,9 +84,10 @@ std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOp
       config.intrinsics.cx = static_cast<float>(options.intrinsics[2]);
       config.intrinsics.cy = static_cast<float>(options.intrinsics[3]);
     }
-    if (options.depth_scale > 0.0) config.depth_units_per_m = static_cast<float>(options.depth_scale);
-    config.pacing = options.real_time ? replay::Pacing::real_time
-                                      : replay::Pacing::as_fast_as_possible;
+    if (options.depth_scale > 0.0)
+      config.depth_units_per_m = static_cast<float>(options.depth_scale);
+    config.pacing =
+        options.real_time ? replay::Pacing::real_time : replay::Pacing::as_fast_as_possible;
     return std::make_unique<replay::ReplaySource>(config);
   }
 #endif
@@ -120,8 +121,8 @@ std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOp
 #endif
   (void)options;
   (void)text;
-  *error = "unknown or unsupported source '" + spec + "'; this build supports:\n" +
-           supported_sources();
+  *error =
+      "unknown or unsupported source '" + spec + "'; this build supports:\n" + supported_sources();
   return nullptr;
 }
 

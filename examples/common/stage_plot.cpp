@@ -33,8 +33,8 @@ bool write_stacked_svg(const std::string& path, const std::string& title,
                bottom = 50.0;
   const double plot_w = width - left - right, plot_h = height - top_margin - bottom;
   auto x_of = [&](std::size_t i) {
-    return left + (frames > 1 ? plot_w * static_cast<double>(i) / static_cast<double>(frames - 1)
-                              : 0.0);
+    return left +
+           (frames > 1 ? plot_w * static_cast<double>(i) / static_cast<double>(frames - 1) : 0.0);
   };
   auto y_of = [&](double v) { return top_margin + plot_h * (1.0 - v / axis_max); };
 

@@ -8,9 +8,9 @@
 namespace octofuse::plot {
 
 struct StageSeries {
-  std::string name;             // "track"
-  std::string colour;           // "#1f77b4"
-  std::vector<double> values;   // one value per frame (ms)
+  std::string name;            // "track"
+  std::string colour;          // "#1f77b4"
+  std::vector<double> values;  // one value per frame (ms)
 };
 
 // Stacks the series in the order given. All series must have the same length. Returns false (and

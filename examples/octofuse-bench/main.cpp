@@ -4,13 +4,13 @@
 
 #include <unistd.h>
 
+#include <sys/stat.h>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <sstream>
 #include <string>
-#include <sys/stat.h>
 #include <thread>
 #include <vector>
 
@@ -23,9 +23,9 @@
 namespace {
 
 using octofuse::examples::Percentiles;
+using octofuse::examples::percentiles;
 using octofuse::examples::RunOptions;
 using octofuse::examples::RunSummary;
-using octofuse::examples::percentiles;
 
 struct Cell {
   std::string scene;  // source spec
@@ -87,7 +87,9 @@ std::string cpu_model() {
   return "unknown";
 }
 
-double median_of(std::vector<double> v) { return percentiles(std::move(v)).median; }
+double median_of(std::vector<double> v) {
+  return percentiles(std::move(v)).median;
+}
 double spread_of(std::vector<double> v) {
   if (v.empty()) return 0.0;
   std::sort(v.begin(), v.end());
@@ -231,10 +233,10 @@ int main(int argc, char** argv) {
   for (const std::string& scene : scenes) {
     for (float voxel : voxels) {
       for (int threads : quick ? std::vector<int>{1} : std::vector<int>{1, 2}) {
-        for (auto poses : quick ? std::vector<octofuse::PoseSource>{octofuse::PoseSource::track}
-                                : std::vector<octofuse::PoseSource>{
-                                      octofuse::PoseSource::track,
-                                      octofuse::PoseSource::ground_truth}) {
+        for (auto poses :
+             quick ? std::vector<octofuse::PoseSource>{octofuse::PoseSource::track}
+                   : std::vector<octofuse::PoseSource>{octofuse::PoseSource::track,
+                                                       octofuse::PoseSource::ground_truth}) {
           for (auto map : {octofuse::MapKind::multires, octofuse::MapKind::single_res}) {
             cells.push_back(Cell{scene, map, voxel, threads, poses, frames});
           }
@@ -261,8 +263,8 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "[repeat %ld/%ld] %s ...\n", r + 1, repeats, cells[c].label().c_str());
       const std::string run_dir = out_dir + "/" + cells[c].slug();
       int exit_code = 0;
-      Repeat rep = run_cell(cells[c], r == 0 ? run_dir : std::string(), eval_for(cells[c]),
-                            &exit_code);
+      Repeat rep =
+          run_cell(cells[c], r == 0 ? run_dir : std::string(), eval_for(cells[c]), &exit_code);
       if (exit_code != 0) {
         return octofuse::cli::fail("run failed: " + cells[c].label());
       }
@@ -321,9 +323,13 @@ int main(int argc, char** argv) {
         median_of(per_stage[3][0]), median_of(per_stage[4][0]), spread_of(per_stage[4][0]),
         median_of(per_stage[4][1]), median_of(per_stage[4][2]), median_of(per_stage[4][3]),
         median_of(fps), used_mb, reserved_mb, median_of(rss),
-        ate.empty() ? "-" : std::to_string(std::round(median_of(ate) * 1000.0) / 10.0).substr(0, 5).c_str(),
+        ate.empty()
+            ? "-"
+            : std::to_string(std::round(median_of(ate) * 1000.0) / 10.0).substr(0, 5).c_str(),
         static_cast<unsigned long long>(first.frames_lost),
-        rmse.empty() ? "-" : std::to_string(std::round(median_of(rmse) * 10000.0) / 10.0).substr(0, 5).c_str(),
+        rmse.empty()
+            ? "-"
+            : std::to_string(std::round(median_of(rmse) * 10000.0) / 10.0).substr(0, 5).c_str(),
         recall.empty() ? "-" : std::to_string(median_of(recall)).substr(0, 4).c_str());
     md << row;
 

@@ -7,11 +7,16 @@ namespace octofuse {
 
 const char* frame_result_name(FrameResult result) {
   switch (result) {
-    case FrameResult::tracked: return "tracked";
-    case FrameResult::first: return "first";
-    case FrameResult::lost: return "lost";
-    case FrameResult::rejected: return "rejected";
-    case FrameResult::nearly_empty: return "nearly_empty";
+    case FrameResult::tracked:
+      return "tracked";
+    case FrameResult::first:
+      return "first";
+    case FrameResult::lost:
+      return "lost";
+    case FrameResult::rejected:
+      return "rejected";
+    case FrameResult::nearly_empty:
+      return "nearly_empty";
   }
   return "unknown";
 }
@@ -137,7 +142,6 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   return ok_status();
 }
 
-
 template <typename VoxelT>
 Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out) {
   FrameStats stats;
@@ -182,8 +186,8 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
   } else {
     Se3d estimate = T_W_C_;
     stats.track_attempted = true;
-    stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(),
-                                 working_camera_, T_W_Cref_, estimate, team_);
+    stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
+                                 T_W_Cref_, estimate, team_);
     for (int level = 0; level < kPyramidLevels; ++level) {
       const int budget = config_.budget.icp_iterations[level];
       if (budget > 0 && stats.track.iterations[level] >= budget) stats.budget_icp_hit = true;

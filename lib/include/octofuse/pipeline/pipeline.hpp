@@ -49,7 +49,7 @@ struct PipelineBudget {
   std::uint32_t max_new_blocks = 0xFFFFFFFFu;         // per frame
   std::uint32_t max_integrated_blocks = 0xFFFFFFFFu;  // per frame
   std::uint64_t max_voxel_updates = ~std::uint64_t{0};
-  std::uint64_t raycast_steps = 0;  // 0 = unbounded
+  std::uint64_t raycast_steps = 0;                  // 0 = unbounded
   int icp_iterations[kPyramidLevels] = {4, 5, 10};  // index 0 = finest level
 };
 
@@ -91,11 +91,11 @@ struct StageTimes {
 };
 
 enum class FrameResult : std::uint8_t {
-  tracked,        // pose estimated (or taken from ground truth) and the frame integrated
-  first,          // first frame: pose fixed, integrated
-  lost,           // tracking lost: pose kept, nothing integrated
-  rejected,       // the frame failed validation: nothing changed
-  nearly_empty,   // too few valid pixels: not tracked, not integrated
+  tracked,       // pose estimated (or taken from ground truth) and the frame integrated
+  first,         // first frame: pose fixed, integrated
+  lost,          // tracking lost: pose kept, nothing integrated
+  rejected,      // the frame failed validation: nothing changed
+  nearly_empty,  // too few valid pixels: not tracked, not integrated
 };
 const char* frame_result_name(FrameResult result);
 
@@ -104,8 +104,8 @@ struct FrameStats {
   std::int64_t timestamp_us = 0;
   FrameResult result = FrameResult::rejected;
   StageTimes times;
-  FrameReport input;            // validator's pixel counts
-  TrackReport track;            // meaningful when a track was attempted
+  FrameReport input;  // validator's pixel counts
+  TrackReport track;  // meaningful when a track was attempted
   bool track_attempted = false;
   IntegrationReport integration;  // meaningful when integrated
   RaycastStats raycast;

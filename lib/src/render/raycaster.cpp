@@ -12,6 +12,8 @@ namespace {
 // Past an empty octant's far face by this fraction of a voxel, so the next lookup lands inside
 // the following octant despite rounding.
 constexpr float kExitNudge_voxels = 1e-3f;
+// Step through unobserved voxels of allocated blocks, as a fraction of mu.
+constexpr float kUnobservedStep_mu = 0.5f;
 
 struct Ray {
   Eigen::Vector3f origin_W;
@@ -72,6 +74,9 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   float prev_t = 0.0f;
   float prev_f = 0.0f;
   TsdfSample sample;
+  // Consecutive samples mostly fall in the same block: look it up only when the block changes.
+  const VoxelBlock<VoxelT>* block = nullptr;
+  Eigen::Vector3i block_coords(-1, -1, -1);
   while (t <= t1) {
     if (steps_left == 0) return MarchResult::out_of_steps;
     --steps_left;
@@ -79,7 +84,12 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     const Eigen::Vector3f p_W = ray.origin_W + t * ray.dir_W;
     const Eigen::Vector3i voxel = map.point_to_voxel(p_W);
     if (!map.contains_voxel(voxel)) return MarchResult::miss;
-    if (map.find_block_index(voxel_to_block(voxel)) == kNoIndex) {
+    const Eigen::Vector3i coords = voxel_to_block(voxel);
+    if (coords != block_coords) {
+      block = map.find_block(coords);
+      block_coords = coords;
+    }
+    if (block == nullptr) {
       // Free octant: jump to its far face in one step.
       const OctantLookup where = map.lookup(voxel);
       const int free_level = std::min(where.level + 1, map.block_level());
@@ -92,8 +102,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       have_prev = false;
       continue;
     }
-    if (!sample_tsdf(map, p_W, sample)) {
-      t += voxel_m;
+    if (!sample_tsdf(map, p_W, block, sample)) {
+      // Unobserved space inside allocated blocks: a surface is only found inside an observed
+      // band, whose positive side is mu thick, so half of mu cannot step over it.
+      t += std::max(kUnobservedStep_mu * config.mu_m, voxel_m);
       have_prev = false;
       continue;
     }
@@ -102,8 +114,14 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       // Zero crossing by linear interpolation between the last two samples.
       const float t_hit = prev_t + (t - prev_t) * prev_f / (prev_f - f);
       const Eigen::Vector3f p_hit_W = ray.origin_W + t_hit * ray.dir_W;
+      // The hit and its gradient samples are within a voxel of the last sample: most share
+      // its block, so pass it along instead of looking it up again.
+      auto home_of = [&](const Eigen::Vector3f& q_W) {
+        const Eigen::Vector3i v = map.point_to_voxel(q_W);
+        return voxel_to_block(v) == block_coords ? block : map.find_block_at_voxel(v);
+      };
       TsdfSample at_hit;
-      if (!sample_tsdf(map, p_hit_W, at_hit)) at_hit = sample;
+      if (!sample_tsdf(map, p_hit_W, home_of(p_hit_W), at_hit)) at_hit = sample;
       // Normal by central differences of the field at the hit's scale; each sample may itself
       // fall back coarser. Missing neighbours: use the trilinear cell's gradient.
       const float h = voxel_m * static_cast<float>(1 << at_hit.scale);
@@ -115,8 +133,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
         offset[a] = h;
         TsdfSample plus;
         TsdfSample minus;
-        complete =
-            sample_tsdf(map, p_hit_W + offset, plus) && sample_tsdf(map, p_hit_W - offset, minus);
+        const Eigen::Vector3f p_plus_W = p_hit_W + offset;
+        const Eigen::Vector3f p_minus_W = p_hit_W - offset;
+        complete = sample_tsdf(map, p_plus_W, home_of(p_plus_W), plus) &&
+                   sample_tsdf(map, p_minus_W, home_of(p_minus_W), minus);
         central[a] = plus.tsdf - minus.tsdf;
       }
       if (complete && central.squaredNorm() > 0.0f) gradient = central;

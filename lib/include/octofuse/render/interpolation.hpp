@@ -38,10 +38,15 @@ struct TsdfSample {
 // unallocated or never-integrated block, or is unobserved (weight 0) at the common scale.
 template <typename VoxelT>
 bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W, TsdfSample& out) {
-  const Eigen::Vector3f q = map.point_to_voxel_f(p_W);  // finest voxel units
-  const Eigen::Vector3i voxel = map.point_to_voxel(p_W);
-  const VoxelBlock<VoxelT>* home = map.find_block_at_voxel(voxel);
+  return sample_tsdf(map, p_W, map.find_block_at_voxel(map.point_to_voxel(p_W)), out);
+}
+
+// Same, with the block holding p_W already found by the caller (`home`, null = none).
+template <typename VoxelT>
+bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W,
+                 const VoxelBlock<VoxelT>* home, TsdfSample& out) {
   if (home == nullptr) return false;
+  const Eigen::Vector3f q = map.point_to_voxel_f(p_W);  // finest voxel units
   int scale = block_read_scale(*home);
   while (scale <= kMaxBlockScale) {
     const int size = 1 << scale;
@@ -53,33 +58,61 @@ bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W, TsdfSamp
     float values[8];
     int needed = scale;
     bool ok = true;
-    // Neighbours usually share one block; remember the last one found.
-    const VoxelBlock<VoxelT>* cached = nullptr;
-    Eigen::Vector3i cached_coords(-1, -1, -1);
-    for (int c = 0; c < 8 && ok; ++c) {
-      const Eigen::Vector3i corner =
-          (base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1)) * size;
-      if (!map.contains_voxel(corner)) {
-        ok = false;
-        break;
+    // Fast path: all 8 neighbours inside the home block, read at this scale directly.
+    const int side = block_scale_side(scale);
+    const Eigen::Vector3i local = base - home->min_voxel() / size;
+    if (local.x() >= 0 && local.y() >= 0 && local.z() >= 0 && local.x() < side - 1 &&
+        local.y() < side - 1 && local.z() < side - 1) {
+      const VoxelT* level = home->scale_begin(scale);
+      const int first = local.x() + local.y() * side + local.z() * side * side;
+      const int offsets[8] = {0,
+                              1,
+                              side,
+                              side + 1,
+                              side * side,
+                              side * side + 1,
+                              side * side + side,
+                              side * side + side + 1};
+      for (int c = 0; c < 8 && ok; ++c) {
+        const VoxelT& v = level[first + offsets[c]];
+        ok = voxel_observed(v);
+        values[c] = voxel_tsdf(v);
       }
-      const Eigen::Vector3i block_coords = voxel_to_block(corner);
-      if (cached == nullptr || block_coords != cached_coords) {
-        cached = map.find_block(block_coords);
-        cached_coords = block_coords;
+      if (!ok) return false;
+    } else {
+      // The corners span at most 2 blocks per axis: look each block up once, the home block
+      // not at all.
+      const VoxelBlock<VoxelT>* near[8] = {};
+      bool looked_up[8] = {};
+      const Eigen::Vector3i first_block = voxel_to_block(base * size);
+      for (int c = 0; c < 8 && ok; ++c) {
+        const Eigen::Vector3i corner =
+            (base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1)) * size;
+        if (!map.contains_voxel(corner)) {
+          ok = false;
+          break;
+        }
+        const Eigen::Vector3i block_coords = voxel_to_block(corner);
+        const Eigen::Vector3i d = block_coords - first_block;
+        const int slot = d.x() + 2 * d.y() + 4 * d.z();
+        if (!looked_up[slot]) {
+          near[slot] = block_coords == home->coords ? home : map.find_block(block_coords);
+          looked_up[slot] = true;
+        }
+        const VoxelBlock<VoxelT>* cached = near[slot];
+        if (cached == nullptr) {
+          ok = false;
+          break;
+        }
+        const int cached_scale = block_read_scale(*cached);
+        if (cached_scale > needed) needed = cached_scale;
+        const VoxelT& v = cached->at_voxel(corner, scale);
+        if (!voxel_observed(v)) {
+          ok = false;
+          break;
+        }
+        values[c] = voxel_tsdf(v);
       }
-      if (cached == nullptr) {
-        ok = false;
-        break;
-      }
-      const int cached_scale = block_read_scale(*cached);
-      if (cached_scale > needed) needed = cached_scale;
-      const VoxelT& v = cached->at_voxel(corner, scale);
-      if (!voxel_observed(v)) {
-        ok = false;
-        break;
-      }
-      values[c] = voxel_tsdf(v);
     }
     if (!ok) {
       // A coarser neighbour may still make the coarser grid complete; only retry for that.

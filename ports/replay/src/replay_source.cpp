@@ -210,6 +210,7 @@ ReplaySource::~ReplaySource() {
 }
 
 std::size_t ReplaySource::file_buffer_bytes() const {
+  if (config_.format == DatasetFormat::slambench_raw) return 0;  // read straight into the ring
   // The largest max_width x max_height 16-bit PNG: stored deflate blocks, one filter byte per row,
   // plus room for chunk overhead.
   const std::size_t pixels =

@@ -165,7 +165,7 @@ Status ReplaySource::reserve(Arena& arena) {
   Result<char*> names = arena.template allocate_array<char>(
       static_cast<std::size_t>(config_.max_frames) * config_.max_name_bytes_per_frame);
   if (!names.ok()) return names.status();
-  OCTOFUSE_TRY(png_.reserve(arena));
+  if (config_.format != DatasetFormat::slambench_raw) OCTOFUSE_TRY(png_.reserve(arena));
   ring_ = ring.value();
   file_buffer_ = file.value();
   entries_ = entries.value();

@@ -35,6 +35,8 @@ struct Integrator<VoxelT>::Frame {
 
 namespace {
 
+constexpr std::size_t kPrefetchDistance = 4;
+
 std::uint64_t hash_morton(std::uint64_t m) {
   return (m * 0x9E3779B97F4A7C15ull) >> 20;
 }
@@ -181,7 +183,12 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
                                                  IntegrationReport& report) {
   const float inv_block = 1.0f / (8.0f * f.voxel_size_m);
   const int step = config_.allocation_pixel_step;
-  std::uint64_t last_morton = ~std::uint64_t{0};
+  // The last few blocks inserted: neighbouring rays cross the same blocks, and checking these
+  // first skips most probes of the (large, cache-unfriendly) frame set.
+  constexpr int kRecent = 8;
+  std::uint64_t recent[kRecent];
+  for (std::uint64_t& r : recent) r = ~std::uint64_t{0};
+  int recent_next = 0;
   for (int v = 0; v < f.height; v += step) {
     const float* row = f.depth + v * f.stride;
     for (int u = 0; u < f.width; u += step) {
@@ -224,8 +231,11 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
       for (int c = 0; c < max_cells; ++c) {
         if (map.contains_block(cell)) {
           const std::uint64_t morton = morton_encode(cell);
-          if (morton != last_morton) {
-            last_morton = morton;
+          bool seen = false;
+          for (int r = 0; r < kRecent; ++r) seen |= recent[r] == morton;
+          if (!seen) {
+            recent[recent_next] = morton;
+            recent_next = (recent_next + 1) % kRecent;
             insert_frame_block(morton, cell, report);
           }
         } else {
@@ -407,6 +417,16 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     const TaskRange range = task_range(count, task, tasks);
     TaskTally& tally = tallies_[task];
     for (std::size_t i = range.begin; i < range.end; ++i) {
+      // Blocks are scattered over a large pool: start fetching a later block's header and
+      // first voxels at its scale while this one is integrated.
+      if (i + kPrefetchDistance < range.end) {
+        const FrameBlock& later = frame_blocks_[i + kPrefetchDistance];
+        const VoxelBlock<VoxelT>& lb = map.block(later.block);
+        __builtin_prefetch(&lb);
+        const char* first = reinterpret_cast<const char*>(lb.scale_begin(later.scale));
+        __builtin_prefetch(first, 1);
+        __builtin_prefetch(first + 64, 1);
+      }
       const FrameBlock& b = frame_blocks_[i];
       if (b.skip != 0) continue;
       VoxelBlock<VoxelT>& block = map.block(b.block);

@@ -58,6 +58,82 @@ struct PixelHit {
 
 enum class MarchResult { hit, miss, out_of_steps };
 
+// Finds the block or free octant holding a voxel by descending from a cached ancestor node (a few
+// levels above the blocks) instead of probing the hash and walking from the root: consecutive
+// steps of a ray mostly stay under the same ancestor, whose nodes stay in cache.
+template <typename VoxelT>
+class TreeCursor {
+ public:
+  explicit TreeCursor(const Octree<VoxelT>& map)
+      : map_(map),
+        depth_(map.voxel_depth()),
+        leaf_(map.block_level()),
+        anchor_level_(std::max(0, map.block_level() - kAnchorLevelsAboveBlocks)) {}
+
+  // Same answer as Octree::lookup(voxel); `voxel` must be inside the cube.
+  OctantLookup find(const Eigen::Vector3i& voxel) {
+    if (anchor_ == kNoIndex || !inside_anchor(voxel)) reanchor(voxel);
+    std::uint32_t node = anchor_;
+    OctantLookup out;
+    for (int level = anchor_node_level_;; ++level) {
+      const int bit = depth_ - level - 1;
+      const int child = ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
+                        (((voxel.z() >> bit) & 1) << 2);
+      const std::uint32_t next = map_.node(node).children[child];
+      if (level + 1 == leaf_) {
+        out.level = next == kNoIndex ? level : level + 1;
+        out.node = node;
+        out.block = next;
+        return out;
+      }
+      if (next == kNoIndex) {
+        out.level = level;
+        out.node = node;
+        return out;
+      }
+      node = next;
+    }
+  }
+
+ private:
+  static constexpr int kAnchorLevelsAboveBlocks = 3;
+
+  bool inside_anchor(const Eigen::Vector3i& voxel) const {
+    const Eigen::Vector3i d = voxel - anchor_corner_;
+    return d.x() >= 0 && d.y() >= 0 && d.z() >= 0 && d.x() < anchor_size_ && d.y() < anchor_size_ &&
+           d.z() < anchor_size_;
+  }
+
+  void reanchor(const Eigen::Vector3i& voxel) {
+    std::uint32_t node = Octree<VoxelT>::root_index();
+    int level = 0;
+    while (level < anchor_level_) {
+      const int bit = depth_ - level - 1;
+      const int child = ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
+                        (((voxel.z() >> bit) & 1) << 2);
+      const std::uint32_t next = map_.node(node).children[child];
+      if (next == kNoIndex) break;
+      node = next;
+      ++level;
+    }
+    const int shift = depth_ - level;
+    anchor_ = node;
+    anchor_node_level_ = level;
+    anchor_size_ = 1 << shift;
+    anchor_corner_ = Eigen::Vector3i((voxel.x() >> shift) << shift, (voxel.y() >> shift) << shift,
+                                     (voxel.z() >> shift) << shift);
+  }
+
+  const Octree<VoxelT>& map_;
+  int depth_;
+  int leaf_;
+  int anchor_level_;
+  std::uint32_t anchor_ = kNoIndex;
+  int anchor_node_level_ = 0;
+  int anchor_size_ = 0;
+  Eigen::Vector3i anchor_corner_ = Eigen::Vector3i::Zero();
+};
+
 template <typename VoxelT>
 MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const Ray& ray,
                   float t_near, float t_far, std::uint64_t& steps_left, std::uint64_t& steps,
@@ -77,6 +153,8 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   // Consecutive samples mostly fall in the same block: look it up only when the block changes.
   const VoxelBlock<VoxelT>* block = nullptr;
   Eigen::Vector3i block_coords(-1, -1, -1);
+  TreeCursor<VoxelT> cursor(map);
+  OctantLookup where;
   while (t <= t1) {
     if (steps_left == 0) return MarchResult::out_of_steps;
     --steps_left;
@@ -86,12 +164,12 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     if (!map.contains_voxel(voxel)) return MarchResult::miss;
     const Eigen::Vector3i coords = voxel_to_block(voxel);
     if (coords != block_coords) {
-      block = map.find_block(coords);
+      where = cursor.find(voxel);
+      block = where.block == kNoIndex ? nullptr : &map.block(where.block);
       block_coords = coords;
     }
     if (block == nullptr) {
       // Free octant: jump to its far face in one step.
-      const OctantLookup where = map.lookup(voxel);
       const int free_level = std::min(where.level + 1, map.block_level());
       const int size = octant_size_voxels(free_level, map.voxel_depth());
       const Eigen::Vector3i corner((voxel.x() / size) * size, (voxel.y() / size) * size,

@@ -72,8 +72,11 @@ class Mesher {
 
   // Meshes every block of `map` in block-index order (deterministic) into `sink`. Returns the
   // totals, or: failed_precondition (not reserved), resource_exhausted (more unique vertices
-  // than vertex_capacity; what was streamed so far stays valid and closed per finished batch),
-  // or the first non-ok Status from the sink. An empty map gives an empty mesh.
+  // than vertex_capacity), or the first non-ok Status from the sink. After an error what the
+  // sink received is still a valid indexed mesh (a triangle only names vertices sent before
+  // it), just incomplete. An empty map gives an empty mesh. Memory (bytes_required): a
+  // de-duplication table of 24-byte slots, at most half full and a power of two (48 to 96 bytes
+  // per unit of vertex_capacity), plus 28 bytes per unit of batch_capacity.
   Result<MeshStats> extract(const Octree<VoxelT>& map, MeshSink& sink);
 
   struct VertexSlot {

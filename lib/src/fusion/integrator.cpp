@@ -31,6 +31,8 @@ struct Integrator<VoxelT>::Frame {
   float near_m = 0;
   float far_m = 0;
   float y_max = 0;
+  // Coarsest scale any block integrates at this frame: up-propagation stops there (paper 4.3.2).
+  int mip_target = 0;
 };
 
 namespace {
@@ -93,6 +95,8 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
         for (int l = previous; l > scale; --l) propagate_block_down(block, l, f.y_max);
       } else if (scale > previous) {
         ++tally.coarsened;
+        // Lazy up-propagation may have left the target level stale: refresh it first.
+        if (block.mip_scale < scale) propagate_block_up(block, block.mip_scale, scale);
       }
     }
   }
@@ -126,24 +130,22 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
         const float t = voxel_tsdf(v);
         lo = std::min(lo, t);
         hi = std::max(hi, t);
-        if constexpr (!kMultires) {
-          sum += t;
-          sum_weight += voxel_weight(v);
-          ++observed;
-        }
+        sum += t;
+        sum_weight += voxel_weight(v);
+        ++observed;
       }
     }
   }
   if constexpr (kMultires) {
-    propagate_block_up(block, scale, kMaxBlockScale);
+    const int target = scale > f.mip_target ? scale : f.mip_target;
+    if (target > scale) propagate_block_up(block, scale, target);
+    block.mip_scale = static_cast<std::int8_t>(target);
   } else {
-    // Single-res blocks keep only scale 0; their block mean goes in the scale-3 slot so the
-    // octree's node summaries see it.
-    if (observed > 0) {
-      TsdfVoxel& mean = block.voxels[block_scale_offset(kMaxBlockScale)];
-      mean.tsdf = sum / static_cast<float>(observed);
-      mean.weight = std::ceil(sum_weight / static_cast<float>(observed));
-    }
+    block.mip_scale = 0;  // single-res blocks keep scale 0 only
+  }
+  if (observed > 0) {
+    block.tsdf_mean = sum / static_cast<float>(observed);
+    block.weight_mean = std::ceil(sum_weight / static_cast<float>(observed));
   }
   block.tsdf_min = lo;
   block.tsdf_max = hi;
@@ -408,6 +410,13 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     }
   }
   apply_budgets(count, budget, report);
+
+  f.mip_target = 0;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    if (frame_blocks_[i].skip == 0 && frame_blocks_[i].scale > f.mip_target) {
+      f.mip_target = frame_blocks_[i].scale;
+    }
+  }
 
   // 4. Integrate, in a fixed number of tasks.
   const std::size_t tasks =

@@ -105,7 +105,12 @@ TEST_CASE("a plane fused at each scale crosses zero within a quarter voxel of it
       CHECK(r.blocks_per_scale[scale] == r.blocks_integrated);
     }
     const double kTolerance_m = 0.25 * kVoxel_m * (1 << scale);
-    // Columns across the view, read at the fused scale and every coarser one.
+    // Up-propagation is lazy (it stops at the frame's coarsest scale): complete it, as a coarse
+    // query would, then read at the fused scale and every coarser one.
+    for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+      VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+      if (b.integrated()) propagate_block_up(b, b.mip_scale, kMaxBlockScale);
+    }
     for (int s = scale; s <= kMaxBlockScale; ++s) {
       for (const Eigen::Vector3i& column :
            {Eigen::Vector3i(128, 128, 0), Eigen::Vector3i(100, 150, 0),
@@ -175,8 +180,8 @@ TEST_CASE("a sphere fused at each scale crosses zero within a quarter voxel of i
 
 // Every voxel at scale s+1 equals the eq. 4 mean of its observed children, bit for bit.
 template <typename Block>
-void require_consistent_mips(const Block& block, int from_scale) {
-  for (int s = from_scale; s < kMaxBlockScale; ++s) {
+void require_consistent_mips(const Block& block, int from_scale, int to_scale) {
+  for (int s = from_scale; s < to_scale; ++s) {
     const int n = block_scale_side(s + 1);
     for (int z = 0; z < n; ++z)
       for (int y = 0; y < n; ++y)
@@ -202,27 +207,43 @@ void require_consistent_mips(const Block& block, int from_scale) {
   }
 }
 
-TEST_CASE("after integration parents are exactly the mean of observed children, up to the root",
-          "[fusion][integrator]") {
+// A near sphere (scale 0 from this camera) and a far one (scale 1), side by side.
+AnalyticScene near_and_far_spheres() {
   AnalyticScene scene;
-  scene.spheres.push_back({Eigen::Vector3d(0.05, 0.0, 1.4), 0.25});
+  scene.spheres.push_back({Eigen::Vector3d(-0.3, 0.0, 1.0), 0.25});
+  scene.spheres.push_back({Eigen::Vector3d(0.4, 0.0, 2.05), 0.2});
+  return scene;
+}
+
+TEST_CASE(
+    "after integration parents are exactly the mean of observed children, up to the "
+    "coarsest scale of the frame and on to the root",
+    "[fusion][integrator]") {
+  const AnalyticScene scene = near_and_far_spheres();
   Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f),
                                test::test_camera(160, 120, 131.0f));
-  REQUIRE(fusion.fuse(scene, test::looking_along_z({0, 0, 0.3})).status.ok());
-  REQUIRE(fusion.fuse(scene, test::looking_along_z({0.05, 0, 0.3})).status.ok());
-  std::uint32_t checked = 0;
+  const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0, 0, -0.25}));
+  REQUIRE(r.status.ok());
+  REQUIRE(r.blocks_per_scale[0] > 0);
+  REQUIRE(r.blocks_per_scale[1] > 0);
+  REQUIRE(fusion.fuse(scene, test::looking_along_z({0.02, 0, -0.25})).status.ok());
+  std::uint32_t lifted = 0;
   for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
     const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
     if (!b.integrated()) continue;
-    require_consistent_mips(b, b.current_scale);
-    ++checked;
+    // Up-propagation stops at the coarsest scale integrated in the frame (here 1).
+    REQUIRE(b.mip_scale == std::max<int>(b.current_scale, 1));
+    require_consistent_mips(b, b.current_scale, b.mip_scale);
+    if (b.current_scale == 0) ++lifted;
   }
-  CHECK(checked > 10);
+  CHECK(lifted > 10);
   // The root sees the surface (a reference stopped at the block's parent).
   const NodeSummary& root = fusion.map.node(Octree<MultiresVoxel>::root_index()).summary;
   CHECK(root.observed());
   CHECK(root.tsdf_min < 0.0f);
   CHECK(root.tsdf_max > 0.0f);
+  const OctreeNode& parent = fusion.map.node(fusion.map.block(0).parent_node);
+  CHECK(parent.summary.observed());
 }
 
 TEST_CASE("delta_y counts applied updates only", "[fusion][integrator]") {
@@ -262,39 +283,40 @@ TEST_CASE("delta_y counts applied updates only", "[fusion][integrator]") {
 
 TEST_CASE("refinement down-propagates, then up-propagates in the same frame",
           "[fusion][integrator]") {
-  AnalyticScene scene;
-  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.0});
+  const AnalyticScene scene = near_and_far_spheres();
   const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
-  const MapConfig mc = map_config(0.01f, 8, 8000);
-  // Fuse at scale 1 first, then at scale 0 (a refine of every block).
-  Fusion<MultiresVoxel> fusion(mc, fusion_config(0.08f, 1), camera);
-  REQUIRE(fusion.fuse(scene, test::looking_along_z({0, 0, 0.3})).status.ok());
-  Integrator<MultiresVoxel> fine;
-  std::vector<unsigned char> extra(
-      align_up(Integrator<MultiresVoxel>::bytes_required(fusion_config(0.08f, 0), 160, 120),
-               kArenaAlignment) +
-      kArenaAlignment);
-  void* aligned = reinterpret_cast<void*>(
-      align_up(reinterpret_cast<std::uintptr_t>(extra.data()), kArenaAlignment));
-  LinearArena arena(aligned, extra.size() - kArenaAlignment);
-  REQUIRE(fine.reserve(arena, fusion_config(0.08f, 0), 160, 120).ok());
-  scene.render(camera, test::looking_along_z({0, 0, 0.3}), fusion.depth);
+  const Se3d pose = test::looking_along_z({0, 0, -0.25});
+  // First frame with every block at scale 1, then automatic scales: the near sphere's blocks
+  // refine to 0 while the far sphere's stay at 1.
+  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f, 1), camera);
+  REQUIRE(fusion.fuse(scene, pose).status.ok());
+  Integrator<MultiresVoxel> automatic;
+  const FusionConfig fc = fusion_config(0.08f);
+  test::ArenaBuffer extra(Integrator<MultiresVoxel>::bytes_required(fc, 160, 120));
+  REQUIRE(automatic.reserve(extra.arena(), fc, 160, 120).ok());
   const IntegrationReport r =
-      fine.integrate(fusion.map, ImageView<const float>(fusion.depth.data(), 160, 120), camera,
-                     test::looking_along_z({0, 0, 0.3}), 1, FusionBudget(), WorkerTeam(1));
+      automatic.integrate(fusion.map, ImageView<const float>(fusion.depth.data(), 160, 120), camera,
+                          pose, 1, FusionBudget(), WorkerTeam(1));
   REQUIRE(r.status.ok());
-  CHECK(r.blocks_refined == r.blocks_integrated);
-  CHECK(r.blocks_per_scale[0] == r.blocks_integrated);
+  CHECK(r.blocks_refined == r.blocks_per_scale[0]);
+  CHECK(r.blocks_refined > 10);
+  CHECK(r.blocks_per_scale[1] > 0);
   for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
     const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
-    if (!b.integrated()) continue;
-    CHECK(b.current_scale == 0);
+    if (!b.integrated() || b.current_scale != 0) continue;
     CHECK(b.min_scale == 0);
-    require_consistent_mips(b, 0);  // coarse levels are fresh after the refining frame
+    REQUIRE(b.mip_scale == 1);
+    require_consistent_mips(b, 0, 1);  // scale 1 is fresh after the refining frame
   }
-  // Interpolated-then-updated voxels: the plane still crosses within a quarter voxel.
-  const double z = zero_crossing_z(fusion.map, Eigen::Vector3i(128, 128, 0), 0, 0, 256);
-  CHECK(std::abs(z - 1.0) <= 0.25 * 0.01);
+  // Interpolated-then-updated voxels: the near sphere still crosses within a quarter voxel.
+  const Eigen::Vector3i column = fusion.map.point_to_voxel(Eigen::Vector3f(-0.3f, 0.0f, 0.0f));
+  const Eigen::Vector3f c = fusion.map.voxel_centre_W(column, 0);
+  const double dx = c.x() + 0.3;
+  const double dy = c.y();
+  const double truth = 1.0 - std::sqrt(0.25 * 0.25 - dx * dx - dy * dy);
+  const double z = zero_crossing_z(fusion.map, column, 0, 0, 256);
+  CAPTURE(truth, z);
+  CHECK(std::abs(z - truth) <= 0.25 * 0.01);
 }
 
 TEST_CASE("the thin-structure promise: close, far at scale 3, close again keeps the detail",

@@ -335,24 +335,35 @@ class Octree {
   }
 
   // --- Summaries.
-  // Recomputes a block's tsdf_min/tsdf_max over the observed voxels at its current scale.
+  // Recomputes a block's header summary (tsdf_min/max/mean, weight_mean) over the observed
+  // voxels at its current scale.
   static void update_block_summary(Block& block) {
     const int scale = block.current_scale;
     const VoxelT* v = block.scale_begin(scale);
     float lo = 1.0f;
     float hi = -1.0f;
+    float sum = 0.0f;
+    float sum_weight = 0.0f;
+    int observed = 0;
     for (int i = 0; i < block_scale_count(scale); ++i) {
       if (!voxel_observed(v[i])) continue;
       const float t = voxel_tsdf(v[i]);
       lo = t < lo ? t : lo;
       hi = t > hi ? t : hi;
+      sum += t;
+      sum_weight += voxel_weight(v[i]);
+      ++observed;
     }
     block.tsdf_min = lo;
     block.tsdf_max = hi;
+    if (observed > 0) {
+      block.tsdf_mean = sum / static_cast<float>(observed);
+      block.weight_mean = std::ceil(sum_weight / static_cast<float>(observed));
+    }
   }
   // Refreshes the summaries of every inner node above the given blocks, bottom-up to the root
-  // (each node once). A block contributes its scale-3 voxel (mean and weight) and its
-  // tsdf_min/max; a node contributes its summary. Means are over observed children only; a node
+  // (each node once). A block contributes its header summary (tsdf_mean, weight_mean,
+  // tsdf_min/max); a node contributes its summary. Means are over observed children only; a node
   // whose children are all unobserved keeps its summary.
   void propagate_summaries(const std::uint32_t* block_indices, std::size_t count) {
     ++stamp_;
@@ -487,9 +498,8 @@ class Octree {
       float child_hi;
       if (children_are_blocks) {
         const Block& b = blocks_[child];
-        const VoxelT& coarse = b.voxels[block_scale_offset(kMaxBlockScale)];
-        mean = voxel_tsdf(coarse);
-        weight = voxel_weight(coarse);
+        mean = b.tsdf_mean;
+        weight = b.weight_mean;
         child_lo = b.tsdf_min;
         child_hi = b.tsdf_max;
       } else {

@@ -53,11 +53,18 @@ struct VoxelBlock {
   std::uint32_t last_updated_frame = 0;              // frame index of the last integration
   std::int8_t current_scale = 0;                     // scale the block was last integrated at, 0..3
   std::int8_t min_scale = kNeverIntegrated;  // finest scale ever integrated, -1 until the first
-  std::uint8_t padding_[2] = {};
+  // Multires: levels current_scale..mip_scale hold the eq. 4 means of the level below (levels
+  // above mip_scale may be stale: up-propagation is lazy). -1 until the first integration.
+  std::int8_t mip_scale = kNeverIntegrated;
+  std::uint8_t padding_ = 0;
   // Summary of the observed voxels at current_scale, kept by the integrator for empty-space
   // skipping: min and max normalised TSDF (1 / -1 when nothing is observed, so min > max).
   float tsdf_min = 1.0f;
   float tsdf_max = -1.0f;
+  // Mean normalised TSDF and mean weight (rounded up) of those voxels; weight 0: none observed.
+  // The octree's node summaries are built from these.
+  float tsdf_mean = 1.0f;
+  float weight_mean = 0.0f;
   VoxelT voxels[kBlockVoxelCount] = {};
 
   bool integrated() const { return min_scale != kNeverIntegrated; }

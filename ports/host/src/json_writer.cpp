@@ -10,6 +10,16 @@
 
 namespace octofuse::host {
 
+void JsonWriter::append(char c) {
+  if (!out_.empty()) out_.resize(out_.size() - 1);  // drop the NUL
+  out_.push_back(c);
+  out_.push_back('\0');
+}
+
+void JsonWriter::append(const char* text) {
+  for (const char* p = text; *p != '\0'; ++p) append(*p);
+}
+
 void JsonWriter::before_value() {
   if (stack_.empty()) {
     OCTOFUSE_CHECK(!wrote_root_);  // one root value per document
@@ -17,8 +27,8 @@ void JsonWriter::before_value() {
     return;
   }
   if (stack_.back() == 'a') {
-    if (!first_.back()) out_ += ',';
-    first_.back() = false;
+    if (!first_.back()) append(',');
+    first_.back() = 0;
   } else {
     OCTOFUSE_CHECK(stack_.back() == 'v');  // a value inside an object needs a key first
     stack_.back() = 'o';
@@ -27,42 +37,42 @@ void JsonWriter::before_value() {
 
 JsonWriter& JsonWriter::begin_object() {
   before_value();
-  out_ += '{';
+  append('{');
   stack_.push_back('o');
-  first_.push_back(true);
+  first_.push_back(1);
   return *this;
 }
 
 JsonWriter& JsonWriter::end_object() {
   OCTOFUSE_CHECK(!stack_.empty() && stack_.back() == 'o');
-  out_ += '}';
-  stack_.pop_back();
-  first_.pop_back();
+  append('}');
+  stack_.resize(stack_.size() - 1);
+  first_.resize(first_.size() - 1);
   return *this;
 }
 
 JsonWriter& JsonWriter::begin_array() {
   before_value();
-  out_ += '[';
+  append('[');
   stack_.push_back('a');
-  first_.push_back(true);
+  first_.push_back(1);
   return *this;
 }
 
 JsonWriter& JsonWriter::end_array() {
   OCTOFUSE_CHECK(!stack_.empty() && stack_.back() == 'a');
-  out_ += ']';
-  stack_.pop_back();
-  first_.pop_back();
+  append(']');
+  stack_.resize(stack_.size() - 1);
+  first_.resize(first_.size() - 1);
   return *this;
 }
 
 JsonWriter& JsonWriter::key(const char* name) {
   OCTOFUSE_CHECK(!stack_.empty() && stack_.back() == 'o');
-  if (!first_.back()) out_ += ',';
-  first_.back() = false;
-  append_escaped(&out_, name);
-  out_ += ':';
+  if (!first_.back()) append(',');
+  first_.back() = 0;
+  append_escaped(name);
+  append(':');
   stack_.back() = 'v';
   return *this;
 }
@@ -73,7 +83,7 @@ JsonWriter& JsonWriter::value(double number) {
   char text[32];
   // %.17g round-trips every double; integers print without a fraction.
   std::snprintf(text, sizeof(text), "%.17g", number);
-  out_ += text;
+  append(text);
   return *this;
 }
 
@@ -81,7 +91,7 @@ JsonWriter& JsonWriter::value(std::int64_t number) {
   before_value();
   char text[24];
   std::snprintf(text, sizeof(text), "%" PRId64, number);
-  out_ += text;
+  append(text);
   return *this;
 }
 
@@ -89,65 +99,65 @@ JsonWriter& JsonWriter::value(std::uint64_t number) {
   before_value();
   char text[24];
   std::snprintf(text, sizeof(text), "%" PRIu64, number);
-  out_ += text;
+  append(text);
   return *this;
 }
 
 JsonWriter& JsonWriter::value(bool boolean) {
   before_value();
-  out_ += boolean ? "true" : "false";
+  append(boolean ? "true" : "false");
   return *this;
 }
 
 JsonWriter& JsonWriter::value(const char* text) {
   before_value();
-  append_escaped(&out_, text);
+  append_escaped(text);
   return *this;
 }
 
 JsonWriter& JsonWriter::null() {
   before_value();
-  out_ += "null";
+  append("null");
   return *this;
 }
 
-void JsonWriter::append_escaped(std::string* out, const char* text) {
-  *out += '"';
+void JsonWriter::append_escaped(const char* text) {
+  append('"');
   for (const char* p = text; *p != '\0'; ++p) {
     const unsigned char c = static_cast<unsigned char>(*p);
     switch (c) {
       case '"':
-        *out += "\\\"";
+        append("\\\"");
         break;
       case '\\':
-        *out += "\\\\";
+        append("\\\\");
         break;
       case '\b':
-        *out += "\\b";
+        append("\\b");
         break;
       case '\f':
-        *out += "\\f";
+        append("\\f");
         break;
       case '\n':
-        *out += "\\n";
+        append("\\n");
         break;
       case '\r':
-        *out += "\\r";
+        append("\\r");
         break;
       case '\t':
-        *out += "\\t";
+        append("\\t");
         break;
       default:
         if (c < 0x20) {
           char code[8];
           std::snprintf(code, sizeof(code), "\\u%04x", c);
-          *out += code;
+          append(code);
         } else {
-          *out += static_cast<char>(c);
+          append(static_cast<char>(c));
         }
     }
   }
-  *out += '"';
+  append('"');
 }
 
 Status JsonWriter::write_file(const char* path, ErrorText* error) const {
@@ -162,7 +172,7 @@ Status JsonWriter::write_file(const char* path, ErrorText* error) const {
     err.set("%s: cannot create (%s)", path, std::strerror(errno));
     return StatusCode::unavailable;
   }
-  bool ok = std::fwrite(out_.data(), 1, out_.size(), file) == out_.size();
+  bool ok = std::fwrite(c_str(), 1, size(), file) == size();
   ok = std::fputc('\n', file) != EOF && ok;
   ok = std::fclose(file) == 0 && ok;
   if (!ok) {

@@ -53,9 +53,10 @@ PointGridHash::PointGridHash(const Eigen::Vector3f* points, std::size_t count, d
   OCTOFUSE_CHECK(radius_m > 0.0);
   // About one bucket per point keeps chains short without a huge table.
   const std::size_t buckets = std::max<std::size_t>(1, count);
-  bucket_start_.assign(buckets + 1, 0);
+  bucket_start_.resize(buckets + 1);
   cell_.resize(3 * count);
-  std::vector<std::size_t> point_bucket(count);
+  HostBuffer<std::size_t> point_bucket;
+  point_bucket.resize(count);
   for (std::size_t i = 0; i < count; ++i) {
     for (int k = 0; k < 3; ++k) cell_[3 * i + k] = cell_of(points[i][k], radius_m);
     point_bucket[i] = bucket(cell_[3 * i], cell_[3 * i + 1], cell_[3 * i + 2]);
@@ -63,7 +64,9 @@ PointGridHash::PointGridHash(const Eigen::Vector3f* points, std::size_t count, d
   }
   for (std::size_t b = 0; b < buckets; ++b) bucket_start_[b + 1] += bucket_start_[b];
   order_.resize(count);
-  std::vector<std::size_t> fill(bucket_start_.begin(), bucket_start_.end() - 1);
+  HostBuffer<std::size_t> fill;
+  fill.resize(buckets);
+  for (std::size_t b = 0; b < buckets; ++b) fill[b] = bucket_start_[b];
   for (std::size_t i = 0; i < count; ++i) order_[fill[point_bucket[i]]++] = i;
 }
 

@@ -1,5 +1,7 @@
 #include "octofuse/ports/host/ply.hpp"
 
+#include "octofuse/ports/host/host_buffer.hpp"
+
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -59,7 +61,7 @@ Status write_ply(const char* path, const MeshView& mesh, ErrorText* error) {
                "element vertex %zu\nproperty float x\nproperty float y\nproperty float z\n%s"
                "element face %zu\nproperty list uchar uint vertex_indices\nend_header\n",
                mesh.vertex_count, with_scale ? "property uchar scale\n" : "", mesh.triangle_count);
-  std::vector<std::uint8_t> buffer;
+  HostBuffer<std::uint8_t> buffer;
   const std::size_t vertex_bytes = with_scale ? 13 : 12;
   buffer.resize(mesh.vertex_count * vertex_bytes);
   for (std::size_t i = 0; i < mesh.vertex_count; ++i) {
@@ -84,10 +86,9 @@ Status write_ply(const char* path, const MeshView& mesh, ErrorText* error) {
   return ok_status();
 }
 
-Status read_ply(const char* path, Mesh* mesh, ErrorText* error) {
+Status read_ply_into(const char* path, const PlyMeshTarget& target, ErrorText* error) {
   ErrorText scratch;
   ErrorText& err = error != nullptr ? *error : scratch;
-  *mesh = Mesh();
   std::FILE* file = std::fopen(path, "rb");
   if (file == nullptr) {
     err.set("%s: cannot open (%s)", path, std::strerror(errno));
@@ -182,48 +183,52 @@ Status read_ply(const char* path, Mesh* mesh, ErrorText* error) {
   }
 
   const std::size_t vertex_bytes = scale_position >= 0 ? 13 : 12;
-  std::vector<std::uint8_t> buffer(static_cast<std::size_t>(vertex_count) * vertex_bytes);
+  HostBuffer<std::uint8_t> buffer;
+  buffer.resize(static_cast<std::size_t>(vertex_count) * vertex_bytes);
   if (std::fread(buffer.data(), 1, buffer.size(), file) != buffer.size()) {
     err.set("%s: truncated in the vertex data (%llu vertices expected)", path, vertex_count);
     return StatusCode::data_loss;
   }
-  mesh->vertices.resize(vertex_count);
-  if (scale_position >= 0) mesh->vertex_scale.resize(vertex_count);
+  Eigen::Vector3f* vertices = nullptr;
+  std::uint32_t* indices = nullptr;
+  std::uint8_t* scale = nullptr;
+  if (!target.allocate(target.context, static_cast<std::size_t>(vertex_count),
+                       static_cast<std::size_t>(face_count), scale_position >= 0, &vertices,
+                       &indices, &scale)) {
+    err.set("%s: no storage for %llu vertices and %llu faces", path, vertex_count, face_count);
+    return StatusCode::resource_exhausted;
+  }
   for (std::size_t i = 0; i < vertex_count; ++i) {
     const std::uint8_t* in = buffer.data() + i * vertex_bytes;
     int offset = 0;
     int coordinate = 0;
     for (int prop = 0; prop < vertex_props; ++prop) {
       if (prop == scale_position) {
-        mesh->vertex_scale[i] = in[offset];
+        scale[i] = in[offset];
         offset += 1;
       } else {
-        mesh->vertices[i][coordinate++] = get_f32(in + offset);
+        vertices[i][coordinate++] = get_f32(in + offset);
         offset += 4;
       }
     }
   }
-  mesh->indices.resize(face_count * 3);
   std::uint8_t face[13];
   for (std::size_t t = 0; t < face_count; ++t) {
     if (std::fread(face, 1, 13, file) != 13) {
       err.set("%s: truncated in face %zu of %llu", path, t, face_count);
-      *mesh = Mesh();
       return StatusCode::data_loss;
     }
     if (face[0] != 3) {
       err.set("%s: face %zu has %u vertices, only triangles are supported", path, t, face[0]);
-      *mesh = Mesh();
       return StatusCode::data_loss;
     }
     for (int k = 0; k < 3; ++k) {
       const std::uint32_t index = get_u32(face + 1 + 4 * k);
       if (index >= vertex_count) {
         err.set("%s: face %zu refers to vertex %u of %llu", path, t, index, vertex_count);
-        *mesh = Mesh();
         return StatusCode::data_loss;
       }
-      mesh->indices[3 * t + k] = index;
+      indices[3 * t + k] = index;
     }
   }
   return ok_status();

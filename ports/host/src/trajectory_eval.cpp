@@ -7,9 +7,12 @@
 
 namespace octofuse::host {
 
-ErrorStats error_stats(std::vector<double> values) {
+ErrorStats error_stats(const double* input, std::size_t count) {
   ErrorStats stats;
-  if (values.empty()) return stats;
+  if (count == 0) return stats;
+  HostBuffer<double> values;
+  values.resize(count);
+  for (std::size_t i = 0; i < count; ++i) values[i] = input[i];
   double sum = 0.0, sum_sq = 0.0;
   for (double v : values) {
     sum += v;
@@ -25,16 +28,16 @@ ErrorStats error_stats(std::vector<double> values) {
   return stats;
 }
 
-std::vector<AssociatedPair> associate_by_time(const std::vector<TimedPose>& estimate,
-                                              const std::vector<TimedPose>& ground_truth,
-                                              double max_dt_s) {
+HostBuffer<AssociatedPair> associate_by_time(const std::vector<TimedPose>& estimate,
+                                             const std::vector<TimedPose>& ground_truth,
+                                             double max_dt_s) {
   // Candidates within max_dt_s, then greedy by smallest |dt| with each side used once.
   struct Candidate {
     double dt;
     std::size_t e;
     std::size_t g;
   };
-  std::vector<Candidate> candidates;
+  HostBuffer<Candidate> candidates;
   std::size_t g_begin = 0;
   for (std::size_t e = 0; e < estimate.size(); ++e) {
     const double t = estimate[e].timestamp_s;
@@ -48,12 +51,14 @@ std::vector<AssociatedPair> associate_by_time(const std::vector<TimedPose>& esti
   }
   std::stable_sort(candidates.begin(), candidates.end(),
                    [](const Candidate& a, const Candidate& b) { return a.dt < b.dt; });
-  std::vector<bool> e_used(estimate.size(), false), g_used(ground_truth.size(), false);
-  std::vector<AssociatedPair> pairs;
+  HostBuffer<unsigned char> e_used, g_used;
+  e_used.resize(estimate.size());
+  g_used.resize(ground_truth.size());
+  HostBuffer<AssociatedPair> pairs;
   for (const Candidate& c : candidates) {
     if (e_used[c.e] || g_used[c.g]) continue;
-    e_used[c.e] = true;
-    g_used[c.g] = true;
+    e_used[c.e] = 1;
+    g_used[c.g] = 1;
     pairs.push_back({c.e, c.g});
   }
   std::sort(pairs.begin(), pairs.end(), [](const AssociatedPair& a, const AssociatedPair& b) {
@@ -62,10 +67,8 @@ std::vector<AssociatedPair> associate_by_time(const std::vector<TimedPose>& esti
   return pairs;
 }
 
-Se3d horn_alignment(const std::vector<Eigen::Vector3d>& p_est,
-                    const std::vector<Eigen::Vector3d>& p_gt) {
+Se3d horn_alignment(const Eigen::Vector3d* p_est, const Eigen::Vector3d* p_gt, std::size_t n) {
   Se3d T = Se3d::Identity();
-  const std::size_t n = std::min(p_est.size(), p_gt.size());
   if (n == 0) return T;
   Eigen::Vector3d mean_est = Eigen::Vector3d::Zero(), mean_gt = Eigen::Vector3d::Zero();
   for (std::size_t i = 0; i < n; ++i) {
@@ -98,40 +101,40 @@ Se3d horn_alignment(const std::vector<Eigen::Vector3d>& p_est,
 Result<AteResult> compute_ate(const std::vector<TimedPose>& estimate,
                               const std::vector<TimedPose>& ground_truth, double max_dt_s,
                               ErrorText* error) {
-  const std::vector<AssociatedPair> pairs = associate_by_time(estimate, ground_truth, max_dt_s);
+  const HostBuffer<AssociatedPair> pairs = associate_by_time(estimate, ground_truth, max_dt_s);
   if (pairs.size() < 3) {
     if (error != nullptr) {
       error->set("ATE: only %zu poses associate within %.3f s (need 3)", pairs.size(), max_dt_s);
     }
     return StatusCode::invalid_argument;
   }
-  std::vector<Eigen::Vector3d> p_est, p_gt;
+  HostBuffer<Eigen::Vector3d> p_est, p_gt;
   for (const AssociatedPair& pair : pairs) {
     p_est.push_back(estimate[pair.estimate].T_W_C.translation());
     p_gt.push_back(ground_truth[pair.ground_truth].T_W_C.translation());
   }
   AteResult result;
   result.pairs = pairs.size();
-  result.T_gt_est = horn_alignment(p_est, p_gt);
-  std::vector<double> errors;
+  result.T_gt_est = horn_alignment(p_est.data(), p_gt.data(), p_est.size());
+  HostBuffer<double> errors;
   for (std::size_t i = 0; i < p_est.size(); ++i) {
     errors.push_back((result.T_gt_est * p_est[i] - p_gt[i]).norm());
   }
-  result.translation_m = error_stats(std::move(errors));
+  result.translation_m = error_stats(errors.data(), errors.size());
   return result;
 }
 
 Result<RpeResult> compute_rpe(const std::vector<TimedPose>& estimate,
                               const std::vector<TimedPose>& ground_truth, double max_dt_s,
                               ErrorText* error) {
-  const std::vector<AssociatedPair> pairs = associate_by_time(estimate, ground_truth, max_dt_s);
+  const HostBuffer<AssociatedPair> pairs = associate_by_time(estimate, ground_truth, max_dt_s);
   if (pairs.size() < 2) {
     if (error != nullptr) {
       error->set("RPE: only %zu poses associate within %.3f s (need 2)", pairs.size(), max_dt_s);
     }
     return StatusCode::invalid_argument;
   }
-  std::vector<double> translation, rotation;
+  HostBuffer<double> translation, rotation;
   for (std::size_t i = 0; i + 1 < pairs.size(); ++i) {
     const Se3d& P0 = estimate[pairs[i].estimate].T_W_C;
     const Se3d& P1 = estimate[pairs[i + 1].estimate].T_W_C;
@@ -145,8 +148,8 @@ Result<RpeResult> compute_rpe(const std::vector<TimedPose>& estimate,
   }
   RpeResult result;
   result.pairs = translation.size();
-  result.translation_m = error_stats(std::move(translation));
-  result.rotation_rad = error_stats(std::move(rotation));
+  result.translation_m = error_stats(translation.data(), translation.size());
+  result.rotation_rad = error_stats(rotation.data(), rotation.size());
   return result;
 }
 

@@ -71,10 +71,11 @@ Status write_tum_trajectory(const char* path, const std::vector<TimedPose>& pose
   return status;
 }
 
-Status read_tum_trajectory(const char* path, std::vector<TimedPose>* poses, ErrorText* error) {
+Status for_each_tum_pose(const char* path, TimedPoseSink sink, void* context, ErrorText* error) {
   ErrorText scratch;
   ErrorText& err = error != nullptr ? *error : scratch;
-  poses->clear();
+  bool have_previous = false;
+  double previous_s = 0.0;
   std::FILE* file = std::fopen(path, "r");
   if (file == nullptr) {
     err.set("%s: cannot open (%s)", path, std::strerror(errno));
@@ -109,9 +110,9 @@ Status read_tum_trajectory(const char* path, std::vector<TimedPose>* poses, Erro
       status = StatusCode::data_loss;
       break;
     }
-    if (!poses->empty() && v[0] < poses->back().timestamp_s) {
+    if (have_previous && v[0] < previous_s) {
       err.set("%s:%d: timestamp %.6f goes backwards (previous %.6f)", path, line_number, v[0],
-              poses->back().timestamp_s);
+              previous_s);
       status = StatusCode::data_loss;
       break;
     }
@@ -119,7 +120,9 @@ Status read_tum_trajectory(const char* path, std::vector<TimedPose>* poses, Erro
     pose.timestamp_s = v[0];
     pose.T_W_C.linear() = q.normalized().toRotationMatrix();
     pose.T_W_C.translation() = Eigen::Vector3d(v[1], v[2], v[3]);
-    poses->push_back(pose);
+    sink(pose, context);
+    have_previous = true;
+    previous_s = v[0];
   }
   std::fclose(file);
   return status;

@@ -4,8 +4,8 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
-#include <vector>
 
+#include "octofuse/ports/host/host_buffer.hpp"
 #include "octofuse/ports/host/png_writer.hpp"
 
 namespace octofuse::host {
@@ -26,19 +26,24 @@ std::uint32_t crc32_update(std::uint32_t crc, const std::uint8_t* data, std::siz
   return crc;
 }
 
-void put_be32(std::vector<std::uint8_t>* out, std::uint32_t v) {
+using Bytes = HostBuffer<std::uint8_t>;
+
+void append(Bytes* out, const std::uint8_t* data, std::size_t size) {
+  for (std::size_t i = 0; i < size; ++i) out->push_back(data[i]);
+}
+
+void put_be32(HostBuffer<std::uint8_t>* out, std::uint32_t v) {
   out->push_back(static_cast<std::uint8_t>(v >> 24));
   out->push_back(static_cast<std::uint8_t>(v >> 16));
   out->push_back(static_cast<std::uint8_t>(v >> 8));
   out->push_back(static_cast<std::uint8_t>(v));
 }
 
-void put_chunk(std::vector<std::uint8_t>* out, const char type[4],
-               const std::vector<std::uint8_t>& data) {
+void put_chunk(Bytes* out, const char type[4], const Bytes& data) {
   put_be32(out, static_cast<std::uint32_t>(data.size()));
   const std::size_t type_at = out->size();
-  out->insert(out->end(), type, type + 4);
-  out->insert(out->end(), data.begin(), data.end());
+  append(out, reinterpret_cast<const std::uint8_t*>(type), 4);
+  append(out, data.data(), data.size());
   const std::uint32_t crc =
       crc32_update(0xFFFFFFFFu, out->data() + type_at, 4 + data.size()) ^ 0xFFFFFFFFu;
   put_be32(out, crc);
@@ -46,11 +51,13 @@ void put_chunk(std::vector<std::uint8_t>* out, const char type[4],
 
 // `row_bytes` per row, each row already prefixed by its filter byte (0).
 Status write_stored_png(const char* path, int width, int height, int bit_depth, int color_type,
-                        const std::vector<std::uint8_t>& raw, ErrorText* error) {
+                        const HostBuffer<std::uint8_t>& raw, ErrorText* error) {
   ErrorText scratch;
   ErrorText& err = error != nullptr ? *error : scratch;
-  std::vector<std::uint8_t> file_bytes = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
-  std::vector<std::uint8_t> ihdr;
+  static constexpr std::uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+  Bytes file_bytes;
+  append(&file_bytes, kSignature, 8);
+  Bytes ihdr;
   put_be32(&ihdr, static_cast<std::uint32_t>(width));
   put_be32(&ihdr, static_cast<std::uint32_t>(height));
   ihdr.push_back(static_cast<std::uint8_t>(bit_depth));
@@ -60,7 +67,9 @@ Status write_stored_png(const char* path, int width, int height, int bit_depth, 
   ihdr.push_back(0);
   put_chunk(&file_bytes, "IHDR", ihdr);
 
-  std::vector<std::uint8_t> zlib = {0x78, 0x01};
+  Bytes zlib;
+  zlib.push_back(0x78);
+  zlib.push_back(0x01);
   std::uint32_t adler_a = 1, adler_b = 0;
   for (std::uint8_t byte : raw) {
     adler_a = (adler_a + byte) % 65521u;
@@ -75,13 +84,12 @@ Status write_stored_png(const char* path, int width, int height, int bit_depth, 
     zlib.push_back(static_cast<std::uint8_t>(block >> 8));
     zlib.push_back(static_cast<std::uint8_t>(~block));
     zlib.push_back(static_cast<std::uint8_t>(~block >> 8));
-    zlib.insert(zlib.end(), raw.begin() + static_cast<std::ptrdiff_t>(offset),
-                raw.begin() + static_cast<std::ptrdiff_t>(offset + block));
+    append(&zlib, raw.data() + offset, block);
     offset += block;
   } while (offset < raw.size());
   put_be32(&zlib, (adler_b << 16) | adler_a);
   put_chunk(&file_bytes, "IDAT", zlib);
-  put_chunk(&file_bytes, "IEND", {});
+  put_chunk(&file_bytes, "IEND", Bytes());
 
   std::FILE* file = std::fopen(path, "wb");
   if (file == nullptr) {
@@ -106,12 +114,12 @@ Status write_png_rgb8(const char* path, const std::uint8_t* rgb, int width, int 
     return StatusCode::invalid_argument;
   }
   if (stride_bytes == 0) stride_bytes = 3 * width;
-  std::vector<std::uint8_t> raw;
+  HostBuffer<std::uint8_t> raw;
   raw.reserve(static_cast<std::size_t>(height) * (3 * static_cast<std::size_t>(width) + 1));
   for (int y = 0; y < height; ++y) {
     raw.push_back(0);
     const std::uint8_t* row = rgb + y * stride_bytes;
-    raw.insert(raw.end(), row, row + 3 * width);
+    append(&raw, row, 3 * static_cast<std::size_t>(width));
   }
   return write_stored_png(path, width, height, 8, 2, raw, error);
 }
@@ -121,7 +129,7 @@ Status write_png_gray16(const char* path, ImageView<const std::uint16_t> image, 
     if (error != nullptr) error->set("%s: empty image", path);
     return StatusCode::invalid_argument;
   }
-  std::vector<std::uint8_t> raw;
+  HostBuffer<std::uint8_t> raw;
   raw.reserve(static_cast<std::size_t>(image.height) *
               (2 * static_cast<std::size_t>(image.width) + 1));
   for (int y = 0; y < image.height; ++y) {

@@ -8,14 +8,14 @@
 //   json.key("frames").value(42);
 //   json.key("name").value("desk \"close\"");
 //   json.end_object();
-//   json.str();  // {"frames":42,"name":"desk \"close\""}
+//   json.c_str();  // {"frames":42,"name":"desk \"close\""}
 
+#include <cstddef>
 #include <cstdint>
-#include <string>
-#include <vector>
 
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/core/status.hpp"
+#include "octofuse/ports/host/host_buffer.hpp"
 
 namespace octofuse::host {
 
@@ -36,24 +36,27 @@ class JsonWriter {
   JsonWriter& value(const char* text);
   JsonWriter& null();
 
-  // The document so far; complete() when every begin_* has its end_* and one value was written.
-  const std::string& str() const { return out_; }
+  // The document so far (NUL-terminated); complete() when every begin_* has its end_* and one
+  // value was written.
+  const char* c_str() const { return out_.empty() ? "" : out_.data(); }
+  std::size_t size() const { return out_.empty() ? 0 : out_.size() - 1; }
   bool complete() const { return stack_.empty() && wrote_root_; }
 
   // Writes str() to `path`; failed_precondition when incomplete, unavailable / data_loss on I/O.
   Status write_file(const char* path, ErrorText* error) const;
 
-  // Appends `text` as a quoted JSON string to `out` (quotes, backslash, control characters as
-  // \uXXXX except \b \f \n \r \t; bytes >= 0x80 pass through as UTF-8).
-  static void append_escaped(std::string* out, const char* text);
-
  private:
   void before_value();
+  void append(const char* text);
+  void append(char c);
+  // `text` as a quoted JSON string: quotes, backslash and control characters escaped (\b \f \n
+  // \r \t, others as \u00XX); bytes >= 0x80 pass through as UTF-8.
+  void append_escaped(const char* text);
 
-  std::string out_;
+  HostBuffer<char> out_;  // always NUL-terminated once anything was written
   // One entry per open container: 'o' object awaiting key, 'v' object awaiting value, 'a' array.
-  std::vector<char> stack_;
-  std::vector<bool> first_;
+  HostBuffer<char> stack_;
+  HostBuffer<unsigned char> first_;
   bool wrote_root_ = false;
 };
 

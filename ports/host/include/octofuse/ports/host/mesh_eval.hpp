@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 
+#include "octofuse/ports/host/host_buffer.hpp"
 #include "octofuse/ports/host/ply.hpp"
 
 namespace octofuse::host {
@@ -48,10 +49,10 @@ class PointGridHash {
 
   const Eigen::Vector3f* points_;
   double radius_m_;
-  std::vector<std::size_t>
+  HostBuffer<std::size_t>
       bucket_start_;  // CSR: points of bucket b are order_[start[b], start[b+1])
-  std::vector<std::size_t> order_;
-  std::vector<long long> cell_;  // cell coordinates per point, 3 per point, for exact filtering
+  HostBuffer<std::size_t> order_;
+  HostBuffer<long long> cell_;  // cell coordinates, 3 per point, to filter hash collisions
 };
 
 }  // namespace octofuse::host

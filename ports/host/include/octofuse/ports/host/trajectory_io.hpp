@@ -43,6 +43,23 @@ class TumTrajectoryWriter {
 // message names the file and line.
 Status write_tum_trajectory(const char* path, const std::vector<TimedPose>& poses,
                             ErrorText* error);
-Status read_tum_trajectory(const char* path, std::vector<TimedPose>* poses, ErrorText* error);
+
+// Calls `sink(pose, context)` for each pose in file order. Same codes as read_tum_trajectory.
+using TimedPoseSink = void (*)(const TimedPose& pose, void* context);
+Status for_each_tum_pose(const char* path, TimedPoseSink sink, void* context, ErrorText* error);
+
+// Header-only so the std::vector growth is compiled into the (host) caller, not this library.
+inline Status read_tum_trajectory(const char* path, std::vector<TimedPose>* poses,
+                                  ErrorText* error) {
+  poses->clear();
+  const Status status = for_each_tum_pose(
+      path,
+      [](const TimedPose& pose, void* context) {
+        static_cast<std::vector<TimedPose>*>(context)->push_back(pose);
+      },
+      poses, error);
+  if (!status.ok()) poses->clear();
+  return status;
+}
 
 }  // namespace octofuse::host

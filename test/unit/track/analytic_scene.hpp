@@ -28,36 +28,50 @@ struct AnalyticScene {
   std::vector<Plane> planes;
   std::vector<Sphere> spheres;
 
-  // Nearest hit along origin + t * direction (t > 0); false when nothing is hit.
+  // Nearest hit along origin + t * direction (t > 0); false when nothing is hit. Plain double
+  // arithmetic: the tests render whole VGA images in Debug builds.
   bool intersect(const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, double& t_hit,
                  Eigen::Vector3d& normal) const {
+    const double o[3] = {origin.x(), origin.y(), origin.z()};
+    const double d[3] = {direction.x(), direction.y(), direction.z()};
+    auto dot = [](const double* a, const double* b) {
+      return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    };
+    double n[3] = {0.0, 0.0, 0.0};
     bool hit = false;
     t_hit = 1e30;
     for (const Plane& plane : planes) {
-      const double denom = plane.normal.dot(direction);
+      const double pn[3] = {plane.normal.x(), plane.normal.y(), plane.normal.z()};
+      const double denom = dot(pn, d);
       if (std::abs(denom) < 1e-12) continue;
-      const double t = (plane.offset_m - plane.normal.dot(origin)) / denom;
+      const double t = (plane.offset_m - dot(pn, o)) / denom;
       if (t > 0.0 && t < t_hit) {
         t_hit = t;
-        normal = plane.normal;
+        n[0] = pn[0];
+        n[1] = pn[1];
+        n[2] = pn[2];
         hit = true;
       }
     }
     for (const Sphere& sphere : spheres) {
-      const Eigen::Vector3d oc = origin - sphere.centre_W;
-      const double a = direction.squaredNorm();
-      const double b = oc.dot(direction);
-      const double c = oc.squaredNorm() - sphere.radius_m * sphere.radius_m;
-      const double disc = b * b - a * c;
+      const double c[3] = {sphere.centre_W.x(), sphere.centre_W.y(), sphere.centre_W.z()};
+      const double oc[3] = {o[0] - c[0], o[1] - c[1], o[2] - c[2]};
+      const double a = dot(d, d);
+      const double b = dot(oc, d);
+      const double cc = dot(oc, oc) - sphere.radius_m * sphere.radius_m;
+      const double disc = b * b - a * cc;
       if (disc < 0.0) continue;
       const double t = (-b - std::sqrt(disc)) / a;
       if (t > 0.0 && t < t_hit) {
         t_hit = t;
-        normal = (origin + t * direction - sphere.centre_W) / sphere.radius_m;
+        for (int i = 0; i < 3; ++i) n[i] = (oc[i] + t * d[i]) / sphere.radius_m;
         hit = true;
       }
     }
-    if (hit && normal.dot(direction) > 0.0) normal = -normal;  // face the camera
+    if (hit && dot(n, d) > 0.0) {  // face the camera
+      for (double& v : n) v = -v;
+    }
+    normal = Eigen::Vector3d(n[0], n[1], n[2]);
     return hit;
   }
 };

@@ -347,5 +347,42 @@ TEST_CASE("a corrupt model (NaN vertices, non-unit normals) never crashes or poi
   CHECK(translation_error_m(T_W_C, offset_pose()) < kTranslationTolerance_m);
 }
 
+TEST_CASE("along a sequence, a foreign view is lost and the next matching view recovers") {
+  // The model is the exact scene ray-cast at the last estimate, as a perfect map would give.
+  const test::AnalyticScene scene = test::corner_scene();
+  test::AnalyticScene foreign;
+  foreign.planes.push_back({Eigen::Vector3d(0.0, 0.0, 1.0), 0.6});
+  TrackFixture f;
+  constexpr int kFrames = 6;
+  constexpr int kForeignFrame = 3;
+  auto true_pose = [](int k) {
+    return reference_pose() * make_pose(k * Eigen::Vector3d(0.003, 0.002, -0.004),
+                                        Eigen::Vector3d(0.2, 1.0, -0.3), 0.8 * k);
+  };
+  Se3d estimate = true_pose(0);
+  for (int k = 1; k < kFrames; ++k) {
+    INFO("frame " << k);
+    const test::RenderedModel model = test::render_model(scene, f.camera_level0(), estimate);
+    const bool foreign_view = k == kForeignFrame;
+    if (foreign_view) {
+      f.set_live(foreign, Se3d::Identity());
+    } else {
+      f.set_live(scene, true_pose(k));
+    }
+    const Se3d previous = estimate;
+    const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                               previous, estimate, WorkerTeam(1));
+    REQUIRE(report.status.ok());
+    if (foreign_view) {
+      CHECK(report.outcome == TrackOutcome::lost_inliers);
+      CHECK(estimate.matrix() == previous.matrix());
+    } else {
+      CHECK(report.tracked());
+      CHECK(translation_error_m(estimate, true_pose(k)) < kTranslationTolerance_m);
+      CHECK(rotation_error_deg(estimate, true_pose(k)) < kRotationTolerance_deg);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace octofuse

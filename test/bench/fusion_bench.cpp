@@ -144,7 +144,8 @@ void run(float voxel_size_m, int voxel_depth, std::uint32_t blocks, int frames, 
       static_cast<unsigned long long>(multires.refusals));
   std::printf("  multires blocks integrated by scale: %u / %u / %u / %u\n", per_scale[0],
               per_scale[1], per_scale[2], per_scale[3]);
-  std::printf("  speed-up (single / multires, mean): %.2fx\n", mean(single.ms) / mean(multires.ms));
+  std::printf("  speed-up (single / multires): median %.2fx, mean %.2fx\n",
+              median(single.ms) / median(multires.ms), mean(single.ms) / mean(multires.ms));
 }
 
 }  // namespace

@@ -176,14 +176,19 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
                                    (voxel.z() / size) * size);
       const Eigen::Vector3f lo = cube_lo + corner.cast<float>() * voxel_m;
       const Eigen::Vector3f hi = lo + Eigen::Vector3f::Constant(static_cast<float>(size) * voxel_m);
-      t = std::max(exit_distance(ray, lo, hi), t) + kExitNudge_voxels * voxel_m;
+      const float t_next = std::max(exit_distance(ray, lo, hi), t) + kExitNudge_voxels * voxel_m;
+      // Far from the origin a step can vanish in float rounding: give up rather than spin.
+      if (!(t_next > t)) return MarchResult::miss;
+      t = t_next;
       have_prev = false;
       continue;
     }
     if (!sample_tsdf(map, p_W, block, sample)) {
       // Unobserved space inside allocated blocks: a surface is only found inside an observed
       // band, whose positive side is mu thick, so half of mu cannot step over it.
-      t += std::max(kUnobservedStep_mu * config.mu_m, voxel_m);
+      const float t_next = t + std::max(kUnobservedStep_mu * config.mu_m, voxel_m);
+      if (!(t_next > t)) return MarchResult::miss;
+      t = t_next;
       have_prev = false;
       continue;
     }
@@ -229,7 +234,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     prev_t = t;
     prev_f = f;
     const float cell_m = voxel_m * static_cast<float>(1 << sample.scale);
-    t += std::max(f * config.mu_m, cell_m);
+    // Corrupt (non-finite) voxels make the step NaN; stop the ray then.
+    const float t_next = t + std::max(f * config.mu_m, cell_m);
+    if (!(t_next > t)) return MarchResult::miss;
+    t = t_next;
   }
   return MarchResult::miss;
 }

@@ -285,3 +285,34 @@ TEST_CASE("bad input is a Status, not a crash") {
 
 }  // namespace
 }  // namespace octofuse
+
+namespace octofuse {
+namespace {
+
+TEST_CASE("corrupt voxels (NaN, out of range) end rays instead of hanging or crashing") {
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, plane_sdf, [](const Eigen::Vector3i&) { return 0; });
+  // Poison every other block.
+  for (std::uint32_t b = 0; b < owned.map.block_count(); b += 2) {
+    for (MultiresVoxel& v : owned.map.block(b).voxels) {
+      v.x = (b % 4 == 0) ? std::nanf("") : 1e30f;
+    }
+    owned.map.block(b).current_scale = static_cast<std::int8_t>(b % 4 == 0 ? 0 : 100);
+  }
+  OwnedRaycaster<MultiresVoxel> rc(test_raycast_config());
+  const WorkerTeam team(1);
+  Result<RaycastStats> stats =
+      rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(stats.ok());
+  const SurfaceMap surface = rc.raycaster.surface_W();
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      if (!surface.valid(x, y)) continue;
+      REQUIRE(surface.vertices(x, y).allFinite());
+      REQUIRE(std::fabs(surface.normals(x, y).norm() - 1.0f) < 1e-4f);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace octofuse

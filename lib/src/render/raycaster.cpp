@@ -14,6 +14,8 @@ namespace {
 constexpr float kExitNudge_voxels = 1e-3f;
 // Step through unobserved voxels of allocated blocks, as a fraction of mu.
 constexpr float kUnobservedStep_mu = 0.5f;
+// Smallest gap, in finest voxels, that is still halved when a step lands on unobserved voxels.
+constexpr float kRetreatMin_voxels = 1.5f;
 
 struct Ray {
   Eigen::Vector3f origin_W;
@@ -184,6 +186,12 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       continue;
     }
     if (!sample_tsdf(map, p_W, block, sample)) {
+      // Past a positive sample the observed band behind a surface can be thinner than a coarse
+      // step: back off towards the last good sample before giving up on it.
+      if (have_prev && prev_f > 0.0f && t - prev_t > kRetreatMin_voxels * voxel_m) {
+        t = prev_t + 0.5f * (t - prev_t);
+        continue;
+      }
       // Unobserved space inside allocated blocks: a surface is only found inside an observed
       // band, whose positive side is mu thick, so half of mu cannot step over it.
       const float t_next = t + std::max(kUnobservedStep_mu * config.mu_m, voxel_m);

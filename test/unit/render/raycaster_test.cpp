@@ -316,3 +316,56 @@ TEST_CASE("corrupt voxels (NaN, out of range) end rays instead of hanging or cra
 
 }  // namespace
 }  // namespace octofuse
+
+#include "octofuse/fusion/integrator.hpp"
+
+namespace octofuse {
+namespace {
+
+// End to end with the real integrator: fuse a fronto-parallel wall from exact depth images,
+// then ray-cast it from the same pose.
+TEST_CASE("ray-casting what the integrator fused gives the wall back") {
+  const int fixed_scale = GENERATE(-1, 0, 1, 2);
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  FusionConfig fusion;
+  fusion.mu_m = kMu_m;
+  fusion.near_m = 0.1f;
+  fusion.far_m = 3.0f;
+  fusion.fixed_scale = fixed_scale;
+  const std::size_t bytes = Integrator<MultiresVoxel>::bytes_required(fusion, 64, 48);
+  REQUIRE(bytes > 0);
+  std::unique_ptr<std::uint8_t, void (*)(void*)> memory(
+      static_cast<std::uint8_t*>(std::aligned_alloc(kArenaAlignment, bytes)), std::free);
+  LinearArena arena(memory.get(), bytes);
+  Integrator<MultiresVoxel> integrator;
+  REQUIRE(integrator.reserve(arena, fusion, 64, 48).ok());
+  float depth[64 * 48];
+  for (float& d : depth) d = kPlaneZ_m;
+  const WorkerTeam team(1);
+  for (std::uint32_t frame = 0; frame < 3; ++frame) {
+    const IntegrationReport report =
+        integrator.integrate(owned.map, ImageView<const float>(depth, 64, 48), test_camera(),
+                             Se3d::Identity(), frame, FusionBudget{}, team);
+    REQUIRE(report.status.ok());
+  }
+  OwnedRaycaster<MultiresVoxel> rc(test_raycast_config());
+  Result<RaycastStats> stats =
+      rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(stats.ok());
+  // Pixels at the image border see partly observed voxels; the bulk must be valid.
+  REQUIRE(stats->valid_pixels > 64u * 48u * 8u / 10u);
+  const SurfaceMap surface = rc.raycaster.surface_W();
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      if (!surface.valid(x, y)) continue;
+      const int scale = rc.raycaster.scale_image()(x, y);
+      if (fixed_scale >= 0) REQUIRE(scale == fixed_scale);
+      REQUIRE(std::fabs(surface.vertices(x, y).z() - kPlaneZ_m) <
+              kDepthTolerance_m * static_cast<float>(1 << scale));
+      REQUIRE(angle_deg(surface.normals(x, y), Eigen::Vector3f(0, 0, -1)) < kNormalTolerance_deg);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -14,8 +14,8 @@ packages=(
   g++-aarch64-linux-gnu g++-arm-linux-gnueabihf
   libgomp1-arm64-cross libgomp1-armhf-cross libgcc-12-dev-arm64-cross libgcc-12-dev-armhf-cross
   qemu-user
-  # fuzzing (libFuzzer from clang 14) and memory checks
-  clang lld libclang-rt-14-dev valgrind
+  # fuzzing (libFuzzer from clang 14, OpenMP for clang) and memory checks
+  clang lld libclang-rt-14-dev libomp-dev valgrind
 )
 
 missing=()

@@ -205,6 +205,12 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
       // Amanatides-Woo traversal of the block grid from p0 to p1 (block units).
       const Eigen::Vector3f a = (p0_W - f.origin_W) * inv_block;
       const Eigen::Vector3f b = (p1_W - f.origin_W) * inv_block;
+      // Far outside the cube (a wild pose): skip before float-to-int conversions can overflow.
+      constexpr float kLimit = static_cast<float>(1 << 22);
+      if (!(a.cwiseAbs().maxCoeff() < kLimit && b.cwiseAbs().maxCoeff() < kLimit)) {
+        ++report.rays_outside_cube;
+        continue;
+      }
       const Eigen::Vector3f dir = b - a;
       Eigen::Vector3i cell(static_cast<int>(std::floor(a.x())), static_cast<int>(std::floor(a.y())),
                            static_cast<int>(std::floor(a.z())));

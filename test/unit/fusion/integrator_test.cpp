@@ -536,6 +536,14 @@ TEST_CASE("bad input is refused without touching the map", "[fusion][integrator]
             .integrate(fusion.map, small, small_camera, Se3d::Identity(), 0, FusionBudget(), team)
             .status == StatusCode::failed_precondition);
   CHECK(fusion.map.block_count() == 0);
+  // A rigid pose far outside the cube: every ray misses it.
+  Se3d far_away = Se3d::Identity();
+  far_away.translation() = Eigen::Vector3d(1e30, -1e30, 1e25);
+  const IntegrationReport outside =
+      fusion.integrator.integrate(fusion.map, view, camera, far_away, 0, FusionBudget(), team);
+  CHECK(outside.status.ok());
+  CHECK(outside.rays_outside_cube > 0);
+  CHECK(fusion.map.block_count() == 0);
   // NaN and negative depths are no measurement.
   for (std::size_t i = 0; i < fusion.depth.size(); ++i) {
     fusion.depth[i] = (i % 2 == 0) ? std::numeric_limits<float>::quiet_NaN() : -1.0f;

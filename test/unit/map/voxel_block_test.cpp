@@ -51,6 +51,9 @@ TEST_CASE("a fresh block is unobserved and never integrated", "[map][block]") {
   VoxelBlock<MultiresVoxel> block;
   CHECK_FALSE(block.integrated());
   CHECK(block.min_scale == kNeverIntegrated);
+  CHECK(block.mip_scale == kNeverIntegrated);
+  CHECK(block.weight_mean == 0.0f);
+  CHECK(block.tsdf_min > block.tsdf_max);  // empty summary
   for (const MultiresVoxel& v : block.voxels) {
     REQUIRE_FALSE(voxel_observed(v));
     REQUIRE(v.x == 1.0f);

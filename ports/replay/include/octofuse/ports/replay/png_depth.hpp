@@ -20,9 +20,9 @@ class PngDepthDecoder {
 
   template <typename Arena>
   Status reserve(Arena& arena) {
-    Result<std::uint8_t*> scratch = arena.template allocate_array<std::uint8_t>(kScratchBytes, 16);
+    Result<void*> scratch = arena.allocate_bytes(kScratchBytes, 16);
     if (!scratch.ok()) return scratch.status();
-    scratch_ = scratch.value();
+    scratch_ = static_cast<std::uint8_t*>(scratch.value());
     return ok_status();
   }
 

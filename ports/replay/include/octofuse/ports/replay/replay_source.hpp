@@ -152,24 +152,26 @@ class ReplaySource final : public DepthSource {
 
 template <typename Arena>
 Status ReplaySource::reserve(Arena& arena) {
+  // Raw byte buffers are not value-initialised: every byte is written before it is read.
   const std::size_t frame_pixels =
       static_cast<std::size_t>(config_.max_width) * static_cast<std::size_t>(config_.max_height);
-  Result<std::uint16_t*> ring = arena.template allocate_array<std::uint16_t>(
-      frame_pixels * static_cast<std::size_t>(config_.ring_size), kArenaAlignment);
+  Result<void*> ring = arena.allocate_bytes(
+      frame_pixels * static_cast<std::size_t>(config_.ring_size) * sizeof(std::uint16_t),
+      kArenaAlignment);
   if (!ring.ok()) return ring.status();
-  Result<std::uint8_t*> file = arena.template allocate_array<std::uint8_t>(file_buffer_bytes(), 16);
+  Result<void*> file = arena.allocate_bytes(file_buffer_bytes(), 16);
   if (!file.ok()) return file.status();
   Result<FrameEntry*> entries =
       arena.template allocate_array<FrameEntry>(static_cast<std::size_t>(config_.max_frames));
   if (!entries.ok()) return entries.status();
-  Result<char*> names = arena.template allocate_array<char>(
-      static_cast<std::size_t>(config_.max_frames) * config_.max_name_bytes_per_frame);
+  Result<void*> names = arena.allocate_bytes(
+      static_cast<std::size_t>(config_.max_frames) * config_.max_name_bytes_per_frame, 1);
   if (!names.ok()) return names.status();
   if (config_.format != DatasetFormat::slambench_raw) OCTOFUSE_TRY(png_.reserve(arena));
-  ring_ = ring.value();
-  file_buffer_ = file.value();
+  ring_ = static_cast<std::uint16_t*>(ring.value());
+  file_buffer_ = static_cast<std::uint8_t*>(file.value());
   entries_ = entries.value();
-  names_ = names.value();
+  names_ = static_cast<char*>(names.value());
   return ok_status();
 }
 

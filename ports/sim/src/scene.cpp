@@ -36,8 +36,12 @@ void set_bounds(Primitive* p) {
       p->aabb_min_W = Eigen::Vector3d::Constant(-kInfinity);
       p->aabb_max_W = Eigen::Vector3d::Constant(kInfinity);
       return;
-    case PrimitiveKind::box: local_half = p->half_extents_m; break;
-    case PrimitiveKind::sphere: local_half = Eigen::Vector3d::Constant(p->radius_m); break;
+    case PrimitiveKind::box:
+      local_half = p->half_extents_m;
+      break;
+    case PrimitiveKind::sphere:
+      local_half = Eigen::Vector3d::Constant(p->radius_m);
+      break;
     case PrimitiveKind::capsule:
       local_half = Eigen::Vector3d(p->radius_m, p->radius_m, p->half_length_m + p->radius_m);
       break;
@@ -85,12 +89,14 @@ bool side_entry(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double r, do
 
 double Primitive::distance_local_m(const Eigen::Vector3d& p) const {
   switch (kind) {
-    case PrimitiveKind::plane: return p.z();
+    case PrimitiveKind::plane:
+      return p.z();
     case PrimitiveKind::box: {
       const Eigen::Vector3d q = p.cwiseAbs() - half_extents_m;
       return q.cwiseMax(0.0).norm() + std::min(q.maxCoeff(), 0.0);
     }
-    case PrimitiveKind::sphere: return p.norm() - radius_m;
+    case PrimitiveKind::sphere:
+      return p.norm() - radius_m;
     case PrimitiveKind::capsule: {
       const double z = std::clamp(p.z(), -half_length_m, half_length_m);
       return Eigen::Vector3d(p.x(), p.y(), p.z() - z).norm() - radius_m;
@@ -166,7 +172,8 @@ bool Primitive::intersect_local(const Eigen::Vector3d& o, const Eigen::Vector3d&
       return true;
     }
     case PrimitiveKind::cylinder: {
-      if (std::abs(o.z()) <= half_length_m && o.x() * o.x() + o.y() * o.y() <= radius_m * radius_m) {
+      if (std::abs(o.z()) <= half_length_m &&
+          o.x() * o.x() + o.y() * o.y() <= radius_m * radius_m) {
         return false;  // inside
       }
       double best = kInfinity;
@@ -204,14 +211,18 @@ double Primitive::area_m2() const {
   const double r = radius_m;
   const double L = 2.0 * half_length_m;
   switch (kind) {
-    case PrimitiveKind::plane: return 0.0;
+    case PrimitiveKind::plane:
+      return 0.0;
     case PrimitiveKind::box: {
       const Eigen::Vector3d e = 2.0 * half_extents_m;
       return 2.0 * (e.x() * e.y() + e.y() * e.z() + e.x() * e.z());
     }
-    case PrimitiveKind::sphere: return 4.0 * kPi * r * r;
-    case PrimitiveKind::capsule: return 2.0 * kPi * r * L + 4.0 * kPi * r * r;
-    case PrimitiveKind::cylinder: return 2.0 * kPi * r * L + 2.0 * kPi * r * r;
+    case PrimitiveKind::sphere:
+      return 4.0 * kPi * r * r;
+    case PrimitiveKind::capsule:
+      return 2.0 * kPi * r * L + 4.0 * kPi * r * r;
+    case PrimitiveKind::cylinder:
+      return 2.0 * kPi * r * L + 2.0 * kPi * r * r;
   }
   return 0.0;
 }
@@ -269,12 +280,15 @@ Status Scene::add(Primitive primitive, Part part) {
   const auto positive = [](double v) { return std::isfinite(v) && v > 0.0; };
   bool sizes_ok = primitive.t_W_P.allFinite() && primitive.R_W_P.allFinite();
   switch (primitive.kind) {
-    case PrimitiveKind::plane: break;
+    case PrimitiveKind::plane:
+      break;
     case PrimitiveKind::box:
       sizes_ok = sizes_ok && positive(primitive.half_extents_m.x()) &&
                  positive(primitive.half_extents_m.y()) && positive(primitive.half_extents_m.z());
       break;
-    case PrimitiveKind::sphere: sizes_ok = sizes_ok && positive(primitive.radius_m); break;
+    case PrimitiveKind::sphere:
+      sizes_ok = sizes_ok && positive(primitive.radius_m);
+      break;
     case PrimitiveKind::capsule:
     case PrimitiveKind::cylinder:
       sizes_ok = sizes_ok && positive(primitive.radius_m) && positive(primitive.half_length_m);
@@ -335,7 +349,8 @@ Eigen::Vector3d sample_local(const Primitive& p, SplitMix64& rng) {
   const double r = p.radius_m;
   const double L = p.half_length_m;
   switch (p.kind) {
-    case PrimitiveKind::plane: return Eigen::Vector3d::Zero();
+    case PrimitiveKind::plane:
+      return Eigen::Vector3d::Zero();
     case PrimitiveKind::box: {
       const Eigen::Vector3d e = p.half_extents_m;
       const double areas[3] = {e.y() * e.z(), e.x() * e.z(), e.x() * e.y()};
@@ -350,7 +365,8 @@ Eigen::Vector3d sample_local(const Primitive& p, SplitMix64& rng) {
       q[a2] = (2.0 * u2 - 1.0) * e[a2];
       return q;
     }
-    case PrimitiveKind::sphere: return r * on_sphere(u1, u2);
+    case PrimitiveKind::sphere:
+      return r * on_sphere(u1, u2);
     case PrimitiveKind::capsule: {
       const double side = 2.0 * kPi * r * 2.0 * L;
       if (u0 * p.area_m2() < side) {

@@ -17,6 +17,18 @@
 #include "ports/openni2/driver/test_ramp.hpp"
 #include "support/alloc_counter.hpp"
 
+#if defined(__SANITIZE_ADDRESS__)
+// Debian's libOniFile leaks about 7 kB per OpenNI2 initialise/shutdown cycle, from inside the
+// driver, which OpenNI2 unloads at shutdown: LeakSanitizer then sees frames of an unknown module
+// and no suppression can name them. Leak checking is therefore off in this binary only; run
+// without libOniFile in <build>/openni2-runtime/OpenNI2/Drivers (and without the recording
+// tests), it reports no leak from the port or the test driver.
+extern "C" const char* __asan_default_options();
+extern "C" const char* __asan_default_options() {
+  return "detect_leaks=0";
+}
+#endif
+
 namespace octofuse {
 namespace {
 

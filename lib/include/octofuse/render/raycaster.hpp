@@ -1,9 +1,11 @@
 #pragma once
 // Ray-casting the map from a camera (paper section 4.4): per pixel, march from near to far,
 // jump over unallocated octants in one step (the octree says how big the free octant is), step
-// max(f * mu, voxel) near the surface, sample by multi-resolution trilinear interpolation
-// (interpolation.hpp), find the + to - zero crossing by linear interpolation and take the normal
-// from TSDF gradients at the same scale logic.
+// max(f * mu, voxel size at the interpolation scale) where the TSDF is observed and mu / 2
+// through unobserved voxels, sample by multi-resolution trilinear interpolation
+// (interpolation.hpp), find the + to - zero crossing by linear interpolation (backing off when a
+// coarse step overshoots a thin observed band) and take the normal from central differences of
+// the TSDF at the hit's scale (the trilinear cell's gradient where a neighbour is missing).
 //
 // Output, in buffers reserved at init: a SurfaceMap in the world frame (what ICP associates
 // against) and an 8-bit image of the interpolation scale per pixel (kNoScale where invalid).

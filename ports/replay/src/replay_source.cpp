@@ -256,7 +256,7 @@ Status ReplaySource::open() {
   }
 
   memory_bytes_ = bytes_required(config_);
-  memory_ = ::operator new(memory_bytes_, std::align_val_t(kArenaAlignment), std::nothrow);
+  memory_ = std::aligned_alloc(kArenaAlignment, align_up(memory_bytes_, kArenaAlignment));
   if (memory_ == nullptr) {
     error_.set("replay: cannot reserve %zu bytes", memory_bytes_);
     return StatusCode::resource_exhausted;
@@ -289,7 +289,7 @@ Status ReplaySource::open() {
 void ReplaySource::close() {
   if (raw_fd_ >= 0) ::close(raw_fd_);
   raw_fd_ = -1;
-  if (memory_ != nullptr) ::operator delete(memory_, std::align_val_t(kArenaAlignment));
+  std::free(memory_);
   memory_ = nullptr;
   memory_bytes_ = 0;
   ring_ = nullptr;

@@ -5,6 +5,7 @@
 // would be for a host program anyway.
 
 #include <cstddef>
+#include <cstdlib>
 #include <new>
 #include <utility>
 
@@ -34,8 +35,9 @@ class HostBuffer {
 
   void reserve(std::size_t capacity) {
     if (capacity <= capacity_) return;
-    T* fresh = static_cast<T*>(
-        ::operator new(capacity * sizeof(T), std::align_val_t(alignof(T)), std::nothrow));
+    // aligned_alloc wants a size that is a multiple of the alignment.
+    const std::size_t bytes = (capacity * sizeof(T) + kAlignment - 1) / kAlignment * kAlignment;
+    T* fresh = static_cast<T*>(std::aligned_alloc(kAlignment, bytes));
     OCTOFUSE_CHECK(fresh != nullptr);  // out of memory in a host tool
     for (std::size_t i = 0; i < size_; ++i) {
       new (fresh + i) T(std::move(data_[i]));
@@ -77,9 +79,10 @@ class HostBuffer {
     if (capacity < at_least) capacity = at_least;
     reserve(capacity);
   }
-  static void release(T* data) {
-    if (data != nullptr) ::operator delete(data, std::align_val_t(alignof(T)));
-  }
+  static constexpr std::size_t kAlignment = alignof(T) > alignof(std::max_align_t)
+                                                ? alignof(T)
+                                                : alignof(std::max_align_t);
+  static void release(T* data) { std::free(data); }
   void swap(HostBuffer& other) noexcept {
     std::swap(data_, other.data_);
     std::swap(size_, other.size_);

@@ -22,6 +22,7 @@ void make_folder() {
   const char* base = ::access("/dev/shm", W_OK) == 0 ? "/dev/shm" : "/tmp";
   std::snprintf(g_dir, sizeof(g_dir), "%s/octofuse-fuzz-tum-XXXXXX", base);
   if (::mkdtemp(g_dir) == nullptr) std::abort();
+  std::atexit(remove_folder);
   char path[128];
   std::snprintf(path, sizeof(path), "%s/d.png", g_dir);
   static const std::uint8_t kPng[] = {
@@ -34,6 +35,15 @@ void make_folder() {
   if (file == nullptr) std::abort();
   std::fwrite(kPng, 1, sizeof(kPng), file);
   std::fclose(file);
+}
+
+void remove_folder() {
+  char path[128];
+  for (const char* name : {"d.png", "depth.txt", "groundtruth.txt"}) {
+    std::snprintf(path, sizeof(path), "%s/%s", g_dir, name);
+    ::unlink(path);
+  }
+  ::rmdir(g_dir);
 }
 
 void write(const char* name, const std::uint8_t* data, std::size_t size) {

@@ -16,6 +16,15 @@ namespace {
 
 char g_dir[64];
 
+void remove_folder() {
+  char path[128];
+  for (const char* name : {"d.png", "depth.txt", "groundtruth.txt"}) {
+    std::snprintf(path, sizeof(path), "%s/%s", g_dir, name);
+    ::unlink(path);
+  }
+  ::rmdir(g_dir);
+}
+
 // A tmpfs folder (files per input on a disk would make I/O the bottleneck) with one valid 2x2
 // 16-bit PNG, depth.txt listing it twice and an empty groundtruth.txt.
 void make_folder() {
@@ -35,15 +44,6 @@ void make_folder() {
   if (file == nullptr) std::abort();
   std::fwrite(kPng, 1, sizeof(kPng), file);
   std::fclose(file);
-}
-
-void remove_folder() {
-  char path[128];
-  for (const char* name : {"d.png", "depth.txt", "groundtruth.txt"}) {
-    std::snprintf(path, sizeof(path), "%s/%s", g_dir, name);
-    ::unlink(path);
-  }
-  ::rmdir(g_dir);
 }
 
 void write(const char* name, const std::uint8_t* data, std::size_t size) {

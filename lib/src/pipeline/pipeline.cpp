@@ -135,6 +135,7 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   working_camera_ = config.input_camera.downsampled(config.preprocess.downsample_factor);
   T_W_C_ = rigid_from(config.initial_T_W_C.matrix());
   T_W_Cref_ = T_W_C_;
+  T_Cprev_C_ = Se3d::Identity();
   have_reference_ = false;
   frame_index_ = 0;
   frames_lost_ = 0;
@@ -182,9 +183,14 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
     result = FrameResult::first;
     if (config_.initial_pose_from_ground_truth && frame.has_ground_truth) T_W_C_ = ground_truth;
   } else if (config_.pose_source == PoseSource::ground_truth && frame.has_ground_truth) {
+    T_Cprev_C_ = rigid_from((T_W_C_.inverse() * ground_truth).matrix());
     T_W_C_ = ground_truth;
   } else {
     Se3d estimate = T_W_C_;
+    if (config_.constant_velocity_prediction) {
+      // Compositions drift off SO(3); keep the guess exactly rigid for ICP's checks.
+      estimate = rigid_from((T_W_C_ * T_Cprev_C_).matrix());
+    }
     stats.track_attempted = true;
     stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
                                  T_W_Cref_, estimate, team_);
@@ -193,8 +199,11 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
       if (budget > 0 && stats.track.iterations[level] >= budget) stats.budget_icp_hit = true;
     }
     if (stats.track.tracked()) {
+      estimate = rigid_from(estimate.matrix());
+      T_Cprev_C_ = rigid_from((T_W_C_.inverse() * estimate).matrix());
       T_W_C_ = estimate;
     } else {
+      T_Cprev_C_ = Se3d::Identity();  // the motion is unknown again
       ++frames_lost_;
       stats.times.track_ms = elapsed_ms(t_preprocessed, clock_.now());
       return finish(FrameResult::lost, stats.track.status);

@@ -65,6 +65,9 @@ struct PipelineConfig {
   int workers = 1;
   PoseSource pose_source = PoseSource::track;
   bool initial_pose_from_ground_truth = true;
+  // ICP starts from the pose extrapolated with the last tracked motion (constant velocity)
+  // instead of the last pose.
+  bool constant_velocity_prediction = true;
   Se3d initial_T_W_C = Se3d::Identity();
 };
 
@@ -167,6 +170,7 @@ class Pipeline {
   PinholeCamera working_camera_;
   Se3d T_W_C_ = Se3d::Identity();
   Se3d T_W_Cref_ = Se3d::Identity();  // pose of the current ray-cast reference
+  Se3d T_Cprev_C_ = Se3d::Identity();  // last tracked frame-to-frame motion
   bool have_reference_ = false;
   std::uint64_t frame_index_ = 0;
   std::uint64_t frames_lost_ = 0;

@@ -12,14 +12,7 @@
 namespace octofuse::sim {
 
 PinholeCamera kinect_camera() {
-  PinholeCamera c;
-  c.fx = 525.0f;
-  c.fy = 525.0f;
-  c.cx = 319.5f;
-  c.cy = 239.5f;
-  c.width = 640;
-  c.height = 480;
-  return c;
+  return PinholeCamera{525.0f, 525.0f, 319.5f, 239.5f, 640, 480};
 }
 
 SimSource::SimSource(const SimConfig& config) : config_(config) {}

@@ -19,14 +19,7 @@ constexpr float kVertexTolerance_m = 1e-5f;
 constexpr float kNormalTolerance = 1e-4f;
 
 PinholeCamera vga_camera() {
-  PinholeCamera camera;
-  camera.fx = 525.0f;
-  camera.fy = 525.0f;
-  camera.cx = 319.5f;
-  camera.cy = 239.5f;
-  camera.width = 640;
-  camera.height = 480;
-  return camera;
+  return PinholeCamera{525.0f, 525.0f, 319.5f, 239.5f, 640, 480};
 }
 
 // Owns a 64-byte aligned buffer of exactly the size ArenaSizer reports for the preprocessor.

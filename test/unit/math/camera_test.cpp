@@ -12,14 +12,7 @@ constexpr float kTolerance_m = 1e-5f;
 
 // 7-Scenes Kinect intrinsics (VGA).
 PinholeCamera kinect_vga() {
-  PinholeCamera c;
-  c.fx = 585.0f;
-  c.fy = 585.0f;
-  c.cx = 320.0f;
-  c.cy = 240.0f;
-  c.width = 640;
-  c.height = 480;
-  return c;
+  return PinholeCamera{585.0f, 585.0f, 320.0f, 240.0f, 640, 480};
 }
 
 TEST_CASE("A point on the optical axis projects to the principal point") {

@@ -32,14 +32,7 @@ MapConfig test_map_config() {
 }
 
 PinholeCamera test_camera() {
-  PinholeCamera camera;
-  camera.fx = 50.0f;
-  camera.fy = 50.0f;
-  camera.cx = 31.5f;
-  camera.cy = 23.5f;
-  camera.width = 64;
-  camera.height = 48;
-  return camera;
+  return PinholeCamera{50.0f, 50.0f, 31.5f, 23.5f, 64, 48};
 }
 
 template <typename VoxelT>

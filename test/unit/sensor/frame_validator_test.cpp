@@ -20,14 +20,7 @@ constexpr float kMetresPerMm = 0.001f;
 constexpr float kTolerance_m = 1e-6f;
 
 PinholeCamera small_camera() {
-  PinholeCamera c;
-  c.fx = 10.0f;
-  c.fy = 10.0f;
-  c.cx = 3.5f;
-  c.cy = 2.5f;
-  c.width = kWidth;
-  c.height = kHeight;
-  return c;
+  return PinholeCamera{10.0f, 10.0f, 3.5f, 2.5f, kWidth, kHeight};
 }
 
 struct Fixture {

@@ -23,14 +23,7 @@ constexpr double kIdentityRotationTolerance_deg = 5e-3;
 constexpr double kPi = 3.14159265358979323846;
 
 PinholeCamera vga_camera() {
-  PinholeCamera camera;
-  camera.fx = 525.0f;
-  camera.fy = 525.0f;
-  camera.cx = 319.5f;
-  camera.cy = 239.5f;
-  camera.width = 640;
-  camera.height = 480;
-  return camera;
+  return PinholeCamera{525.0f, 525.0f, 319.5f, 239.5f, 640, 480};
 }
 
 Se3d make_pose(const Eigen::Vector3d& translation_m, const Eigen::Vector3d& axis,

@@ -286,7 +286,7 @@ TEST_CASE("the thin structures are in view and measurable") {
   int best_handle_pixels = 0;
   for (int i = 0; i < 12; ++i) {
     REQUIRE(source->next(frame).outcome == FrameOutcome::frame);
-    if (i % 6 != 0) continue;
+    if (i % 3 != 0) continue;
     const Se3d T_W_C = source->ground_truth_T_W_C(i);
     const ImageView<const float> z = source->last_exact_depth_m();
     const PinholeCamera cam = source->intrinsics();

@@ -16,6 +16,11 @@ constexpr float kExitNudge_voxels = 1e-3f;
 constexpr float kUnobservedStep_mu = 0.5f;
 // Smallest gap, in finest voxels, that is still halved when a step lands on unobserved voxels.
 constexpr float kRetreatMin_voxels = 1.5f;
+// Above this normalised TSDF the nearest voxel alone chooses the step; the full trilinear sample
+// is only taken closer to the surface.
+constexpr float kFarTsdf = 0.5f;
+// Distance from a point to the centre of the voxel containing it, at most, in cells.
+constexpr float kNearestOffset_cells = 0.8661f;
 
 struct Ray {
   Eigen::Vector3f origin_W;
@@ -149,6 +154,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
 
   float t = t0;
   bool have_prev = false;
+  bool prev_nearest = false;  // prev_f is a nearest-voxel read, not a trilinear sample
   float prev_t = 0.0f;
   float prev_f = 0.0f;
   TsdfSample sample;
@@ -185,6 +191,28 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       have_prev = false;
       continue;
     }
+    {
+      // Far from the surface: step by the nearest voxel's value, less the distance to its
+      // centre, so the step cannot pass further than the field says is free.
+      const int read_scale = block_read_scale(*block);
+      const VoxelT& nearest = block->at_voxel(voxel, read_scale);
+      if (voxel_observed(nearest)) {
+        const float f_near = voxel_tsdf(nearest);
+        const float cell_m = voxel_m * static_cast<float>(1 << read_scale);
+        const float step = f_near * config.mu_m - kNearestOffset_cells * cell_m;
+        // NaN (corrupt voxels) fails both tests and takes the full path below.
+        if (f_near > kFarTsdf && step > cell_m) {
+          const float t_next = t + step;
+          if (!(t_next > t)) return MarchResult::miss;
+          have_prev = true;
+          prev_nearest = true;
+          prev_t = t;
+          prev_f = f_near;
+          t = t_next;
+          continue;
+        }
+      }
+    }
     if (!sample_tsdf(map, p_W, block, sample)) {
       // Past a positive sample the observed band behind a surface can be thinner than a coarse
       // step: back off towards the last good sample before giving up on it.
@@ -202,6 +230,15 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     }
     const float f = sample.tsdf;
     if (have_prev && prev_f > 0.0f && f <= 0.0f) {
+      if (prev_nearest) {
+        // Interpolate between two trilinear samples: take the full sample at the previous step.
+        const Eigen::Vector3f q_W = ray.origin_W + prev_t * ray.dir_W;
+        TsdfSample before;
+        if (sample_tsdf(map, q_W, map.find_block_at_voxel(map.point_to_voxel(q_W)), before) &&
+            before.tsdf > 0.0f) {
+          prev_f = before.tsdf;
+        }
+      }
       // Zero crossing by linear interpolation between the last two samples.
       const float t_hit = prev_t + (t - prev_t) * prev_f / (prev_f - f);
       const Eigen::Vector3f p_hit_W = ray.origin_W + t_hit * ray.dir_W;
@@ -239,6 +276,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       return MarchResult::hit;
     }
     have_prev = true;
+    prev_nearest = false;
     prev_t = t;
     prev_f = f;
     const float cell_m = voxel_m * static_cast<float>(1 << sample.scale);

@@ -30,7 +30,7 @@ Eigen::Matrix3d frame_with_z(const Eigen::Vector3d& axis) {
 }
 
 void set_bounds(Primitive* p) {
-  Eigen::Vector3d local_half;
+  Eigen::Vector3d local_half = Eigen::Vector3d::Zero();  // every valid kind sets it below
   switch (p->kind) {
     case PrimitiveKind::plane:
       p->aabb_min_W = Eigen::Vector3d::Constant(-kInfinity);

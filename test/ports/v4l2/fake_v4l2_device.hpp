@@ -61,9 +61,12 @@ class FakeV4l2Device final : public ports::V4l2Syscalls {
     const std::uint32_t stride = bytes_per_line();
     std::uint8_t* data = &storage_[static_cast<std::size_t>(index) * kBufferBytes];
     for (std::uint32_t y = 0; y < format_.height; ++y) {
-      auto* row = reinterpret_cast<std::uint16_t*>(data + y * stride);
-      for (std::uint32_t x = 0; x < format_.width; ++x)
-        row[x] = static_cast<std::uint16_t>(base + x + y);
+      // memcpy per pixel: the row start is not known to be 2-byte aligned for the compiler.
+      std::uint8_t* row = data + y * stride;
+      for (std::uint32_t x = 0; x < format_.width; ++x) {
+        const auto value = static_cast<std::uint16_t>(base + x + y);
+        std::memcpy(row + 2 * x, &value, sizeof(value));
+      }
     }
     Buffer& b = buffers_[index];
     b.state = State::done;

@@ -250,12 +250,12 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       };
       TsdfSample at_hit;
       if (!sample_tsdf(map, p_hit_W, home_of(p_hit_W), at_hit)) at_hit = sample;
-      // Normal by central differences of the field at the hit's scale; each sample may itself
-      // fall back coarser. Missing neighbours: use the trilinear cell's gradient.
+      // Normal from the gradient of the trilinear cell at the hit: no further samples. Central
+      // differences of the field at the hit's scale only where that gradient vanishes.
       const float h = voxel_m * static_cast<float>(1 << at_hit.scale);
       Eigen::Vector3f gradient = at_hit.gradient;
-      Eigen::Vector3f central;
-      bool complete = true;
+      Eigen::Vector3f central = Eigen::Vector3f::Zero();
+      bool complete = !(gradient.squaredNorm() > 0.0f);
       for (int a = 0; a < 3 && complete; ++a) {
         Eigen::Vector3f offset = Eigen::Vector3f::Zero();
         offset[a] = h;

@@ -18,7 +18,7 @@ constexpr float kUnobservedStep_mu = 0.5f;
 constexpr float kRetreatMin_voxels = 1.5f;
 // Above this normalised TSDF the nearest voxel alone chooses the step; the full trilinear sample
 // is only taken closer to the surface.
-constexpr float kFarTsdf = 0.5f;
+constexpr float kFarTsdf = 0.25f;
 // Distance from a point to the centre of the voxel containing it, at most, in cells.
 constexpr float kNearestOffset_cells = 0.8661f;
 

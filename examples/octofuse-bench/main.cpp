@@ -172,7 +172,10 @@ void usage() {
       "  --out DIR      where bench.md, bench.json and the plots go (default bench-out)\n"
       "  --repeats N    runs per cell, interleaved with the compared cell (default 3)\n"
       "  --frames N     frames per run (default: 120; quick: 40)\n"
-      "  --voxels LIST  finest voxel sizes in metres, comma separated (default 0.01,0.002)\n");
+      "  --voxels LIST  finest voxel sizes in metres, comma separated (default 0.01,0.002)\n"
+      "  --scenes LIST  sim scenes, comma separated (default desk,room)\n"
+      "  --threads LIST worker counts, comma separated (default 1,2)\n"
+      "  --poses MODE   icp, gt or both (default both)\n");
 }
 
 }  // namespace
@@ -182,6 +185,17 @@ int main(int argc, char** argv) {
   std::string data_dir, out_dir = "bench-out";
   long repeats = -1, frames = -1;
   std::vector<float> voxels = {0.01f, 0.002f};
+  std::vector<std::string> sim_scenes = {"desk", "room"};
+  std::vector<int> thread_counts = {1, 2};
+  std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
+                                                  octofuse::PoseSource::ground_truth};
+  auto split = [](const std::string& text) {
+    std::vector<std::string> items;
+    std::stringstream list(text);
+    std::string item;
+    while (std::getline(list, item, ',')) items.push_back(item);
+    return items;
+  };
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     std::int64_t n = 0;
@@ -210,6 +224,33 @@ int main(int argc, char** argv) {
         }
         voxels.push_back(static_cast<float>(v));
       }
+    } else if (arg == "--scenes" && i + 1 < argc) {
+      sim_scenes = split(argv[++i]);
+      for (const std::string& name : sim_scenes) {
+        octofuse::sim::SceneId id;
+        if (!octofuse::sim::scene_id_from_name(name.c_str(), &id).ok()) {
+          return octofuse::cli::fail("--scenes: unknown scene '" + name + "'");
+        }
+      }
+    } else if (arg == "--threads" && i + 1 < argc) {
+      thread_counts.clear();
+      for (const std::string& item : split(argv[++i])) {
+        if (!octofuse::cli::parse_int(item, 1, 64, n)) {
+          return octofuse::cli::fail("--threads needs counts like 1,2");
+        }
+        thread_counts.push_back(static_cast<int>(n));
+      }
+    } else if (arg == "--poses" && i + 1 < argc) {
+      const std::string mode = argv[++i];
+      if (mode == "icp") {
+        pose_modes = {octofuse::PoseSource::track};
+      } else if (mode == "gt") {
+        pose_modes = {octofuse::PoseSource::ground_truth};
+      } else if (mode == "both") {
+        pose_modes = {octofuse::PoseSource::track, octofuse::PoseSource::ground_truth};
+      } else {
+        return octofuse::cli::fail("--poses must be icp, gt or both");
+      }
     } else if (arg == "-h" || arg == "--help") {
       usage();
       return 0;
@@ -226,17 +267,16 @@ int main(int argc, char** argv) {
   // The matrix: pairs of cells that differ in one setting sit next to each other and are
   // interleaved on every repeat.
   std::vector<Cell> cells;
-  std::vector<std::string> scenes = {"sim:desk"};
-  if (!quick) scenes.push_back("sim:room");
+  std::vector<std::string> scenes;
+  if (quick) sim_scenes = {"desk"};
+  for (const std::string& name : sim_scenes) scenes.push_back("sim:" + name);
   if (!data_dir.empty()) scenes.push_back("7scenes:" + data_dir + "/7scenes-redkitchen");
   if (quick) voxels = {0.01f};
   for (const std::string& scene : scenes) {
     for (float voxel : voxels) {
-      for (int threads : quick ? std::vector<int>{1} : std::vector<int>{1, 2}) {
+      for (int threads : quick ? std::vector<int>{1} : thread_counts) {
         for (auto poses :
-             quick ? std::vector<octofuse::PoseSource>{octofuse::PoseSource::track}
-                   : std::vector<octofuse::PoseSource>{octofuse::PoseSource::track,
-                                                       octofuse::PoseSource::ground_truth}) {
+             quick ? std::vector<octofuse::PoseSource>{octofuse::PoseSource::track} : pose_modes) {
           for (auto map : {octofuse::MapKind::multires, octofuse::MapKind::single_res}) {
             cells.push_back(Cell{scene, map, voxel, threads, poses, frames});
           }

@@ -119,6 +119,17 @@ std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOp
     return ports::make_v4l2_source(device.c_str(), v4l2_options);
   }
 #endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_LIBCAMERA)
+  if (spec == "libcamera" || starts_with(spec, "libcamera:")) {
+    const std::string id = spec == "libcamera" ? std::string() : spec.substr(10);
+    ports::LibcameraOptions camera;
+    camera.camera_id = id.empty() ? nullptr : id.c_str();  // copied by the source
+    if (options.depth_scale > 0.0) {
+      camera.metres_per_unit = static_cast<float>(1.0 / options.depth_scale);
+    }
+    return ports::make_libcamera_source(camera);
+  }
+#endif
   (void)options;
   (void)text;
   *error =

@@ -98,7 +98,8 @@ class RampStream final : public oni::driver::StreamBase {
                        ONI_STREAM_PROPERTY_MIN_VALUE,    ONI_STREAM_PROPERTY_MIRRORING,
                        ONI_STREAM_PROPERTY_STRIDE,       ONI_STREAM_PROPERTY_CROPPING};
     for (int id : ids) {
-      unsigned char value[sizeof(OniVideoMode)];
+      // Large enough for every property listed (OniCropping is the largest, 20 bytes).
+      alignas(8) unsigned char value[sizeof(OniVideoMode) + sizeof(OniCropping)];
       int size = sizeof(value);
       if (getProperty(id, value, &size) == ONI_STATUS_OK) raisePropertyChanged(id, value, size);
     }

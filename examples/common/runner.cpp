@@ -314,10 +314,10 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
   if (write_mesh_file || options.keep_mesh) {
     MeshConfig mesh_config;
-    // Dual marching cubes yields well under 256 vertices per block: size the de-duplication
-    // table from the map instead of for the worst case.
+    // Dual marching cubes yields a few dozen vertices per surface block: size the
+    // de-duplication table (48-96 bytes per vertex) from the map, capped at 8 M vertices.
     mesh_config.vertex_capacity = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(
-        std::uint64_t{256} * pipeline.map().memory().blocks_used, 1u << 16, 1u << 26));
+        std::uint64_t{96} * pipeline.map().memory().blocks_used, 1u << 16, 1u << 23));
     const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
     AlignedBuffer mesh_buffer(bytes);
     LinearArena arena(mesh_buffer.data, bytes);

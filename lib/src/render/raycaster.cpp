@@ -74,32 +74,12 @@ class TreeCursor {
   explicit TreeCursor(const Octree<VoxelT>& map)
       : map_(map),
         depth_(map.voxel_depth()),
-        leaf_(map.block_level()),
         anchor_level_(std::max(0, map.block_level() - kAnchorLevelsAboveBlocks)) {}
 
   // Same answer as Octree::lookup(voxel); `voxel` must be inside the cube.
   OctantLookup find(const Eigen::Vector3i& voxel) {
     if (anchor_ == kNoIndex || !inside_anchor(voxel)) reanchor(voxel);
-    std::uint32_t node = anchor_;
-    OctantLookup out;
-    for (int level = anchor_node_level_;; ++level) {
-      const int bit = depth_ - level - 1;
-      const int child = ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
-                        (((voxel.z() >> bit) & 1) << 2);
-      const std::uint32_t next = map_.node(node).children[child];
-      if (level + 1 == leaf_) {
-        out.level = next == kNoIndex ? level : level + 1;
-        out.node = node;
-        out.block = next;
-        return out;
-      }
-      if (next == kNoIndex) {
-        out.level = level;
-        out.node = node;
-        return out;
-      }
-      node = next;
-    }
+    return map_.lookup_from(voxel, anchor_, anchor_node_level_);
   }
 
  private:
@@ -133,7 +113,6 @@ class TreeCursor {
 
   const Octree<VoxelT>& map_;
   int depth_;
-  int leaf_;
   int anchor_level_;
   std::uint32_t anchor_ = kNoIndex;
   int anchor_node_level_ = 0;

@@ -279,11 +279,18 @@ class Octree {
 
   // Deepest allocated octant containing `voxel` (see OctantLookup).
   OctantLookup lookup(const Eigen::Vector3i& voxel) const {
+    if (!contains_voxel(voxel)) return OctantLookup{};
+    return lookup_from(voxel, 0, 0);
+  }
+  // The same walk started at inner node `start_node` of level `start_level` (< block_level),
+  // which must contain `voxel` (inside the cube): callers that keep a nearby node skip the top
+  // of the tree.
+  OctantLookup lookup_from(const Eigen::Vector3i& voxel, std::uint32_t start_node,
+                           int start_level) const {
     OctantLookup out;
-    if (!contains_voxel(voxel)) return out;
     const int depth = voxel_depth();
-    std::uint32_t node = 0;
-    for (int level = 0;; ++level) {
+    std::uint32_t node = start_node;
+    for (int level = start_level;; ++level) {
       const int bit = depth - level - 1;
       const int child = ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
                         (((voxel.z() >> bit) & 1) << 2);

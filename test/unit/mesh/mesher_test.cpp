@@ -170,9 +170,9 @@ TEST_CASE("across a scale boundary the sphere stays closed") {
   const float coarse_voxel_m = kVoxel_m * static_cast<float>(1 << coarse);
   test::OwnedMap<MultiresVoxel> owned(test_map_config());
   // Blocks with x below the centre at scale 0, the others coarser.
-  const int split = 8;  // block x coordinate of the cube's middle
+  constexpr int kSplit = 8;  // block x coordinate of the cube's middle
   test::fill_band(owned.map, kMu_m, sphere_sdf,
-                  [split, coarse](const Eigen::Vector3i& b) { return b.x() < split ? 0 : coarse; });
+                  [coarse](const Eigen::Vector3i& b) { return b.x() < kSplit ? 0 : coarse; });
   Meshing<MultiresVoxel> meshing;
   REQUIRE(meshing.mesher.extract(owned.map, meshing.buffer).ok());
   const EdgeReport edges = check_edges(meshing.buffer);

@@ -19,6 +19,7 @@
 #include "octofuse/ports/host/trajectory_io.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
 #include "support/alloc_counter.hpp"
+#include "support/test_dir.hpp"
 
 namespace octofuse {
 namespace {
@@ -92,10 +93,8 @@ bool bit_identical(const std::vector<Se3d>& a, const std::vector<Se3d>& b) {
 }
 
 std::string write_trajectory(const std::vector<Se3d>& poses, const char* name) {
-  const char* tmp = std::getenv("OCTOFUSE_TEST_TMP");
-  std::string dir = tmp != nullptr ? tmp : "/tmp";
-  std::string mkdir = "mkdir -p '" + dir + "'";
-  REQUIRE(std::system(mkdir.c_str()) == 0);
+  const std::string dir = test::make_test_dir("trajectory");
+  REQUIRE(!dir.empty());
   const std::string path = dir + "/" + name;
   host::TumTrajectoryWriter writer;
   REQUIRE(writer.open(path.c_str()).ok());

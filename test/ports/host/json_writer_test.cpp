@@ -5,7 +5,7 @@
 #include <fstream>
 #include <limits>
 
-#include "test_dir.hpp"
+#include "support/test_dir.hpp"
 
 using octofuse::host::JsonWriter;
 

@@ -4,7 +4,7 @@
 #include <cstdio>
 #include <fstream>
 
-#include "test_dir.hpp"
+#include "support/test_dir.hpp"
 
 using octofuse::ErrorText;
 using octofuse::StatusCode;

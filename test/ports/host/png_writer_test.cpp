@@ -4,7 +4,7 @@
 #include <fstream>
 #include <vector>
 
-#include "test_dir.hpp"
+#include "support/test_dir.hpp"
 
 // Pixel-exact round trips go through the replay port's decoder (test/ports/replay); here the
 // container: signature and IHDR fields.

@@ -5,7 +5,7 @@
 #include <fstream>
 #include <random>
 
-#include "test_dir.hpp"
+#include "support/test_dir.hpp"
 
 using octofuse::ErrorText;
 using octofuse::Se3d;

@@ -13,17 +13,9 @@
 
 #include "octofuse/math/se3.hpp"
 #include "octofuse/ports/host/png_writer.hpp"
+#include "support/test_dir.hpp"
 
 namespace octofuse::test {
-
-inline std::string make_test_dir(const char* name) {
-  const char* base = std::getenv("OCTOFUSE_TEST_TMP");
-  std::string root = base != nullptr && base[0] != '\0' ? base : "/tmp";
-  ::mkdir(root.c_str(), 0755);
-  std::string pattern = root + "/" + name + "-XXXXXX";
-  if (::mkdtemp(&pattern[0]) == nullptr) return std::string();
-  return pattern;
-}
 
 inline void write_text(const std::string& path, const std::string& text) {
   std::ofstream(path, std::ios::binary) << text;

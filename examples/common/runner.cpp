@@ -204,7 +204,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
           (T_W_C0.translation() + T_W_C0.linear().col(2) * (0.25 * side_m)).cast<float>();
       std::uint32_t blocks = options.max_blocks;
       if (blocks == 0) {
-        const double block_bytes = static_cast<double>(sizeof(VoxelBlock<VoxelT>));
+        // A block with its finest level: the map reserves one per block by default.
+        const double block_bytes = static_cast<double>(Octree<VoxelT>::kBytesPerBlockWorstCase);
         blocks = static_cast<std::uint32_t>(
             std::min(4.0e6, options.map_memory_mb * 1048576.0 / block_bytes));
       }

@@ -417,6 +417,23 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   }
   apply_budgets(count, budget, report);
 
+  // Finest levels for blocks about to integrate at scale 0 for the first time, serially and in
+  // list order so the pool's indices do not depend on the worker count. Refused: stay at 1.
+  if constexpr (kMultires) {
+    for (std::uint32_t i = 0; i < count; ++i) {
+      FrameBlock& b = frame_blocks_[i];
+      if (b.skip != 0 || b.scale != 0) continue;
+      VoxelBlock<VoxelT>& block = map.block(b.block);
+      if (block.has_finest()) continue;
+      if (!map.acquire_finest(block).ok()) {
+        b.scale = 1;
+        ++report.finest_refusals;
+        ++report.pool_refusals;
+        report.status = StatusCode::resource_exhausted;
+      }
+    }
+  }
+
   f.mip_target = 0;
   for (std::uint32_t i = 0; i < count; ++i) {
     if (frame_blocks_[i].skip == 0 && frame_blocks_[i].scale > f.mip_target) {

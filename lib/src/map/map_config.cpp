@@ -26,6 +26,7 @@ Status validate(const MapConfig& config) {
   if (config.block_capacity == 0 || config.block_capacity > (1u << 30)) {
     return StatusCode::invalid_argument;
   }
+  if (config.finest_capacity > (1u << 30)) return StatusCode::invalid_argument;
   if (config.node_capacity == 0 || config.node_capacity > (1u << 31)) {
     return StatusCode::invalid_argument;
   }

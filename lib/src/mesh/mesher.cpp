@@ -118,7 +118,7 @@ Status Mesher<VoxelT>::mesh_block(const Octree<VoxelT>& map, std::uint32_t block
           }
           const int s = block_read_scale(*nb);
           const int index = block_voxel_index_finest(ux & 7, uy & 7, uz & 7, s);
-          const VoxelT& voxel = nb->voxels[index];
+          const VoxelT& voxel = nb->voxel(index);
           if (!voxel_observed(voxel)) {
             complete = false;
             break;

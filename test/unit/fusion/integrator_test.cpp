@@ -1,6 +1,7 @@
 #include "octofuse/fusion/integrator.hpp"
 
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 #include <memory>
 #include <vector>
@@ -370,6 +371,133 @@ TEST_CASE("the thin-structure promise: close, far at scale 3, close again keeps 
   CHECK(std::abs(after - truth) <= kAfterTolerance_m);
 }
 
+TEST_CASE("blocks never integrated at scale 0 hold no finest level",
+          "[fusion][integrator][finest]") {
+  const AnalyticScene scene = near_and_far_spheres();
+  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f),
+                               test::test_camera(160, 120, 131.0f));
+  for (int i = 0; i < 3; ++i) {
+    const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0.01 * i, 0, -0.25}));
+    REQUIRE(r.status.ok());
+    CHECK(r.finest_refusals == 0);
+  }
+  std::uint32_t with_finest = 0;
+  std::uint32_t coarse_only = 0;
+  for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    CAPTURE(i, static_cast<int>(b.min_scale));
+    REQUIRE(b.has_finest() == (b.min_scale == 0));
+    with_finest += b.has_finest() ? 1u : 0u;
+    coarse_only += b.integrated() && b.min_scale > 0 ? 1u : 0u;
+  }
+  CHECK(with_finest > 10);  // the near sphere
+  CHECK(coarse_only > 10);  // the far sphere
+  const MapMemory m = fusion.map.memory();
+  CHECK(m.finest_used == with_finest);
+  CHECK(m.bytes_used == m.blocks_used * sizeof(VoxelBlock<MultiresVoxel>) +
+                            with_finest * sizeof(FinestLevel<MultiresVoxel>) +
+                            m.nodes_used * sizeof(OctreeNode));
+}
+
+TEST_CASE("refining from scale 3 to 0 takes a finest level and down-propagates into it",
+          "[fusion][integrator][finest]") {
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0.2, 0.1, 1).normalized(), 1.1});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const Se3d pose = test::looking_along_z({0, 0, 0.2});
+  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f, 3), camera);
+  REQUIRE(fusion.fuse(scene, pose).status.ok());
+  // The single scale-3 voxel of each block after the coarse frame.
+  const std::uint32_t coarse_blocks = fusion.map.block_count();
+  std::vector<MultiresVoxel> coarse(coarse_blocks);
+  for (std::uint32_t i = 0; i < coarse_blocks; ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    REQUIRE(b.current_scale == 3);
+    REQUIRE_FALSE(b.has_finest());
+    coarse[i] = b.at(0, 0, 0, 3);
+  }
+  CHECK(fusion.map.memory().finest_used == 0);
+
+  Integrator<MultiresVoxel> fine;
+  const FusionConfig fc = fusion_config(0.08f, 0);
+  test::ArenaBuffer extra(Integrator<MultiresVoxel>::bytes_required(fc, 160, 120));
+  REQUIRE(fine.reserve(extra.arena(), fc, 160, 120).ok());
+  const IntegrationReport r =
+      fine.integrate(fusion.map, ImageView<const float>(fusion.depth.data(), 160, 120), camera,
+                     pose, 1, FusionBudget(), WorkerTeam(1));
+  REQUIRE(r.status.ok());
+  CHECK(r.blocks_refined == coarse_blocks);
+  CHECK(r.blocks_per_scale[0] == r.blocks_integrated);
+  CHECK(fusion.map.memory().finest_used == r.blocks_integrated);
+  // A single coarse voxel interpolates to a constant: every finest voxel starts at the coarse
+  // value and weight (eq. 5), then this frame's update adds one sample to some of them.
+  constexpr float kInterpolationTolerance = 1e-6f;
+  std::uint64_t updated = 0;
+  for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    REQUIRE(b.has_finest());
+    REQUIRE(b.current_scale == 0);
+    const MultiresVoxel parent = i < coarse_blocks ? coarse[i] : MultiresVoxel();
+    for (int v = 0; v < kBlockFinestVoxelCount; ++v) {
+      const MultiresVoxel& child = b.scale_begin(0)[v];
+      CAPTURE(i, v, parent.x, parent.y, child.x, child.y);
+      if (child.y == parent.y + 1.0f) {
+        ++updated;
+        continue;
+      }
+      REQUIRE(child.y == parent.y);
+      if (voxel_observed(parent)) {
+        REQUIRE(std::abs(child.x - parent.x) <= kInterpolationTolerance);
+        REQUIRE(child.delta_y == 0.0f);
+      }
+    }
+  }
+  CHECK(updated == r.voxels_updated);
+}
+
+TEST_CASE("a full finest-level pool keeps blocks at scale 1, counted, and the map valid",
+          "[fusion][integrator][finest]") {
+  constexpr double kPlaneZ_m = 1.237;
+  constexpr float kVoxel_m = 0.01f;
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
+  MapConfig mc = map_config(kVoxel_m, 8, 8000);
+  constexpr std::uint32_t kFinest = 12;
+  mc.finest_capacity = kFinest;
+  Fusion<MultiresVoxel> fusion(mc, fusion_config(8 * kVoxel_m, 0),
+                               test::test_camera(160, 120, 131.0f));
+  for (int frame = 0; frame < 2; ++frame) {
+    const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0, 0, 0.1}));
+    CAPTURE(frame);
+    CHECK(r.status == StatusCode::resource_exhausted);
+    REQUIRE(r.blocks_integrated > kFinest);
+    CHECK(r.blocks_per_scale[0] == kFinest);
+    CHECK(r.blocks_per_scale[1] == r.blocks_integrated - kFinest);
+    CHECK(r.finest_refusals == r.blocks_integrated - kFinest);  // again every frame
+    CHECK(r.pool_refusals == r.finest_refusals);
+    CHECK(r.blocks_allocated == (frame == 0 ? r.blocks_integrated : 0u));
+  }
+  const MapMemory m = fusion.map.memory();
+  CHECK(m.finest_used == kFinest);
+  CHECK(m.finest_refusals > 0);
+  CHECK(m.refusals == m.finest_refusals);
+  for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    REQUIRE(b.current_scale == (b.has_finest() ? 0 : 1));
+    REQUIRE(b.min_scale == b.current_scale);
+  }
+  // Every block holds scale 1 (the refused ones fused there, the others up-propagated to it):
+  // the plane reads back at scale 1 within a quarter of its voxel.
+  constexpr double kTolerance_m = 0.25 * 2 * kVoxel_m;
+  for (const Eigen::Vector3i& column :
+       {Eigen::Vector3i(128, 128, 0), Eigen::Vector3i(100, 150, 0), Eigen::Vector3i(150, 110, 0)}) {
+    CAPTURE(column.transpose());
+    const double z = zero_crossing_z(fusion.map, column, 1, 0, 256);
+    REQUIRE(std::isfinite(z));
+    CHECK(std::abs(z - kPlaneZ_m) <= kTolerance_m);
+  }
+}
+
 TEST_CASE("results are bit-identical for 1 and 2 workers", "[fusion][integrator][threads]") {
   AnalyticScene scene;
   scene.spheres.push_back({Eigen::Vector3d(0.1, 0.0, 1.3), 0.3});
@@ -388,10 +516,18 @@ TEST_CASE("results are bit-identical for 1 and 2 workers", "[fusion][integrator]
     REQUIRE(a.blocks_integrated == b.blocks_integrated);
   }
   REQUIRE(one.map.block_count() == two.map.block_count());
+  using Block = VoxelBlock<MultiresVoxel>;
   for (std::uint32_t i = 0; i < one.map.block_count(); ++i) {
-    REQUIRE(std::memcmp(&one.map.block(i), &two.map.block(i), sizeof(VoxelBlock<MultiresVoxel>)) ==
-            0);
+    const Block& a = one.map.block(i);
+    const Block& b = two.map.block(i);
+    // Everything but the finest-level pointer (into two different pools) byte for byte.
+    REQUIRE(std::memcmp(&a, &b, offsetof(Block, finest)) == 0);
+    REQUIRE(std::memcmp(a.inline_voxels, b.inline_voxels, sizeof(a.inline_voxels)) == 0);
+    REQUIRE(a.has_finest() == b.has_finest());
+    REQUIRE(std::memcmp(a.scale_begin(0), b.scale_begin(0),
+                        sizeof(MultiresVoxel) * kBlockFinestVoxelCount) == 0);
   }
+  REQUIRE(one.map.memory().finest_used == two.map.memory().finest_used);
   for (std::uint32_t i = 0; i < one.map.node_count(); ++i) {
     const NodeSummary& a = one.map.node(i).summary;
     const NodeSummary& b = two.map.node(i).summary;

@@ -14,20 +14,20 @@ TEST_CASE("down-propagation applies the parent's delta to observed children", "[
   // Parent (scale 3) was 0.2 at its last propagation and is now 0.5, with 3 new samples.
   block.at(0, 0, 0, 3) = MultiresVoxel{0.5f, 0.2f, 10.0f, 3.0f};
   for (int i = 0; i < 8; ++i) {
-    MultiresVoxel& child = block.voxels[block_scale_offset(2) + i];
+    MultiresVoxel& child = block.voxel(block_scale_offset(2) + i);
     child = MultiresVoxel{0.1f * static_cast<float>(i) - 0.3f, 0.0f, 7.0f, 1.0f};
   }
-  block.voxels[block_scale_offset(2) + 7].x = 0.9f;   // will clamp at 1
-  block.voxels[block_scale_offset(2) + 6].y = 99.0f;  // will cap at y_max
+  block.voxel(block_scale_offset(2) + 7).x = 0.9f;   // will clamp at 1
+  block.voxel(block_scale_offset(2) + 6).y = 99.0f;  // will cap at y_max
   propagate_block_down(block, 3, kYMax);
   for (int i = 0; i < 6; ++i) {
-    const MultiresVoxel& child = block.voxels[block_scale_offset(2) + i];
+    const MultiresVoxel& child = block.voxel(block_scale_offset(2) + i);
     CHECK(child.x == Approx(0.1f * i - 0.3f + 0.3f).margin(1e-6));
     CHECK(child.y == 10.0f);
     CHECK(child.delta_y == 4.0f);
   }
-  CHECK(block.voxels[block_scale_offset(2) + 7].x == 1.0f);
-  CHECK(block.voxels[block_scale_offset(2) + 6].y == kYMax);
+  CHECK(block.voxel(block_scale_offset(2) + 7).x == 1.0f);
+  CHECK(block.voxel(block_scale_offset(2) + 6).y == kYMax);
   // The parent starts a new interval.
   CHECK(block.at(0, 0, 0, 3).x_last == 0.5f);
   CHECK(block.at(0, 0, 0, 3).delta_y == 0.0f);
@@ -61,7 +61,7 @@ TEST_CASE("down-propagation interpolates unobserved children, extrapolating at t
 TEST_CASE("hand-computed trilinear value for a non-linear parent field", "[fusion][down]") {
   VoxelBlock<MultiresVoxel> block;
   // Scale-2 parents: all 0 except parent (1,1,1) = 0.8.
-  for (int i = 0; i < 8; ++i) block.voxels[block_scale_offset(2) + i] = {0.0f, 0.0f, 2.0f, 0.0f};
+  for (int i = 0; i < 8; ++i) block.voxel(block_scale_offset(2) + i) = {0.0f, 0.0f, 2.0f, 0.0f};
   block.at(1, 1, 1, 2).x = 0.8f;
   propagate_block_down(block, 2, kYMax);
   // Child (2,2,2) is nearest parent (1,1,1), 1/4 towards (0,0,0): weight 0.75^3 on 0.8.
@@ -89,7 +89,7 @@ TEST_CASE(
 TEST_CASE("down then up: parents are the mean of the updated children", "[fusion][down]") {
   VoxelBlock<MultiresVoxel> block;
   for (int i = 0; i < 8; ++i) {
-    block.voxels[block_scale_offset(2) + i] =
+    block.voxel(block_scale_offset(2) + i) =
         MultiresVoxel{0.0625f * static_cast<float>(i), 0.0f, 4.0f, 0.0f};
   }
   propagate_block_up(block, 2, 3);

@@ -51,6 +51,90 @@ TEST_CASE("bytes_required is exact", "[map][octree]") {
         Octree<MultiresVoxel>::bytes_required(small_config()));
 }
 
+TEST_CASE("the finest-level pool is sized from its own capacity, exactly", "[map][octree]") {
+  MapConfig config = small_config(100, 300);
+  const std::size_t worst_case = Octree<MultiresVoxel>::bytes_required(config);
+  config.finest_capacity = 10;
+  const std::size_t need = Octree<MultiresVoxel>::bytes_required(config);
+  // 90 fewer levels of 8 KiB and their free-list links (up to alignment padding).
+  constexpr std::size_t kSaved = 90 * (sizeof(FinestLevel<MultiresVoxel>) + sizeof(std::uint32_t));
+  CHECK(worst_case - need >= kSaved);
+  CHECK(worst_case - need <= kSaved + 2 * kArenaAlignment);
+  test::ArenaBuffer exact(need);
+  Octree<MultiresVoxel> map;
+  REQUIRE(map.reserve(exact.arena(), config).ok());
+  CHECK(exact.arena().bytes_used() == need);
+  test::ArenaBuffer short_by_one(need - 1);
+  Octree<MultiresVoxel> too_big;
+  CHECK(too_big.reserve(short_by_one.arena(), config) == StatusCode::resource_exhausted);
+  // Single-resolution maps have no such pool: the capacity changes nothing.
+  CHECK(Octree<TsdfVoxel>::bytes_required(config) ==
+        Octree<TsdfVoxel>::bytes_required(small_config(100, 300)));
+  config.finest_capacity = (1u << 30) + 1;
+  CHECK(validate(config) == StatusCode::invalid_argument);
+}
+
+TEST_CASE("finest levels are lent on demand, refused when the pool is full, returned by clear",
+          "[map][octree]") {
+  MapConfig config = small_config(8, 64);
+  config.finest_capacity = 2;
+  MapFixture<MultiresVoxel> f(config);
+  Octree<MultiresVoxel>& map = f.map;
+  std::uint32_t blocks[3];
+  for (int i = 0; i < 3; ++i) blocks[i] = map.allocate_block({i, 0, 0}).value();
+  MapMemory m = map.memory();
+  CHECK(m.finest_used == 0);
+  CHECK(m.finest_capacity == 2);
+  CHECK(m.bytes_per_finest == sizeof(FinestLevel<MultiresVoxel>));
+  CHECK(m.bytes_used == 3 * sizeof(VoxelBlock<MultiresVoxel>) + m.nodes_used * sizeof(OctreeNode));
+  // Coarse writes need no finest level.
+  map.block(blocks[0]).at(0, 0, 0, 1).y = 2.0f;
+  CHECK_FALSE(map.block(blocks[0]).has_finest());
+
+  REQUIRE(map.acquire_finest(map.block(blocks[0])).ok());
+  FinestLevel<MultiresVoxel>* first = map.block(blocks[0]).finest;
+  REQUIRE(first != nullptr);
+  CHECK(map.acquire_finest(map.block(blocks[0])).ok());  // already has one: same level
+  CHECK(map.block(blocks[0]).finest == first);
+  for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
+    REQUIRE_FALSE(voxel_observed(first->voxels[i]));  // lent unobserved
+  }
+  // The non-const voxel accessor takes a level for writes at scale 0.
+  MultiresVoxel* v = map.voxel({8 + 3, 2, 1}, 0);
+  REQUIRE(v != nullptr);
+  v->y = 1.0f;
+  CHECK(map.block(blocks[1]).has_finest());
+  CHECK(map.memory().finest_used == 2);
+
+  // Pool full: refused, counted, block unchanged and still readable.
+  CHECK(map.acquire_finest(map.block(blocks[2])) == StatusCode::resource_exhausted);
+  CHECK_FALSE(map.block(blocks[2]).has_finest());
+  CHECK(map.voxel({16, 0, 0}, 0) == nullptr);
+  const Octree<MultiresVoxel>& read = map;
+  REQUIRE(read.voxel({16, 0, 0}, 0) != nullptr);
+  CHECK_FALSE(voxel_observed(*read.voxel({16, 0, 0}, 0)));
+  m = map.memory();
+  CHECK(m.finest_refusals == 2);
+  CHECK(m.refusals == 2);
+  CHECK(m.bytes_used == 3 * sizeof(VoxelBlock<MultiresVoxel>) +
+                            2 * sizeof(FinestLevel<MultiresVoxel>) +
+                            m.nodes_used * sizeof(OctreeNode));
+  // The other blocks' data is intact.
+  CHECK(map.block(blocks[0]).at(0, 0, 0, 1).y == 2.0f);
+  CHECK(read.voxel({8 + 3, 2, 1}, 0)->y == 1.0f);
+
+  map.clear();
+  m = map.memory();
+  CHECK(m.finest_used == 0);
+  CHECK(m.finest_refusals == 0);
+  const std::uint32_t again = map.allocate_block({5, 5, 5}).value();
+  CHECK_FALSE(map.block(again).has_finest());  // a new block starts without one
+  REQUIRE(map.acquire_finest(map.block(again)).ok());
+  for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
+    REQUIRE_FALSE(voxel_observed(map.block(again).finest->voxels[i]));  // re-lent clean
+  }
+}
+
 TEST_CASE("invalid configs are refused", "[map][octree]") {
   MapConfig bad = small_config();
   bad.voxel_depth = 3;
@@ -132,7 +216,7 @@ TEST_CASE("exhaustion at exactly the capacity leaves earlier blocks intact", "[m
   for (std::uint32_t i = 0; i < kCapacity; ++i) {
     Result<std::uint32_t> b = map.allocate_block({static_cast<int>(i), 1, 2});
     REQUIRE(b.ok());
-    map.block(b.value()).voxels[0] = TsdfVoxel{0.5f, static_cast<float>(i + 1)};
+    map.block(b.value()).voxel(0) = TsdfVoxel{0.5f, static_cast<float>(i + 1)};
   }
   CHECK(map.refusals() == 0);
   CHECK(map.allocate_block({20, 1, 2}).status() == StatusCode::resource_exhausted);
@@ -148,7 +232,7 @@ TEST_CASE("exhaustion at exactly the capacity leaves earlier blocks intact", "[m
   for (std::uint32_t i = 0; i < kCapacity; ++i) {
     const VoxelBlock<TsdfVoxel>* b = map.find_block(Eigen::Vector3i(static_cast<int>(i), 1, 2));
     REQUIRE(b != nullptr);
-    CHECK(b->voxels[0].weight == static_cast<float>(i + 1));
+    CHECK(b->voxel(0).weight == static_cast<float>(i + 1));
   }
   const MapMemory m = map.memory();
   CHECK(m.blocks_used == kCapacity);
@@ -269,7 +353,8 @@ TEST_CASE("node summaries propagate up to the root", "[map][octree]") {
   for (std::uint32_t idx : {b0, b1}) {
     VoxelBlock<MultiresVoxel>& block = map.block(idx);
     const float value = idx == b0 ? 0.5f : -0.25f;
-    for (int i = 0; i < kBlockFinestVoxelCount; ++i) block.voxels[i] = {value, value, 4.0f, 0.0f};
+    REQUIRE(map.acquire_finest(block).ok());
+    for (int i = 0; i < kBlockFinestVoxelCount; ++i) block.voxel(i) = {value, value, 4.0f, 0.0f};
     propagate_block_up(block, 0, kMaxBlockScale);
     Octree<MultiresVoxel>::update_block_summary(block);
   }
@@ -295,7 +380,7 @@ TEST_CASE("clear forgets blocks and keeps the memory", "[map][octree]") {
   CHECK(f.map.refusals() == 0);
   CHECK(f.map.find_block(Eigen::Vector3i(0, 0, 0)) == nullptr);
   REQUIRE(f.map.allocate_block({9, 0, 0}).ok());
-  CHECK(f.map.block(0).voxels[0].weight == 0.0f);
+  CHECK(f.map.block(0).voxel(0).weight == 0.0f);
 }
 
 TEST_CASE("no heap allocation after reserve across 10000 allocations and lookups",

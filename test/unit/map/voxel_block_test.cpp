@@ -40,28 +40,63 @@ TEST_CASE("index within a level is x + y*s + z*s^2 and covers each level once", 
 TEST_CASE("mip levels cost 14% over single-resolution blocks", "[map][block]") {
   const double overhead = static_cast<double>(kBlockVoxelCount) / kBlockFinestVoxelCount - 1.0;
   CHECK(overhead == Approx(0.142578125).epsilon(1e-12));  // 73 / 512
-  // The block records hold the voxel array plus a small header.
-  CHECK(sizeof(VoxelBlock<MultiresVoxel>) >= kBlockVoxelCount * sizeof(MultiresVoxel));
-  CHECK(sizeof(VoxelBlock<MultiresVoxel>) <= kBlockVoxelCount * sizeof(MultiresVoxel) + 64);
   CHECK(sizeof(MultiresVoxel) == 16);
   CHECK(sizeof(TsdfVoxel) == 8);
+}
+
+TEST_CASE("single-res blocks hold all levels inline, multires blocks only the coarse ones",
+          "[map][block]") {
+  constexpr std::size_t kHeaderBytes = 64;
+  CHECK(sizeof(VoxelBlock<TsdfVoxel>) == kHeaderBytes + kBlockVoxelCount * sizeof(TsdfVoxel));
+  CHECK(sizeof(VoxelBlock<MultiresVoxel>) ==
+        kHeaderBytes + (kBlockVoxelCount - kBlockFinestVoxelCount) * sizeof(MultiresVoxel));
+  CHECK(sizeof(FinestLevel<MultiresVoxel>) == kBlockFinestVoxelCount * sizeof(MultiresVoxel));
+  CHECK_FALSE(VoxelBlock<TsdfVoxel>::kSplitFinest);
+  CHECK(VoxelBlock<MultiresVoxel>::kSplitFinest);
+  VoxelBlock<TsdfVoxel> single;
+  CHECK(single.has_finest());
+  CHECK(single.scale_begin(0) == single.inline_voxels);
+  CHECK(single.scale_begin(1) == single.inline_voxels + 512);
 }
 
 TEST_CASE("a fresh block is unobserved and never integrated", "[map][block]") {
   VoxelBlock<MultiresVoxel> block;
   CHECK_FALSE(block.integrated());
+  CHECK_FALSE(block.has_finest());
   CHECK(block.min_scale == kNeverIntegrated);
   CHECK(block.mip_scale == kNeverIntegrated);
   CHECK(block.weight_mean == 0.0f);
   CHECK(block.tsdf_min > block.tsdf_max);  // empty summary
-  for (const MultiresVoxel& v : block.voxels) {
-    REQUIRE_FALSE(voxel_observed(v));
-    REQUIRE(v.x == 1.0f);
+  const VoxelBlock<MultiresVoxel>& read = block;
+  for (int i = 0; i < kBlockVoxelCount; ++i) {
+    REQUIRE_FALSE(voxel_observed(read.voxel(i)));
+    REQUIRE(read.voxel(i).x == 1.0f);
   }
   block.coords = Eigen::Vector3i(2, 3, 4);
   CHECK(block.min_voxel() == Eigen::Vector3i(16, 24, 32));
   block.at_voxel(Eigen::Vector3i(16 + 5, 24 + 6, 32 + 7), 1).y = 3.0f;
   CHECK(block.at(2, 3, 3, 1).y == 3.0f);
+  CHECK(&block.at(2, 3, 3, 1) == block.scale_begin(1) + 2 + 3 * 4 + 3 * 16);
+}
+
+TEST_CASE("without a finest level, scale 0 reads as unobserved; with one it is that level",
+          "[map][block]") {
+  VoxelBlock<MultiresVoxel> block;
+  const VoxelBlock<MultiresVoxel>& read = block;
+  // Reads of scale 0 see a shared, never-written level.
+  CHECK(read.scale_begin(0) == kUnobservedFinestLevel<MultiresVoxel>.voxels);
+  CHECK_FALSE(voxel_observed(read.at(7, 7, 7, 0)));
+  CHECK_FALSE(voxel_observed(read.at_voxel(Eigen::Vector3i(3, 4, 5), 0)));
+  FinestLevel<MultiresVoxel> level;
+  block.finest = &level;
+  CHECK(block.has_finest());
+  block.at(1, 2, 3, 0).y = 5.0f;
+  CHECK(level.voxels[1 + 2 * 8 + 3 * 64].y == 5.0f);
+  CHECK(read.scale_begin(0) == level.voxels);
+  CHECK(&read.voxel(block_voxel_index(1, 2, 3, 0)) == &level.voxels[1 + 2 * 8 + 3 * 64]);
+  // Coarse levels stay inline.
+  CHECK(block.scale_begin(1) == block.inline_voxels);
+  CHECK(block.scale_begin(3) == block.inline_voxels + 72);
 }
 
 }  // namespace

@@ -45,9 +45,13 @@ struct OwnedMap {
 
 // Writes sdf(p_W) (metres, positive in free space) into one block at `scale`.
 template <typename VoxelT, typename Sdf>
-void fill_block(const Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale, float mu_m,
+void fill_block(Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale, float mu_m,
                 const Sdf& sdf) {
-  for (auto& v : block.voxels) v = VoxelT();
+  // Multires blocks hold a finest level only once written at scale 0.
+  if (scale == 0 && !map.acquire_finest(block).ok()) std::abort();
+  for (int i = block.has_finest() ? 0 : kBlockFinestVoxelCount; i < kBlockVoxelCount; ++i) {
+    block.voxel(i) = VoxelT();
+  }
   const int side = block_scale_side(scale);
   for (int z = 0; z < side; ++z) {
     for (int y = 0; y < side; ++y) {

@@ -287,8 +287,10 @@ TEST_CASE("corrupt voxels (NaN, out of range) end rays instead of hanging or cra
   test::fill_band(owned.map, kMu_m, plane_sdf, [](const Eigen::Vector3i&) { return 0; });
   // Poison every other block.
   for (std::uint32_t b = 0; b < owned.map.block_count(); b += 2) {
-    for (MultiresVoxel& v : owned.map.block(b).voxels) {
-      v.x = (b % 4 == 0) ? std::nanf("") : 1e30f;
+    VoxelBlock<MultiresVoxel>& block = owned.map.block(b);
+    REQUIRE(owned.map.acquire_finest(block).ok());
+    for (int i = 0; i < kBlockVoxelCount; ++i) {
+      block.voxel(i).x = (b % 4 == 0) ? std::nanf("") : 1e30f;
     }
     owned.map.block(b).current_scale = static_cast<std::int8_t>(b % 4 == 0 ? 0 : 100);
   }

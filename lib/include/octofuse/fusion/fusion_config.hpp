@@ -46,8 +46,8 @@ struct FusionBudget {
 struct IntegrationReport {
   // ok; invalid_argument (bad image, camera or pose: nothing was done); failed_precondition
   // (reserve() not called or the image size differs from the reserved one); resource_exhausted
-  // (the block pool, or the per-frame block list, was full: the frame was integrated into what
-  // fits and the map is intact).
+  // (the block pool, the finest-level pool or the per-frame block list was full: the frame was
+  // integrated into what fits, blocks refused a finest level at scale 1, and the map is intact).
   Status status;
   std::uint32_t blocks_touched = 0;    // distinct blocks the rays' bands crossed inside the cube
   std::uint32_t blocks_requested = 0;  // of those, not yet allocated
@@ -56,9 +56,10 @@ struct IntegrationReport {
   std::uint32_t blocks_per_scale[4] = {0, 0, 0, 0};  // integrated, by scale
   std::uint32_t blocks_refined = 0;                  // multires: integrated finer than last time
   std::uint32_t blocks_coarsened = 0;                // multires: integrated coarser than last time
-  std::uint32_t pool_refusals = 0;                   // new blocks the map's pools refused
-  std::uint32_t keys_dropped = 0;                    // blocks beyond max_blocks_per_frame
-  std::uint32_t rays_outside_cube = 0;               // band samples that left the map's cube
+  std::uint32_t pool_refusals = 0;      // new blocks and finest levels the map's pools refused
+  std::uint32_t finest_refusals = 0;    // of those, finest levels (the block stayed at scale 1)
+  std::uint32_t keys_dropped = 0;       // blocks beyond max_blocks_per_frame
+  std::uint32_t rays_outside_cube = 0;  // band samples that left the map's cube
   std::uint32_t budget_blocks_not_allocated = 0;
   std::uint32_t budget_blocks_coarsened = 0;
   std::uint32_t budget_blocks_skipped = 0;

@@ -1,6 +1,6 @@
 #pragma once
 // What fixes the map's geometry and memory: the cube (origin, finest voxel size, 2^d voxels per
-// side) and the two pool capacities. Everything the octree reserves follows from this struct.
+// side) and the pool capacities. Everything the octree reserves follows from this struct.
 
 #include <cstdint>
 
@@ -26,12 +26,19 @@ struct MapConfig {
   Eigen::Vector3f origin_W = Eigen::Vector3f::Zero();
   std::uint32_t block_capacity = 4096;  // voxel blocks in the pool
   std::uint32_t node_capacity = 4096;   // inner octree nodes in the pool (the root included)
+  // Multires maps: finest levels (8^3 voxels, 8 KiB each) lent to blocks integrated at scale 0;
+  // a block refused one stays at scale 1. 0 = block_capacity (never refuses, reserves the worst
+  // case, which stays untouched until used). Single-resolution maps ignore it.
+  std::uint32_t finest_capacity = 0;
 
   int voxels_per_side() const { return 1 << voxel_depth; }
   float size_m() const { return voxel_size_m * static_cast<float>(voxels_per_side()); }
   // Tree level of the blocks (root = level 0): each level halves the octant side.
   int block_level() const { return voxel_depth - kBlockSideLog2; }
   float block_size_m() const { return voxel_size_m * static_cast<float>(kBlockSide); }
+  std::uint32_t effective_finest_capacity() const {
+    return finest_capacity == 0 ? block_capacity : finest_capacity;
+  }
 
   // A cube centred on `centre_W` (the usual choice: the first camera position).
   static MapConfig centred(const Eigen::Vector3f& centre_W, float voxel_size_m, int voxel_depth,
@@ -40,7 +47,7 @@ struct MapConfig {
 
 // ok, or invalid_argument when the voxel size is not finite and positive, the depth is outside
 // [kMinVoxelDepth, kMaxVoxelDepth], the origin is not finite, or a capacity is zero (or the
-// node capacity is above 2^31, the block capacity above 2^30).
+// node capacity is above 2^31, the block or finest capacity above 2^30).
 Status validate(const MapConfig& config);
 
 }  // namespace octofuse

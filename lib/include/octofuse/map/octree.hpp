@@ -1,8 +1,10 @@
 #pragma once
 // The map: an octree over a cube of 2^d finest voxels per side. Inner nodes come from a node pool,
 // leaves are mip-mapped 8^3 voxel blocks from a block pool, and a hash of block coordinates finds
-// a block without walking the tree. All three are carved from an arena at reserve() and never
-// grow: when a pool is full, allocation is refused, counted and reported, and the map stays valid.
+// a block without walking the tree. Multires blocks take their finest level (8^3 voxels) from a
+// third pool only when first written at scale 0 (see voxel_block.hpp). All are carved from an
+// arena at reserve() and never grow: when a pool is full, allocation is refused, counted and
+// reported, and the map stays valid.
 //
 // Inner nodes carry a summary of what is below them (mean, min and max normalised TSDF over
 // observed children, mean weight), kept up to date by propagate_summaries() after integration,
@@ -66,14 +68,19 @@ struct AllocationCounts {
 };
 
 struct MapMemory {
-  std::size_t bytes_reserved = 0;   // everything reserve() took from the arena
-  std::size_t bytes_used = 0;       // the part holding allocated nodes and blocks
-  std::size_t bytes_per_block = 0;  // sizeof(VoxelBlock<VoxelT>)
+  std::size_t bytes_reserved = 0;    // everything reserve() took from the arena
+  std::size_t bytes_used = 0;        // the part holding allocated nodes and blocks
+  std::size_t bytes_per_block = 0;   // sizeof(VoxelBlock<VoxelT>)
+  std::size_t bytes_per_finest = 0;  // sizeof(FinestLevel<VoxelT>); 0 for single-res maps
   std::uint32_t blocks_used = 0;
   std::uint32_t block_capacity = 0;
   std::uint32_t nodes_used = 0;
   std::uint32_t node_capacity = 0;
-  std::uint64_t refusals = 0;  // allocation requests refused since reserve()/clear()
+  std::uint32_t finest_used = 0;  // multires blocks holding a finest level
+  std::uint32_t finest_capacity = 0;
+  // Allocation requests (blocks, nodes, finest levels) refused since reserve()/clear().
+  std::uint64_t refusals = 0;
+  std::uint64_t finest_refusals = 0;  // of those, finest levels
 };
 
 // Where a voxel falls in the tree: the deepest allocated octant containing it. `level` is -1
@@ -91,6 +98,12 @@ class Octree {
  public:
   using Voxel = VoxelT;
   using Block = VoxelBlock<VoxelT>;
+  using Finest = FinestLevel<VoxelT>;
+  static constexpr bool kSplitFinest = Block::kSplitFinest;
+  // Worst-case bytes per block (block plus its finest level), for sizing a pool from a memory
+  // budget with the default finest capacity.
+  static constexpr std::size_t kBytesPerBlockWorstCase =
+      sizeof(Block) + (kSplitFinest ? sizeof(Finest) : 0);
 
   // Exactly what reserve() takes from a LinearArena whose current offset is
   // kArenaAlignment-aligned.
@@ -111,6 +124,9 @@ class Octree {
     OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
     OCTOFUSE_TRY(nodes_.reserve(arena, config.node_capacity));
     OCTOFUSE_TRY(blocks_.reserve(arena, config.block_capacity));
+    if constexpr (kSplitFinest) {
+      OCTOFUSE_TRY(finest_.reserve(arena, config.effective_finest_capacity()));
+    }
     OCTOFUSE_TRY(hash_.reserve(arena, config.block_capacity));
     Result<std::uint32_t*> a = arena.template allocate_array<std::uint32_t>(config.node_capacity);
     OCTOFUSE_TRY(a);
@@ -224,6 +240,24 @@ class Octree {
     return find_block_index(block_coords);
   }
 
+  // --- Finest levels (multires). Gives `block` its finest level if it has none, initialised
+  // unobserved: ok (also when it had one, and always for single-res maps), or resource_exhausted
+  // when the finest pool is full (counted in refusals; the block is unchanged). Not thread-safe,
+  // like allocate(); levels return to the pool on clear().
+  Status acquire_finest(Block& block) {
+    if constexpr (kSplitFinest) {
+      if (block.finest != nullptr) return ok_status();
+      Result<std::uint32_t> f = finest_.allocate();
+      if (!f.ok()) {
+        ++refusals_;
+        ++finest_refusals_;
+        return StatusCode::resource_exhausted;
+      }
+      block.finest = &finest_[f.value()];
+    }
+    return ok_status();
+  }
+
   // --- Lookup (O(1) through the hash).
   std::uint32_t find_block_index(const Eigen::Vector3i& block_coords) const {
     if (!contains_block(block_coords)) return kNoIndex;
@@ -260,7 +294,10 @@ class Octree {
   }
 
   // The voxel at `scale` (0..3) containing finest voxel `voxel`, or null when outside the cube
-  // or in an unallocated block. Reads whatever that scale holds (see the block's current_scale).
+  // or in an unallocated block. Reads whatever that scale holds (see the block's current_scale;
+  // scale 0 of a block without a finest level reads as unobserved). The non-const overload gives
+  // the block its finest level for scale 0 (null when the finest pool is full), so it must not
+  // overlap other calls, like allocate().
   const VoxelT* voxel(const Eigen::Vector3i& voxel, int scale = 0) const {
     OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
     const Block* b = find_block_at_voxel(voxel);
@@ -269,7 +306,10 @@ class Octree {
   VoxelT* voxel(const Eigen::Vector3i& voxel, int scale = 0) {
     OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
     Block* b = find_block_at_voxel(voxel);
-    return b == nullptr ? nullptr : &b->at_voxel(voxel, scale);
+    if (b == nullptr) return nullptr;
+    // A write at scale 0 needs the finest level: take it now (null when that pool is full).
+    if (scale == 0 && !acquire_finest(*b).ok()) return nullptr;
+    return &b->at_voxel(voxel, scale);
   }
   // The neighbour `step` voxels of scale `scale` away (crosses block borders), or null.
   const VoxelT* neighbour(const Eigen::Vector3i& voxel, int scale,
@@ -413,7 +453,14 @@ class Octree {
     m.nodes_used = nodes_.used();
     m.node_capacity = nodes_.capacity();
     m.bytes_used = sizeof(Block) * m.blocks_used + sizeof(OctreeNode) * m.nodes_used;
+    if constexpr (kSplitFinest) {
+      m.bytes_per_finest = sizeof(Finest);
+      m.finest_used = finest_.used();
+      m.finest_capacity = finest_.capacity();
+      m.bytes_used += sizeof(Finest) * m.finest_used;
+    }
     m.refusals = refusals_;
+    m.finest_refusals = finest_refusals_;
     return m;
   }
   std::uint64_t refusals() const { return refusals_; }
@@ -422,8 +469,10 @@ class Octree {
   void reset_contents(bool clear_hash) {
     nodes_.reset();
     blocks_.reset();
+    finest_.reset();
     if (clear_hash) hash_.clear();
     refusals_ = 0;
+    finest_refusals_ = 0;
     stamp_ = 0;
     Result<std::uint32_t> root = nodes_.allocate();
     OCTOFUSE_CHECK(root.ok() && root.value() == 0);
@@ -533,11 +582,13 @@ class Octree {
   MapConfig config_;
   IndexPool<OctreeNode> nodes_;
   IndexPool<Block> blocks_;
+  IndexPool<Finest> finest_;  // multires only (capacity 0 otherwise)
   BlockHash hash_;
   std::uint32_t* scratch_a_ = nullptr;
   std::uint32_t* scratch_b_ = nullptr;
   std::size_t bytes_reserved_ = 0;
   std::uint64_t refusals_ = 0;
+  std::uint64_t finest_refusals_ = 0;
   std::uint32_t stamp_ = 0;
   bool reserved_ = false;
 };

@@ -1,14 +1,20 @@
 #pragma once
-// A leaf of the octree: 8^3 voxels plus their mip levels 4^3, 2^3 and 1^3, stored contiguously
-// (585 voxels, level offsets 0 / 512 / 576 / 584; +14% over a single-resolution block). Voxels are
-// cell-centred, so a voxel at scale s+1 covers exactly 8 voxels at scale s and its value is their
-// mean. Inside a level of side n = 8 >> s the index is x + y*n + z*n^2, (x, y, z) local to the
-// block in voxels of that scale.
+// A leaf of the octree: 8^3 voxels plus their mip levels 4^3, 2^3 and 1^3 (585 voxels, level
+// offsets 0 / 512 / 576 / 584 in the block's voxel index). Voxels are cell-centred, so a voxel at
+// scale s+1 covers exactly 8 voxels at scale s and its value is their mean. Inside a level of side
+// n = 8 >> s the index is x + y*n + z*n^2, (x, y, z) local to the block in voxels of that scale.
+//
+// Storage: single-resolution blocks hold all 585 voxels inline. Multi-resolution blocks hold the
+// coarse levels (64 + 8 + 1) inline and point to their finest level (512 voxels, 8 KiB), which the
+// map lends from a second pool only once the block integrates at scale 0: at 2 mm most blocks
+// never do, and their finest level would be 87% of the block. A block without a finest level
+// reads as unobserved at scale 0 (const access); writing there is a programmer error.
 
 #include <cstdint>
 
 #include <Eigen/Core>
 
+#include "octofuse/core/check.hpp"
 #include "octofuse/map/map_config.hpp"
 #include "octofuse/map/voxel.hpp"
 
@@ -43,9 +49,24 @@ constexpr int block_voxel_index_finest(int x, int y, int z, int scale) {
 inline constexpr std::int8_t kNeverIntegrated = -1;
 inline constexpr std::uint32_t kNoIndex = 0xFFFFFFFFu;
 
+// The finest level of a split block: one slot of the map's finest-level pool.
+template <typename VoxelT>
+struct alignas(64) FinestLevel {
+  VoxelT voxels[kBlockFinestVoxelCount] = {};
+};
+
+// What a block without a finest level reads at scale 0 (never written).
+template <typename VoxelT>
+inline constexpr FinestLevel<VoxelT> kUnobservedFinestLevel{};
+
 template <typename VoxelT>
 struct VoxelBlock {
   using Voxel = VoxelT;
+  // Multires blocks keep their finest level out of line (see above).
+  static constexpr bool kSplitFinest = IsMultiresVoxel<VoxelT>::value;
+  // Block voxel index of the first inline voxel, and how many are inline.
+  static constexpr int kInlineBegin = kSplitFinest ? kBlockFinestVoxelCount : 0;
+  static constexpr int kInlineCount = kBlockVoxelCount - kInlineBegin;
 
   Eigen::Vector3i coords = Eigen::Vector3i::Zero();  // block coordinates (finest voxel / 8)
   std::uint64_t morton = 0;                          // Morton code of the minimum finest voxel
@@ -65,25 +86,70 @@ struct VoxelBlock {
   // The octree's node summaries are built from these.
   float tsdf_mean = 1.0f;
   float weight_mean = 0.0f;
-  VoxelT voxels[kBlockVoxelCount] = {};
+  // Split blocks: the finest level, lent by the map (Octree::acquire_finest), null until then.
+  FinestLevel<VoxelT>* finest = nullptr;
+  // Block voxel indices kInlineBegin .. 584.
+  VoxelT inline_voxels[kInlineCount] = {};
 
   bool integrated() const { return min_scale != kNeverIntegrated; }
+  // Whether scale 0 has storage (always for single-resolution blocks).
+  bool has_finest() const {
+    if constexpr (kSplitFinest) {
+      return finest != nullptr;
+    } else {
+      return true;
+    }
+  }
   // Minimum finest voxel of the block, cube coordinates.
   Eigen::Vector3i min_voxel() const { return coords * kBlockSide; }
 
-  VoxelT& at(int x, int y, int z, int scale) { return voxels[block_voxel_index(x, y, z, scale)]; }
+  // Voxel by block voxel index (0..584, see block_voxel_index).
+  VoxelT& voxel(int index) {
+    if constexpr (kSplitFinest) {
+      if (index < kBlockFinestVoxelCount) return writable_finest()[index];
+    }
+    return inline_voxels[index - kInlineBegin];
+  }
+  const VoxelT& voxel(int index) const {
+    if constexpr (kSplitFinest) {
+      if (index < kBlockFinestVoxelCount) return readable_finest()[index];
+    }
+    return inline_voxels[index - kInlineBegin];
+  }
+
+  VoxelT& at(int x, int y, int z, int scale) { return voxel(block_voxel_index(x, y, z, scale)); }
   const VoxelT& at(int x, int y, int z, int scale) const {
-    return voxels[block_voxel_index(x, y, z, scale)];
+    return voxel(block_voxel_index(x, y, z, scale));
   }
   // Voxel at scale s containing finest voxel `voxel` (cube coordinates, inside this block).
-  VoxelT& at_voxel(const Eigen::Vector3i& voxel, int scale) {
-    return voxels[block_voxel_index_finest(voxel.x() & 7, voxel.y() & 7, voxel.z() & 7, scale)];
+  VoxelT& at_voxel(const Eigen::Vector3i& v, int scale) {
+    return voxel(block_voxel_index_finest(v.x() & 7, v.y() & 7, v.z() & 7, scale));
   }
-  const VoxelT& at_voxel(const Eigen::Vector3i& voxel, int scale) const {
-    return voxels[block_voxel_index_finest(voxel.x() & 7, voxel.y() & 7, voxel.z() & 7, scale)];
+  const VoxelT& at_voxel(const Eigen::Vector3i& v, int scale) const {
+    return voxel(block_voxel_index_finest(v.x() & 7, v.y() & 7, v.z() & 7, scale));
   }
-  VoxelT* scale_begin(int scale) { return voxels + block_scale_offset(scale); }
-  const VoxelT* scale_begin(int scale) const { return voxels + block_scale_offset(scale); }
+  // The block_scale_count(scale) voxels of one level, contiguous.
+  VoxelT* scale_begin(int scale) {
+    if constexpr (kSplitFinest) {
+      if (scale == 0) return writable_finest();
+    }
+    return inline_voxels + (block_scale_offset(scale) - kInlineBegin);
+  }
+  const VoxelT* scale_begin(int scale) const {
+    if constexpr (kSplitFinest) {
+      if (scale == 0) return readable_finest();
+    }
+    return inline_voxels + (block_scale_offset(scale) - kInlineBegin);
+  }
+
+ private:
+  VoxelT* writable_finest() {
+    OCTOFUSE_CHECK(finest != nullptr);  // writes at scale 0 need acquire_finest() first
+    return finest->voxels;
+  }
+  const VoxelT* readable_finest() const {
+    return finest != nullptr ? finest->voxels : kUnobservedFinestLevel<VoxelT>.voxels;
+  }
 };
 
 }  // namespace octofuse

@@ -118,6 +118,8 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.end_array();
   json.key("voxels_updated").value(s.integration.voxels_updated);
   json.key("pool_refusals").value(static_cast<std::uint64_t>(s.integration.pool_refusals));
+  json.key("raycast_steps").value(s.raycast.steps);
+  json.key("raycast_valid_pixels").value(static_cast<std::uint64_t>(s.raycast.valid_pixels));
   json.key("budget_hits").begin_object();
   json.key("icp").value(s.budget_icp_hit);
   json.key("fusion").value(s.integration.budget_hit);

@@ -46,17 +46,6 @@ bool clip_to_box(const Ray& ray, const Eigen::Vector3f& lo, const Eigen::Vector3
   return t0 <= t1;
 }
 
-// Distance along the ray at which it leaves the box [lo, hi] it is inside.
-float exit_distance(const Ray& ray, const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) {
-  float t = std::numeric_limits<float>::max();
-  for (int a = 0; a < 3; ++a) {
-    const float d = ray.dir_W[a];
-    if (d > 0.0f) t = std::min(t, (hi[a] - ray.origin_W[a]) / d);
-    if (d < 0.0f) t = std::min(t, (lo[a] - ray.origin_W[a]) / d);
-  }
-  return t;
-}
-
 struct PixelHit {
   Eigen::Vector3f p_W;
   Eigen::Vector3f n_W;
@@ -120,6 +109,29 @@ class TreeCursor {
   Eigen::Vector3i anchor_corner_ = Eigen::Vector3i::Zero();
 };
 
+// The ray in continuous finest-voxel coordinates (Octree::point_to_voxel_f), still parameterised
+// by metres along the unit world ray: q(t) = origin_v + t * dir_v.
+struct VoxelRay {
+  Eigen::Vector3f origin_v;
+  Eigen::Vector3f dir_v;
+  Eigen::Vector3f inv_dir_v;  // 1 / dir_v, infinite along axes the ray does not move
+};
+
+// Distance along the ray at which it leaves the octant [corner, corner + size) (voxel units) it is
+// inside.
+float octant_exit(const VoxelRay& ray, const Eigen::Vector3i& corner, int size) {
+  float t = std::numeric_limits<float>::max();
+  for (int a = 0; a < 3; ++a) {
+    const float d = ray.dir_v[a];
+    if (d > 0.0f) {
+      t = std::min(t, (static_cast<float>(corner[a] + size) - ray.origin_v[a]) * ray.inv_dir_v[a]);
+    } else if (d < 0.0f) {
+      t = std::min(t, (static_cast<float>(corner[a]) - ray.origin_v[a]) * ray.inv_dir_v[a]);
+    }
+  }
+  return t;
+}
+
 template <typename VoxelT>
 MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const Ray& ray,
                   float t_near, float t_far, std::uint64_t& steps_left, std::uint64_t& steps,
@@ -131,6 +143,16 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   float t1 = t_far;
   if (!clip_to_box(ray, cube_lo, cube_hi, t0, t1)) return MarchResult::miss;
 
+  VoxelRay ray_v;
+  ray_v.origin_v = map.point_to_voxel_f(ray.origin_W);
+  ray_v.dir_v = ray.dir_W / voxel_m;
+  for (int a = 0; a < 3; ++a) {
+    ray_v.inv_dir_v[a] =
+        ray_v.dir_v[a] != 0.0f ? 1.0f / ray_v.dir_v[a] : std::numeric_limits<float>::infinity();
+  }
+  const int voxels_per_side = map.voxels_per_side();
+  const float side_v = static_cast<float>(voxels_per_side);
+
   float t = t0;
   bool have_prev = false;
   bool prev_nearest = false;  // prev_f is a nearest-voxel read, not a trilinear sample
@@ -141,14 +163,33 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   const VoxelBlock<VoxelT>* block = nullptr;
   Eigen::Vector3i block_coords(-1, -1, -1);
   TreeCursor<VoxelT> cursor(map);
+  BlockNeighbourhood<VoxelT> neighbourhood;
   OctantLookup where;
+  // The block holding voxel coordinates q, through the cursor (null when unallocated or outside).
+  auto block_at = [&](const Eigen::Vector3f& q) -> const VoxelBlock<VoxelT>* {
+    if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < side_v && q.y() < side_v &&
+          q.z() < side_v)) {
+      return nullptr;
+    }
+    const Eigen::Vector3i v = q.cast<int>();
+    if (voxel_to_block(v) == block_coords) return block;
+    const OctantLookup found = cursor.find(v);
+    return found.block == kNoIndex ? nullptr : &map.block(found.block);
+  };
+  auto sample_at = [&](const Eigen::Vector3f& q, TsdfSample& out) {
+    return sample_tsdf_at_voxel_coords(map, q, block_at(q), neighbourhood, out);
+  };
   while (t <= t1) {
     if (steps_left == 0) return MarchResult::out_of_steps;
     --steps_left;
     ++steps;
-    const Eigen::Vector3f p_W = ray.origin_W + t * ray.dir_W;
-    const Eigen::Vector3i voxel = map.point_to_voxel(p_W);
-    if (!map.contains_voxel(voxel)) return MarchResult::miss;
+    const Eigen::Vector3f q = ray_v.origin_v + t * ray_v.dir_v;
+    // Inside the cube q is non-negative, so truncation is floor (and NaN fails the test).
+    if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < side_v && q.y() < side_v &&
+          q.z() < side_v)) {
+      return MarchResult::miss;
+    }
+    const Eigen::Vector3i voxel = q.cast<int>();
     const Eigen::Vector3i coords = voxel_to_block(voxel);
     if (coords != block_coords) {
       where = cursor.find(voxel);
@@ -158,12 +199,11 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     if (block == nullptr) {
       // Free octant: jump to its far face in one step.
       const int free_level = std::min(where.level + 1, map.block_level());
-      const int size = octant_size_voxels(free_level, map.voxel_depth());
-      const Eigen::Vector3i corner((voxel.x() / size) * size, (voxel.y() / size) * size,
-                                   (voxel.z() / size) * size);
-      const Eigen::Vector3f lo = cube_lo + corner.cast<float>() * voxel_m;
-      const Eigen::Vector3f hi = lo + Eigen::Vector3f::Constant(static_cast<float>(size) * voxel_m);
-      const float t_next = std::max(exit_distance(ray, lo, hi), t) + kExitNudge_voxels * voxel_m;
+      const int shift = map.voxel_depth() - free_level;
+      const Eigen::Vector3i corner((voxel.x() >> shift) << shift, (voxel.y() >> shift) << shift,
+                                   (voxel.z() >> shift) << shift);
+      const float t_next =
+          std::max(octant_exit(ray_v, corner, 1 << shift), t) + kExitNudge_voxels * voxel_m;
       // Far from the origin a step can vanish in float rounding: give up rather than spin.
       if (!(t_next > t)) return MarchResult::miss;
       t = t_next;
@@ -192,7 +232,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
         }
       }
     }
-    if (!sample_tsdf(map, p_W, block, sample)) {
+    if (!sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, sample)) {
       // Past a positive sample the observed band behind a surface can be thinner than a coarse
       // step: back off towards the last good sample before giving up on it.
       if (have_prev && prev_f > 0.0f && t - prev_t > kRetreatMin_voxels * voxel_m) {
@@ -211,45 +251,34 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     if (have_prev && prev_f > 0.0f && f <= 0.0f) {
       if (prev_nearest) {
         // Interpolate between two trilinear samples: take the full sample at the previous step.
-        const Eigen::Vector3f q_W = ray.origin_W + prev_t * ray.dir_W;
         TsdfSample before;
-        if (sample_tsdf(map, q_W, map.find_block_at_voxel(map.point_to_voxel(q_W)), before) &&
-            before.tsdf > 0.0f) {
+        if (sample_at(ray_v.origin_v + prev_t * ray_v.dir_v, before) && before.tsdf > 0.0f) {
           prev_f = before.tsdf;
         }
       }
       // Zero crossing by linear interpolation between the last two samples.
       const float t_hit = prev_t + (t - prev_t) * prev_f / (prev_f - f);
-      const Eigen::Vector3f p_hit_W = ray.origin_W + t_hit * ray.dir_W;
-      // The hit and its gradient samples are within a voxel of the last sample: most share
-      // its block, so pass it along instead of looking it up again.
-      auto home_of = [&](const Eigen::Vector3f& q_W) {
-        const Eigen::Vector3i v = map.point_to_voxel(q_W);
-        return voxel_to_block(v) == block_coords ? block : map.find_block_at_voxel(v);
-      };
+      const Eigen::Vector3f q_hit = ray_v.origin_v + t_hit * ray_v.dir_v;
       TsdfSample at_hit;
-      if (!sample_tsdf(map, p_hit_W, home_of(p_hit_W), at_hit)) at_hit = sample;
+      if (!sample_at(q_hit, at_hit)) at_hit = sample;
       // Normal from the gradient of the trilinear cell at the hit: no further samples. Central
       // differences of the field at the hit's scale only where that gradient vanishes.
-      const float h = voxel_m * static_cast<float>(1 << at_hit.scale);
+      const float h_voxels = static_cast<float>(1 << at_hit.scale);
       Eigen::Vector3f gradient = at_hit.gradient;
       Eigen::Vector3f central = Eigen::Vector3f::Zero();
       bool complete = !(gradient.squaredNorm() > 0.0f);
       for (int a = 0; a < 3 && complete; ++a) {
         Eigen::Vector3f offset = Eigen::Vector3f::Zero();
-        offset[a] = h;
+        offset[a] = h_voxels;
         TsdfSample plus;
         TsdfSample minus;
-        const Eigen::Vector3f p_plus_W = p_hit_W + offset;
-        const Eigen::Vector3f p_minus_W = p_hit_W - offset;
-        complete = sample_tsdf(map, p_plus_W, home_of(p_plus_W), plus) &&
-                   sample_tsdf(map, p_minus_W, home_of(p_minus_W), minus);
+        complete = sample_at(q_hit + offset, plus) && sample_at(q_hit - offset, minus);
         central[a] = plus.tsdf - minus.tsdf;
       }
       if (complete && central.squaredNorm() > 0.0f) gradient = central;
       const float norm = gradient.norm();
       if (!(norm > 0.0f) || !std::isfinite(norm)) return MarchResult::miss;
-      hit.p_W = p_hit_W;
+      hit.p_W = ray.origin_W + t_hit * ray.dir_W;
       hit.n_W = gradient / norm;
       hit.scale = at_hit.scale;
       return MarchResult::hit;

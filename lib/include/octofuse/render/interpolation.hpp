@@ -34,6 +34,24 @@ struct TsdfSample {
   int scale = 0;                                       // scale of the grid used
 };
 
+// Blocks around the last slow-path sample: consecutive samples along a ray mostly need the same
+// 2x2x2 block neighbourhood, so a caller that samples repeatedly keeps one of these to look each
+// block up once instead of once per sample. Valid while the map is not modified.
+template <typename VoxelT>
+struct BlockNeighbourhood {
+  Eigen::Vector3i first_block = Eigen::Vector3i::Constant(-1);  // block of the (0,0,0) corner
+  const VoxelBlock<VoxelT>* blocks[8] = {};
+  bool looked_up[8] = {};
+};
+
+namespace detail {
+// floor() for |x| < 2^31 without a libm call (x86-64 baseline has no SSE4.1 round).
+inline int floor_to_int(float x) {
+  const int i = static_cast<int>(x);
+  return i - (x < static_cast<float>(i) ? 1 : 0);
+}
+}  // namespace detail
+
 // Samples the normalised TSDF at p_W. False when a neighbour lies outside the map, in an
 // unallocated or never-integrated block, or is unobserved (weight 0) at the common scale.
 template <typename VoxelT>
@@ -41,26 +59,48 @@ bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W, TsdfSamp
   return sample_tsdf(map, p_W, map.find_block_at_voxel(map.point_to_voxel(p_W)), out);
 }
 
+template <typename VoxelT>
+bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3f& q,
+                                 const VoxelBlock<VoxelT>* home,
+                                 BlockNeighbourhood<VoxelT>& neighbourhood, TsdfSample& out);
+
 // Same, with the block holding p_W already found by the caller (`home`, null = none).
 template <typename VoxelT>
 bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W,
                  const VoxelBlock<VoxelT>* home, TsdfSample& out) {
+  BlockNeighbourhood<VoxelT> neighbourhood;
+  return sample_tsdf_at_voxel_coords(map, map.point_to_voxel_f(p_W), home, neighbourhood, out);
+}
+
+// Same, at continuous finest-voxel coordinates q (Octree::point_to_voxel_f), reusing and updating
+// the caller's block neighbourhood.
+template <typename VoxelT>
+bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3f& q,
+                                 const VoxelBlock<VoxelT>* home,
+                                 BlockNeighbourhood<VoxelT>& neighbourhood, TsdfSample& out) {
   if (home == nullptr) return false;
-  const Eigen::Vector3f q = map.point_to_voxel_f(p_W);  // finest voxel units
+  // Also rejects NaN, and keeps the integer conversions below in range.
+  const float limit = static_cast<float>(map.voxels_per_side()) + 1.0f;
+  if (!(q.x() > -1.0f && q.y() > -1.0f && q.z() > -1.0f && q.x() < limit && q.y() < limit &&
+        q.z() < limit)) {
+    return false;
+  }
   int scale = block_read_scale(*home);
   while (scale <= kMaxBlockScale) {
     const int size = 1 << scale;
     // Continuous coordinates on the grid of this scale, whose samples sit at voxel centres.
     const Eigen::Vector3f qs = q / static_cast<float>(size) - Eigen::Vector3f::Constant(0.5f);
-    const Eigen::Vector3f base_f(std::floor(qs.x()), std::floor(qs.y()), std::floor(qs.z()));
-    const Eigen::Vector3f frac = qs - base_f;
-    const Eigen::Vector3i base = base_f.cast<int>();
+    const Eigen::Vector3i base(detail::floor_to_int(qs.x()), detail::floor_to_int(qs.y()),
+                               detail::floor_to_int(qs.z()));
+    const Eigen::Vector3f frac = qs - base.cast<float>();
     float values[8];
     int needed = scale;
     bool ok = true;
     // Fast path: all 8 neighbours inside the home block, read at this scale directly.
     const int side = block_scale_side(scale);
-    const Eigen::Vector3i local = base - home->min_voxel() / size;
+    const Eigen::Vector3i home_min = home->min_voxel();  // non-negative: shifts divide exactly
+    const Eigen::Vector3i local =
+        base - Eigen::Vector3i(home_min.x() >> scale, home_min.y() >> scale, home_min.z() >> scale);
     if (local.x() >= 0 && local.y() >= 0 && local.z() >= 0 && local.x() < side - 1 &&
         local.y() < side - 1 && local.z() < side - 1) {
       const VoxelT* level = home->scale_begin(scale);
@@ -81,21 +121,37 @@ bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W,
       if (!ok) return false;
     } else {
       // The corners span at most 2 blocks per axis: look each block up once, the home block
-      // not at all.
-      const VoxelBlock<VoxelT>* near[8] = {};
-      bool looked_up[8] = {};
+      // not at all, and keep them for the next sample.
       const Eigen::Vector3i first_block = voxel_to_block(base * size);
-      for (int c = 0; c < 8 && ok; ++c) {
-        const Eigen::Vector3i corner =
-            (base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1)) * size;
-        if (!map.contains_voxel(corner)) {
-          ok = false;
-          break;
+      if (first_block != neighbourhood.first_block) {
+        neighbourhood = BlockNeighbourhood<VoxelT>{};
+        neighbourhood.first_block = first_block;
+      }
+      const VoxelBlock<VoxelT>** near = neighbourhood.blocks;
+      bool* looked_up = neighbourhood.looked_up;
+      // Per axis, for the lower and upper corner: which of the two blocks (0/1) and the index
+      // inside it at this scale; the 8 corners combine these.
+      const int n = map.voxels_per_side();
+      int block_of[3][2];
+      int local_of[3][2];
+      for (int a = 0; a < 3; ++a) {
+        for (int k = 0; k < 2; ++k) {
+          const int v = (base[a] + k) * size;
+          if (v < 0 || v >= n) return false;  // outside the cube at every coarser scale too
+          block_of[a][k] = (v >> 3) - first_block[a];
+          local_of[a][k] = (v & 7) >> scale;
         }
-        const Eigen::Vector3i block_coords = voxel_to_block(corner);
-        const Eigen::Vector3i d = block_coords - first_block;
-        const int slot = d.x() + 2 * d.y() + 4 * d.z();
+      }
+      const int stride_y = side;
+      const int stride_z = side * side;
+      for (int c = 0; c < 8; ++c) {
+        const int i = c & 1;
+        const int j = (c >> 1) & 1;
+        const int k = (c >> 2) & 1;
+        const int slot = block_of[0][i] + 2 * block_of[1][j] + 4 * block_of[2][k];
         if (!looked_up[slot]) {
+          const Eigen::Vector3i block_coords =
+              first_block + Eigen::Vector3i(slot & 1, (slot >> 1) & 1, (slot >> 2) & 1);
           near[slot] = block_coords == home->coords ? home : map.find_block(block_coords);
           looked_up[slot] = true;
         }
@@ -106,7 +162,8 @@ bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W,
         }
         const int cached_scale = block_read_scale(*cached);
         if (cached_scale > needed) needed = cached_scale;
-        const VoxelT& v = cached->at_voxel(corner, scale);
+        const VoxelT& v = cached->scale_begin(
+            scale)[local_of[0][i] + local_of[1][j] * stride_y + local_of[2][k] * stride_z];
         if (!voxel_observed(v)) {
           ok = false;
           break;

@@ -10,6 +10,8 @@ namespace octofuse {
 
 using fusion_internal::FrameBlock;
 using fusion_internal::FrameSetEntry;
+using fusion_internal::kSeenCacheLog2;
+using fusion_internal::kSeenCacheSize;
 using fusion_internal::TaskTally;
 
 // Everything the per-block kernel needs, in float, fixed for the frame.
@@ -39,8 +41,10 @@ namespace {
 
 constexpr std::size_t kPrefetchDistance = 4;
 
-std::uint64_t hash_morton(std::uint64_t m) {
-  return (m * 0x9E3779B97F4A7C15ull) >> 20;
+// Fibonacci hashing: the top `bits` bits of the product depend on every bit of the key (packed
+// coordinates put z in the high bits, which the low bits of a product never see).
+std::size_t hash_key(std::uint64_t key, int bits) {
+  return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> (64 - bits));
 }
 
 bool pose_ok(const Se3d& T) {
@@ -158,99 +162,126 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
 }
 
 template <typename VoxelT>
-bool Integrator<VoxelT>::insert_frame_block(std::uint64_t morton, const Eigen::Vector3i& coords,
+bool Integrator<VoxelT>::insert_frame_block(std::uint64_t key, const Eigen::Vector3i& coords,
                                             IntegrationReport& report) {
-  std::size_t slot = hash_morton(morton) & set_mask_;
+  std::size_t slot = hash_key(key, set_bits_);
   while (true) {
     FrameSetEntry& e = set_[slot];
     if (e.stamp != stamp_) break;
-    if (e.morton == morton) return false;
+    if (e.key == key) return false;
     slot = (slot + 1) & set_mask_;
   }
   if (frame_block_count_ >= config_.max_blocks_per_frame) {
     ++report.keys_dropped;
     return false;
   }
-  set_[slot].morton = morton;
+  set_[slot].key = key;
   set_[slot].stamp = stamp_;
   FrameBlock& b = frame_blocks_[frame_block_count_++];
   b = FrameBlock();
   b.coords = coords;
-  b.morton = morton;
+  b.morton = morton_encode(coords);
   return true;
 }
+
+namespace {
+
+// Block coordinates (each in [0, 2^21)) packed into one word: a cheap exact key for de-duplicating
+// cells, unlike the Morton code, which is only computed once per distinct block.
+inline std::uint64_t pack_cell(int x, int y, int z) {
+  return static_cast<std::uint64_t>(x) | (static_cast<std::uint64_t>(y) << 21) |
+         (static_cast<std::uint64_t>(z) << 42);
+}
+
+// Slot of a packed cell in the small seen-cell cache.
+inline std::size_t seen_slot(std::uint64_t key) {
+  return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> (64 - kSeenCacheLog2));
+}
+
+inline int floor_to_int(float f) {
+  const int i = static_cast<int>(f);
+  return i - (static_cast<float>(i) > f ? 1 : 0);
+}
+
+}  // namespace
 
 template <typename VoxelT>
 std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, const Frame& f,
                                                  IntegrationReport& report) {
   const float inv_block = 1.0f / (8.0f * f.voxel_size_m);
   const int step = config_.allocation_pixel_step;
-  // The last few blocks inserted: neighbouring rays cross the same blocks, and checking these
-  // first skips most probes of the (large, cache-unfriendly) frame set.
-  constexpr int kRecent = 8;
-  std::uint64_t recent[kRecent];
-  for (std::uint64_t& r : recent) r = ~std::uint64_t{0};
-  int recent_next = 0;
+  const int side_blocks = map.voxels_per_side() >> kBlockSideLog2;
+  // Everything in block units of the cube: the camera centre, and the world direction of the ray
+  // through pixel (u, v) with unit camera z, M * ((u - cx) / fx, (v - cy) / fy, 1).
+  const Eigen::Vector3f centre_B = (f.t_W_C - f.origin_W) * inv_block;
+  const Eigen::Matrix3f M = f.R_W_C * inv_block;
+  // Neighbouring rays cross the same blocks, in this row and the rows above: a small
+  // direct-mapped cache of cells already passed on keeps most of them away from the (large,
+  // cache-unfriendly) frame set.
+  for (std::size_t i = 0; i < kSeenCacheSize; ++i) seen_[i] = ~std::uint64_t{0};
+  const float inv_fx = 1.0f / f.fx;
+  const float inv_fy = 1.0f / f.fy;
   for (int v = 0; v < f.height; v += step) {
     const float* row = f.depth + v * f.stride;
+    const float yn = (static_cast<float>(v) - f.cy) * inv_fy;
+    const Eigen::Vector3f row_dir = M.col(1) * yn + M.col(2);
+    const float yn2_1 = yn * yn + 1.0f;
     for (int u = 0; u < f.width; u += step) {
       const float depth = row[u];
       if (!(depth >= f.near_m && depth <= f.far_m)) continue;
-      // Ray through the pixel with unit z; the band +- mu along the ray is +- mu/|ray| in z.
-      const Eigen::Vector3f ray_C((static_cast<float>(u) - f.cx) / f.fx,
-                                  (static_cast<float>(v) - f.cy) / f.fy, 1.0f);
-      const float half_band_z = f.mu_m / ray_C.norm();
-      const Eigen::Vector3f p0_W = f.R_W_C * (ray_C * (depth - half_band_z)) + f.t_W_C;
-      const Eigen::Vector3f p1_W = f.R_W_C * (ray_C * (depth + half_band_z)) + f.t_W_C;
-      // Amanatides-Woo traversal of the block grid from p0 to p1 (block units).
-      const Eigen::Vector3f a = (p0_W - f.origin_W) * inv_block;
-      const Eigen::Vector3f b = (p1_W - f.origin_W) * inv_block;
+      const float xn = (static_cast<float>(u) - f.cx) * inv_fx;
+      const Eigen::Vector3f dir = row_dir + M.col(0) * xn;
+      // The band +- mu along the ray is +- mu/|ray| in camera z.
+      const float half_band_z = f.mu_m / std::sqrt(xn * xn + yn2_1);
+      const Eigen::Vector3f a = centre_B + dir * (depth - half_band_z);
+      const Eigen::Vector3f b = centre_B + dir * (depth + half_band_z);
       // Far outside the cube (a wild pose): skip before float-to-int conversions can overflow.
       constexpr float kLimit = static_cast<float>(1 << 22);
       if (!(a.cwiseAbs().maxCoeff() < kLimit && b.cwiseAbs().maxCoeff() < kLimit)) {
         ++report.rays_outside_cube;
         continue;
       }
-      const Eigen::Vector3f dir = b - a;
-      Eigen::Vector3i cell(static_cast<int>(std::floor(a.x())), static_cast<int>(std::floor(a.y())),
-                           static_cast<int>(std::floor(a.z())));
-      const Eigen::Vector3i last(static_cast<int>(std::floor(b.x())),
-                                 static_cast<int>(std::floor(b.y())),
-                                 static_cast<int>(std::floor(b.z())));
+      // Amanatides-Woo traversal of the block grid from a to b.
+      const Eigen::Vector3f d = b - a;
+      int cell[3] = {floor_to_int(a.x()), floor_to_int(a.y()), floor_to_int(a.z())};
+      const int last[3] = {floor_to_int(b.x()), floor_to_int(b.y()), floor_to_int(b.z())};
       int step_axis[3];
       float t_max[3];
       float t_delta[3];
+      int max_cells = 1;
       for (int k = 0; k < 3; ++k) {
-        if (dir[k] > 0.0f) {
+        if (d[k] > 0.0f) {
           step_axis[k] = 1;
-          t_max[k] = (static_cast<float>(cell[k] + 1) - a[k]) / dir[k];
-          t_delta[k] = 1.0f / dir[k];
-        } else if (dir[k] < 0.0f) {
+          t_delta[k] = 1.0f / d[k];
+          t_max[k] = (static_cast<float>(cell[k] + 1) - a[k]) * t_delta[k];
+          max_cells += last[k] - cell[k];
+        } else if (d[k] < 0.0f) {
           step_axis[k] = -1;
-          t_max[k] = (static_cast<float>(cell[k]) - a[k]) / dir[k];
-          t_delta[k] = -1.0f / dir[k];
+          t_delta[k] = -1.0f / d[k];
+          t_max[k] = (a[k] - static_cast<float>(cell[k])) * t_delta[k];
+          max_cells += cell[k] - last[k];
         } else {
           step_axis[k] = 0;
           t_max[k] = 2.0f;
           t_delta[k] = 2.0f;
         }
       }
-      const int max_cells = (last - cell).cwiseAbs().sum() + 1;
       for (int c = 0; c < max_cells; ++c) {
-        if (map.contains_block(cell)) {
-          const std::uint64_t morton = morton_encode(cell);
-          bool seen = false;
-          for (int r = 0; r < kRecent; ++r) seen |= recent[r] == morton;
-          if (!seen) {
-            recent[recent_next] = morton;
-            recent_next = (recent_next + 1) % kRecent;
-            insert_frame_block(morton, cell, report);
+        if (static_cast<unsigned>(cell[0]) < static_cast<unsigned>(side_blocks) &&
+            static_cast<unsigned>(cell[1]) < static_cast<unsigned>(side_blocks) &&
+            static_cast<unsigned>(cell[2]) < static_cast<unsigned>(side_blocks)) {
+          const std::uint64_t key = pack_cell(cell[0], cell[1], cell[2]);
+          std::uint64_t& seen = seen_[seen_slot(key)];
+          if (seen != key) {
+            seen = key;
+            insert_frame_block(key, Eigen::Vector3i(cell[0], cell[1], cell[2]), report);
           }
         } else {
           ++report.rays_outside_cube;
         }
-        if (cell == last) break;
-        int k = t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
+        if (cell[0] == last[0] && cell[1] == last[1] && cell[2] == last[2]) break;
+        const int k =
+            t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
         if (t_max[k] > 1.0f) break;
         cell[k] += step_axis[k];
         t_max[k] += t_delta[k];
@@ -347,11 +378,20 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
 
   // 2. Allocate the missing ones: nearest first under the budget, then in Morton order.
   std::uint32_t missing = 0;
+  // Camera z of a block centre is affine in its coordinates: z = z0 + dz . coords.
+  const Eigen::Vector3f dz_block = f.R_C_W.row(2).transpose() * (8.0f * f.voxel_size_m);
+  const float z0 =
+      f.R_C_W.row(2).dot(f.origin_W + Eigen::Vector3f::Constant(4.0f * f.voxel_size_m)) +
+      f.t_C_W.z();
+  constexpr std::uint32_t kLookAhead = 8;
+  for (std::uint32_t i = 0; i < touched && i < kLookAhead; ++i) {
+    map.prefetch_block(frame_blocks_[i].morton);
+  }
   for (std::uint32_t i = 0; i < touched; ++i) {
+    if (i + kLookAhead < touched) map.prefetch_block(frame_blocks_[i + kLookAhead].morton);
     FrameBlock& b = frame_blocks_[i];
-    b.block = map.find_block_index(b.coords);
-    const Eigen::Vector3f centre_C = f.R_C_W * map.block_centre_W(b.coords) + f.t_C_W;
-    b.z_m = centre_C.z();
+    b.block = map.find_block_index_morton(b.morton);
+    b.z_m = z0 + dz_block.dot(b.coords.cast<float>());
     if (b.block == kNoIndex) ++missing;
   }
   report.blocks_requested = missing;
@@ -388,7 +428,7 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     }
     for (std::uint32_t i = 0; i < to_allocate; ++i) {
       FrameBlock& b = frame_blocks_[order[i]];
-      b.block = map.find_block_index(b.coords);
+      b.block = map.find_block_index_morton(b.morton);
     }
   }
   if (report.keys_dropped > 0) report.status = StatusCode::resource_exhausted;
@@ -449,12 +489,14 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     const TaskRange range = task_range(count, task, tasks);
     TaskTally& tally = tallies_[task];
     for (std::size_t i = range.begin; i < range.end; ++i) {
-      // Blocks are scattered over a large pool: start fetching a later block's header and
-      // first voxels at its scale while this one is integrated.
+      // Blocks are scattered over a large pool: fetch a later block's header early, and once it
+      // has arrived (it says where a multires block's finest level is) its first voxels.
+      if (i + 2 * kPrefetchDistance < range.end) {
+        __builtin_prefetch(&map.block(frame_blocks_[i + 2 * kPrefetchDistance].block));
+      }
       if (i + kPrefetchDistance < range.end) {
         const FrameBlock& later = frame_blocks_[i + kPrefetchDistance];
         const VoxelBlock<VoxelT>& lb = map.block(later.block);
-        __builtin_prefetch(&lb);
         const char* first = reinterpret_cast<const char*>(lb.scale_begin(later.scale));
         __builtin_prefetch(first, 1);
         __builtin_prefetch(first + 64, 1);

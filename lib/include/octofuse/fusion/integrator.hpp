@@ -43,15 +43,19 @@ struct FrameBlock {
   std::uint8_t padding[2] = {};
 };
 
-// Per-frame set of block Morton codes; an entry belongs to the current frame when its stamp
-// matches, so nothing is cleared between frames.
+// Per-frame set of blocks (packed block coordinates); an entry belongs to the current frame when
+// its stamp matches, so nothing is cleared between frames.
 struct FrameSetEntry {
-  std::uint64_t morton = 0;
+  std::uint64_t key = 0;
   std::uint32_t stamp = 0;
   std::uint32_t padding = 0;
 };
 
 // What one task counted; summed in task order.
+// Cells the allocation rays passed recently (direct-mapped, packed block coordinates).
+inline constexpr int kSeenCacheLog2 = 12;
+inline constexpr std::size_t kSeenCacheSize = std::size_t{1} << kSeenCacheLog2;
+
 struct TaskTally {
   std::uint64_t voxels_updated = 0;
   std::uint32_t blocks_per_scale[4] = {0, 0, 0, 0};
@@ -82,7 +86,11 @@ class Integrator {
     if (image_width <= 0 || image_height <= 0) return StatusCode::invalid_argument;
     using namespace fusion_internal;
     std::size_t set_size = 16;
-    while (set_size < 2 * static_cast<std::size_t>(config.max_blocks_per_frame)) set_size *= 2;
+    int set_bits = 4;
+    while (set_size < 2 * static_cast<std::size_t>(config.max_blocks_per_frame)) {
+      set_size *= 2;
+      ++set_bits;
+    }
     OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
     Result<FrameSetEntry*> set = arena.template allocate_array<FrameSetEntry>(set_size);
     OCTOFUSE_TRY(set);
@@ -94,6 +102,8 @@ class Integrator {
     Result<std::uint32_t*> indices =
         arena.template allocate_array<std::uint32_t>(config.max_blocks_per_frame);
     OCTOFUSE_TRY(indices);
+    Result<std::uint64_t*> seen = arena.template allocate_array<std::uint64_t>(kSeenCacheSize);
+    OCTOFUSE_TRY(seen);
     Result<TaskTally*> tallies =
         arena.template allocate_array<TaskTally>(static_cast<std::size_t>(config.task_count));
     OCTOFUSE_TRY(tallies);
@@ -103,9 +113,11 @@ class Integrator {
     height_ = image_height;
     set_ = set.value();
     set_mask_ = set_size - 1;
+    set_bits_ = set_bits;
     frame_blocks_ = blocks.value();
     keys_ = keys.value();
     block_indices_ = indices.value();
+    seen_ = seen.value();
     tallies_ = tallies.value();
     stamp_ = 0;
     reserved_ = !std::is_same_v<Arena, ArenaSizer>;
@@ -126,7 +138,7 @@ class Integrator {
   struct Frame;
   std::uint32_t collect_blocks(const Octree<VoxelT>& map, const Frame& frame,
                                IntegrationReport& report);
-  bool insert_frame_block(std::uint64_t morton, const Eigen::Vector3i& coords,
+  bool insert_frame_block(std::uint64_t key, const Eigen::Vector3i& coords,
                           IntegrationReport& report);
   void apply_budgets(std::uint32_t count, const FusionBudget& budget, IntegrationReport& report);
   static void integrate_block(VoxelBlock<VoxelT>& block, int scale, const Frame& frame,
@@ -137,10 +149,12 @@ class Integrator {
   int height_ = 0;
   fusion_internal::FrameSetEntry* set_ = nullptr;
   std::size_t set_mask_ = 0;
+  int set_bits_ = 4;
   fusion_internal::FrameBlock* frame_blocks_ = nullptr;
   std::uint32_t frame_block_count_ = 0;
   Key* keys_ = nullptr;
   std::uint32_t* block_indices_ = nullptr;
+  std::uint64_t* seen_ = nullptr;  // kSeenCacheSize entries
   fusion_internal::TaskTally* tallies_ = nullptr;
   std::uint32_t stamp_ = 0;
   bool reserved_ = false;

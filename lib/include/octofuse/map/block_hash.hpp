@@ -58,6 +58,10 @@ class BlockHash {
     }
   }
 
+  // Starts loading the slot `morton` hashes to (the table is large: lookups of scattered keys
+  // miss the cache).
+  void prefetch(std::uint64_t morton) const { __builtin_prefetch(&entries_[hash(morton) & mask_]); }
+
   // Inserts a new key (the caller has checked it is absent); resource_exhausted when full.
   Status insert(std::uint64_t morton, std::uint32_t index) {
     if (size_ >= max_entries_) return StatusCode::resource_exhausted;

@@ -263,6 +263,12 @@ class Octree {
     if (!contains_block(block_coords)) return kNoIndex;
     return hash_.find(morton_encode(block_coords));
   }
+  // Same, by the Morton code of block coordinates inside the cube (morton_encode(block_coords)),
+  // for callers that already have it; prefetch_block() starts loading its hash slot.
+  std::uint32_t find_block_index_morton(std::uint64_t block_morton) const {
+    return hash_.find(block_morton);
+  }
+  void prefetch_block(std::uint64_t block_morton) const { hash_.prefetch(block_morton); }
   Block* find_block(const Eigen::Vector3i& block_coords) {
     const std::uint32_t i = find_block_index(block_coords);
     return i == kNoIndex ? nullptr : &blocks_[i];

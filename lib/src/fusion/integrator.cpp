@@ -446,6 +446,9 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
       if (config_.fixed_scale >= 0) {
         b.scale = static_cast<std::int8_t>(config_.fixed_scale);
       } else {
+        // Headers are scattered over the pool: load a few ahead.
+        if (i + kLookAhead < count)
+          __builtin_prefetch(&map.block(frame_blocks_[i + kLookAhead].block));
         const VoxelBlock<VoxelT>& block = map.block(b.block);
         const int current = block.integrated() ? block.current_scale : -1;
         b.scale = static_cast<std::int8_t>(

@@ -28,20 +28,31 @@ void propagate_block_down(VoxelBlock<MultiresVoxel>& block, int parent_scale, fl
   const int cn = block_scale_side(child_scale);
   MultiresVoxel* parents = block.scale_begin(parent_scale);
   MultiresVoxel* children = block.scale_begin(child_scale);
-  auto parent_at = [&](int x, int y, int z) -> const MultiresVoxel& {
-    return parents[x + y * pn + z * pn * pn];
+  // Per axis and child coordinate, the two parents along that axis (own, neighbour) as index
+  // offsets and their weights, computed once instead of per child and corner.
+  struct Axis {
+    int offset[2];
+    float weight[2];
   };
+  Axis ax[kBlockSide];
+  Axis ay[kBlockSide];
+  Axis az[kBlockSide];
+  for (int c = 0; c < cn; ++c) {
+    const AxisTap t = axis_tap(c, pn);
+    const int p = c >> 1;
+    ax[c] = Axis{{p, t.neighbour}, {1.0f - t.weight, t.weight}};
+    ay[c] = Axis{{p * pn, t.neighbour * pn}, {1.0f - t.weight, t.weight}};
+    az[c] = Axis{{p * pn * pn, t.neighbour * pn * pn}, {1.0f - t.weight, t.weight}};
+  }
+  MultiresVoxel* child_ptr = children;
   for (int cz = 0; cz < cn; ++cz) {
-    const AxisTap tz = axis_tap(cz, pn);
+    const Axis& tz = az[cz];
     for (int cy = 0; cy < cn; ++cy) {
-      const AxisTap ty = axis_tap(cy, pn);
-      for (int cx = 0; cx < cn; ++cx) {
-        const AxisTap tx = axis_tap(cx, pn);
-        const int px = cx >> 1;
-        const int py = cy >> 1;
-        const int pz = cz >> 1;
-        const MultiresVoxel& parent = parent_at(px, py, pz);
-        MultiresVoxel& child = children[cx + cy * cn + cz * cn * cn];
+      const Axis& ty = ay[cy];
+      for (int cx = 0; cx < cn; ++cx, ++child_ptr) {
+        const Axis& tx = ax[cx];
+        const MultiresVoxel& parent = parents[tx.offset[0] + ty.offset[0] + tz.offset[0]];
+        MultiresVoxel& child = *child_ptr;
         if (voxel_observed(child)) {
           child.x = std::clamp(child.x + (parent.x - parent.x_last), -1.0f, 1.0f);
           child.y = std::min(y_max, child.y + parent.delta_y);
@@ -49,19 +60,20 @@ void propagate_block_down(VoxelBlock<MultiresVoxel>& block, int parent_scale, fl
           continue;
         }
         if (!voxel_observed(parent)) continue;
-        // Trilinear over the 2x2x2 parents around the child centre.
+        // Trilinear over the 2x2x2 parents around the child centre (corner bit 0 = x
+        // neighbour, bit 1 = y, bit 2 = z); weights multiply x, y, z in that order.
         float value = 0.0f;
         bool complete = true;
-        for (int c = 0; c < 8 && complete; ++c) {
-          const bool ox = (c & 1) != 0;
-          const bool oy = (c & 2) != 0;
-          const bool oz = (c & 4) != 0;
-          const MultiresVoxel& v =
-              parent_at(ox ? tx.neighbour : px, oy ? ty.neighbour : py, oz ? tz.neighbour : pz);
-          if (!voxel_observed(v)) complete = false;
-          const float w = (ox ? tx.weight : 1.0f - tx.weight) *
-                          (oy ? ty.weight : 1.0f - ty.weight) * (oz ? tz.weight : 1.0f - tz.weight);
-          value += w * v.x;
+        for (int c = 0; c < 8; ++c) {
+          const int ox = c & 1;
+          const int oy = (c >> 1) & 1;
+          const int oz = c >> 2;
+          const MultiresVoxel& v = parents[tx.offset[ox] + ty.offset[oy] + tz.offset[oz]];
+          if (!voxel_observed(v)) {
+            complete = false;
+            break;
+          }
+          value += tx.weight[ox] * ty.weight[oy] * tz.weight[oz] * v.x;
         }
         child.x = complete ? std::clamp(value, -1.0f, 1.0f) : parent.x;
         child.x_last = child.x;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 
 #include "octofuse/fusion/propagation.hpp"
 #include "octofuse/map/mip.hpp"
@@ -120,31 +121,68 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
   float sum = 0.0f;
   float sum_weight = 0.0f;
   int observed = 0;
-  int i = 0;
-  for (int z = 0; z < n; ++z) {
-    for (int y = 0; y < n; ++y) {
-      Eigen::Vector3f p_C = base_C + static_cast<float>(y) * dy + static_cast<float>(z) * dz;
-      for (int x = 0; x < n; ++x, ++i, p_C += dx) {
-        VoxelT& v = voxels[i];
-        if (update_voxel(v, p_C, f.depth, f.stride, f.width, f.height, f.fx, f.fy, f.cx, f.cy,
-                         f.near_m, f.far_m, f.mu_m, f.inv_mu, f.y_max)) {
-          ++updated;
-        }
-        if (!voxel_observed(v)) continue;
-        const float t = voxel_tsdf(v);
-        lo = std::min(lo, t);
-        hi = std::max(hi, t);
-        sum += t;
-        sum_weight += voxel_weight(v);
-        ++observed;
+  // Multires: the first up-propagation step (eq. 4) is summed while the voxels are visited.
+  // Children reach their parent in the order propagate_block_up adds them (x fastest, then y,
+  // z), so the parents get the same bits without a second pass over the level.
+  const int target = kMultires && f.mip_target > scale ? f.mip_target : scale;
+  const int pn = n >> 1;
+  constexpr int kMaxParents = block_scale_count(1);
+  float lift_sum[kMaxParents];
+  float lift_weight[kMaxParents];
+  int lift_count[kMaxParents];
+  auto visit = [&](auto lift_tag) {
+    constexpr bool kLift = decltype(lift_tag)::value;
+    if constexpr (kLift) {
+      for (int k = 0; k < pn * pn * pn; ++k) {
+        lift_sum[k] = 0.0f;
+        lift_weight[k] = 0.0f;
+        lift_count[k] = 0;
       }
     }
-  }
+    int i = 0;
+    for (int z = 0; z < n; ++z) {
+      for (int y = 0; y < n; ++y) {
+        Eigen::Vector3f p_C = base_C + static_cast<float>(y) * dy + static_cast<float>(z) * dz;
+        for (int x = 0; x < n; ++x, ++i, p_C += dx) {
+          VoxelT& v = voxels[i];
+          if (update_voxel(v, p_C, f.depth, f.stride, f.width, f.height, f.fx, f.fy, f.cx, f.cy,
+                           f.near_m, f.far_m, f.mu_m, f.inv_mu, f.y_max)) {
+            ++updated;
+          }
+          if (!voxel_observed(v)) continue;
+          const float t = voxel_tsdf(v);
+          lo = std::min(lo, t);
+          hi = std::max(hi, t);
+          sum += t;
+          sum_weight += voxel_weight(v);
+          ++observed;
+          if constexpr (kLift) {
+            const int k = (x >> 1) + (y >> 1) * pn + (z >> 1) * pn * pn;
+            lift_sum[k] += t;
+            lift_weight[k] += voxel_weight(v);
+            ++lift_count[k];
+          }
+        }
+      }
+    }
+  };
   if constexpr (kMultires) {
-    const int target = scale > f.mip_target ? scale : f.mip_target;
-    if (target > scale) propagate_block_up(block, scale, target);
+    if (target > scale) {
+      visit(std::true_type{});
+      VoxelT* parents = block.scale_begin(scale + 1);
+      for (int k = 0; k < pn * pn * pn; ++k) {
+        if (lift_count[k] == 0) continue;  // no observed child: the parent keeps its value
+        const float count = static_cast<float>(lift_count[k]);
+        set_parent_from_children(parents[k], lift_sum[k] / count,
+                                 std::ceil(lift_weight[k] / count));
+      }
+      if (target > scale + 1) propagate_block_up(block, scale + 1, target);
+    } else {
+      visit(std::false_type{});
+    }
     block.mip_scale = static_cast<std::int8_t>(target);
   } else {
+    visit(std::false_type{});
     block.mip_scale = 0;  // single-res blocks keep scale 0 only
   }
   if (observed > 0) {

@@ -142,8 +142,8 @@ void run(float voxel_size_m, int voxel_depth, std::uint32_t blocks, int frames, 
       "  multires:   median %8.2f ms  mean %8.2f ms  blocks %7u  map %8.1f MB  refused %llu\n",
       median(multires.ms), mean(multires.ms), mm.blocks_used, mm.bytes_used / 1e6,
       static_cast<unsigned long long>(multires.refusals));
-  std::printf("  multires blocks integrated by scale: %u / %u / %u / %u\n", per_scale[0],
-              per_scale[1], per_scale[2], per_scale[3]);
+  std::printf("  multires blocks integrated by scale: %u / %u / %u / %u; finest levels held %u\n",
+              per_scale[0], per_scale[1], per_scale[2], per_scale[3], mm.finest_used);
   std::printf("  speed-up (single / multires): median %.2fx, mean %.2fx\n",
               median(single.ms) / median(multires.ms), mean(single.ms) / mean(multires.ms));
 }

@@ -31,6 +31,7 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --depth-scale S      raw depth units per metre (TUM 5000, mm 1000)\n"
       "  --gt-poses           fuse with ground-truth poses instead of tracking\n"
       "  --bilateral          bilateral-filter the depth before tracking\n"
+      "  --icp-depth-knee M   ICP weighs pairs by 1/(1+(z/M)^4) (default 1; 0: all alike)\n"
       "  --no-noise           sim: noiseless depth\n"
       "  --seed N             sim: noise seed (default 1)\n"
       "  --real-time          replay at the recorded rate, dropping frames when late\n"
@@ -145,6 +146,11 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       for (int l = 0; l < 3; ++l) options.budget.icp_iterations[l] = levels[l];
     } else if (arg == "--gt-poses") {
       options.pose_source = PoseSource::ground_truth;
+    } else if (arg == "--icp-depth-knee") {
+      if (!need_value(&value) || !cli::parse_double(value, 0.0, 100.0, number)) {
+        return fail("--icp-depth-knee needs metres in [0, 100]");
+      }
+      options.icp_depth_knee_m = static_cast<float>(number);
     } else if (arg == "--bilateral") {
       options.bilateral = true;
     } else if (arg == "--no-noise") {

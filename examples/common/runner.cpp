@@ -220,6 +220,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       config.pose_source = options.pose_source;
       config.budget = options.budget;
       config.preprocess.bilateral = options.bilateral;
+      if (options.icp_depth_knee_m >= 0.0f)
+        config.track.depth_weight_knee_m = options.icp_depth_knee_m;
       config.initial_T_W_C = T_W_C0;
       const std::size_t bytes = bytes_required(config);
       if (bytes == 0) return error_exit("invalid configuration (check voxel size, mu, threads)");

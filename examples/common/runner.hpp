@@ -29,6 +29,7 @@ struct RunOptions {
   float map_memory_mb = 1024.0f;  // used when max_blocks is 0
   PipelineBudget budget;
   bool bilateral = false;
+  float icp_depth_knee_m = -1.0f;  // < 0: the library's default
   bool write_mesh = true;
   bool write_frames = false;  // frames/render_NNNNNN.png after every frame
   bool keep_mesh = false;     // keep the mesh in RunSummary (for evaluation)

@@ -22,6 +22,7 @@ struct Pass {
   Eigen::Vector3f t_Cref_W;
   float max_distance_sq_m2;
   float min_normal_dot;
+  double inv_knee_m;  // 0: equal weights
 };
 
 void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
@@ -57,13 +58,20 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
       if (!(n_live_W.dot(n_model_W) >= pass.min_normal_dot)) continue;
 
       const double r = static_cast<double>(n_model_W.dot(diff_W));
+      double w = 1.0;
+      if (pass.inv_knee_m > 0.0) {
+        const double z_rel = static_cast<double>(v_row[x].z()) * pass.inv_knee_m;
+        const double z_rel_sq = z_rel * z_rel;
+        w = 1.0 / (1.0 + z_rel_sq * z_rel_sq);
+      }
       const Eigen::Vector3f p_cross_n = p_W.cross(n_model_W);
       const double j[6] = {n_model_W.x(), n_model_W.y(), n_model_W.z(),
                            p_cross_n.x(), p_cross_n.y(), p_cross_n.z()};
       int k = 0;
       for (int a = 0; a < 6; ++a) {
-        for (int b = a; b < 6; ++b) out.jtj[k++] += j[a] * j[b];
-        out.jtr[a] += j[a] * r;
+        const double wj = w * j[a];
+        for (int b = a; b < 6; ++b) out.jtj[k++] += wj * j[b];
+        out.jtr[a] += wj * r;
       }
       out.residual_sq += r * r;
       ++out.count;
@@ -117,7 +125,8 @@ bool TrackConfig::valid() const {
          min_normal_dot >= -1.0f && min_normal_dot <= 1.0f && std::isfinite(convergence_norm) &&
          convergence_norm >= 0.0 && std::isfinite(lost_max_rms_m) && lost_max_rms_m >= 0.0f &&
          std::isfinite(lost_min_inlier_fraction) && lost_min_inlier_fraction >= 0.0f &&
-         lost_min_inlier_fraction <= 1.0f;
+         lost_min_inlier_fraction <= 1.0f && std::isfinite(depth_weight_knee_m) &&
+         depth_weight_knee_m >= 0.0f;
 }
 
 const char* track_outcome_name(TrackOutcome outcome) {
@@ -182,6 +191,9 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   auto run_pass = [&](int level, const Se3d& T_W_C_estimate) {
     pass.vertices_C = live.vertices_C[level];
     pass.normals_C = live.normals_C[level];
+    pass.inv_knee_m = level == 0 && config_.depth_weight_knee_m > 0.0f
+                          ? 1.0 / static_cast<double>(config_.depth_weight_knee_m)
+                          : 0.0;
     pass.R_W_C = T_W_C_estimate.linear().cast<float>();
     pass.t_W_C = T_W_C_estimate.translation().cast<float>();
     auto task_fn = [&](std::size_t task) { accumulate_rows(pass, task, partials[task]); };

@@ -192,6 +192,54 @@ TEST_CASE("ICP with depth noise still lands within a millimetre, and the RMS gat
   CHECK(kept.matrix() == T_W_Cref.matrix());
 }
 
+TEST_CASE("depth weighting lets a far surface that disagrees pull the estimate less") {
+  // A large sphere 0.9-1.3 m away in front of the corner's back wall (3 m). The live back wall
+  // sits 2 cm farther than the model's; the sphere and the side walls agree. Only the sphere and
+  // the back wall fix the camera's z (its viewing direction here), so the estimate's z lands
+  // between "no motion" (sphere) and the wall's shift. Relative to a wall pair, a sphere pair
+  // weighs 1 unweighted, at least (1 + 1.5^4) / (1 + 0.65^4) = 5 with a 2 m knee and at least
+  // (1 + 3^4) / (1 + 1.3^4) = 21 with a 1 m knee, so the estimate moves towards the sphere.
+  test::AnalyticScene scene = test::corner_scene();
+  scene.spheres[0] = {Eigen::Vector3d(0.1, 0.0, 1.3), 0.4};
+  test::AnalyticScene moved = scene;
+  constexpr double kWallShift_m = 0.02;
+  moved.planes[2].offset_m += kWallShift_m;
+  const Se3d T_W_Cref = Se3d::Identity();
+  TrackFixture f;
+  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  f.set_live(moved, T_W_Cref);
+
+  double shift_m[3] = {0.0, 0.0, 0.0};
+  const float knees_m[3] = {0.0f, 2.0f, 1.0f};
+  for (int i = 0; i < 3; ++i) {
+    TrackConfig config;
+    config.depth_weight_knee_m = knees_m[i];
+    REQUIRE(f.tracker.set_config(config).ok());
+    Se3d T_W_C = T_W_Cref;
+    const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                               T_W_Cref, T_W_C, WorkerTeam(1));
+    REQUIRE(report.tracked());
+    shift_m[i] = std::abs(T_W_C.translation().z() - T_W_Cref.translation().z());
+  }
+  INFO("z shift unweighted, knee 2 m, knee 1 m: " << shift_m[0] << ", " << shift_m[1] << ", "
+                                                  << shift_m[2]);
+  CHECK(shift_m[0] > 0.1 * kWallShift_m);  // the wall matters when unweighted
+  CHECK(shift_m[0] < kWallShift_m);        // a compromise, never past the wall's own shift
+  CHECK(shift_m[1] < 0.5 * shift_m[0]);
+  CHECK(shift_m[2] < 0.5 * shift_m[1]);
+}
+
+TEST_CASE("the depth weight knee is checked") {
+  TrackConfig config;
+  CHECK(config.depth_weight_knee_m == 1.0f);
+  config.depth_weight_knee_m = 0.0f;  // equal weights
+  CHECK(config.valid());
+  config.depth_weight_knee_m = -1.0f;
+  CHECK_FALSE(config.valid());
+  config.depth_weight_knee_m = std::numeric_limits<float>::infinity();
+  CHECK_FALSE(config.valid());
+}
+
 TEST_CASE("a live view that does not match the model is reported lost and the pose is kept") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;

@@ -5,7 +5,8 @@
 // the reference camera (the pose T_W_Cref the model was ray-cast from, level-0 intrinsics; coarse
 // levels associate into the same level-0 model), rejects pairs farther apart than
 // max_distance_m or whose normals disagree (dot < min_normal_dot), and accumulates the 6x6 normal
-// equations of r = n_W . (T_W_C p_C - q_W) in double. The rows are split into kTrackTasks fixed
+// equations of r = n_W . (T_W_C p_C - q_W) in double, level-0 pairs weighted down with their
+// depth (far depth is noisier, see depth_weight_knee_m). The rows are split into kTrackTasks fixed
 // chunks whose partial sums are added in task order, so the pose is bit-identical for any worker
 // count. The increment (left-multiplied, twist (v, w)) comes from an LDLT solve and is applied
 // with se3_exp; a level stops when the increment's norm drops below convergence_norm.
@@ -38,8 +39,15 @@ struct TrackConfig {
   double convergence_norm = 1e-5;               // stop a level when |twist| falls below this
   float lost_max_rms_m = 0.02f;                 // RMS point-to-plane residual
   float lost_min_inlier_fraction = 0.15f;       // of all level-0 pixels
+  // Level-0 pairs are weighted by the inverse of their expected residual variance, the model's
+  // own error plus depth noise growing as z^2 (structured light, stereo): 1 / (1 + (z / knee)^4)
+  // with z the live point's depth and knee where the two are equal (Kinect-class noise reaches
+  // a 1 cm model's few millimetres near 1 m). 0 weighs all pairs alike, as KinectFusion does.
+  // Coarser levels stay unweighted: they only find the basin.
+  float depth_weight_knee_m = 1.0f;
 
-  // True when every field is finite and in range (iterations >= 0, gates >= 0, dot in [-1, 1]).
+  // True when every field is finite and in range (iterations >= 0, gates and knee >= 0, dot in
+  // [-1, 1]).
   bool valid() const;
 };
 
@@ -85,8 +93,8 @@ class IcpTracker {
   // Changes iteration counts etc. between frames (a per-frame budget); invalid_argument if bad.
   Status set_config(const TrackConfig& config);
 
-  // One task's share of the normal equations: upper triangle of J^T J (row-major), J^T r,
-  // sum of r^2 and the pair count.
+  // One task's share of the weighted normal equations: upper triangle of J^T W J (row-major),
+  // J^T W r, the unweighted sum of r^2 and the pair count.
   struct alignas(64) Partial {  // one cache line set per task: no false sharing
     double jtj[21];
     double jtr[6];

@@ -129,6 +129,43 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.end_object();
 }
 
+struct PoolSizes {
+  std::uint32_t blocks = 0;
+  std::uint32_t finest = 0;  // 0: one per block
+};
+
+// Pool capacities from --max-blocks, or from --map-memory. A multires block takes its finest level
+// (8^3 voxels) only when it integrates at scale 0, i.e. closer than kScale0MaxRatio * fx * voxel:
+// when that covers most of the depth range (1 cm at QVGA: 3.9 m of 4) any block may need one;
+// otherwise (2 mm: 0.8 m) half the memory goes to blocks and half to finest levels, so far, coarse
+// blocks do not pay for a finest level they never use.
+template <typename VoxelT>
+PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camera) {
+  PoolSizes sizes;
+  if (options.max_blocks != 0) {
+    sizes.blocks = options.max_blocks;
+    return sizes;
+  }
+  constexpr double kMaxBlocks = 4.0e6;
+  const double bytes = options.map_memory_mb * 1048576.0;
+  const PipelineConfig defaults = default_pipeline_config(
+      input_camera, options.voxel_size_m, kMinVoxelDepth, 1, Eigen::Vector3f::Zero());
+  const double working_fx = input_camera.fx / defaults.preprocess.downsample_factor;
+  const double scale0_max_depth_m = kScale0MaxRatio * working_fx * options.voxel_size_m;
+  using Map = Octree<VoxelT>;
+  if (!Map::kSplitFinest || scale0_max_depth_m >= 0.5 * defaults.fusion.far_m) {
+    sizes.blocks = static_cast<std::uint32_t>(
+        std::min(kMaxBlocks, bytes / static_cast<double>(Map::kBytesPerBlockWorstCase)));
+    return sizes;
+  }
+  sizes.blocks = static_cast<std::uint32_t>(
+      std::min(kMaxBlocks, 0.5 * bytes / static_cast<double>(sizeof(typename Map::Block))));
+  sizes.finest = static_cast<std::uint32_t>(
+      std::min(static_cast<double>(sizes.blocks),
+               0.5 * bytes / static_cast<double>(sizeof(typename Map::Finest))));
+  return sizes;
+}
+
 template <typename VoxelT>
 bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText* error) {
   const PinholeCamera& camera = pipeline.working_camera();
@@ -204,15 +241,10 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       const float side_m = options.voxel_size_m * static_cast<float>(1 << depth);
       const Eigen::Vector3f centre_W =
           (T_W_C0.translation() + T_W_C0.linear().col(2) * (0.25 * side_m)).cast<float>();
-      std::uint32_t blocks = options.max_blocks;
-      if (blocks == 0) {
-        // A block with its finest level: the map reserves one per block by default.
-        const double block_bytes = static_cast<double>(Octree<VoxelT>::kBytesPerBlockWorstCase);
-        blocks = static_cast<std::uint32_t>(
-            std::min(4.0e6, options.map_memory_mb * 1048576.0 / block_bytes));
-      }
-      PipelineConfig config =
-          default_pipeline_config(input_camera, options.voxel_size_m, depth, blocks, centre_W);
+      const PoolSizes pools = pool_sizes<VoxelT>(options, input_camera);
+      PipelineConfig config = default_pipeline_config(input_camera, options.voxel_size_m, depth,
+                                                      pools.blocks, centre_W);
+      config.map.finest_capacity = pools.finest;
       config.map_kind =
           std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires : MapKind::single_res;
       if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;

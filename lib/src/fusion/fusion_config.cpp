@@ -22,7 +22,7 @@ Status validate(const FusionConfig& c) {
 }
 
 int scale_for_ratio(float r) {
-  if (r < 1.5f) return 0;
+  if (r < kScale0MaxRatio) return 0;
   if (r < 3.0f) return 1;
   if (r < 6.0f) return 2;
   return 3;

@@ -69,6 +69,7 @@ struct IntegrationReport {
 
 // Scale from the pixel footprint ratio r = z / (fx * voxel_size_m): r < 1.5 -> 0, < 3 -> 1,
 // < 6 -> 2, else 3.
+inline constexpr float kScale0MaxRatio = 1.5f;
 int scale_for_ratio(float r);
 
 // The scale a block integrates at this frame. current_scale < 0: never integrated (takes the

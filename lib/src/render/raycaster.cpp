@@ -296,6 +296,126 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   return MarchResult::miss;
 }
 
+// Octants smaller than this are projected through their ancestor of at least this size: at 2 mm
+// a block is 1.6 cm and there are too many of them to project every frame.
+constexpr float kRangeOctantMin_m = 0.06f;
+// Pads that keep the projected bounds conservative against float rounding.
+constexpr float kRangePad_px = 1.0f;
+constexpr float kRangePad_voxels = 1.0f;
+// Octants reaching closer to the camera plane than this project unboundedly: they cover the image.
+constexpr float kRangeMinCornerZ_m = 1e-3f;
+
+// Widens the tile ranges with one octant [corner_W, corner_W + size_m]^3 (camera at T_C_W).
+void add_octant_to_ranges(const Eigen::Vector3f& corner_W, float size_m,
+                          const Eigen::Matrix3f& R_C_W, const Eigen::Vector3f& t_C_W,
+                          const PinholeCamera& camera, float near_m, float far_m, float pad_m,
+                          ImageView<TileDepthRange> ranges) {
+  const Eigen::Vector3f c0_C = R_C_W * corner_W + t_C_W;
+  // Corner i = corner + size * (bit 0: x, bit 1: y, bit 2: z); in the camera frame one
+  // rotated edge vector per axis.
+  const Eigen::Vector3f e_C[3] = {R_C_W.col(0) * size_m, R_C_W.col(1) * size_m,
+                                  R_C_W.col(2) * size_m};
+  float z_lo = std::numeric_limits<float>::max();
+  float z_hi = -std::numeric_limits<float>::max();
+  float u_lo = std::numeric_limits<float>::max();
+  float u_hi = -std::numeric_limits<float>::max();
+  float v_lo = u_lo;
+  float v_hi = u_hi;
+  bool unbounded = false;
+  for (int i = 0; i < 8; ++i) {
+    Eigen::Vector3f p_C = c0_C;
+    if (i & 1) p_C += e_C[0];
+    if (i & 2) p_C += e_C[1];
+    if (i & 4) p_C += e_C[2];
+    z_lo = std::min(z_lo, p_C.z());
+    z_hi = std::max(z_hi, p_C.z());
+    if (!(p_C.z() > kRangeMinCornerZ_m)) {
+      unbounded = true;
+      continue;
+    }
+    const Eigen::Vector2f px = camera.project(p_C);
+    u_lo = std::min(u_lo, px.x());
+    u_hi = std::max(u_hi, px.x());
+    v_lo = std::min(v_lo, px.y());
+    v_hi = std::max(v_hi, px.y());
+  }
+  // Depth is linear, so the corners bound the whole octant; NaN poses fail these tests.
+  if (!(z_hi + pad_m >= near_m) || !(z_lo - pad_m <= far_m)) return;
+  const int last_x = ranges.width - 1;
+  const int last_y = ranges.height - 1;
+  int tx0 = 0;
+  int tx1 = last_x;
+  int ty0 = 0;
+  int ty1 = last_y;
+  if (!unbounded) {
+    // Pixel x lies in tile x / kRangeTile_px; the box of the projected corners holds the
+    // projection of the whole (convex) octant.
+    const float tile = static_cast<float>(kRangeTile_px);
+    const float max_u = static_cast<float>(camera.width - 1);
+    const float max_v = static_cast<float>(camera.height - 1);
+    u_lo -= kRangePad_px;
+    v_lo -= kRangePad_px;
+    u_hi += kRangePad_px;
+    v_hi += kRangePad_px;
+    if (!(u_hi >= 0.0f && v_hi >= 0.0f && u_lo <= max_u && v_lo <= max_v)) return;
+    tx0 = static_cast<int>(std::max(u_lo, 0.0f) / tile);
+    ty0 = static_cast<int>(std::max(v_lo, 0.0f) / tile);
+    tx1 = std::min(last_x, static_cast<int>(std::min(u_hi, max_u) / tile));
+    ty1 = std::min(last_y, static_cast<int>(std::min(v_hi, max_v) / tile));
+  }
+  const float z_min = std::max(near_m, z_lo - pad_m);
+  const float z_max = std::min(far_m, z_hi + pad_m);
+  for (int ty = ty0; ty <= ty1; ++ty) {
+    TileDepthRange* row = ranges.row(ty);
+    for (int tx = tx0; tx <= tx1; ++tx) {
+      TileDepthRange& r = row[tx];
+      if (r.empty()) {
+        r.z_min_m = z_min;
+        r.z_max_m = z_max;
+      } else {
+        r.z_min_m = std::min(r.z_min_m, z_min);
+        r.z_max_m = std::max(r.z_max_m, z_max);
+      }
+    }
+  }
+}
+
+// The depth-range image over every allocated octant (blocks, or the nodes kRangeOctantMin_m
+// wide above them). Minima and maxima do not depend on the order, so neither does the result.
+template <typename VoxelT>
+void build_depth_ranges(const Octree<VoxelT>& map, const PinholeCamera& camera, const Se3d& T_W_C,
+                        float near_m, float far_m, ImageView<TileDepthRange> ranges) {
+  for (int y = 0; y < ranges.height; ++y) {
+    for (int x = 0; x < ranges.width; ++x) ranges(x, y) = TileDepthRange{};
+  }
+  const Eigen::Matrix3f R_C_W = T_W_C.linear().transpose().cast<float>();
+  const Eigen::Vector3f t_C_W = -(R_C_W * T_W_C.translation().cast<float>());
+  const float voxel_m = map.voxel_size_m();
+  const Eigen::Vector3f origin_W = map.config().origin_W;
+  const float pad_m = kRangePad_voxels * voxel_m;
+  int level = map.block_level();
+  float size_m = map.config().block_size_m();
+  while (size_m < kRangeOctantMin_m && level > 0) {
+    --level;
+    size_m *= 2.0f;
+  }
+  if (level == map.block_level()) {
+    for (std::uint32_t i = 0; i < map.block_count(); ++i) {
+      const Eigen::Vector3f corner_W =
+          origin_W + map.block(i).min_voxel().template cast<float>() * voxel_m;
+      add_octant_to_ranges(corner_W, size_m, R_C_W, t_C_W, camera, near_m, far_m, pad_m, ranges);
+    }
+    return;
+  }
+  for (std::uint32_t i = 0; i < map.node_count(); ++i) {
+    const OctreeNode& node = map.node(i);
+    if (node.level != level) continue;
+    const Eigen::Vector3f corner_W =
+        origin_W + key_corner_voxel(node.key()).template cast<float>() * voxel_m;
+    add_octant_to_ranges(corner_W, size_m, R_C_W, t_C_W, camera, near_m, far_m, pad_m, ranges);
+  }
+}
+
 template <typename VoxelT>
 struct RowJob {
   const Octree<VoxelT>* map;
@@ -306,6 +426,7 @@ struct RowJob {
   SurfaceMap surface_W;
   ImageView<std::uint8_t> scale;
   RaycastStats* row_stats;
+  ImageView<const TileDepthRange> ranges;
 
   void operator()(std::size_t task) const {
     const int y = static_cast<int>(task);
@@ -323,14 +444,16 @@ struct RowJob {
         ++stats.budget_cut_pixels;
         continue;
       }
+      const TileDepthRange& range = ranges(x / kRangeTile_px, y / kRangeTile_px);
+      if (range.empty()) continue;  // nothing allocated along this ray
       const Eigen::Vector3f dir_C =
           camera->back_project(static_cast<float>(x), static_cast<float>(y), 1.0f);
       // Depth limits along z become distances along the unit ray.
       const float length = dir_C.norm();
       Ray ray{t_W_C, R_W_C * (dir_C / length)};
       PixelHit hit;
-      const MarchResult r = march(*map, *config, ray, config->near_m * length,
-                                  config->far_m * length, steps_left, stats.steps, hit);
+      const MarchResult r = march(*map, *config, ray, range.z_min_m * length,
+                                  range.z_max_m * length, steps_left, stats.steps, hit);
       if (r == MarchResult::out_of_steps) {
         ++stats.budget_cut_pixels;
         continue;
@@ -368,6 +491,7 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
     return StatusCode::invalid_argument;
   }
   if (!T_W_C.matrix().allFinite()) return StatusCode::invalid_argument;
+  build_depth_ranges(map, camera, T_W_C, config_.near_m, config_.far_m, ranges_);
   RowJob<VoxelT> job{&map,
                      &config_,
                      &camera,
@@ -375,7 +499,8 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
                      T_W_C.translation().cast<float>(),
                      surface_W_,
                      scale_,
-                     row_stats_};
+                     row_stats_,
+                     ranges_};
   team.for_each_task(static_cast<std::size_t>(config_.height), job);
   RaycastStats total;
   for (int y = 0; y < config_.height; ++y) {

@@ -152,6 +152,84 @@ TEMPLATE_TEST_CASE("a sphere ray-casts to the analytic intersection; misses are 
   REQUIRE(stats->valid_pixels >= static_cast<std::uint32_t>(hits));
 }
 
+TEST_CASE("the tile depth ranges hold everything allocated, and empty tiles cost no steps") {
+  // 1 cm blocks are projected themselves; 4 mm blocks (3.2 cm) through their 6.4 cm parents.
+  const float voxel_m = GENERATE(0.01f, 0.004f);
+  MapConfig map_config = test_map_config();
+  map_config.voxel_size_m = voxel_m;
+  map_config.origin_W = Eigen::Vector3f::Constant(-128.0f * voxel_m) + Eigen::Vector3f(0, 0, 1.0f);
+  const Eigen::Vector3f centre_W(0.1f, -0.05f, 1.2f);
+  constexpr float kRadius_m = 0.2f;
+  const float mu_m = 5.0f * voxel_m;
+  auto sdf = [&](const Eigen::Vector3f& p_W) { return (p_W - centre_W).norm() - kRadius_m; };
+  test::OwnedMap<MultiresVoxel> owned(map_config);
+  test::fill_band(owned.map, mu_m, sdf, [](const Eigen::Vector3i&) { return 0; });
+  RaycastConfig config = test_raycast_config();
+  config.mu_m = mu_m;
+  OwnedRaycaster<MultiresVoxel> rc(config);
+  Se3d T_W_C = Se3d::Identity();
+  T_W_C.linear() = Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  T_W_C.translation() = Eigen::Vector3d(0.02, 0.1, 0.2);
+  const PinholeCamera camera = test_camera();
+  Result<RaycastStats> stats = rc.raycaster.raycast(owned.map, camera, T_W_C, WorkerTeam(1));
+  REQUIRE(stats.ok());
+  REQUIRE(stats->valid_pixels > 200u);
+  const ImageView<const TileDepthRange> ranges = rc.raycaster.depth_ranges();
+  REQUIRE(ranges.width == 8);
+  REQUIRE(ranges.height == 6);
+  // Every voxel centre of every block that lands in the image lies inside its tile's range.
+  const Se3d T_C_W = T_W_C.inverse();
+  int checked = 0;
+  int outside = 0;
+  owned.map.for_each_block([&](const VoxelBlock<MultiresVoxel>& block) {
+    for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
+      const Eigen::Vector3i voxel =
+          block.min_voxel() + Eigen::Vector3i(i & 7, (i >> 3) & 7, i >> 6);
+      const Eigen::Vector3f p_C =
+          (T_C_W * owned.map.voxel_centre_W(voxel).cast<double>()).cast<float>();
+      if (!(p_C.z() >= config.near_m && p_C.z() <= config.far_m)) continue;
+      const Eigen::Vector2f px = camera.project(p_C);
+      const int x = static_cast<int>(std::floor(px.x() + 0.5f));
+      const int y = static_cast<int>(std::floor(px.y() + 0.5f));
+      if (x < 0 || y < 0 || x >= camera.width || y >= camera.height) continue;
+      const TileDepthRange& r = ranges(x / kRangeTile_px, y / kRangeTile_px);
+      // Counted, not asserted one by one: there are about a million.
+      if (r.empty() || p_C.z() < r.z_min_m || p_C.z() > r.z_max_m) ++outside;
+      ++checked;
+    }
+  });
+  REQUIRE(checked > 1000);
+  CHECK(outside == 0);
+  // The sphere covers the middle of the view only: the corner tiles see nothing, their pixels
+  // stay invalid and take no steps (2 x 2 tiles of 8 x 8 pixels with none).
+  int empty_tiles = 0;
+  for (int ty = 0; ty < ranges.height; ++ty) {
+    for (int tx = 0; tx < ranges.width; ++tx) empty_tiles += ranges(tx, ty).empty() ? 1 : 0;
+  }
+  REQUIRE(empty_tiles >= 4);
+  REQUIRE(ranges(0, 0).empty());
+  const SurfaceMap surface = rc.raycaster.surface_W();
+  for (int y = 0; y < camera.height; ++y) {
+    for (int x = 0; x < camera.width; ++x) {
+      const TileDepthRange& r = ranges(x / kRangeTile_px, y / kRangeTile_px);
+      if (r.empty()) {
+        REQUIRE_FALSE(surface.valid(x, y));
+        continue;
+      }
+      if (!surface.valid(x, y)) continue;
+      const float z_m = (T_C_W * surface.vertices(x, y).cast<double>()).z();
+      REQUIRE(z_m >= r.z_min_m);
+      REQUIRE(z_m <= r.z_max_m);
+    }
+  }
+  // Same camera, nothing allocated: no steps at all.
+  test::OwnedMap<MultiresVoxel> empty_map(map_config);
+  Result<RaycastStats> none = rc.raycaster.raycast(empty_map.map, camera, T_W_C, WorkerTeam(1));
+  REQUIRE(none.ok());
+  CHECK(none->steps == 0u);
+  CHECK(none->valid_pixels == 0u);
+}
+
 TEST_CASE("across a scale change the scale image shows each side's scale and depth stays exact") {
   test::OwnedMap<MultiresVoxel> owned(test_map_config());
   // Blocks left of x = 0 at scale 0, right of it at scale 2.

@@ -10,6 +10,12 @@
 // Output, in buffers reserved at init: a SurfaceMap in the world frame (what ICP associates
 // against) and an 8-bit image of the interpolation scale per pixel (kNoScale where invalid).
 //
+// Before marching, the allocated octants (blocks at 1 cm; the nodes above them at finer voxels)
+// are projected into a coarse image of kRangeTile_px x kRangeTile_px pixel tiles holding the
+// nearest and farthest depth of anything allocated there. Each ray marches only over its tile's
+// range, so the free space in front of and behind the map costs no steps, and rays of tiles with
+// nothing allocated cost none at all. The bounds are conservative: the same surfaces are found.
+//
 // Work bound: an optional per-frame step budget. Rows are independent tasks and each row gets a
 // fixed share of the budget (budget / height, the remainder to the first rows), so the result
 // does not depend on the worker count. When a row's share runs out, its remaining pixels stay
@@ -49,6 +55,18 @@ struct RaycastStats {
   bool budget_hit() const { return budget_cut_pixels > 0; }
 };
 
+// Side of the tiles of the depth-range image, in pixels.
+inline constexpr int kRangeTile_px = 8;
+
+// Depth along the optical axis (metres) of everything allocated that projects into a tile; empty
+// when z_min_m > z_max_m.
+struct TileDepthRange {
+  float z_min_m = 1.0f;
+  float z_max_m = 0.0f;
+
+  bool empty() const { return !(z_min_m <= z_max_m); }
+};
+
 // ok, or invalid_argument for a non-positive size, near/far not 0 < near < far, mu not > 0.
 Status validate(const RaycastConfig& config);
 
@@ -81,12 +99,18 @@ class Raycaster {
     Result<RaycastStats*> row_stats =
         arena.template allocate_array<RaycastStats>(rows, kArenaAlignment);
     OCTOFUSE_TRY(row_stats);
+    const int tiles_x = (config.width + kRangeTile_px - 1) / kRangeTile_px;
+    const int tiles_y = (config.height + kRangeTile_px - 1) / kRangeTile_px;
+    const std::size_t tiles = static_cast<std::size_t>(tiles_x) * static_cast<std::size_t>(tiles_y);
+    Result<TileDepthRange*> ranges = arena.template allocate_array<TileDepthRange>(tiles);
+    OCTOFUSE_TRY(ranges);
     OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
     config_ = config;
     surface_W_.vertices = ImageView<Eigen::Vector3f>(vertices.value(), config.width, config.height);
     surface_W_.normals = ImageView<Eigen::Vector3f>(normals.value(), config.width, config.height);
     scale_ = ImageView<std::uint8_t>(scales.value(), config.width, config.height);
     row_stats_ = row_stats.value();
+    ranges_ = ImageView<TileDepthRange>(ranges.value(), tiles_x, tiles_y);
     return ok_status();
   }
 
@@ -101,11 +125,15 @@ class Raycaster {
   SurfaceMap surface_W() const { return surface_W_; }
   ImageView<const std::uint8_t> scale_image() const { return scale_; }
 
+  // The last raycast()'s tile depth ranges.
+  ImageView<const TileDepthRange> depth_ranges() const { return ranges_; }
+
  private:
   RaycastConfig config_;
   SurfaceMap surface_W_;
   ImageView<std::uint8_t> scale_;
   RaycastStats* row_stats_ = nullptr;
+  ImageView<TileDepthRange> ranges_;
 };
 
 extern template class Raycaster<TsdfVoxel>;

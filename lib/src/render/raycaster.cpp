@@ -159,6 +159,8 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   float prev_t = 0.0f;
   float prev_f = 0.0f;
   TsdfSample sample;
+  TsdfSample prev_sample;  // the full sample at prev_t, when have_prev_sample
+  bool have_prev_sample = false;
   // Consecutive samples mostly fall in the same block: look it up only when the block changes.
   const VoxelBlock<VoxelT>* block = nullptr;
   Eigen::Vector3i block_coords(-1, -1, -1);
@@ -208,6 +210,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       if (!(t_next > t)) return MarchResult::miss;
       t = t_next;
       have_prev = false;
+      have_prev_sample = false;
       continue;
     }
     {
@@ -225,6 +228,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
           if (!(t_next > t)) return MarchResult::miss;
           have_prev = true;
           prev_nearest = true;
+          have_prev_sample = false;
           prev_t = t;
           prev_f = f_near;
           t = t_next;
@@ -245,6 +249,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       if (!(t_next > t)) return MarchResult::miss;
       t = t_next;
       have_prev = false;
+      have_prev_sample = false;
       continue;
     }
     const float f = sample.tsdf;
@@ -254,13 +259,17 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
         TsdfSample before;
         if (sample_at(ray_v.origin_v + prev_t * ray_v.dir_v, before) && before.tsdf > 0.0f) {
           prev_f = before.tsdf;
+          prev_sample = before;
+          have_prev_sample = true;
         }
       }
       // Zero crossing by linear interpolation between the last two samples.
       const float t_hit = prev_t + (t - prev_t) * prev_f / (prev_f - f);
       const Eigen::Vector3f q_hit = ray_v.origin_v + t_hit * ray_v.dir_v;
-      TsdfSample at_hit;
-      if (!sample_at(q_hit, at_hit)) at_hit = sample;
+      // The normal and scale come from whichever of the two samples is nearer the surface: its
+      // trilinear cell is at most a step from the hit, and a third sample would cost as much as
+      // the two did.
+      const TsdfSample& at_hit = have_prev_sample && prev_sample.tsdf < -f ? prev_sample : sample;
       // Normal from the gradient of the trilinear cell at the hit: no further samples. Central
       // differences of the field at the hit's scale only where that gradient vanishes.
       const float h_voxels = static_cast<float>(1 << at_hit.scale);
@@ -287,6 +296,8 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     prev_nearest = false;
     prev_t = t;
     prev_f = f;
+    prev_sample = sample;
+    have_prev_sample = true;
     const float cell_m = voxel_m * static_cast<float>(1 << sample.scale);
     // Corrupt (non-finite) voxels make the step NaN; stop the ray then.
     const float t_next = t + std::max(f * config.mu_m, cell_m);

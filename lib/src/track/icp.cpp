@@ -203,8 +203,10 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
 
   Se3d estimate = T_W_C;
   bool singular = false;
-  // Residual statistics for the report: from the converged level-0 pass (the estimate moved by
-  // less than convergence_norm after it), else from one more pass at the final estimate.
+  // Residual statistics for the report: from the last level-0 pass, taken at the estimate before
+  // its step (as KinectFusion does: the step only shrinks them, and one more pass over the finest
+  // level would cost a fifth of the tracking); from a pass at the final estimate only when the
+  // finest level took no step.
   Partial final_total;
   bool have_final = false;
   for (int level = kPyramidLevels - 1; level >= 0; --level) {
@@ -217,13 +219,11 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       }
       estimate = se3_exp(twist) * estimate;
       ++report.iterations[level];
-      if (twist.norm() < config_.convergence_norm) {
-        if (level == 0) {
-          final_total = total;
-          have_final = true;
-        }
-        break;
+      if (level == 0) {
+        final_total = total;
+        have_final = true;
       }
+      if (twist.norm() < config_.convergence_norm) break;
     }
   }
   if (!have_final) final_total = run_pass(0, estimate);

@@ -1,6 +1,7 @@
 #include "octofuse/image/depth_filters.hpp"
 
 #include <cmath>
+#include <utility>
 
 #include <Eigen/Geometry>  // cross()
 
@@ -34,6 +35,34 @@ Status downsample_depth(ImageView<const float> in, ImageView<float> out, int fac
   auto row_fn = [&](int y) {
     float* out_row = out.row(y);
     for (int x = 0; x < out.width; ++x) {
+      if (factor == 2) {
+        // The common case, four valid samples, through a sorting network: the same sorted
+        // samples, median and sum as the general path below, in a fraction of the work.
+        const float* r0 = in.row(2 * y) + 2 * x;
+        const float* r1 = in.row(2 * y + 1) + 2 * x;
+        float s[4] = {r0[0], r0[1], r1[0], r1[1]};
+        if (valid_depth(s[0]) && valid_depth(s[1]) && valid_depth(s[2]) && valid_depth(s[3])) {
+          auto order = [&s](int i, int j) {
+            if (s[j] < s[i]) std::swap(s[i], s[j]);
+          };
+          order(0, 1);
+          order(2, 3);
+          order(0, 2);
+          order(1, 3);
+          order(1, 2);
+          const float median = s[1];
+          float sum = 0.0f;
+          int count = 0;
+          for (float d : s) {
+            if (std::fabs(d - median) <= band_m) {
+              sum += d;
+              ++count;
+            }
+          }
+          out_row[x] = sum / static_cast<float>(count);
+          continue;
+        }
+      }
       // Valid samples of the block, kept sorted (insertion; at most 16).
       float samples[kMaxDownsampleFactor * kMaxDownsampleFactor];
       int n = 0;

@@ -89,7 +89,9 @@ bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3
   while (scale <= kMaxBlockScale) {
     const int size = 1 << scale;
     // Continuous coordinates on the grid of this scale, whose samples sit at voxel centres.
-    const Eigen::Vector3f qs = q / static_cast<float>(size) - Eigen::Vector3f::Constant(0.5f);
+    // 1 / 2^scale is exact, so the product equals the quotient.
+    const Eigen::Vector3f qs =
+        q * (1.0f / static_cast<float>(size)) - Eigen::Vector3f::Constant(0.5f);
     const Eigen::Vector3i base(detail::floor_to_int(qs.x()), detail::floor_to_int(qs.y()),
                                detail::floor_to_int(qs.z()));
     const Eigen::Vector3f frac = qs - base.cast<float>();

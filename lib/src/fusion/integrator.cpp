@@ -41,6 +41,8 @@ struct Integrator<VoxelT>::Frame {
 namespace {
 
 constexpr std::size_t kPrefetchDistance = 4;
+// Hash slots and block headers are loaded this many list entries ahead.
+constexpr std::size_t kLookAhead = 16;
 
 // Fibonacci hashing: the top `bits` bits of the product depend on every bit of the key (packed
 // coordinates put z in the high bits, which the low bits of a product never see).
@@ -226,6 +228,7 @@ namespace {
 
 // Block coordinates (each in [0, 2^21)) packed into one word: a cheap exact key for de-duplicating
 // cells, unlike the Morton code, which is only computed once per distinct block.
+constexpr std::uint64_t kCellMask = (std::uint64_t{1} << 21) - 1;
 inline std::uint64_t pack_cell(int x, int y, int z) {
   return static_cast<std::uint64_t>(x) | (static_cast<std::uint64_t>(y) << 21) |
          (static_cast<std::uint64_t>(z) << 42);
@@ -259,6 +262,18 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
   for (std::size_t i = 0; i < kSeenCacheSize; ++i) seen_[i] = ~std::uint64_t{0};
   const float inv_fx = 1.0f / f.fx;
   const float inv_fy = 1.0f / f.fy;
+  // New cells wait in a short FIFO while their frame-set slot is prefetched: the set is too large
+  // for the cache and each insert would otherwise stall on its probe. The insertion order (and so
+  // the block list) is unchanged.
+  constexpr std::uint64_t kPending = 16;
+  std::uint64_t pending[kPending];
+  std::uint64_t pushed = 0;
+  auto insert_packed = [&](std::uint64_t key) {
+    const Eigen::Vector3i coords(static_cast<int>(key & kCellMask),
+                                 static_cast<int>((key >> 21) & kCellMask),
+                                 static_cast<int>(key >> 42));
+    insert_frame_block(key, coords, report);
+  };
   for (int v = 0; v < f.height; v += step) {
     const float* row = f.depth + v * f.stride;
     const float yn = (static_cast<float>(v) - f.cy) * inv_fy;
@@ -312,7 +327,11 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
           std::uint64_t& seen = seen_[seen_slot(key)];
           if (seen != key) {
             seen = key;
-            insert_frame_block(key, Eigen::Vector3i(cell[0], cell[1], cell[2]), report);
+            __builtin_prefetch(&set_[hash_key(key, set_bits_)], 1);
+            std::uint64_t& entry = pending[pushed % kPending];
+            if (pushed >= kPending) insert_packed(entry);
+            entry = key;
+            ++pushed;
           }
         } else {
           ++report.rays_outside_cube;
@@ -325,6 +344,9 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
         t_max[k] += t_delta[k];
       }
     }
+  }
+  for (std::uint64_t i = pushed > kPending ? pushed - kPending : 0; i < pushed; ++i) {
+    insert_packed(pending[i % kPending]);
   }
   return frame_block_count_;
 }
@@ -414,24 +436,60 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   const std::uint32_t touched = collect_blocks(map, f, report);
   report.blocks_touched = touched;
 
-  // 2. Allocate the missing ones: nearest first under the budget, then in Morton order.
-  std::uint32_t missing = 0;
+  // 2. Look the blocks up and pick their scales, in a fixed number of tasks (read-only on the map;
+  // each task writes its own list entries). Scale selection needs the block's current scale, so
+  // it runs a second sweep over the task's entries with the headers prefetched; blocks not yet
+  // allocated have never been integrated and take the raw scale.
   // Camera z of a block centre is affine in its coordinates: z = z0 + dz . coords.
   const Eigen::Vector3f dz_block = f.R_C_W.row(2).transpose() * (8.0f * f.voxel_size_m);
   const float z0 =
       f.R_C_W.row(2).dot(f.origin_W + Eigen::Vector3f::Constant(4.0f * f.voxel_size_m)) +
       f.t_C_W.z();
-  constexpr std::uint32_t kLookAhead = 8;
-  for (std::uint32_t i = 0; i < touched && i < kLookAhead; ++i) {
-    map.prefetch_block(frame_blocks_[i].morton);
-  }
-  for (std::uint32_t i = 0; i < touched; ++i) {
-    if (i + kLookAhead < touched) map.prefetch_block(frame_blocks_[i + kLookAhead].morton);
-    FrameBlock& b = frame_blocks_[i];
-    b.block = map.find_block_index_morton(b.morton);
-    b.z_m = z0 + dz_block.dot(b.coords.cast<float>());
-    if (b.block == kNoIndex) ++missing;
-  }
+  const float inv_footprint = 1.0f / (camera.fx * map.voxel_size_m());
+  const std::size_t lookup_tasks =
+      std::min<std::size_t>(static_cast<std::size_t>(config_.task_count), touched);
+  for (std::size_t t = 0; t < lookup_tasks; ++t) tallies_[t] = TaskTally();
+  auto lookup_fn = [&](std::size_t task) {
+    const TaskRange range = task_range(touched, task, lookup_tasks);
+    for (std::size_t i = range.begin; i < range.end && i < range.begin + kLookAhead; ++i) {
+      map.prefetch_block(frame_blocks_[i].morton);
+    }
+    std::uint32_t task_missing = 0;
+    for (std::size_t i = range.begin; i < range.end; ++i) {
+      if (i + kLookAhead < range.end) map.prefetch_block(frame_blocks_[i + kLookAhead].morton);
+      FrameBlock& b = frame_blocks_[i];
+      b.block = map.find_block_index_morton(b.morton);
+      b.z_m = z0 + dz_block.dot(b.coords.cast<float>());
+      if (b.block == kNoIndex) ++task_missing;
+    }
+    tallies_[task].missing = task_missing;
+    for (std::size_t i = range.begin; i < range.end; ++i) {
+      FrameBlock& b = frame_blocks_[i];
+      if constexpr (kMultires) {
+        if (config_.fixed_scale >= 0) {
+          b.scale = static_cast<std::int8_t>(config_.fixed_scale);
+          continue;
+        }
+        // Headers are scattered over the pool: load a few ahead.
+        if (i + kLookAhead < range.end) {
+          const std::uint32_t later = frame_blocks_[i + kLookAhead].block;
+          if (later != kNoIndex) __builtin_prefetch(&map.block(later));
+        }
+        int current = -1;
+        if (b.block != kNoIndex) {
+          const VoxelBlock<VoxelT>& block = map.block(b.block);
+          if (block.integrated()) current = block.current_scale;
+        }
+        b.scale = static_cast<std::int8_t>(
+            select_scale(b.z_m * inv_footprint, current, config_.scale_hysteresis));
+      } else {
+        b.scale = 0;
+      }
+    }
+  };
+  team.for_each_task(lookup_tasks, lookup_fn);
+  std::uint32_t missing = 0;
+  for (std::size_t t = 0; t < lookup_tasks; ++t) missing += tallies_[t].missing;
   report.blocks_requested = missing;
   if (missing > 0) {
     // block_indices_ is free until step 5: it lists the missing blocks' positions here.
@@ -476,26 +534,7 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     if (frame_blocks_[i].block != kNoIndex) frame_blocks_[count++] = frame_blocks_[i];
   }
 
-  // 3. Scales.
-  const float inv_footprint = 1.0f / (camera.fx * map.voxel_size_m());
-  for (std::uint32_t i = 0; i < count; ++i) {
-    FrameBlock& b = frame_blocks_[i];
-    if constexpr (kMultires) {
-      if (config_.fixed_scale >= 0) {
-        b.scale = static_cast<std::int8_t>(config_.fixed_scale);
-      } else {
-        // Headers are scattered over the pool: load a few ahead.
-        if (i + kLookAhead < count)
-          __builtin_prefetch(&map.block(frame_blocks_[i + kLookAhead].block));
-        const VoxelBlock<VoxelT>& block = map.block(b.block);
-        const int current = block.integrated() ? block.current_scale : -1;
-        b.scale = static_cast<std::int8_t>(
-            select_scale(b.z_m * inv_footprint, current, config_.scale_hysteresis));
-      }
-    } else {
-      b.scale = 0;
-    }
-  }
+  // 3. Budgets (the scales were picked in step 2).
   apply_budgets(count, budget, report);
 
   // Finest levels for blocks about to integrate at scale 0 for the first time, serially and in

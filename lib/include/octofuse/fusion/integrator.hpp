@@ -61,6 +61,7 @@ struct TaskTally {
   std::uint32_t blocks_per_scale[4] = {0, 0, 0, 0};
   std::uint32_t refined = 0;
   std::uint32_t coarsened = 0;
+  std::uint32_t missing = 0;  // blocks looked up and not allocated yet
 };
 
 }  // namespace fusion_internal

@@ -582,10 +582,15 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
         __builtin_prefetch(first + 64, 1);
       }
       const FrameBlock& b = frame_blocks_[i];
-      if (b.skip != 0) continue;
+      if (b.skip != 0) {
+        block_indices_[i] = kNoIndex;
+        continue;
+      }
       VoxelBlock<VoxelT>& block = map.block(b.block);
       integrate_block(block, b.scale, f, tally);
       block.last_updated_frame = frame_index;
+      // For step 5, while the header is in the cache.
+      block_indices_[i] = block.parent_node;
     }
   };
   team.for_each_task(tasks, task_fn);
@@ -600,12 +605,8 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     report.blocks_coarsened += tally.coarsened;
   }
 
-  // 5. Node summaries above the integrated blocks.
-  std::uint32_t integrated = 0;
-  for (std::uint32_t i = 0; i < count; ++i) {
-    if (frame_blocks_[i].skip == 0) block_indices_[integrated++] = frame_blocks_[i].block;
-  }
-  map.propagate_summaries(block_indices_, integrated);
+  // 5. Node summaries above the integrated blocks (their parents, listed by step 4).
+  map.propagate_summaries_from_parents(block_indices_, count);
   return report;
 }
 

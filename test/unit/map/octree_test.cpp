@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <random>
+#include <vector>
 
 #include <catch2/catch.hpp>
 
@@ -369,6 +370,45 @@ TEST_CASE("node summaries propagate up to the root", "[map][octree]") {
   CHECK(root.tsdf_mean == 0.125f);  // the unobserved branch does not dilute it
   CHECK(root.tsdf_min == -0.25f);
   CHECK_FALSE(map.node(map.block(b2).parent_node).summary.observed());
+}
+
+TEST_CASE("summaries from the blocks' parent nodes match those from the blocks", "[map][octree]") {
+  std::mt19937 rng(3);
+  std::uniform_int_distribution<int> coord(0, 31);
+  std::uniform_real_distribution<float> tsdf(-1.0f, 1.0f);
+  MapFixture<MultiresVoxel> a(small_config(64, 1000));
+  MapFixture<MultiresVoxel> b(small_config(64, 1000));
+  std::vector<std::uint32_t> blocks;
+  std::vector<std::uint32_t> parents;
+  for (int i = 0; i < 60; ++i) {
+    const Eigen::Vector3i c(coord(rng), coord(rng), coord(rng));
+    const std::uint32_t ia = a.map.allocate_block(c).value();
+    const std::uint32_t ib = b.map.allocate_block(c).value();
+    REQUIRE(ia == ib);
+    const float value = tsdf(rng);
+    for (Octree<MultiresVoxel>* map : {&a.map, &b.map}) {
+      VoxelBlock<MultiresVoxel>& block = map->block(ia);
+      block.tsdf_mean = value;
+      block.weight_mean = 3.0f;
+      block.tsdf_min = value - 0.5f;
+      block.tsdf_max = value + 0.25f;
+    }
+    blocks.push_back(ia);
+    parents.push_back(a.map.block(ia).parent_node);
+    if (i % 7 == 0) parents.push_back(kNoIndex);  // skipped entries
+  }
+  a.map.propagate_summaries(blocks.data(), blocks.size());
+  b.map.propagate_summaries_from_parents(parents.data(), parents.size());
+  REQUIRE(a.map.node_count() == b.map.node_count());
+  for (std::uint32_t n = 0; n < a.map.node_count(); ++n) {
+    const NodeSummary& sa = a.map.node(n).summary;
+    const NodeSummary& sb = b.map.node(n).summary;
+    CHECK(sa.tsdf_mean == sb.tsdf_mean);
+    CHECK(sa.weight_mean == sb.weight_mean);
+    CHECK(sa.tsdf_min == sb.tsdf_min);
+    CHECK(sa.tsdf_max == sb.tsdf_max);
+  }
+  CHECK(a.map.node(Octree<MultiresVoxel>::root_index()).summary.observed());
 }
 
 TEST_CASE("clear forgets blocks and keeps the memory", "[map][octree]") {

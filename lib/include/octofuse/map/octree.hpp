@@ -95,6 +95,8 @@ struct OctantLookup {
 
 template <typename VoxelT>
 class Octree {
+  static constexpr std::size_t kSummaryPrefetchDistance = 32;
+
  public:
   using Voxel = VoxelT;
   using Block = VoxelBlock<VoxelT>;
@@ -420,33 +422,30 @@ class Octree {
   // whose children are all unobserved keeps its summary.
   void propagate_summaries(const std::uint32_t* block_indices, std::size_t count) {
     ++stamp_;
-    std::uint32_t* current = scratch_a_;
-    std::uint32_t* next = scratch_b_;
     std::size_t current_count = 0;
+    // Blocks and nodes are scattered over large pools: load headers 2d entries ahead, and d ahead
+    // (once the header has arrived) the node it points to.
+    constexpr std::size_t d = kSummaryPrefetchDistance;
     for (std::size_t i = 0; i < count; ++i) {
-      const std::uint32_t p = blocks_[block_indices[i]].parent_node;
-      if (nodes_[p].visit_stamp == stamp_) continue;
-      nodes_[p].visit_stamp = stamp_;
-      current[current_count++] = p;
+      if (i + 2 * d < count) __builtin_prefetch(&blocks_[block_indices[i + 2 * d]].parent_node);
+      if (i + d < count) __builtin_prefetch(&nodes_[blocks_[block_indices[i + d]].parent_node]);
+      add_summary_node(blocks_[block_indices[i]].parent_node, current_count);
     }
-    bool children_are_blocks = true;
-    while (current_count > 0) {
-      std::size_t next_count = 0;
-      for (std::size_t i = 0; i < current_count; ++i) {
-        OctreeNode& n = nodes_[current[i]];
-        summarise_node(n, children_are_blocks);
-        if (n.parent == kNoIndex) continue;
-        OctreeNode& p = nodes_[n.parent];
-        if (p.visit_stamp == stamp_) continue;
-        p.visit_stamp = stamp_;
-        next[next_count++] = n.parent;
+    propagate_node_summaries(current_count);
+  }
+  // The same, given the blocks' parent nodes (their parent_node, in the same order; kNoIndex
+  // entries are skipped): callers that have read the headers already save a pass over them.
+  void propagate_summaries_from_parents(const std::uint32_t* parent_nodes, std::size_t count) {
+    ++stamp_;
+    std::size_t current_count = 0;
+    constexpr std::size_t d = kSummaryPrefetchDistance;
+    for (std::size_t i = 0; i < count; ++i) {
+      if (i + d < count && parent_nodes[i + d] != kNoIndex) {
+        __builtin_prefetch(&nodes_[parent_nodes[i + d]]);
       }
-      std::uint32_t* swap = current;
-      current = next;
-      next = swap;
-      current_count = next_count;
-      children_are_blocks = false;
+      if (parent_nodes[i] != kNoIndex) add_summary_node(parent_nodes[i], current_count);
     }
+    propagate_node_summaries(current_count);
   }
 
   // --- Memory.
@@ -542,6 +541,52 @@ class Octree {
       nodes_[node].children[child] = n.value();
       ++counts.new_nodes;
       node = n.value();
+    }
+  }
+
+  // Appends node p to the first level of a summary pass unless this pass has it already.
+  void add_summary_node(std::uint32_t p, std::size_t& current_count) {
+    if (nodes_[p].visit_stamp == stamp_) return;
+    nodes_[p].visit_stamp = stamp_;
+    scratch_a_[current_count++] = p;
+  }
+  // Summarises the nodes in scratch_a_ (parents of blocks), then their parents, up to the root.
+  void propagate_node_summaries(std::size_t current_count) {
+    constexpr std::size_t d = kSummaryPrefetchDistance;
+    std::uint32_t* current = scratch_a_;
+    std::uint32_t* next = scratch_b_;
+    bool children_are_blocks = true;
+    while (current_count > 0) {
+      std::size_t next_count = 0;
+      for (std::size_t i = 0; i < current_count; ++i) {
+        // Same for the nodes of this level and, d ahead, the children they summarise.
+        if (i + 2 * d < current_count) __builtin_prefetch(&nodes_[current[i + 2 * d]]);
+        if (i + d < current_count) prefetch_children(nodes_[current[i + d]], children_are_blocks);
+        OctreeNode& n = nodes_[current[i]];
+        summarise_node(n, children_are_blocks);
+        if (n.parent == kNoIndex) continue;
+        OctreeNode& p = nodes_[n.parent];
+        if (p.visit_stamp == stamp_) continue;
+        p.visit_stamp = stamp_;
+        next[next_count++] = n.parent;
+      }
+      std::uint32_t* swap = current;
+      current = next;
+      next = swap;
+      current_count = next_count;
+      children_are_blocks = false;
+    }
+  }
+
+  void prefetch_children(const OctreeNode& n, bool children_are_blocks) const {
+    for (int c = 0; c < 8; ++c) {
+      const std::uint32_t child = n.children[c];
+      if (child == kNoIndex) continue;
+      if (children_are_blocks) {
+        __builtin_prefetch(&blocks_[child].tsdf_min);
+      } else {
+        __builtin_prefetch(&nodes_[child].summary);
+      }
     }
   }
 

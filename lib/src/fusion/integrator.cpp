@@ -244,54 +244,45 @@ inline int floor_to_int(float f) {
   return i - (static_cast<float>(i) > f ? 1 : 0);
 }
 
-}  // namespace
+// Ray-march geometry, in block units of the cube, fixed for the frame.
+struct MarchSetup {
+  Eigen::Vector3f centre_B;  // camera centre
+  // World direction of the ray through pixel (u, v) with unit camera z:
+  // M * ((u - cx) / fx, (v - cy) / fy, 1).
+  Eigen::Matrix3f M;
+  float inv_fx = 0;
+  float inv_fy = 0;
+  int side_blocks = 0;
+  int step = 1;
+};
 
-template <typename VoxelT>
-std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, const Frame& f,
-                                                 IntegrationReport& report) {
-  const float inv_block = 1.0f / (8.0f * f.voxel_size_m);
-  const int step = config_.allocation_pixel_step;
-  const int side_blocks = map.voxels_per_side() >> kBlockSideLog2;
-  // Everything in block units of the cube: the camera centre, and the world direction of the ray
-  // through pixel (u, v) with unit camera z, M * ((u - cx) / fx, (v - cy) / fy, 1).
-  const Eigen::Vector3f centre_B = (f.t_W_C - f.origin_W) * inv_block;
-  const Eigen::Matrix3f M = f.R_W_C * inv_block;
-  // Neighbouring rays cross the same blocks, in this row and the rows above: a small
-  // direct-mapped cache of cells already passed on keeps most of them away from the (large,
-  // cache-unfriendly) frame set.
-  for (std::size_t i = 0; i < kSeenCacheSize; ++i) seen_[i] = ~std::uint64_t{0};
-  const float inv_fx = 1.0f / f.fx;
-  const float inv_fy = 1.0f / f.fy;
-  // New cells wait in a short FIFO while their frame-set slot is prefetched: the set is too large
-  // for the cache and each insert would otherwise stall on its probe. The insertion order (and so
-  // the block list) is unchanged.
-  constexpr std::uint64_t kPending = 16;
-  std::uint64_t pending[kPending];
-  std::uint64_t pushed = 0;
-  auto insert_packed = [&](std::uint64_t key) {
-    const Eigen::Vector3i coords(static_cast<int>(key & kCellMask),
-                                 static_cast<int>((key >> 21) & kCellMask),
-                                 static_cast<int>(key >> 42));
-    insert_frame_block(key, coords, report);
-  };
-  for (int v = 0; v < f.height; v += step) {
+// Marches the rays of pixel rows [v_begin, v_end) (every step-th row and column), the first row
+// from column u_begin, over the band depth +- mu, and emits each block cell inside the cube that
+// `seen` (a direct-mapped cache of cells emitted recently) does not hold. room(n) says whether n
+// more cells can be taken; when a ray might not fit, the march stops before it and returns true
+// with its pixel in (stop_v, stop_u). Cells outside the cube and far-off rays add to `outside`.
+template <typename FrameT, typename Room, typename Emit>
+bool march_rows(const FrameT& f, const MarchSetup& m, int v_begin, int u_begin, int v_end,
+                std::uint64_t* seen, std::uint32_t& outside, Room&& room, Emit&& emit, int& stop_v,
+                int& stop_u) {
+  for (int v = v_begin; v < v_end; v += m.step) {
     const float* row = f.depth + v * f.stride;
-    const float yn = (static_cast<float>(v) - f.cy) * inv_fy;
-    const Eigen::Vector3f row_dir = M.col(1) * yn + M.col(2);
+    const float yn = (static_cast<float>(v) - f.cy) * m.inv_fy;
+    const Eigen::Vector3f row_dir = m.M.col(1) * yn + m.M.col(2);
     const float yn2_1 = yn * yn + 1.0f;
-    for (int u = 0; u < f.width; u += step) {
+    for (int u = v == v_begin ? u_begin : 0; u < f.width; u += m.step) {
       const float depth = row[u];
       if (!(depth >= f.near_m && depth <= f.far_m)) continue;
-      const float xn = (static_cast<float>(u) - f.cx) * inv_fx;
-      const Eigen::Vector3f dir = row_dir + M.col(0) * xn;
+      const float xn = (static_cast<float>(u) - f.cx) * m.inv_fx;
+      const Eigen::Vector3f dir = row_dir + m.M.col(0) * xn;
       // The band +- mu along the ray is +- mu/|ray| in camera z.
       const float half_band_z = f.mu_m / std::sqrt(xn * xn + yn2_1);
-      const Eigen::Vector3f a = centre_B + dir * (depth - half_band_z);
-      const Eigen::Vector3f b = centre_B + dir * (depth + half_band_z);
+      const Eigen::Vector3f a = m.centre_B + dir * (depth - half_band_z);
+      const Eigen::Vector3f b = m.centre_B + dir * (depth + half_band_z);
       // Far outside the cube (a wild pose): skip before float-to-int conversions can overflow.
       constexpr float kLimit = static_cast<float>(1 << 22);
       if (!(a.cwiseAbs().maxCoeff() < kLimit && b.cwiseAbs().maxCoeff() < kLimit)) {
-        ++report.rays_outside_cube;
+        ++outside;
         continue;
       }
       // Amanatides-Woo traversal of the block grid from a to b.
@@ -319,22 +310,23 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
           t_delta[k] = 2.0f;
         }
       }
+      if (!room(max_cells)) {
+        stop_v = v;
+        stop_u = u;
+        return true;
+      }
       for (int c = 0; c < max_cells; ++c) {
-        if (static_cast<unsigned>(cell[0]) < static_cast<unsigned>(side_blocks) &&
-            static_cast<unsigned>(cell[1]) < static_cast<unsigned>(side_blocks) &&
-            static_cast<unsigned>(cell[2]) < static_cast<unsigned>(side_blocks)) {
+        if (static_cast<unsigned>(cell[0]) < static_cast<unsigned>(m.side_blocks) &&
+            static_cast<unsigned>(cell[1]) < static_cast<unsigned>(m.side_blocks) &&
+            static_cast<unsigned>(cell[2]) < static_cast<unsigned>(m.side_blocks)) {
           const std::uint64_t key = pack_cell(cell[0], cell[1], cell[2]);
-          std::uint64_t& seen = seen_[seen_slot(key)];
-          if (seen != key) {
-            seen = key;
-            __builtin_prefetch(&set_[hash_key(key, set_bits_)], 1);
-            std::uint64_t& entry = pending[pushed % kPending];
-            if (pushed >= kPending) insert_packed(entry);
-            entry = key;
-            ++pushed;
+          std::uint64_t& recent = seen[seen_slot(key)];
+          if (recent != key) {
+            recent = key;
+            emit(key);
           }
         } else {
-          ++report.rays_outside_cube;
+          ++outside;
         }
         if (cell[0] == last[0] && cell[1] == last[1] && cell[2] == last[2]) break;
         const int k =
@@ -344,6 +336,95 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
         t_max[k] += t_delta[k];
       }
     }
+  }
+  return false;
+}
+
+}  // namespace
+
+template <typename VoxelT>
+std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, const Frame& f,
+                                                 IntegrationReport& report,
+                                                 const WorkerTeam& team) {
+  using fusion_internal::CollectTally;
+  using fusion_internal::kCollectTasks;
+  const float inv_block = 1.0f / (8.0f * f.voxel_size_m);
+  MarchSetup m;
+  m.centre_B = (f.t_W_C - f.origin_W) * inv_block;
+  m.M = f.R_W_C * inv_block;
+  m.inv_fx = 1.0f / f.fx;
+  m.inv_fy = 1.0f / f.fy;
+  m.side_blocks = map.voxels_per_side() >> kBlockSideLog2;
+  m.step = config_.allocation_pixel_step;
+  const int step = m.step;
+  const std::size_t rows = static_cast<std::size_t>((f.height + step - 1) / step);
+  auto band_v = [&](std::size_t task, bool end) {
+    const TaskRange r = task_range(rows, task, kCollectTasks);
+    return static_cast<int>(end ? r.end : r.begin) * step;
+  };
+  // 1a. Each band of rows lists its cells. Neighbouring rays cross the same blocks, in this row and
+  // the rows above: the band's seen-cell cache keeps most repeats off its list.
+  auto band_fn = [&](std::size_t task) {
+    std::uint64_t* seen = seen_ + (task + 1) * kSeenCacheSize;
+    for (std::size_t i = 0; i < kSeenCacheSize; ++i) seen[i] = ~std::uint64_t{0};
+    std::uint64_t* cells = band_cells_ + task * band_capacity_;
+    std::size_t count = 0;
+    CollectTally tally;
+    int stop_v = -1;
+    int stop_u = 0;
+    const std::size_t capacity = band_capacity_;
+    if (march_rows(
+            f, m, band_v(task, false), 0, band_v(task, true), seen, tally.outside,
+            [&](int n) { return count + static_cast<std::size_t>(n) <= capacity; },
+            [&](std::uint64_t key) { cells[count++] = key; }, stop_v, stop_u)) {
+      tally.stop_row = stop_v;
+      tally.stop_column = stop_u;
+    }
+    tally.count = static_cast<std::uint32_t>(count);
+    collect_tallies_[task] = tally;
+  };
+  team.for_each_task(kCollectTasks, band_fn);
+
+  // 1b. Merge the lists into the frame set in band order, which keeps each block's first
+  // appearance in the serial ray order. A band whose list filled up is marched on from where it
+  // stopped. New cells wait in a short FIFO while their set slot is prefetched (the set is too
+  // large for the cache); the insertion order is unchanged.
+  std::uint64_t* seen = seen_;
+  for (std::size_t i = 0; i < kSeenCacheSize; ++i) seen[i] = ~std::uint64_t{0};
+  constexpr std::uint64_t kPending = 16;
+  std::uint64_t pending[kPending];
+  std::uint64_t pushed = 0;
+  auto insert_packed = [&](std::uint64_t key) {
+    const Eigen::Vector3i coords(static_cast<int>(key & kCellMask),
+                                 static_cast<int>((key >> 21) & kCellMask),
+                                 static_cast<int>(key >> 42));
+    insert_frame_block(key, coords, report);
+  };
+  auto push = [&](std::uint64_t key) {
+    __builtin_prefetch(&set_[hash_key(key, set_bits_)], 1);
+    std::uint64_t& entry = pending[pushed % kPending];
+    if (pushed >= kPending) insert_packed(entry);
+    entry = key;
+    ++pushed;
+  };
+  for (std::size_t task = 0; task < kCollectTasks; ++task) {
+    const CollectTally& tally = collect_tallies_[task];
+    const std::uint64_t* cells = band_cells_ + task * band_capacity_;
+    for (std::uint32_t i = 0; i < tally.count; ++i) {
+      std::uint64_t& recent = seen[seen_slot(cells[i])];
+      if (recent == cells[i]) continue;
+      recent = cells[i];
+      push(cells[i]);
+    }
+    std::uint32_t outside = tally.outside;
+    if (tally.stop_row >= 0) {
+      int unused_v = 0;
+      int unused_u = 0;
+      march_rows(
+          f, m, tally.stop_row, tally.stop_column, band_v(task, true), seen, outside,
+          [](int) { return true; }, push, unused_v, unused_u);
+    }
+    report.rays_outside_cube += outside;
   }
   for (std::uint64_t i = pushed > kPending ? pushed - kPending : 0; i < pushed; ++i) {
     insert_packed(pending[i % kPending]);
@@ -433,7 +514,7 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     stamp_ = 1;
   }
   frame_block_count_ = 0;
-  const std::uint32_t touched = collect_blocks(map, f, report);
+  const std::uint32_t touched = collect_blocks(map, f, report, team);
   report.blocks_touched = touched;
 
   // 2. Look the blocks up and pick their scales, in a fixed number of tasks (read-only on the map;

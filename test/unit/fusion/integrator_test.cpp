@@ -498,6 +498,30 @@ TEST_CASE("a full finest-level pool keeps blocks at scale 1, counted, and the ma
   }
 }
 
+// Both maps hold the same blocks, voxels and node summaries, bit for bit.
+void require_same_map(const Octree<MultiresVoxel>& one, const Octree<MultiresVoxel>& two) {
+  REQUIRE(one.block_count() == two.block_count());
+  using Block = VoxelBlock<MultiresVoxel>;
+  for (std::uint32_t i = 0; i < one.block_count(); ++i) {
+    const Block& a = one.block(i);
+    const Block& b = two.block(i);
+    // Everything but the finest-level pointer (into two different pools) byte for byte.
+    const std::size_t header = static_cast<std::size_t>(reinterpret_cast<const char*>(&a.finest) -
+                                                        reinterpret_cast<const char*>(&a));
+    REQUIRE(std::memcmp(&a, &b, header) == 0);
+    REQUIRE(std::memcmp(a.inline_voxels, b.inline_voxels, sizeof(a.inline_voxels)) == 0);
+    REQUIRE(a.has_finest() == b.has_finest());
+    REQUIRE(std::memcmp(a.scale_begin(0), b.scale_begin(0),
+                        sizeof(MultiresVoxel) * kBlockFinestVoxelCount) == 0);
+  }
+  REQUIRE(one.memory().finest_used == two.memory().finest_used);
+  for (std::uint32_t i = 0; i < one.node_count(); ++i) {
+    const NodeSummary& a = one.node(i).summary;
+    const NodeSummary& b = two.node(i).summary;
+    REQUIRE(std::memcmp(&a, &b, sizeof(NodeSummary)) == 0);
+  }
+}
+
 TEST_CASE("results are bit-identical for 1 and 2 workers", "[fusion][integrator][threads]") {
   AnalyticScene scene;
   scene.spheres.push_back({Eigen::Vector3d(0.1, 0.0, 1.3), 0.3});
@@ -515,26 +539,45 @@ TEST_CASE("results are bit-identical for 1 and 2 workers", "[fusion][integrator]
     REQUIRE(a.voxels_updated == b.voxels_updated);
     REQUIRE(a.blocks_integrated == b.blocks_integrated);
   }
-  REQUIRE(one.map.block_count() == two.map.block_count());
-  using Block = VoxelBlock<MultiresVoxel>;
-  for (std::uint32_t i = 0; i < one.map.block_count(); ++i) {
-    const Block& a = one.map.block(i);
-    const Block& b = two.map.block(i);
-    // Everything but the finest-level pointer (into two different pools) byte for byte.
-    const std::size_t header = static_cast<std::size_t>(reinterpret_cast<const char*>(&a.finest) -
-                                                        reinterpret_cast<const char*>(&a));
-    REQUIRE(std::memcmp(&a, &b, header) == 0);
-    REQUIRE(std::memcmp(a.inline_voxels, b.inline_voxels, sizeof(a.inline_voxels)) == 0);
-    REQUIRE(a.has_finest() == b.has_finest());
-    REQUIRE(std::memcmp(a.scale_begin(0), b.scale_begin(0),
-                        sizeof(MultiresVoxel) * kBlockFinestVoxelCount) == 0);
+  require_same_map(one.map, two.map);
+}
+
+TEST_CASE("a band of rows whose cell list fills up is finished by the merge, same map",
+          "[fusion][integrator][threads]") {
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  // Depth only in the first rows: every block comes from the first band, whose list holds a
+  // quarter of max_blocks_per_frame.
+  auto fill = [&camera](std::vector<float>& depth) {
+    depth.assign(static_cast<std::size_t>(camera.width) * camera.height, 0.0f);
+    for (int v = 0; v < 15; ++v) {
+      for (int u = 0; u < camera.width; ++u) depth[v * camera.width + u] = 1.0f + 0.001f * u;
+    }
+  };
+  FusionConfig small = fusion_config(0.08f);
+  small.max_blocks_per_frame = 256;
+  Fusion<MultiresVoxel> tight(map_config(0.01f, 8, 8000), small, camera);
+  Fusion<MultiresVoxel> tight_two(map_config(0.01f, 8, 8000), small, camera);
+  Fusion<MultiresVoxel> roomy(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
+  WorkerTeam one_worker(1);
+  WorkerTeam two_workers(2);
+  for (int i = 0; i < 3; ++i) {
+    const Se3d pose = test::looking_along_z({0.01 * i, 0.0, 0.1 * i});
+    fill(tight.depth);
+    fill(tight_two.depth);
+    fill(roomy.depth);
+    const IntegrationReport a = tight.fuse_rendered(pose, FusionBudget(), one_worker);
+    const IntegrationReport b = tight_two.fuse_rendered(pose, FusionBudget(), two_workers);
+    const IntegrationReport c = roomy.fuse_rendered(pose, FusionBudget(), one_worker);
+    REQUIRE(a.status.ok());
+    REQUIRE(a.keys_dropped == 0);
+    REQUIRE(a.blocks_touched > 64);  // more than the band's list holds
+    REQUIRE(a.blocks_touched == c.blocks_touched);
+    REQUIRE(b.blocks_touched == c.blocks_touched);
+    REQUIRE(a.voxels_updated == c.voxels_updated);
+    REQUIRE(b.voxels_updated == c.voxels_updated);
   }
-  REQUIRE(one.map.memory().finest_used == two.map.memory().finest_used);
-  for (std::uint32_t i = 0; i < one.map.node_count(); ++i) {
-    const NodeSummary& a = one.map.node(i).summary;
-    const NodeSummary& b = two.map.node(i).summary;
-    REQUIRE(std::memcmp(&a, &b, sizeof(NodeSummary)) == 0);
-  }
+  require_same_map(tight.map, roomy.map);
+  require_same_map(tight_two.map, roomy.map);
 }
 
 TEST_CASE("no heap allocation per frame", "[fusion][integrator][alloc]") {

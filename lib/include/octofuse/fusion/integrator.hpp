@@ -12,6 +12,7 @@
 //
 // Memory: reserve() carves everything from the arena; integrate() allocates nothing.
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <type_traits>
@@ -55,6 +56,18 @@ struct FrameSetEntry {
 // Cells the allocation rays passed recently (direct-mapped, packed block coordinates).
 inline constexpr int kSeenCacheLog2 = 12;
 inline constexpr std::size_t kSeenCacheSize = std::size_t{1} << kSeenCacheLog2;
+
+// Block collection marches the image in this many bands of rows, in parallel; each band lists the
+// cells it passes (after its own seen-cell cache) for a serial merge into the frame set.
+inline constexpr std::size_t kCollectTasks = 8;
+
+// Where one band's list ended.
+struct CollectTally {
+  std::uint32_t count = 0;       // cells listed
+  std::uint32_t outside = 0;     // band samples outside the cube, up to the stop
+  std::int32_t stop_row = -1;    // >= 0: the list filled up at this row (in pixel steps) ...
+  std::int32_t stop_column = 0;  // ... and pixel column; the merge marches the rest
+};
 
 struct TaskTally {
   std::uint64_t voxels_updated = 0;
@@ -103,8 +116,18 @@ class Integrator {
     Result<std::uint32_t*> indices =
         arena.template allocate_array<std::uint32_t>(config.max_blocks_per_frame);
     OCTOFUSE_TRY(indices);
-    Result<std::uint64_t*> seen = arena.template allocate_array<std::uint64_t>(kSeenCacheSize);
+    // One seen-cell cache per band plus one for the merge.
+    Result<std::uint64_t*> seen =
+        arena.template allocate_array<std::uint64_t>((kCollectTasks + 1) * kSeenCacheSize);
     OCTOFUSE_TRY(seen);
+    // A quarter of the frame's blocks per band (an eighth of the rows) leaves room for repeats
+    // across bands; a band that fills up is finished serially by the merge.
+    const std::size_t band_capacity = std::max<std::size_t>(16, config.max_blocks_per_frame / 4);
+    Result<std::uint64_t*> band_cells =
+        arena.template allocate_array<std::uint64_t>(kCollectTasks * band_capacity);
+    OCTOFUSE_TRY(band_cells);
+    Result<CollectTally*> collect = arena.template allocate_array<CollectTally>(kCollectTasks);
+    OCTOFUSE_TRY(collect);
     Result<TaskTally*> tallies =
         arena.template allocate_array<TaskTally>(static_cast<std::size_t>(config.task_count));
     OCTOFUSE_TRY(tallies);
@@ -119,6 +142,9 @@ class Integrator {
     keys_ = keys.value();
     block_indices_ = indices.value();
     seen_ = seen.value();
+    band_cells_ = band_cells.value();
+    band_capacity_ = band_capacity;
+    collect_tallies_ = collect.value();
     tallies_ = tallies.value();
     stamp_ = 0;
     reserved_ = !std::is_same_v<Arena, ArenaSizer>;
@@ -138,7 +164,7 @@ class Integrator {
  private:
   struct Frame;
   std::uint32_t collect_blocks(const Octree<VoxelT>& map, const Frame& frame,
-                               IntegrationReport& report);
+                               IntegrationReport& report, const WorkerTeam& team);
   bool insert_frame_block(std::uint64_t key, const Eigen::Vector3i& coords,
                           IntegrationReport& report);
   void apply_budgets(std::uint32_t count, const FusionBudget& budget, IntegrationReport& report);
@@ -155,7 +181,10 @@ class Integrator {
   std::uint32_t frame_block_count_ = 0;
   Key* keys_ = nullptr;
   std::uint32_t* block_indices_ = nullptr;
-  std::uint64_t* seen_ = nullptr;  // kSeenCacheSize entries
+  std::uint64_t* seen_ = nullptr;        // (kCollectTasks + 1) * kSeenCacheSize entries
+  std::uint64_t* band_cells_ = nullptr;  // kCollectTasks lists of band_capacity_ packed cells
+  std::size_t band_capacity_ = 0;
+  fusion_internal::CollectTally* collect_tallies_ = nullptr;
   fusion_internal::TaskTally* tallies_ = nullptr;
   std::uint32_t stamp_ = 0;
   bool reserved_ = false;

@@ -2,6 +2,8 @@
 
 #include <cmath>
 
+#include "octofuse/map/map_config.hpp"
+
 namespace octofuse {
 
 Status validate(const FusionConfig& c) {
@@ -44,6 +46,12 @@ int select_scale(float r, int current_scale, float hysteresis) {
     return current_scale - 1;
   }
   return current_scale;
+}
+
+bool coarsest_for_any_scale(float r, float hysteresis) {
+  // The coarsening test of select_scale, bit for bit; r / (1 + h) <= r, so the raw scale is
+  // the coarsest too, and there is nothing coarser to refine from.
+  return scale_for_ratio(r / (1.0f + hysteresis)) == kMaxBlockScale;
 }
 
 }  // namespace octofuse

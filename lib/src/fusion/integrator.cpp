@@ -40,7 +40,7 @@ struct Integrator<VoxelT>::Frame {
 
 namespace {
 
-constexpr std::size_t kPrefetchDistance = 4;
+constexpr std::size_t kPrefetchDistance = 8;
 // Hash slots and block headers are loaded this many list entries ahead.
 constexpr std::size_t kLookAhead = 16;
 
@@ -542,6 +542,12 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
       b.block = map.find_block_index_morton(b.morton);
       b.z_m = z0 + dz_block.dot(b.coords.cast<float>());
       if (b.block == kNoIndex) ++task_missing;
+      // Far blocks end at the coarsest scale whatever their current one: no header to read.
+      // -1: select below.
+      b.scale = kMultires && config_.fixed_scale < 0 &&
+                        coarsest_for_any_scale(b.z_m * inv_footprint, config_.scale_hysteresis)
+                    ? static_cast<std::int8_t>(kMaxBlockScale)
+                    : std::int8_t{-1};
     }
     tallies_[task].missing = task_missing;
     for (std::size_t i = range.begin; i < range.end; ++i) {
@@ -553,9 +559,12 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
         }
         // Headers are scattered over the pool: load a few ahead.
         if (i + kLookAhead < range.end) {
-          const std::uint32_t later = frame_blocks_[i + kLookAhead].block;
-          if (later != kNoIndex) __builtin_prefetch(&map.block(later));
+          const FrameBlock& later = frame_blocks_[i + kLookAhead];
+          if (later.block != kNoIndex && later.scale < 0) {
+            __builtin_prefetch(&map.block(later.block).current_scale);
+          }
         }
+        if (b.scale >= 0) continue;
         int current = -1;
         if (b.block != kNoIndex) {
           const VoxelBlock<VoxelT>& block = map.block(b.block);
@@ -652,15 +661,21 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     for (std::size_t i = range.begin; i < range.end; ++i) {
       // Blocks are scattered over a large pool: fetch a later block's header early, and once it
       // has arrived (it says where a multires block's finest level is) its first voxels.
+      // Headers and levels rarely start on a cache line (blocks are 1232 bytes): fetch both ends.
       if (i + 2 * kPrefetchDistance < range.end) {
-        __builtin_prefetch(&map.block(frame_blocks_[i + 2 * kPrefetchDistance].block));
+        const char* header = reinterpret_cast<const char*>(
+            &map.block(frame_blocks_[i + 2 * kPrefetchDistance].block));
+        __builtin_prefetch(header, 1);
+        __builtin_prefetch(header + 63, 1);
       }
       if (i + kPrefetchDistance < range.end) {
         const FrameBlock& later = frame_blocks_[i + kPrefetchDistance];
         const VoxelBlock<VoxelT>& lb = map.block(later.block);
         const char* first = reinterpret_cast<const char*>(lb.scale_begin(later.scale));
+        const int bytes = block_scale_count(later.scale) * static_cast<int>(sizeof(VoxelT));
         __builtin_prefetch(first, 1);
         __builtin_prefetch(first + 64, 1);
+        if (bytes > 64) __builtin_prefetch(first + std::min(bytes, 192) - 1, 1);
       }
       const FrameBlock& b = frame_blocks_[i];
       if (b.skip != 0) {

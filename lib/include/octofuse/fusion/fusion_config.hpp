@@ -77,4 +77,8 @@ int scale_for_ratio(float r);
 // `hysteresis` margin, refines by at most one step, and may coarsen by several.
 int select_scale(float r, int current_scale, float hysteresis);
 
+// True when select_scale(r, c, hysteresis) is the coarsest scale for every current scale c (r is
+// past the last threshold by the margin), so a caller need not read the block's current scale.
+bool coarsest_for_any_scale(float r, float hysteresis);
+
 }  // namespace octofuse

@@ -702,7 +702,7 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   }
 
   // 5. Node summaries above the integrated blocks (their parents, listed by step 4).
-  map.propagate_summaries_from_parents(block_indices_, count);
+  map.propagate_summaries_from_parents(block_indices_, count, team);
   return report;
 }
 

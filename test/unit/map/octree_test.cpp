@@ -1,6 +1,7 @@
 #include "octofuse/map/octree.hpp"
 
 #include <algorithm>
+#include <cstring>
 #include <random>
 #include <vector>
 
@@ -407,6 +408,44 @@ TEST_CASE("summaries from the blocks' parent nodes match those from the blocks",
     CHECK(sa.weight_mean == sb.weight_mean);
     CHECK(sa.tsdf_min == sb.tsdf_min);
     CHECK(sa.tsdf_max == sb.tsdf_max);
+  }
+  CHECK(a.map.node(Octree<MultiresVoxel>::root_index()).summary.observed());
+}
+
+TEST_CASE("wide summary levels in parallel tasks match the serial pass", "[map][octree][threads]") {
+  // One block in each of the 16^3 parent octants: the first level is wide enough for the tasks.
+  MapFixture<MultiresVoxel> a(small_config(4096, 5000));
+  MapFixture<MultiresVoxel> b(small_config(4096, 5000));
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> tsdf(-1.0f, 1.0f);
+  std::vector<std::uint32_t> blocks;
+  std::vector<std::uint32_t> parents;
+  for (int z = 0; z < 16; ++z) {
+    for (int y = 0; y < 16; ++y) {
+      for (int x = 0; x < 16; ++x) {
+        const Eigen::Vector3i c(2 * x + (z & 1), 2 * y, 2 * z);
+        const std::uint32_t ia = a.map.allocate_block(c).value();
+        REQUIRE(b.map.allocate_block(c).value() == ia);
+        const float value = tsdf(rng);
+        for (Octree<MultiresVoxel>* map : {&a.map, &b.map}) {
+          VoxelBlock<MultiresVoxel>& block = map->block(ia);
+          block.tsdf_mean = value;
+          block.weight_mean = 1.0f + static_cast<float>(x);
+          block.tsdf_min = value - 0.125f;
+          block.tsdf_max = value + 0.5f;
+        }
+        blocks.push_back(ia);
+        parents.push_back(a.map.block(ia).parent_node);
+      }
+    }
+  }
+  a.map.propagate_summaries(blocks.data(), blocks.size());
+  b.map.propagate_summaries_from_parents(parents.data(), parents.size(), WorkerTeam(2));
+  REQUIRE(a.map.node_count() == b.map.node_count());
+  for (std::uint32_t n = 0; n < a.map.node_count(); ++n) {
+    const NodeSummary& sa = a.map.node(n).summary;
+    const NodeSummary& sb = b.map.node(n).summary;
+    REQUIRE(std::memcmp(&sa, &sb, sizeof(NodeSummary)) == 0);
   }
   CHECK(a.map.node(Octree<MultiresVoxel>::root_index()).summary.observed());
 }

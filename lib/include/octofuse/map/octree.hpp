@@ -22,6 +22,7 @@
 
 #include "octofuse/core/arena.hpp"
 #include "octofuse/core/check.hpp"
+#include "octofuse/core/parallel.hpp"
 #include "octofuse/core/pool.hpp"
 #include "octofuse/core/result.hpp"
 #include "octofuse/map/block_hash.hpp"
@@ -96,6 +97,9 @@ struct OctantLookup {
 template <typename VoxelT>
 class Octree {
   static constexpr std::size_t kSummaryPrefetchDistance = 32;
+  // Levels with at least this many nodes are summarised in kSummaryTasks fixed tasks.
+  static constexpr std::size_t kParallelSummaryNodes = 4096;
+  static constexpr std::size_t kSummaryTasks = 16;
 
  public:
   using Voxel = VoxelT;
@@ -435,7 +439,10 @@ class Octree {
   }
   // The same, given the blocks' parent nodes (their parent_node, in the same order; kNoIndex
   // entries are skipped): callers that have read the headers already save a pass over them.
-  void propagate_summaries_from_parents(const std::uint32_t* parent_nodes, std::size_t count) {
+  // Wide levels are summarised in fixed tasks over `team` (each node only reads its children and
+  // writes its own summary, so the result does not depend on the worker count).
+  void propagate_summaries_from_parents(const std::uint32_t* parent_nodes, std::size_t count,
+                                        const WorkerTeam& team = WorkerTeam()) {
     ++stamp_;
     std::size_t current_count = 0;
     constexpr std::size_t d = kSummaryPrefetchDistance;
@@ -445,7 +452,7 @@ class Octree {
       }
       if (parent_nodes[i] != kNoIndex) add_summary_node(parent_nodes[i], current_count);
     }
-    propagate_node_summaries(current_count);
+    propagate_node_summaries(current_count, &team);
   }
 
   // --- Memory.
@@ -551,19 +558,39 @@ class Octree {
     scratch_a_[current_count++] = p;
   }
   // Summarises the nodes in scratch_a_ (parents of blocks), then their parents, up to the root.
-  void propagate_node_summaries(std::size_t current_count) {
+  void propagate_node_summaries(std::size_t current_count, const WorkerTeam* team = nullptr) {
     constexpr std::size_t d = kSummaryPrefetchDistance;
     std::uint32_t* current = scratch_a_;
     std::uint32_t* next = scratch_b_;
     bool children_are_blocks = true;
     while (current_count > 0) {
+      const bool parallel = team != nullptr && current_count >= kParallelSummaryNodes;
+      if (parallel) {
+        const std::uint32_t* level = current;
+        const std::size_t level_count = current_count;
+        const bool blocks = children_are_blocks;
+        auto summarise_task = [&](std::size_t task) {
+          const TaskRange r = task_range(level_count, task, kSummaryTasks);
+          for (std::size_t i = r.begin; i < r.end; ++i) {
+            if (i + 2 * d < r.end) __builtin_prefetch(&nodes_[level[i + 2 * d]]);
+            if (i + d < r.end) prefetch_children(nodes_[level[i + d]], blocks);
+            summarise_node(nodes_[level[i]], blocks);
+          }
+        };
+        team->for_each_task(kSummaryTasks, summarise_task);
+      }
+      // The next level, in first-seen order (serially: the order must not depend on the tasks).
       std::size_t next_count = 0;
       for (std::size_t i = 0; i < current_count; ++i) {
-        // Same for the nodes of this level and, d ahead, the children they summarise.
-        if (i + 2 * d < current_count) __builtin_prefetch(&nodes_[current[i + 2 * d]]);
-        if (i + d < current_count) prefetch_children(nodes_[current[i + d]], children_are_blocks);
         OctreeNode& n = nodes_[current[i]];
-        summarise_node(n, children_are_blocks);
+        if (!parallel) {
+          // Same for the nodes of this level and, d ahead, the children they summarise.
+          if (i + 2 * d < current_count) __builtin_prefetch(&nodes_[current[i + 2 * d]]);
+          if (i + d < current_count) prefetch_children(nodes_[current[i + d]], children_are_blocks);
+          summarise_node(n, children_are_blocks);
+        } else if (i + d < current_count) {
+          __builtin_prefetch(&nodes_[current[i + d]].parent);
+        }
         if (n.parent == kNoIndex) continue;
         OctreeNode& p = nodes_[n.parent];
         if (p.visit_stamp == stamp_) continue;

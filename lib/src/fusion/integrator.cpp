@@ -433,13 +433,9 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
 }
 
 template <typename VoxelT>
-void Integrator<VoxelT>::apply_budgets(std::uint32_t count, const FusionBudget& budget,
-                                       IntegrationReport& report) {
-  std::uint64_t cost = 0;
-  for (std::uint32_t i = 0; i < count; ++i) {
-    cost += static_cast<std::uint64_t>(block_scale_count(frame_blocks_[i].scale));
-  }
-  if (count <= budget.max_integrated_blocks && cost <= budget.max_voxel_updates) return;
+bool Integrator<VoxelT>::apply_budgets(std::uint32_t count, std::uint64_t cost,
+                                       const FusionBudget& budget, IntegrationReport& report) {
+  if (count <= budget.max_integrated_blocks && cost <= budget.max_voxel_updates) return false;
   report.budget_hit = true;
   // Nearest first; ties by Morton code so the order is total and deterministic.
   std::sort(frame_blocks_, frame_blocks_ + count, [](const FrameBlock& l, const FrameBlock& r) {
@@ -462,6 +458,7 @@ void Integrator<VoxelT>::apply_budgets(std::uint32_t count, const FusionBudget& 
     frame_blocks_[kept].skip = 1;
     ++report.budget_blocks_skipped;
   }
+  return true;
 }
 
 template <typename VoxelT>
@@ -618,25 +615,34 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     }
   }
   if (report.keys_dropped > 0) report.status = StatusCode::resource_exhausted;
-  // Keep only blocks that exist now.
+  // Keep only blocks that exist now; on the way, what the budgets and step 4 need to know.
   std::uint32_t count = 0;
+  std::uint64_t cost = 0;  // voxel updates
+  int coarsest = 0;
+  bool any_finest = false;
   for (std::uint32_t i = 0; i < touched; ++i) {
-    if (frame_blocks_[i].block != kNoIndex) frame_blocks_[count++] = frame_blocks_[i];
+    const FrameBlock& b = frame_blocks_[i];
+    if (b.block == kNoIndex) continue;
+    cost += static_cast<std::uint64_t>(block_scale_count(b.scale));
+    coarsest = std::max<int>(coarsest, b.scale);
+    any_finest = any_finest || b.scale == 0;
+    frame_blocks_[count++] = b;
   }
 
   // 3. Budgets (the scales were picked in step 2).
-  apply_budgets(count, budget, report);
+  const bool budget_bound = apply_budgets(count, cost, budget, report);
 
   // Finest levels for blocks about to integrate at scale 0 for the first time, serially and in
   // list order so the pool's indices do not depend on the worker count. Refused: stay at 1.
   if constexpr (kMultires) {
-    for (std::uint32_t i = 0; i < count; ++i) {
+    for (std::uint32_t i = 0; i < count && any_finest; ++i) {
       FrameBlock& b = frame_blocks_[i];
       if (b.skip != 0 || b.scale != 0) continue;
       VoxelBlock<VoxelT>& block = map.block(b.block);
       if (block.has_finest()) continue;
       if (!map.acquire_finest(block).ok()) {
         b.scale = 1;
+        coarsest = std::max(coarsest, 1);
         ++report.finest_refusals;
         ++report.pool_refusals;
         report.status = StatusCode::resource_exhausted;
@@ -644,10 +650,13 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     }
   }
 
-  f.mip_target = 0;
-  for (std::uint32_t i = 0; i < count; ++i) {
-    if (frame_blocks_[i].skip == 0 && frame_blocks_[i].scale > f.mip_target) {
-      f.mip_target = frame_blocks_[i].scale;
+  f.mip_target = count > 0 ? coarsest : 0;
+  if (budget_bound) {  // blocks were coarsened or skipped: look again
+    f.mip_target = 0;
+    for (std::uint32_t i = 0; i < count; ++i) {
+      if (frame_blocks_[i].skip == 0 && frame_blocks_[i].scale > f.mip_target) {
+        f.mip_target = frame_blocks_[i].scale;
+      }
     }
   }
 

@@ -167,7 +167,9 @@ class Integrator {
                                IntegrationReport& report, const WorkerTeam& team);
   bool insert_frame_block(std::uint64_t key, const Eigen::Vector3i& coords,
                           IntegrationReport& report);
-  void apply_budgets(std::uint32_t count, const FusionBudget& budget, IntegrationReport& report);
+  // `cost`: the voxel updates of the list as it is. True when a budget bound.
+  bool apply_budgets(std::uint32_t count, std::uint64_t cost, const FusionBudget& budget,
+                     IntegrationReport& report);
   static void integrate_block(VoxelBlock<VoxelT>& block, int scale, const Frame& frame,
                               fusion_internal::TaskTally& tally);
 

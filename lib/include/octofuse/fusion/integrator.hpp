@@ -5,10 +5,12 @@
 // footprint, down-propagation on refinement, up-propagation after every update).
 //
 // Per frame: (1) march each valid pixel's ray over the band depth +- mu and collect the distinct
-// blocks it crosses; (2) allocate the missing ones (sorted by Morton code, so pool indices are
-// deterministic); (3) pick each block's scale and apply the budgets; (4) integrate the blocks in a
-// fixed number of tasks over the WorkerTeam (each block is written by one task only, so the map is
-// bit-identical for any worker count); (5) refresh the octree's node summaries.
+// blocks it crosses, in first-crossed order (bands of rows in parallel, merged in band order);
+// (2) look the blocks up and pick their scales (parallel), allocate the missing ones (sorted by
+// Morton code, so pool indices are deterministic); (3) apply the budgets; (4) integrate the blocks
+// in a fixed number of tasks over the WorkerTeam (each block is written by one task only, so the
+// map is bit-identical for any worker count); (5) refresh the octree's node summaries. Every
+// parallel step uses a fixed task partition.
 //
 // Memory: reserve() carves everything from the arena; integrate() allocates nothing.
 

@@ -73,7 +73,7 @@ struct PipelineConfig {
 
 // The defaults DESIGN.md section 4 gives for a camera: QVGA working resolution from VGA, mu = 8
 // voxels, near/far 0.4/4 m, a cube of 2^voxel_depth voxels centred on `centre_W`, pools sized for
-// `block_capacity` blocks.
+// `block_capacity` blocks, room for 2^17 blocks touched per frame (2^18 below 5 mm voxels).
 PipelineConfig default_pipeline_config(const PinholeCamera& input_camera, float voxel_size_m,
                                        int voxel_depth, std::uint32_t block_capacity,
                                        const Eigen::Vector3f& centre_W);
@@ -169,7 +169,7 @@ class Pipeline {
   Raycaster<VoxelT> raycaster_;
   PinholeCamera working_camera_;
   Se3d T_W_C_ = Se3d::Identity();
-  Se3d T_W_Cref_ = Se3d::Identity();  // pose of the current ray-cast reference
+  Se3d T_W_Cref_ = Se3d::Identity();   // pose of the current ray-cast reference
   Se3d T_Cprev_C_ = Se3d::Identity();  // last tracked frame-to-frame motion
   bool have_reference_ = false;
   std::uint64_t frame_index_ = 0;

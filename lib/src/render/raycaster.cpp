@@ -132,10 +132,19 @@ float octant_exit(const VoxelRay& ray, const Eigen::Vector3i& corner, int size) 
   return t;
 }
 
+// What one ray leaves for the next: neighbouring rays descend through the same nodes and sample
+// the same blocks, so a row keeps one cursor and one block neighbourhood for all its rays.
+template <typename VoxelT>
+struct RowCache {
+  explicit RowCache(const Octree<VoxelT>& map) : cursor(map) {}
+  TreeCursor<VoxelT> cursor;
+  BlockNeighbourhood<VoxelT> neighbourhood;
+};
+
 template <typename VoxelT>
 MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const Ray& ray,
-                  float t_near, float t_far, std::uint64_t& steps_left, std::uint64_t& steps,
-                  PixelHit& hit) {
+                  float t_near, float t_far, RowCache<VoxelT>& cache, std::uint64_t& steps_left,
+                  std::uint64_t& steps, PixelHit& hit) {
   const float voxel_m = map.voxel_size_m();
   const Eigen::Vector3f cube_lo = map.config().origin_W;
   const Eigen::Vector3f cube_hi = cube_lo + Eigen::Vector3f::Constant(map.config().size_m());
@@ -164,8 +173,8 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   // Consecutive samples mostly fall in the same block: look it up only when the block changes.
   const VoxelBlock<VoxelT>* block = nullptr;
   Eigen::Vector3i block_coords(-1, -1, -1);
-  TreeCursor<VoxelT> cursor(map);
-  BlockNeighbourhood<VoxelT> neighbourhood;
+  TreeCursor<VoxelT>& cursor = cache.cursor;
+  BlockNeighbourhood<VoxelT>& neighbourhood = cache.neighbourhood;
   OctantLookup where;
   // The block holding voxel coordinates q, through the cursor (null when unallocated or outside).
   auto block_at = [&](const Eigen::Vector3f& q) -> const VoxelBlock<VoxelT>* {
@@ -447,6 +456,7 @@ struct RowJob {
     const std::uint64_t rows = static_cast<std::uint64_t>(config->height);
     std::uint64_t steps_left = std::numeric_limits<std::uint64_t>::max();
     if (budget != 0) steps_left = budget / rows + (task < budget % rows ? 1u : 0u);
+    RowCache<VoxelT> cache(*map);
     for (int x = 0; x < config->width; ++x) {
       surface_W.vertices(x, y) = Eigen::Vector3f::Zero();
       surface_W.normals(x, y) = Eigen::Vector3f::Zero();
@@ -464,7 +474,7 @@ struct RowJob {
       Ray ray{t_W_C, R_W_C * (dir_C / length)};
       PixelHit hit;
       const MarchResult r = march(*map, *config, ray, range.z_min_m * length,
-                                  range.z_max_m * length, steps_left, stats.steps, hit);
+                                  range.z_max_m * length, cache, steps_left, stats.steps, hit);
       if (r == MarchResult::out_of_steps) {
         ++stats.budget_cut_pixels;
         continue;

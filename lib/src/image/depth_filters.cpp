@@ -35,48 +35,41 @@ Status downsample_depth(ImageView<const float> in, ImageView<float> out, int fac
   auto row_fn = [&](int y) {
     float* out_row = out.row(y);
     for (int x = 0; x < out.width; ++x) {
-      if (factor == 2) {
-        // The common case, four valid samples, through a sorting network: the same sorted
-        // samples, median and sum as the general path below, in a fraction of the work.
-        const float* r0 = in.row(2 * y) + 2 * x;
-        const float* r1 = in.row(2 * y + 1) + 2 * x;
-        float s[4] = {r0[0], r0[1], r1[0], r1[1]};
-        if (valid_depth(s[0]) && valid_depth(s[1]) && valid_depth(s[2]) && valid_depth(s[3])) {
-          auto order = [&s](int i, int j) {
-            if (s[j] < s[i]) std::swap(s[i], s[j]);
-          };
-          order(0, 1);
-          order(2, 3);
-          order(0, 2);
-          order(1, 3);
-          order(1, 2);
-          const float median = s[1];
-          float sum = 0.0f;
-          int count = 0;
-          for (float d : s) {
-            if (std::fabs(d - median) <= band_m) {
-              sum += d;
-              ++count;
-            }
-          }
-          out_row[x] = sum / static_cast<float>(count);
-          continue;
-        }
-      }
-      // Valid samples of the block, kept sorted (insertion; at most 16).
+      // Valid samples of the block, sorted (at most 16).
       float samples[kMaxDownsampleFactor * kMaxDownsampleFactor];
       int n = 0;
-      for (int dy = 0; dy < factor; ++dy) {
-        const float* in_row = in.row(factor * y + dy) + factor * x;
-        for (int dx = 0; dx < factor; ++dx) {
-          const float d = in_row[dx];
-          if (!valid_depth(d)) continue;
-          int i = n++;
-          while (i > 0 && samples[i - 1] > d) {
-            samples[i] = samples[i - 1];
-            --i;
+      const float* r0 = in.row(factor * y) + factor * x;
+      const float* r1 = factor == 2 ? in.row(factor * y + 1) + factor * x : nullptr;
+      if (factor == 2 && valid_depth(r0[0]) && valid_depth(r0[1]) && valid_depth(r1[0]) &&
+          valid_depth(r1[1])) {
+        // The common case, four valid samples, through a sorting network instead of insertion:
+        // the same sorted samples in a fraction of the work.
+        samples[0] = r0[0];
+        samples[1] = r0[1];
+        samples[2] = r1[0];
+        samples[3] = r1[1];
+        auto order = [&samples](int i, int j) {
+          if (samples[j] < samples[i]) std::swap(samples[i], samples[j]);
+        };
+        order(0, 1);
+        order(2, 3);
+        order(0, 2);
+        order(1, 3);
+        order(1, 2);
+        n = 4;
+      } else {
+        for (int dy = 0; dy < factor; ++dy) {
+          const float* in_row = in.row(factor * y + dy) + factor * x;
+          for (int dx = 0; dx < factor; ++dx) {
+            const float d = in_row[dx];
+            if (!valid_depth(d)) continue;
+            int i = n++;
+            while (i > 0 && samples[i - 1] > d) {
+              samples[i] = samples[i - 1];
+              --i;
+            }
+            samples[i] = d;
           }
-          samples[i] = d;
         }
       }
       if (n == 0) {

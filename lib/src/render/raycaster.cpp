@@ -389,13 +389,8 @@ void add_octant_to_ranges(const Eigen::Vector3f& corner_W, float size_m,
     TileDepthRange* row = ranges.row(ty);
     for (int tx = tx0; tx <= tx1; ++tx) {
       TileDepthRange& r = row[tx];
-      if (r.empty()) {
-        r.z_min_m = z_min;
-        r.z_max_m = z_max;
-      } else {
-        r.z_min_m = std::min(r.z_min_m, z_min);
-        r.z_max_m = std::max(r.z_max_m, z_max);
-      }
+      r.z_min_m = std::min(r.z_min_m, z_min);
+      r.z_max_m = std::max(r.z_max_m, z_max);
     }
   }
 }

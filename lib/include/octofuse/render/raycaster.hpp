@@ -23,6 +23,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 
 #include <Eigen/Core>
 
@@ -61,8 +62,9 @@ inline constexpr int kRangeTile_px = 8;
 // Depth along the optical axis (metres) of everything allocated that projects into a tile; empty
 // when z_min_m > z_max_m.
 struct TileDepthRange {
-  float z_min_m = 1.0f;
-  float z_max_m = 0.0f;
+  // Empty as constructed, so widening is a plain min / max.
+  float z_min_m = std::numeric_limits<float>::max();
+  float z_max_m = -std::numeric_limits<float>::max();
 
   bool empty() const { return !(z_min_m <= z_max_m); }
 };

@@ -204,9 +204,9 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   Se3d estimate = T_W_C;
   bool singular = false;
   // Residual statistics for the report: from the last level-0 pass, taken at the estimate before
-  // its step (as KinectFusion does: the step only shrinks them, and one more pass over the finest
-  // level would cost a fifth of the tracking); from a pass at the final estimate only when the
-  // finest level took no step.
+  // its step (as KinectFusion does: the step usually shrinks them, and one more pass over the
+  // finest level would cost a fifth of the tracking); from a pass at the final estimate only when
+  // the finest level took no step.
   Partial final_total;
   bool have_final = false;
   for (int level = kPyramidLevels - 1; level >= 0; --level) {

@@ -124,6 +124,9 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("keys_dropped").value(static_cast<std::uint64_t>(s.integration.keys_dropped));
   json.key("raycast_steps").value(s.raycast.steps);
   json.key("raycast_valid_pixels").value(static_cast<std::uint64_t>(s.raycast.valid_pixels));
+  json.key("raycast_guided_pixels").value(static_cast<std::uint64_t>(s.raycast.guided_pixels));
+  json.key("raycast_guide_fallbacks")
+      .value(static_cast<std::uint64_t>(s.raycast.guide_fallback_pixels));
   json.key("budget_hits").begin_object();
   json.key("icp").value(s.budget_icp_hit);
   json.key("fusion").value(s.integration.budget_hit);

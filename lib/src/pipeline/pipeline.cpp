@@ -235,7 +235,9 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
   }
 
   // 5. Ray-cast the reference view for the next frame.
-  const Result<RaycastStats> raycast = raycaster_.raycast(map_, working_camera_, T_W_C_, team_);
+  // Guided by the depth just fused from this pose: most rays start in the band in front of it.
+  const Result<RaycastStats> raycast =
+      raycaster_.raycast(map_, working_camera_, T_W_C_, team_, preprocessor_.pyramid().depth_m[0]);
   stats.times.raycast_ms = elapsed_ms(t_integrated, clock_.now());
   if (!raycast.ok()) return finish(result, raycast.status());
   stats.raycast = raycast.value();

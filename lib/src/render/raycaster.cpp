@@ -52,7 +52,8 @@ struct PixelHit {
   int scale;
 };
 
-enum class MarchResult { hit, miss, out_of_steps };
+// rejected: a guided march started behind a surface or in unobserved space (march it in full).
+enum class MarchResult { hit, miss, out_of_steps, rejected };
 
 // Finds the block or free octant holding a voxel by descending from a cached ancestor node (a few
 // levels above the blocks) instead of probing the hash and walking from the root: consecutive
@@ -141,10 +142,12 @@ struct RowCache {
   BlockNeighbourhood<VoxelT> neighbourhood;
 };
 
+// Marches from t_start (>= t_near) to t_far. With `guided`, the first voxel of an allocated block
+// the ray reaches must be observed and in front of a surface, or the march is rejected.
 template <typename VoxelT>
 MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const Ray& ray,
-                  float t_near, float t_far, RowCache<VoxelT>& cache, std::uint64_t& steps_left,
-                  std::uint64_t& steps, PixelHit& hit) {
+                  float t_near, float t_far, float t_start, bool guided, RowCache<VoxelT>& cache,
+                  std::uint64_t& steps_left, std::uint64_t& steps, PixelHit& hit) {
   const float voxel_m = map.voxel_size_m();
   const Eigen::Vector3f cube_lo = map.config().origin_W;
   const Eigen::Vector3f cube_hi = cube_lo + Eigen::Vector3f::Constant(map.config().size_m());
@@ -162,7 +165,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   const int voxels_per_side = map.voxels_per_side();
   const float side_v = static_cast<float>(voxels_per_side);
 
-  float t = t0;
+  float t = std::max(t0, t_start);
   bool have_prev = false;
   bool prev_nearest = false;  // prev_f is a nearest-voxel read, not a trilinear sample
   float prev_t = 0.0f;
@@ -227,6 +230,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       // centre, so the step cannot pass further than the field says is free.
       const int read_scale = block_read_scale(*block);
       const VoxelT& nearest = block->at_voxel(voxel, read_scale);
+      if (guided) {
+        if (!(voxel_observed(nearest) && voxel_tsdf(nearest) > 0.0f)) return MarchResult::rejected;
+        guided = false;
+      }
       if (voxel_observed(nearest)) {
         const float f_near = voxel_tsdf(nearest);
         const float cell_m = voxel_m * static_cast<float>(1 << read_scale);
@@ -442,6 +449,7 @@ struct RowJob {
   ImageView<std::uint8_t> scale;
   RaycastStats* row_stats;
   ImageView<const TileDepthRange> ranges;
+  ImageView<const float> guide_depth_m;  // empty: no guide
 
   void operator()(std::size_t task) const {
     const int y = static_cast<int>(task);
@@ -467,9 +475,29 @@ struct RowJob {
       // Depth limits along z become distances along the unit ray.
       const float length = dir_C.norm();
       Ray ray{t_W_C, R_W_C * (dir_C / length)};
+      const float t_near = range.z_min_m * length;
+      const float t_far = range.z_max_m * length;
+      // Start a guided ray mu in front of the guide depth (the band the integrator just wrote).
+      float t_start = t_near;
+      if (!guide_depth_m.empty()) {
+        const float z_guide_m = guide_depth_m(x, y);
+        // Also rejects NaN and no-data zeros.
+        if (z_guide_m >= range.z_min_m && z_guide_m <= range.z_max_m) {
+          t_start = z_guide_m * length - config->mu_m;
+        }
+      }
+      const bool guided = t_start > t_near;
       PixelHit hit;
-      const MarchResult r = march(*map, *config, ray, range.z_min_m * length,
-                                  range.z_max_m * length, cache, steps_left, stats.steps, hit);
+      MarchResult r = march(*map, *config, ray, t_near, t_far, t_start, guided, cache, steps_left,
+                            stats.steps, hit);
+      if (guided) {
+        ++stats.guided_pixels;
+        if (r == MarchResult::rejected || r == MarchResult::miss) {
+          ++stats.guide_fallback_pixels;
+          r = march(*map, *config, ray, t_near, t_far, t_near, false, cache, steps_left,
+                    stats.steps, hit);
+        }
+      }
       if (r == MarchResult::out_of_steps) {
         ++stats.budget_cut_pixels;
         continue;
@@ -501,9 +529,14 @@ Status validate(const RaycastConfig& config) {
 template <typename VoxelT>
 Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
                                                 const PinholeCamera& camera, const Se3d& T_W_C,
-                                                const WorkerTeam& team) {
+                                                const WorkerTeam& team,
+                                                ImageView<const float> guide_depth_m) {
   if (row_stats_ == nullptr || !map.reserved()) return StatusCode::failed_precondition;
   if (!camera.valid() || camera.width != config_.width || camera.height != config_.height) {
+    return StatusCode::invalid_argument;
+  }
+  if (!guide_depth_m.empty() &&
+      (guide_depth_m.width != config_.width || guide_depth_m.height != config_.height)) {
     return StatusCode::invalid_argument;
   }
   if (!T_W_C.matrix().allFinite()) return StatusCode::invalid_argument;
@@ -516,7 +549,8 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
                      surface_W_,
                      scale_,
                      row_stats_,
-                     ranges_};
+                     ranges_,
+                     guide_depth_m};
   team.for_each_task(static_cast<std::size_t>(config_.height), job);
   RaycastStats total;
   for (int y = 0; y < config_.height; ++y) {
@@ -524,6 +558,8 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
     total.steps += row.steps;
     total.valid_pixels += row.valid_pixels;
     total.budget_cut_pixels += row.budget_cut_pixels;
+    total.guided_pixels += row.guided_pixels;
+    total.guide_fallback_pixels += row.guide_fallback_pixels;
     for (int s = 0; s < 4; ++s) total.scale_pixels[s] += row.scale_pixels[s];
   }
   return total;

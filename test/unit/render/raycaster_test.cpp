@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <memory>
 
 #include <Eigen/Geometry>
@@ -327,6 +328,104 @@ TEST_CASE("1 and 2 workers give bit-identical images, and a ray-cast allocates n
     REQUIRE(stats.ok());
   }
   REQUIRE(scope.allocations() == 0);
+}
+
+// One depth for every pixel of the test camera.
+struct GuideImage {
+  float depth_m[64 * 48];
+  explicit GuideImage(float z_m) {
+    for (float& d : depth_m) d = z_m;
+  }
+  ImageView<const float> view() const { return ImageView<const float>(depth_m, 64, 48); }
+};
+
+TEMPLATE_TEST_CASE(
+    "a depth guide starts rays at the fused surface; a wrong guide is marched in full", "",
+    TsdfVoxel, MultiresVoxel) {
+  test::OwnedMap<TestType> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, plane_sdf, [](const Eigen::Vector3i&) { return 0; });
+  const WorkerTeam team(1);
+  const PinholeCamera camera = test_camera();
+  OwnedRaycaster<TestType> exact(test_raycast_config());
+  Result<RaycastStats> full = exact.raycaster.raycast(owned.map, camera, Se3d::Identity(), team);
+  REQUIRE(full.ok());
+  REQUIRE(full->valid_pixels == 64u * 48u);
+  REQUIRE(full->guided_pixels == 0u);
+  auto same_surface = [&](const OwnedRaycaster<TestType>& rc) {
+    const SurfaceMap a = exact.raycaster.surface_W();
+    const SurfaceMap b = rc.raycaster.surface_W();
+    for (int y = 0; y < 48; ++y) {
+      for (int x = 0; x < 64; ++x) {
+        REQUIRE(b.valid(x, y));
+        REQUIRE((b.vertices(x, y) - a.vertices(x, y)).norm() < 1e-3f);
+        REQUIRE(std::fabs(b.vertices(x, y).z() - kPlaneZ_m) < kDepthTolerance_m);
+        REQUIRE(angle_deg(b.normals(x, y), Eigen::Vector3f(0, 0, -1)) < kNormalTolerance_deg);
+      }
+    }
+  };
+
+  // The depth that was fused: every ray starts in the band, none falls back, fewer steps.
+  OwnedRaycaster<TestType> guided(test_raycast_config());
+  const GuideImage at_surface(kPlaneZ_m);
+  Result<RaycastStats> stats =
+      guided.raycaster.raycast(owned.map, camera, Se3d::Identity(), team, at_surface.view());
+  REQUIRE(stats.ok());
+  REQUIRE(stats->guided_pixels == 64u * 48u);
+  REQUIRE(stats->guide_fallback_pixels == 0u);
+  REQUIRE(stats->steps < full->steps);
+  same_surface(guided);
+
+  // Behind the surface the start reads a negative voxel: every guided ray is marched again and
+  // finds the plane.
+  const float behind_m = GENERATE(1.07f, 1.1f);
+  const GuideImage behind(behind_m);
+  stats = guided.raycaster.raycast(owned.map, camera, Se3d::Identity(), team, behind.view());
+  REQUIRE(stats.ok());
+  REQUIRE(stats->guided_pixels == 64u * 48u);
+  REQUIRE(stats->guide_fallback_pixels == 64u * 48u);
+  same_surface(guided);
+
+  // No data, NaN, outside near..far or in front of everything allocated: not guided at all.
+  const float unusable_m =
+      GENERATE(0.0f, -1.0f, 0.5f, 1.3f, 100.0f, std::numeric_limits<float>::quiet_NaN());
+  const GuideImage unusable(unusable_m);
+  stats = guided.raycaster.raycast(owned.map, camera, Se3d::Identity(), team, unusable.view());
+  REQUIRE(stats.ok());
+  REQUIRE(stats->guided_pixels == 0u);
+  REQUIRE(stats->steps == full->steps);
+  same_surface(guided);
+
+  // A guide of another size is refused.
+  const float small[4] = {1, 1, 1, 1};
+  REQUIRE(
+      guided.raycaster
+          .raycast(owned.map, camera, Se3d::Identity(), team, ImageView<const float>(small, 2, 2))
+          .status() == StatusCode::invalid_argument);
+}
+
+TEST_CASE("a guided ray returns the surface nearest its guide, not one further in front") {
+  // Two parallel walls, 1.0 m and 1.5 m; the unguided ray-cast sees the near one.
+  auto two_walls = [](const Eigen::Vector3f& p_W) {
+    return p_W.z() < 1.25f ? kPlaneZ_m - p_W.z() : 1.5f - p_W.z();
+  };
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, two_walls, [](const Eigen::Vector3i&) { return 0; });
+  const WorkerTeam team(1);
+  OwnedRaycaster<MultiresVoxel> rc(test_raycast_config());
+  REQUIRE(rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team).ok());
+  REQUIRE(std::fabs(rc.raycaster.surface_W().vertices(32, 24).z() - kPlaneZ_m) < kDepthTolerance_m);
+  const GuideImage far_wall(1.5f);
+  Result<RaycastStats> stats =
+      rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team, far_wall.view());
+  REQUIRE(stats.ok());
+  REQUIRE(stats->valid_pixels == 64u * 48u);
+  REQUIRE(stats->guide_fallback_pixels == 0u);
+  const SurfaceMap surface = rc.raycaster.surface_W();
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      REQUIRE(std::fabs(surface.vertices(x, y).z() - 1.5f) < kDepthTolerance_m);
+    }
+  }
 }
 
 TEST_CASE("bad input is a Status, not a crash") {

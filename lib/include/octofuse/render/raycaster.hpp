@@ -50,8 +50,10 @@ struct RaycastConfig {
 struct RaycastStats {
   std::uint64_t steps = 0;  // march steps taken (samples and empty-space jumps)
   std::uint32_t valid_pixels = 0;
-  std::uint32_t budget_cut_pixels = 0;  // left invalid because their row's step share ran out
-  std::uint32_t scale_pixels[4] = {};   // valid pixels per interpolation scale
+  std::uint32_t budget_cut_pixels = 0;      // left invalid because their row's step share ran out
+  std::uint32_t scale_pixels[4] = {};       // valid pixels per interpolation scale
+  std::uint32_t guided_pixels = 0;          // rays started at their guide depth
+  std::uint32_t guide_fallback_pixels = 0;  // of those, marched again from the near end
 
   bool budget_hit() const { return budget_cut_pixels > 0; }
 };
@@ -118,9 +120,18 @@ class Raycaster {
 
   // Ray-casts `map` from the camera at T_W_C (camera to world). `camera` must have the reserved
   // width and height. Returns the frame's stats, or invalid_argument (camera invalid or of
-  // another size, pose not finite) / failed_precondition (not reserved). Allocates nothing.
+  // another size, pose not finite, guide of another size) / failed_precondition (not reserved).
+  // Allocates nothing.
+  //
+  // `guide_depth_m` (optional, the reserved size, depth along the optical axis, no data = 0 or
+  // NaN): the depth just fused from this pose. A guided ray starts mu in front of its guide depth
+  // instead of at the near end of its tile, and keeps that start only when the first voxel it
+  // reads there is observed and positive; otherwise, or when it finds no surface, it is marched
+  // again in full. It returns the surface nearest the guide from the front: a stale surface
+  // further in front that the fused view did not see is not reported.
   Result<RaycastStats> raycast(const Octree<VoxelT>& map, const PinholeCamera& camera,
-                               const Se3d& T_W_C, const WorkerTeam& team);
+                               const Se3d& T_W_C, const WorkerTeam& team,
+                               ImageView<const float> guide_depth_m = {});
 
   const RaycastConfig& config() const { return config_; }
   // Valid until the next raycast().

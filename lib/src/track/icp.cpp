@@ -25,6 +25,11 @@ struct Pass {
   double inv_knee_m;  // 0: equal weights
 };
 
+// All components exactly zero (invalid pixels); NaN is not. Same as isZero(0) without the abs.
+inline bool is_zero(const Eigen::Vector3f& v) {
+  return v.x() == 0.0f && v.y() == 0.0f && v.z() == 0.0f;
+}
+
 void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
   for (double& v : out.jtj) v = 0.0;
   for (double& v : out.jtr) v = 0.0;
@@ -41,17 +46,18 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
     const Eigen::Vector3f* n_row = pass.normals_C.row(y);
     for (int x = 0; x < width; ++x) {
       const Eigen::Vector3f& n_C = n_row[x];
-      if (n_C.isZero(0.0f)) continue;
+      if (is_zero(n_C)) continue;
       const Eigen::Vector3f p_W = pass.R_W_C * v_row[x] + pass.t_W_C;
       const Eigen::Vector3f p_Cref = pass.R_Cref_W * p_W + pass.t_Cref_W;
       if (!(p_Cref.z() > 0.0f)) continue;
       const Eigen::Vector2f px = pass.camera.project(p_Cref);
       if (!pass.camera.in_image(px)) continue;  // also rejects NaN
-      const int u = static_cast<int>(std::floor(px.x() + 0.5f));
-      const int v = static_cast<int>(std::floor(px.y() + 0.5f));
+      // In the image px + 0.5 is non-negative, where truncation is floor (no libm call).
+      const int u = static_cast<int>(px.x() + 0.5f);
+      const int v = static_cast<int>(px.y() + 0.5f);
       if (u < 0 || v < 0 || u >= model_w || v >= model_h) continue;
       const Eigen::Vector3f& n_model_W = pass.model_W.normals(u, v);
-      if (n_model_W.isZero(0.0f)) continue;
+      if (is_zero(n_model_W)) continue;
       const Eigen::Vector3f diff_W = p_W - pass.model_W.vertices(u, v);
       if (!(diff_W.squaredNorm() <= pass.max_distance_sq_m2)) continue;
       const Eigen::Vector3f n_live_W = pass.R_W_C * n_C;

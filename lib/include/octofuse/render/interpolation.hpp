@@ -41,6 +41,7 @@ template <typename VoxelT>
 struct BlockNeighbourhood {
   Eigen::Vector3i first_block = Eigen::Vector3i::Constant(-1);  // block of the (0,0,0) corner
   const VoxelBlock<VoxelT>* blocks[8] = {};
+  std::int8_t read_scale[8] = {};  // block_read_scale of each block found
   bool looked_up[8] = {};
 };
 
@@ -115,9 +116,10 @@ bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3
                               side * side + 1,
                               side * side + side,
                               side * side + side + 1};
-      for (int c = 0; c < 8 && ok; ++c) {
+      // All 8 read, then one test: the reads stay inside the block either way.
+      for (int c = 0; c < 8; ++c) {
         const VoxelT& v = level[first + offsets[c]];
-        ok = voxel_observed(v);
+        ok &= voxel_observed(v);
         values[c] = voxel_tsdf(v);
       }
       if (!ok) return false;
@@ -146,15 +148,27 @@ bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3
       }
       const int stride_y = side;
       const int stride_z = side * side;
+      // Per corner (bit 0: x, 1: y, 2: z) its block slot and index, from the per-axis parts.
+      int slot_of[8];
+      int index_of[8];
       for (int c = 0; c < 8; ++c) {
         const int i = c & 1;
         const int j = (c >> 1) & 1;
         const int k = (c >> 2) & 1;
-        const int slot = block_of[0][i] + 2 * block_of[1][j] + 4 * block_of[2][k];
+        slot_of[c] = block_of[0][i] + 2 * block_of[1][j] + 4 * block_of[2][k];
+        index_of[c] = local_of[0][i] + local_of[1][j] * stride_y + local_of[2][k] * stride_z;
+      }
+      for (int c = 0; c < 8; ++c) {
+        const int slot = slot_of[c];
         if (!looked_up[slot]) {
           const Eigen::Vector3i block_coords =
               first_block + Eigen::Vector3i(slot & 1, (slot >> 1) & 1, (slot >> 2) & 1);
-          near[slot] = block_coords == home->coords ? home : map.find_block(block_coords);
+          const VoxelBlock<VoxelT>* found =
+              block_coords == home->coords ? home : map.find_block(block_coords);
+          near[slot] = found;
+          if (found != nullptr) {
+            neighbourhood.read_scale[slot] = static_cast<std::int8_t>(block_read_scale(*found));
+          }
           looked_up[slot] = true;
         }
         const VoxelBlock<VoxelT>* cached = near[slot];
@@ -162,10 +176,9 @@ bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3
           ok = false;
           break;
         }
-        const int cached_scale = block_read_scale(*cached);
+        const int cached_scale = neighbourhood.read_scale[slot];
         if (cached_scale > needed) needed = cached_scale;
-        const VoxelT& v = cached->scale_begin(
-            scale)[local_of[0][i] + local_of[1][j] * stride_y + local_of[2][k] * stride_z];
+        const VoxelT& v = cached->scale_begin(scale)[index_of[c]];
         if (!voxel_observed(v)) {
           ok = false;
           break;

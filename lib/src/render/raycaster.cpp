@@ -143,7 +143,9 @@ struct RowCache {
 };
 
 // Marches from t_start (>= t_near) to t_far. With `guided`, the first voxel of an allocated block
-// the ray reaches must be observed and in front of a surface, or the march is rejected.
+// the ray reaches must be observed and in front of a surface, or the march is rejected (also when
+// it reads no voxel at all). Once accepted, no crossing after the start is a miss: a surface in
+// front of the start is one the fused view did not see.
 template <typename VoxelT>
 MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const Ray& ray,
                   float t_near, float t_far, float t_start, bool guided, RowCache<VoxelT>& cache,
@@ -166,6 +168,8 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   const float side_v = static_cast<float>(voxels_per_side);
 
   float t = std::max(t0, t_start);
+  // A guided march that never read a voxel proved nothing about its start.
+  auto no_hit = [&guided] { return guided ? MarchResult::rejected : MarchResult::miss; };
   bool have_prev = false;
   bool prev_nearest = false;  // prev_f is a nearest-voxel read, not a trilinear sample
   float prev_t = 0.0f;
@@ -201,7 +205,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     // Inside the cube q is non-negative, so truncation is floor (and NaN fails the test).
     if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < side_v && q.y() < side_v &&
           q.z() < side_v)) {
-      return MarchResult::miss;
+      return no_hit();
     }
     const Eigen::Vector3i voxel = q.cast<int>();
     const Eigen::Vector3i coords = voxel_to_block(voxel);
@@ -219,7 +223,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       const float t_next =
           std::max(octant_exit(ray_v, corner, 1 << shift), t) + kExitNudge_voxels * voxel_m;
       // Far from the origin a step can vanish in float rounding: give up rather than spin.
-      if (!(t_next > t)) return MarchResult::miss;
+      if (!(t_next > t)) return no_hit();
       t = t_next;
       have_prev = false;
       have_prev_sample = false;
@@ -241,7 +245,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
         // NaN (corrupt voxels) fails both tests and takes the full path below.
         if (f_near > kFarTsdf && step > cell_m) {
           const float t_next = t + step;
-          if (!(t_next > t)) return MarchResult::miss;
+          if (!(t_next > t)) return no_hit();
           have_prev = true;
           prev_nearest = true;
           have_prev_sample = false;
@@ -262,7 +266,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       // Unobserved space inside allocated blocks: a surface is only found inside an observed
       // band, whose positive side is mu thick, so half of mu cannot step over it.
       const float t_next = t + std::max(kUnobservedStep_mu * config.mu_m, voxel_m);
-      if (!(t_next > t)) return MarchResult::miss;
+      if (!(t_next > t)) return no_hit();
       t = t_next;
       have_prev = false;
       have_prev_sample = false;
@@ -302,7 +306,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       }
       if (complete && central.squaredNorm() > 0.0f) gradient = central;
       const float norm = gradient.norm();
-      if (!(norm > 0.0f) || !std::isfinite(norm)) return MarchResult::miss;
+      if (!(norm > 0.0f) || !std::isfinite(norm)) return no_hit();
       hit.p_W = ray.origin_W + t_hit * ray.dir_W;
       hit.n_W = gradient / norm;
       hit.scale = at_hit.scale;
@@ -317,10 +321,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     const float cell_m = voxel_m * static_cast<float>(1 << sample.scale);
     // Corrupt (non-finite) voxels make the step NaN; stop the ray then.
     const float t_next = t + std::max(f * config.mu_m, cell_m);
-    if (!(t_next > t)) return MarchResult::miss;
+    if (!(t_next > t)) return no_hit();
     t = t_next;
   }
-  return MarchResult::miss;
+  return no_hit();
 }
 
 // Octants smaller than this are projected through their ancestor of at least this size: at 2 mm
@@ -492,7 +496,7 @@ struct RowJob {
                             stats.steps, hit);
       if (guided) {
         ++stats.guided_pixels;
-        if (r == MarchResult::rejected || r == MarchResult::miss) {
+        if (r == MarchResult::rejected) {
           ++stats.guide_fallback_pixels;
           r = march(*map, *config, ray, t_near, t_far, t_near, false, cache, steps_left,
                     stats.steps, hit);

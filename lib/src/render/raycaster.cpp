@@ -442,6 +442,9 @@ void build_depth_ranges(const Octree<VoxelT>& map, const PinholeCamera& camera, 
   }
 }
 
+// Rows per ray-casting task: enough to share cached voxels, few enough to balance two workers.
+constexpr int kRowsPerTask = 8;
+
 template <typename VoxelT>
 struct RowJob {
   const Octree<VoxelT>* map;
@@ -455,15 +458,23 @@ struct RowJob {
   ImageView<const TileDepthRange> ranges;
   ImageView<const float> guide_depth_m;  // empty: no guide
 
+  // One task: kRowsPerTask consecutive rows, so a worker's cache keeps the voxels that
+  // neighbouring rows share (rows dealt out one by one split them between the cores).
   void operator()(std::size_t task) const {
-    const int y = static_cast<int>(task);
-    RaycastStats& stats = row_stats[task];
+    RowCache<VoxelT> cache(*map);
+    const std::size_t end = std::min(static_cast<std::size_t>(config->height),
+                                     (task + 1) * static_cast<std::size_t>(kRowsPerTask));
+    for (std::size_t row = task * kRowsPerTask; row < end; ++row) march_row(row, cache);
+  }
+
+  void march_row(std::size_t row, RowCache<VoxelT>& cache) const {
+    const int y = static_cast<int>(row);
+    RaycastStats& stats = row_stats[row];
     stats = RaycastStats{};
     const std::uint64_t budget = config->step_budget;
     const std::uint64_t rows = static_cast<std::uint64_t>(config->height);
     std::uint64_t steps_left = std::numeric_limits<std::uint64_t>::max();
-    if (budget != 0) steps_left = budget / rows + (task < budget % rows ? 1u : 0u);
-    RowCache<VoxelT> cache(*map);
+    if (budget != 0) steps_left = budget / rows + (row < budget % rows ? 1u : 0u);
     for (int x = 0; x < config->width; ++x) {
       surface_W.vertices(x, y) = Eigen::Vector3f::Zero();
       surface_W.normals(x, y) = Eigen::Vector3f::Zero();
@@ -555,7 +566,9 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
                      row_stats_,
                      ranges_,
                      guide_depth_m};
-  team.for_each_task(static_cast<std::size_t>(config_.height), job);
+  const std::size_t tasks = (static_cast<std::size_t>(config_.height) + kRowsPerTask - 1) /
+                            static_cast<std::size_t>(kRowsPerTask);
+  team.for_each_task(tasks, job);
   RaycastStats total;
   for (int y = 0; y < config_.height; ++y) {
     const RaycastStats& row = row_stats_[y];

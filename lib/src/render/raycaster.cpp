@@ -27,25 +27,6 @@ struct Ray {
   Eigen::Vector3f dir_W;  // unit
 };
 
-// Entry/exit distances of the ray through the axis-aligned box [lo, hi]; false when it misses.
-bool clip_to_box(const Ray& ray, const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, float& t0,
-                 float& t1) {
-  for (int a = 0; a < 3; ++a) {
-    const float d = ray.dir_W[a];
-    const float o = ray.origin_W[a];
-    if (d == 0.0f) {
-      if (o < lo[a] || o > hi[a]) return false;
-      continue;
-    }
-    float ta = (lo[a] - o) / d;
-    float tb = (hi[a] - o) / d;
-    if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta);
-    t1 = std::min(t1, tb);
-  }
-  return t0 <= t1;
-}
-
 struct PixelHit {
   Eigen::Vector3f p_W;
   Eigen::Vector3f n_W;
@@ -118,6 +99,24 @@ struct VoxelRay {
   Eigen::Vector3f inv_dir_v;  // 1 / dir_v, infinite along axes the ray does not move
 };
 
+// Clips [t0, t1] to where the ray is inside the cube [0, side_v]^3 (voxel units); false when it
+// misses. Multiplies by the inverse direction instead of dividing per ray.
+bool clip_to_cube(const VoxelRay& ray, float side_v, float& t0, float& t1) {
+  for (int a = 0; a < 3; ++a) {
+    const float o = ray.origin_v[a];
+    if (ray.dir_v[a] == 0.0f) {
+      if (o < 0.0f || o > side_v) return false;
+      continue;
+    }
+    float ta = (0.0f - o) * ray.inv_dir_v[a];
+    float tb = (side_v - o) * ray.inv_dir_v[a];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+  }
+  return t0 <= t1;
+}
+
 // Distance along the ray at which it leaves the octant [corner, corner + size) (voxel units) it is
 // inside.
 float octant_exit(const VoxelRay& ray, const Eigen::Vector3i& corner, int size) {
@@ -149,23 +148,14 @@ struct RowCache {
 template <typename VoxelT>
 MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const Ray& ray,
                   float t_near, float t_far, float t_start, bool guided, RowCache<VoxelT>& cache,
-                  std::uint64_t& steps_left, std::uint64_t& steps, PixelHit& hit) {
+                  const VoxelRay& ray_v, std::uint64_t& steps_left, std::uint64_t& steps,
+                  PixelHit& hit) {
   const float voxel_m = map.voxel_size_m();
-  const Eigen::Vector3f cube_lo = map.config().origin_W;
-  const Eigen::Vector3f cube_hi = cube_lo + Eigen::Vector3f::Constant(map.config().size_m());
-  float t0 = t_near;
-  float t1 = t_far;
-  if (!clip_to_box(ray, cube_lo, cube_hi, t0, t1)) return MarchResult::miss;
-
-  VoxelRay ray_v;
-  ray_v.origin_v = map.point_to_voxel_f(ray.origin_W);
-  ray_v.dir_v = ray.dir_W / voxel_m;
-  for (int a = 0; a < 3; ++a) {
-    ray_v.inv_dir_v[a] =
-        ray_v.dir_v[a] != 0.0f ? 1.0f / ray_v.dir_v[a] : std::numeric_limits<float>::infinity();
-  }
   const int voxels_per_side = map.voxels_per_side();
   const float side_v = static_cast<float>(voxels_per_side);
+  float t0 = t_near;
+  float t1 = t_far;
+  if (!clip_to_cube(ray_v, side_v, t0, t1)) return MarchResult::miss;
 
   float t = std::max(t0, t_start);
   // A guided march that never read a voxel proved nothing about its start.
@@ -475,6 +465,9 @@ struct RowJob {
     const std::uint64_t rows = static_cast<std::uint64_t>(config->height);
     std::uint64_t steps_left = std::numeric_limits<std::uint64_t>::max();
     if (budget != 0) steps_left = budget / rows + (row < budget % rows ? 1u : 0u);
+    // Every ray starts at the camera centre: its voxel coordinates once per row.
+    const Eigen::Vector3f origin_v = map->point_to_voxel_f(t_W_C);
+    const float voxel_m = map->voxel_size_m();
     for (int x = 0; x < config->width; ++x) {
       surface_W.vertices(x, y) = Eigen::Vector3f::Zero();
       surface_W.normals(x, y) = Eigen::Vector3f::Zero();
@@ -490,6 +483,13 @@ struct RowJob {
       // Depth limits along z become distances along the unit ray.
       const float length = dir_C.norm();
       Ray ray{t_W_C, R_W_C * (dir_C / length)};
+      VoxelRay ray_v;
+      ray_v.origin_v = origin_v;
+      ray_v.dir_v = ray.dir_W / voxel_m;
+      for (int a = 0; a < 3; ++a) {
+        ray_v.inv_dir_v[a] =
+            ray_v.dir_v[a] != 0.0f ? 1.0f / ray_v.dir_v[a] : std::numeric_limits<float>::infinity();
+      }
       const float t_near = range.z_min_m * length;
       const float t_far = range.z_max_m * length;
       // Start a guided ray mu in front of the guide depth (the band the integrator just wrote).
@@ -503,13 +503,13 @@ struct RowJob {
       }
       const bool guided = t_start > t_near;
       PixelHit hit;
-      MarchResult r = march(*map, *config, ray, t_near, t_far, t_start, guided, cache, steps_left,
-                            stats.steps, hit);
+      MarchResult r = march(*map, *config, ray, t_near, t_far, t_start, guided, cache, ray_v,
+                            steps_left, stats.steps, hit);
       if (guided) {
         ++stats.guided_pixels;
         if (r == MarchResult::rejected) {
           ++stats.guide_fallback_pixels;
-          r = march(*map, *config, ray, t_near, t_far, t_near, false, cache, steps_left,
+          r = march(*map, *config, ray, t_near, t_far, t_near, false, cache, ray_v, steps_left,
                     stats.steps, hit);
         }
       }

@@ -19,6 +19,10 @@ constexpr float kRetreatMin_voxels = 1.5f;
 // Above this normalised TSDF the nearest voxel alone chooses the step; the full trilinear sample
 // is only taken closer to the surface.
 constexpr float kFarTsdf = 0.25f;
+// A guided ray starts this far in front of its guide depth, as a fraction of mu: inside the band
+// the integrator just wrote, close enough to skip most of it, far enough that depth noise rarely
+// puts the fused surface in front of the start (which then costs a full march).
+constexpr float kGuideMargin_mu = 0.5f;
 // Distance from a point to the centre of the voxel containing it, at most, in cells.
 constexpr float kNearestOffset_cells = 0.8661f;
 
@@ -492,13 +496,13 @@ struct RowJob {
       }
       const float t_near = range.z_min_m * length;
       const float t_far = range.z_max_m * length;
-      // Start a guided ray mu in front of the guide depth (the band the integrator just wrote).
+      // Start a guided ray in the band in front of the guide depth.
       float t_start = t_near;
       if (!guide_depth_m.empty()) {
         const float z_guide_m = guide_depth_m(x, y);
         // Also rejects NaN and no-data zeros.
         if (z_guide_m >= range.z_min_m && z_guide_m <= range.z_max_m) {
-          t_start = z_guide_m * length - config->mu_m;
+          t_start = z_guide_m * length - kGuideMargin_mu * config->mu_m;
         }
       }
       const bool guided = t_start > t_near;

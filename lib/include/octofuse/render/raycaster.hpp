@@ -124,8 +124,8 @@ class Raycaster {
   // Allocates nothing.
   //
   // `guide_depth_m` (optional, the reserved size, depth along the optical axis, no data = 0 or
-  // NaN): the depth just fused from this pose. A guided ray starts mu in front of its guide depth
-  // instead of at the near end of its tile, and keeps that start only when the first voxel it
+  // NaN): the depth just fused from this pose. A guided ray starts mu / 2 in front of its guide
+  // depth instead of at the near end of its tile, and keeps that start only when the first voxel it
   // reads there is observed and positive; otherwise (or when it reads no voxel at all) it is
   // marched again in full. It returns the surface nearest the guide from the front, or none: a
   // stale surface further in front that the fused view did not see is not reported.

@@ -569,11 +569,11 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
       b.block = map.find_block_index_morton(b.morton);
       b.z_m = z0 + dz_block.dot(b.coords.cast<float>());
       if (b.block == kNoIndex) ++task_missing;
-      // Far blocks end at the coarsest scale whatever their current one: no header to read.
-      // -1: select below.
-      b.scale = kMultires && config_.fixed_scale < 0 &&
-                        coarsest_for_any_scale(b.z_m * inv_footprint, config_.scale_hysteresis)
-                    ? static_cast<std::int8_t>(kMaxBlockScale)
+      // Blocks whose scale does not depend on their current one (most far blocks): no header to
+      // read. -1: select below.
+      b.scale = kMultires && config_.fixed_scale < 0
+                    ? static_cast<std::int8_t>(
+                          scale_for_any_current(b.z_m * inv_footprint, config_.scale_hysteresis))
                     : std::int8_t{-1};
     }
     tallies_[task].missing = task_missing;

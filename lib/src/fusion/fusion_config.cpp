@@ -54,4 +54,14 @@ bool coarsest_for_any_scale(float r, float hysteresis) {
   return scale_for_ratio(r / (1.0f + hysteresis)) == kMaxBlockScale;
 }
 
+int scale_for_any_current(float r, float hysteresis) {
+  // The tests of select_scale, bit for bit. Coarser current scales than raw coarsen to `up`;
+  // finer ones refine to raw only from raw + 1, and only when `down` keeps them from staying.
+  const int raw = scale_for_ratio(r);
+  if (raw < kMaxBlockScale - 1) return -1;
+  if (scale_for_ratio(r / (1.0f + hysteresis)) != raw) return -1;
+  if (raw == kMaxBlockScale) return raw;
+  return scale_for_ratio(r * (1.0f + hysteresis)) == raw ? raw : -1;
+}
+
 }  // namespace octofuse

@@ -89,6 +89,36 @@ inline bool update_voxel(VoxelT& v, const Eigen::Vector3f& p_C, const float* dep
   return true;
 }
 
+// Sorts `count` entries of `keys` by their bits from 8 up (a block index below `index_bound`),
+// with `scratch` as the second buffer (LSD radix, 11 bits a pass); returns the buffer holding the
+// result.
+const std::uint64_t* sort_by_block(std::uint64_t* keys, std::uint64_t* scratch, std::size_t count,
+                                   std::uint32_t index_bound) {
+  constexpr int kDigitBits = 11;
+  constexpr std::size_t kDigits = std::size_t{1} << kDigitBits;
+  int index_bits = 0;
+  while (index_bits < 32 && (std::uint64_t{1} << index_bits) < index_bound) ++index_bits;
+  std::uint64_t* from = keys;
+  std::uint64_t* to = scratch;
+  for (int shift = 8; shift < 8 + index_bits && count > 1; shift += kDigitBits) {
+    std::uint32_t offsets[kDigits] = {};
+    for (std::size_t i = 0; i < count; ++i) ++offsets[(from[i] >> shift) & (kDigits - 1)];
+    std::uint32_t sum = 0;
+    for (std::size_t d = 0; d < kDigits; ++d) {
+      const std::uint32_t n = offsets[d];
+      offsets[d] = sum;
+      sum += n;
+    }
+    for (std::size_t i = 0; i < count; ++i) {
+      to[offsets[(from[i] >> shift) & (kDigits - 1)]++] = from[i];
+    }
+    std::uint64_t* swap = from;
+    from = to;
+    to = swap;
+  }
+  return from;
+}
+
 }  // namespace
 
 template <typename VoxelT>
@@ -539,11 +569,11 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
       b.block = map.find_block_index_morton(b.morton);
       b.z_m = z0 + dz_block.dot(b.coords.cast<float>());
       if (b.block == kNoIndex) ++task_missing;
-      // Far blocks end at the coarsest scale whatever their current one: no header to read.
-      // -1: select below.
-      b.scale = kMultires && config_.fixed_scale < 0 &&
-                        coarsest_for_any_scale(b.z_m * inv_footprint, config_.scale_hysteresis)
-                    ? static_cast<std::int8_t>(kMaxBlockScale)
+      // Blocks whose scale does not depend on their current one (most far blocks): no header to
+      // read. -1: select below.
+      b.scale = kMultires && config_.fixed_scale < 0
+                    ? static_cast<std::int8_t>(
+                          scale_for_any_current(b.z_m * inv_footprint, config_.scale_hysteresis))
                     : std::int8_t{-1};
     }
     tallies_[task].missing = task_missing;
@@ -660,39 +690,44 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
     }
   }
 
-  // 4. Integrate, in a fixed number of tasks.
+  // 4. Integrate in pool order, in a fixed number of tasks. Blocks are independent, so the order
+  // changes no bits; sorted, their headers and voxels are read in address order.
+  std::uint32_t sorted = 0;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    const FrameBlock& b = frame_blocks_[i];
+    if (b.skip != 0) continue;
+    pool_order_[sorted++] = (std::uint64_t{b.block} << 8) | static_cast<std::uint8_t>(b.scale);
+  }
+  const std::uint64_t* order = sort_by_block(
+      pool_order_, pool_order_ + config_.max_blocks_per_frame, sorted, map.block_count());
   const std::size_t tasks =
-      std::min<std::size_t>(static_cast<std::size_t>(config_.task_count), count);
+      std::min<std::size_t>(static_cast<std::size_t>(config_.task_count), sorted);
   for (std::size_t t = 0; t < tasks; ++t) tallies_[t] = TaskTally();
   auto task_fn = [&](std::size_t task) {
-    const TaskRange range = task_range(count, task, tasks);
+    const TaskRange range = task_range(sorted, task, tasks);
     TaskTally& tally = tallies_[task];
     for (std::size_t i = range.begin; i < range.end; ++i) {
-      // Blocks are scattered over a large pool: fetch a later block's header early, and once it
-      // has arrived (it says where a multires block's finest level is) its first voxels.
-      // Headers and levels rarely start on a cache line (blocks are 1232 bytes): fetch both ends.
+      // Fetch a later block's header early, and once it has arrived (it says where a multires
+      // block's finest level is) its first voxels. Headers and levels rarely start on a cache
+      // line (blocks are 1232 bytes): fetch both ends.
       if (i + 2 * kPrefetchDistance < range.end) {
         const char* header = reinterpret_cast<const char*>(
-            &map.block(frame_blocks_[i + 2 * kPrefetchDistance].block));
+            &map.block(static_cast<std::uint32_t>(order[i + 2 * kPrefetchDistance] >> 8)));
         __builtin_prefetch(header, 1);
         __builtin_prefetch(header + 63, 1);
       }
       if (i + kPrefetchDistance < range.end) {
-        const FrameBlock& later = frame_blocks_[i + kPrefetchDistance];
-        const VoxelBlock<VoxelT>& lb = map.block(later.block);
-        const char* first = reinterpret_cast<const char*>(lb.scale_begin(later.scale));
-        const int bytes = block_scale_count(later.scale) * static_cast<int>(sizeof(VoxelT));
+        const std::uint64_t later = order[i + kPrefetchDistance];
+        const int later_scale = static_cast<int>(later & 0xFF);
+        const VoxelBlock<VoxelT>& lb = map.block(static_cast<std::uint32_t>(later >> 8));
+        const char* first = reinterpret_cast<const char*>(lb.scale_begin(later_scale));
+        const int bytes = block_scale_count(later_scale) * static_cast<int>(sizeof(VoxelT));
         __builtin_prefetch(first, 1);
         __builtin_prefetch(first + 64, 1);
         if (bytes > 64) __builtin_prefetch(first + std::min(bytes, 192) - 1, 1);
       }
-      const FrameBlock& b = frame_blocks_[i];
-      if (b.skip != 0) {
-        block_indices_[i] = kNoIndex;
-        continue;
-      }
-      VoxelBlock<VoxelT>& block = map.block(b.block);
-      integrate_block(block, b.scale, f, tally);
+      VoxelBlock<VoxelT>& block = map.block(static_cast<std::uint32_t>(order[i] >> 8));
+      integrate_block(block, static_cast<int>(order[i] & 0xFF), f, tally);
       block.last_updated_frame = frame_index;
       // For step 5, while the header is in the cache.
       block_indices_[i] = block.parent_node;
@@ -711,7 +746,7 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   }
 
   // 5. Node summaries above the integrated blocks (their parents, listed by step 4).
-  map.propagate_summaries_from_parents(block_indices_, count, team);
+  map.propagate_summaries_from_parents(block_indices_, sorted, team);
   return report;
 }
 

@@ -84,5 +84,34 @@ TEST_CASE("coarsest_for_any_scale agrees with select_scale for every current sca
   CHECK(coarsest_for_any_scale(6.7f, 0.1f));
 }
 
+TEST_CASE("scale_for_any_current is select_scale exactly when no current scale changes it",
+          "[fusion][scale]") {
+  int independent[4] = {0, 0, 0, 0};
+  for (float hysteresis : {0.0f, 0.1f, 0.5f}) {
+    for (float r = 0.0f; r < 12.0f; r = std::nextafter(r, 13.0f) + 0.0009f) {
+      const int any = scale_for_any_current(r, hysteresis);
+      const int first = select_scale(r, -1, hysteresis);
+      bool same = true;
+      for (int current = 0; current <= 3; ++current) {
+        same = same && select_scale(r, current, hysteresis) == first;
+      }
+      REQUIRE(same == (any >= 0));
+      if (any >= 0) {
+        REQUIRE(any == first);
+        ++independent[any];
+      }
+    }
+  }
+  CHECK(independent[0] == 0);  // a block at scale 3 refines one step at a time
+  CHECK(independent[1] == 0);
+  CHECK(independent[2] > 1000);
+  CHECK(independent[3] > 1000);
+  CHECK(scale_for_any_current(4.0f, 0.1f) == 2);
+  CHECK(scale_for_any_current(3.2f, 0.1f) == -1);  // 3.2 / 1.1 < 3: a scale-1 block stays
+  CHECK(scale_for_any_current(5.5f, 0.1f) == -1);  // 5.5 * 1.1 > 6: a scale-3 block stays
+  CHECK(scale_for_any_current(6.7f, 0.1f) == 3);
+  CHECK(scale_for_any_current(2.0f, 0.1f) == -1);
+}
+
 }  // namespace
 }  // namespace octofuse

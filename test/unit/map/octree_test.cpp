@@ -346,6 +346,64 @@ TEST_CASE("iteration order is the allocation order and is deterministic", "[map]
   CHECK(visited == a.map.block_count());
 }
 
+TEST_CASE("one allocate call over many keys builds the tree that one call per key builds",
+          "[map][octree]") {
+  // allocate() starts each walk where the previous key's path and this one part; keys one call
+  // apart start at the root. Mixed levels, repeats, keys outside the cube and a node pool that
+  // runs out on the way must all give the same pools, links and counts.
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<int> coord(-2, 33);
+  std::uniform_int_distribution<int> level(1, 5);
+  for (const std::uint32_t node_capacity : {256u, 40u}) {
+    std::vector<Key> keys;
+    MapFixture<TsdfVoxel> batch(small_config(64, node_capacity));
+    MapFixture<TsdfVoxel> single(small_config(64, node_capacity));
+    for (int i = 0; i < 120; ++i) {
+      const Eigen::Vector3i block(coord(rng), coord(rng), coord(rng));
+      const Eigen::Vector3i voxel = block * kBlockSide;
+      const bool inside = batch.map.contains_voxel(voxel);
+      const Key key = inside ? key_of_voxel(voxel, level(rng), batch.map.voxel_depth())
+                             : Key{~std::uint64_t{0} >> 1, 5};
+      keys.push_back(key);
+      if (i % 7 == 0) keys.push_back(key);
+    }
+    std::sort(keys.begin(), keys.begin() + 60);  // half sorted, half in random order
+    AllocationCounts batch_counts;
+    const Status batch_status = batch.map.allocate(keys.data(), keys.size(), &batch_counts);
+    AllocationCounts sum;
+    for (const Key& key : keys) {
+      AllocationCounts one;
+      (void)single.map.allocate(&key, 1, &one);
+      sum.new_blocks += one.new_blocks;
+      sum.new_nodes += one.new_nodes;
+      sum.already_allocated += one.already_allocated;
+      sum.refused += one.refused;
+      sum.rejected += one.rejected;
+    }
+    CHECK((batch_status.code() == StatusCode::resource_exhausted) == (sum.refused > 0));
+    CHECK(batch_counts.new_blocks == sum.new_blocks);
+    CHECK(batch_counts.new_nodes == sum.new_nodes);
+    CHECK(batch_counts.already_allocated == sum.already_allocated);
+    CHECK(batch_counts.refused == sum.refused);
+    CHECK(batch_counts.rejected == sum.rejected);
+    CHECK(sum.rejected > 0);
+    if (node_capacity < 256) CHECK(sum.refused > 0);
+    REQUIRE(batch.map.node_count() == single.map.node_count());
+    REQUIRE(batch.map.block_count() == single.map.block_count());
+    for (std::uint32_t n = 0; n < batch.map.node_count(); ++n) {
+      const OctreeNode& a = batch.map.node(n);
+      const OctreeNode& b = single.map.node(n);
+      CHECK(a.key() == b.key());
+      CHECK(a.parent == b.parent);
+      CHECK(std::equal(std::begin(a.children), std::end(a.children), std::begin(b.children)));
+    }
+    for (std::uint32_t i = 0; i < batch.map.block_count(); ++i) {
+      CHECK(batch.map.block(i).coords == single.map.block(i).coords);
+      CHECK(batch.map.block(i).parent_node == single.map.block(i).parent_node);
+    }
+  }
+}
+
 TEST_CASE("node summaries propagate up to the root", "[map][octree]") {
   MapFixture<MultiresVoxel> f(small_config());
   Octree<MultiresVoxel>& map = f.map;

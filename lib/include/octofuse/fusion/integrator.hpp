@@ -8,9 +8,10 @@
 // blocks it crosses, in first-crossed order (bands of rows in parallel, merged in band order);
 // (2) look the blocks up and pick their scales (parallel), allocate the missing ones (sorted by
 // Morton code, so pool indices are deterministic); (3) apply the budgets; (4) integrate the blocks
-// in a fixed number of tasks over the WorkerTeam (each block is written by one task only, so the
-// map is bit-identical for any worker count); (5) refresh the octree's node summaries. Every
-// parallel step uses a fixed task partition.
+// in pool order (sorted by block index, so headers and voxels are visited in address order, not
+// scattered) in a fixed number of tasks over the WorkerTeam (each block is written by one task
+// only, so the map is bit-identical for any worker count and any list order); (5) refresh the
+// octree's node summaries. Every parallel step uses a fixed task partition.
 //
 // Memory: reserve() carves everything from the arena; integrate() allocates nothing.
 
@@ -118,6 +119,10 @@ class Integrator {
     Result<std::uint32_t*> indices =
         arena.template allocate_array<std::uint32_t>(config.max_blocks_per_frame);
     OCTOFUSE_TRY(indices);
+    // The blocks to integrate in pool order, and the radix sort's second buffer.
+    Result<std::uint64_t*> pool_order =
+        arena.template allocate_array<std::uint64_t>(2 * std::size_t{config.max_blocks_per_frame});
+    OCTOFUSE_TRY(pool_order);
     // One seen-cell cache per band plus one for the merge.
     Result<std::uint64_t*> seen =
         arena.template allocate_array<std::uint64_t>((kCollectTasks + 1) * kSeenCacheSize);
@@ -143,6 +148,7 @@ class Integrator {
     frame_blocks_ = blocks.value();
     keys_ = keys.value();
     block_indices_ = indices.value();
+    pool_order_ = pool_order.value();
     seen_ = seen.value();
     band_cells_ = band_cells.value();
     band_capacity_ = band_capacity;
@@ -185,6 +191,8 @@ class Integrator {
   std::uint32_t frame_block_count_ = 0;
   Key* keys_ = nullptr;
   std::uint32_t* block_indices_ = nullptr;
+  // Step 4's list: (block index << 8) | scale, sorted by block index; twice max_blocks_per_frame.
+  std::uint64_t* pool_order_ = nullptr;
   std::uint64_t* seen_ = nullptr;        // (kCollectTasks + 1) * kSeenCacheSize entries
   std::uint64_t* band_cells_ = nullptr;  // kCollectTasks lists of band_capacity_ packed cells
   std::size_t band_capacity_ = 0;

@@ -13,6 +13,7 @@
 // Threading: lookups and voxel reads/writes of distinct blocks may run concurrently; allocate(),
 // clear() and propagate_summaries() must not overlap anything else.
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -228,7 +229,8 @@ class Octree {
   Status allocate(const Key* keys, std::size_t count, AllocationCounts* counts = nullptr) {
     OCTOFUSE_CHECK(reserved_);
     AllocationCounts local;
-    for (std::size_t i = 0; i < count; ++i) allocate_one(keys[i], local);
+    AllocationPath path;
+    for (std::size_t i = 0; i < count; ++i) allocate_one(keys[i], local, path);
     if (counts != nullptr) *counts = local;
     if (local.refused > 0) return StatusCode::resource_exhausted;
     if (local.rejected > 0) return StatusCode::out_of_range;
@@ -241,7 +243,8 @@ class Octree {
     const std::uint32_t found = find_block_index(block_coords);
     if (found != kNoIndex) return found;
     AllocationCounts local;
-    allocate_one(block_key(block_coords), local);
+    AllocationPath path;
+    allocate_one(block_key(block_coords), local, path);
     if (local.refused > 0) return StatusCode::resource_exhausted;
     return find_block_index(block_coords);
   }
@@ -492,7 +495,16 @@ class Octree {
     nodes_[0].morton = 0;
   }
 
-  void allocate_one(const Key& key, AllocationCounts& counts) {
+  // The inner nodes on the way to the last key allocate_one() walked to: node[l] is the node of
+  // level l containing `morton`, for l < levels. Sorted keys share most of their way, so the next
+  // walk starts at the deepest node both contain instead of at the root (a miss per level).
+  struct AllocationPath {
+    std::uint32_t node[kMaxVoxelDepth + 1] = {0};
+    std::uint64_t morton = 0;
+    int levels = 1;  // the root contains every key
+  };
+
+  void allocate_one(const Key& key, AllocationCounts& counts, AllocationPath& path) {
     const int depth = voxel_depth();
     const int leaf = block_level();
     const Eigen::Vector3i corner = key_corner_voxel(key);
@@ -508,14 +520,26 @@ class Octree {
       ++counts.already_allocated;
       return;
     }
-    std::uint32_t node = 0;
-    for (int level = 1; level <= key.level; ++level) {
+    // The deepest known node containing the key, above its level.
+    int start = std::min(path.levels, static_cast<int>(key.level)) - 1;
+    while (start > 0 &&
+           (key.morton >> (3 * (depth - start))) != (path.morton >> (3 * (depth - start)))) {
+      --start;
+    }
+    std::uint32_t node = path.node[start];
+    path.morton = key.morton;
+    path.levels = start + 1;
+    for (int level = start + 1; level <= key.level; ++level) {
       const Key here = parent_key_at(key, level, depth);
       const int child = child_index(here, depth);
       const std::uint32_t existing = nodes_[node].children[child];
       if (existing != kNoIndex) {
         if (level == key.level) ++counts.already_allocated;
         node = existing;
+        if (level < leaf) {
+          path.node[level] = node;
+          path.levels = level + 1;
+        }
         continue;
       }
       if (level == leaf) {
@@ -548,6 +572,8 @@ class Octree {
       nodes_[node].children[child] = n.value();
       ++counts.new_nodes;
       node = n.value();
+      path.node[level] = node;
+      path.levels = level + 1;
     }
   }
 

@@ -16,10 +16,10 @@
 // range, so the free space in front of and behind the map costs no steps, and rays of tiles with
 // nothing allocated cost none at all. The bounds are conservative: the same surfaces are found.
 //
-// Work bound: an optional per-frame step budget. Rows are independent tasks and each row gets a
-// fixed share of the budget (budget / height, the remainder to the first rows), so the result
-// does not depend on the worker count. When a row's share runs out, its remaining pixels stay
-// invalid and the stats say how many.
+// Work bound: an optional per-frame step budget. Rows are independent (tasks of 8 rows) and each
+// row gets a fixed share of the budget (budget / height, the remainder to the first rows), so the
+// result does not depend on the worker count. When a row's share runs out, its remaining pixels
+// stay invalid and the stats say how many.
 
 #include <cstddef>
 #include <cstdint>

@@ -537,6 +537,29 @@ TEST_CASE("ray-casting what the integrator fused gives the wall back") {
       REQUIRE(angle_deg(surface.normals(x, y), Eigen::Vector3f(0, 0, -1)) < kNormalTolerance_deg);
     }
   }
+
+  // Guided by the depth it fused, as the pipeline ray-casts: every pixel found before is found
+  // again on the same wall (with a few border pixels the full march missed), in fewer steps.
+  OwnedRaycaster<MultiresVoxel> guided(test_raycast_config());
+  Result<RaycastStats> guided_stats = guided.raycaster.raycast(
+      owned.map, test_camera(), Se3d::Identity(), team, ImageView<const float>(depth, 64, 48));
+  REQUIRE(guided_stats.ok());
+  REQUIRE(guided_stats->guided_pixels == 64u * 48u);
+  REQUIRE(guided_stats->valid_pixels >= stats->valid_pixels);
+  REQUIRE(guided_stats->steps < stats->steps);
+  const SurfaceMap guided_surface = guided.raycaster.surface_W();
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      if (surface.valid(x, y)) REQUIRE(guided_surface.valid(x, y));
+      if (!guided_surface.valid(x, y)) continue;
+      const int scale = guided.raycaster.scale_image()(x, y);
+      if (fixed_scale >= 0) REQUIRE(scale == fixed_scale);
+      REQUIRE(std::fabs(guided_surface.vertices(x, y).z() - kPlaneZ_m) <
+              kDepthTolerance_m * static_cast<float>(1 << scale));
+      REQUIRE(angle_deg(guided_surface.normals(x, y), Eigen::Vector3f(0, 0, -1)) <
+              kNormalTolerance_deg);
+    }
+  }
 }
 
 }  // namespace

@@ -25,11 +25,6 @@ struct Pass {
   double inv_knee_m;  // 0: equal weights
 };
 
-// All components exactly zero (invalid pixels); NaN is not. Same as isZero(0) without the abs.
-inline bool is_zero(const Eigen::Vector3f& v) {
-  return v.x() == 0.0f && v.y() == 0.0f && v.z() == 0.0f;
-}
-
 void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
   // Sums in locals, stored once at the end: the compiler cannot keep sums that live behind
   // `out` in registers across the image reads.
@@ -48,7 +43,7 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
     const Eigen::Vector3f* n_row = pass.normals_C.row(y);
     for (int x = 0; x < width; ++x) {
       const Eigen::Vector3f& n_C = n_row[x];
-      if (is_zero(n_C)) continue;
+      if (is_invalid_normal(n_C)) continue;
       const Eigen::Vector3f p_W = pass.R_W_C * v_row[x] + pass.t_W_C;
       const Eigen::Vector3f p_Cref = pass.R_Cref_W * p_W + pass.t_Cref_W;
       if (!(p_Cref.z() > 0.0f)) continue;
@@ -58,8 +53,8 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
       const int u = static_cast<int>(px.x() + 0.5f);
       const int v = static_cast<int>(px.y() + 0.5f);
       if (u < 0 || v < 0 || u >= model_w || v >= model_h) continue;
+      if (!pass.model_W.valid(u, v)) continue;
       const Eigen::Vector3f& n_model_W = pass.model_W.normals(u, v);
-      if (is_zero(n_model_W)) continue;
       const Eigen::Vector3f diff_W = p_W - pass.model_W.vertices(u, v);
       if (!(diff_W.squaredNorm() <= pass.max_distance_sq_m2)) continue;
       const Eigen::Vector3f n_live_W = pass.R_W_C * n_C;

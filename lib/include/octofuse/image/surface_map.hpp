@@ -12,13 +12,19 @@
 
 namespace octofuse {
 
+// A normal that marks an invalid pixel: all components exactly zero (NaN is not). Same as
+// isZero(0.0f), without its abs per component: ICP tests this per pixel and iteration.
+inline bool is_invalid_normal(const Eigen::Vector3f& n) {
+  return n.x() == 0.0f && n.y() == 0.0f && n.z() == 0.0f;
+}
+
 struct SurfaceMap {
   ImageView<Eigen::Vector3f> vertices;  // metres
   ImageView<Eigen::Vector3f> normals;   // unit length, or zero where invalid
 
   int width() const { return vertices.width; }
   int height() const { return vertices.height; }
-  bool valid(int x, int y) const { return !normals(x, y).isZero(0.0f); }
+  bool valid(int x, int y) const { return !is_invalid_normal(normals(x, y)); }
 };
 
 struct ConstSurfaceMap {
@@ -30,7 +36,7 @@ struct ConstSurfaceMap {
       : vertices(m.vertices), normals(m.normals) {}
   int width() const { return vertices.width; }
   int height() const { return vertices.height; }
-  bool valid(int x, int y) const { return !normals(x, y).isZero(0.0f); }
+  bool valid(int x, int y) const { return !is_invalid_normal(normals(x, y)); }
 };
 
 }  // namespace octofuse

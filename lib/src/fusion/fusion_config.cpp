@@ -48,12 +48,6 @@ int select_scale(float r, int current_scale, float hysteresis) {
   return current_scale;
 }
 
-bool coarsest_for_any_scale(float r, float hysteresis) {
-  // The coarsening test of select_scale, bit for bit; r / (1 + h) <= r, so the raw scale is
-  // the coarsest too, and there is nothing coarser to refine from.
-  return scale_for_ratio(r / (1.0f + hysteresis)) == kMaxBlockScale;
-}
-
 int scale_for_any_current(float r, float hysteresis) {
   // The tests of select_scale, bit for bit. Coarser current scales than raw coarsen to `up`;
   // finer ones refine to raw only from raw + 1, and only when `down` keeps them from staying.

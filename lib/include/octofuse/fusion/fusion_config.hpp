@@ -77,10 +77,6 @@ int scale_for_ratio(float r);
 // `hysteresis` margin, refines by at most one step, and may coarsen by several.
 int select_scale(float r, int current_scale, float hysteresis);
 
-// True when select_scale(r, c, hysteresis) is the coarsest scale for every current scale c (r is
-// past the last threshold by the margin), so a caller need not read the block's current scale.
-bool coarsest_for_any_scale(float r, float hysteresis);
-
 // select_scale(r, c, hysteresis) when it is the same for every current scale c (never integrated
 // included), so a caller need not read the block's current scale; otherwise -1. Only scales 2
 // and 3 can qualify: a block two or more scales coarser than the raw one refines a single step.

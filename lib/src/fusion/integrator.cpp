@@ -89,6 +89,18 @@ inline bool update_voxel(VoxelT& v, const Eigen::Vector3f& p_C, const float* dep
   return true;
 }
 
+// Step 4's list entries: a block's pool index above its scale (the low 8 bits), so sorting the
+// entries sorts by block index.
+std::uint64_t pool_entry(std::uint32_t block, int scale) {
+  return (std::uint64_t{block} << 8) | static_cast<std::uint8_t>(scale);
+}
+std::uint32_t pool_entry_block(std::uint64_t entry) {
+  return static_cast<std::uint32_t>(entry >> 8);
+}
+int pool_entry_scale(std::uint64_t entry) {
+  return static_cast<int>(entry & 0xFF);
+}
+
 // Sorts `count` entries of `keys` by their bits from 8 up (a block index below `index_bound`),
 // with `scratch` as the second buffer (LSD radix, 11 bits a pass); returns the buffer holding the
 // result.
@@ -696,7 +708,7 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   for (std::uint32_t i = 0; i < count; ++i) {
     const FrameBlock& b = frame_blocks_[i];
     if (b.skip != 0) continue;
-    pool_order_[sorted++] = (std::uint64_t{b.block} << 8) | static_cast<std::uint8_t>(b.scale);
+    pool_order_[sorted++] = pool_entry(b.block, b.scale);
   }
   const std::uint64_t* order = sort_by_block(
       pool_order_, pool_order_ + config_.max_blocks_per_frame, sorted, map.block_count());
@@ -712,22 +724,22 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
       // line (blocks are 1232 bytes): fetch both ends.
       if (i + 2 * kPrefetchDistance < range.end) {
         const char* header = reinterpret_cast<const char*>(
-            &map.block(static_cast<std::uint32_t>(order[i + 2 * kPrefetchDistance] >> 8)));
+            &map.block(pool_entry_block(order[i + 2 * kPrefetchDistance])));
         __builtin_prefetch(header, 1);
         __builtin_prefetch(header + 63, 1);
       }
       if (i + kPrefetchDistance < range.end) {
         const std::uint64_t later = order[i + kPrefetchDistance];
-        const int later_scale = static_cast<int>(later & 0xFF);
-        const VoxelBlock<VoxelT>& lb = map.block(static_cast<std::uint32_t>(later >> 8));
+        const int later_scale = pool_entry_scale(later);
+        const VoxelBlock<VoxelT>& lb = map.block(pool_entry_block(later));
         const char* first = reinterpret_cast<const char*>(lb.scale_begin(later_scale));
         const int bytes = block_scale_count(later_scale) * static_cast<int>(sizeof(VoxelT));
         __builtin_prefetch(first, 1);
         __builtin_prefetch(first + 64, 1);
         if (bytes > 64) __builtin_prefetch(first + std::min(bytes, 192) - 1, 1);
       }
-      VoxelBlock<VoxelT>& block = map.block(static_cast<std::uint32_t>(order[i] >> 8));
-      integrate_block(block, static_cast<int>(order[i] & 0xFF), f, tally);
+      VoxelBlock<VoxelT>& block = map.block(pool_entry_block(order[i]));
+      integrate_block(block, pool_entry_scale(order[i]), f, tally);
       block.last_updated_frame = frame_index;
       // For step 5, while the header is in the cache.
       block_indices_[i] = block.parent_node;

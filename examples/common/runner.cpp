@@ -491,6 +491,9 @@ Percentiles percentiles(std::vector<double> values) {
   p.p90 = at(0.90);
   p.p99 = at(0.99);
   p.max = values.back();
+  double sum = 0.0;
+  for (double v : values) sum += v;
+  p.mean = sum / static_cast<double>(n);
   return p;
 }
 

@@ -164,6 +164,55 @@ Repeat run_cell(const Cell& cell, const std::string& out_dir, const SimEvaluatio
   return r;
 }
 
+// Median over repeats of one stage statistic of a cell.
+double stage_stat(const std::vector<Repeat>& reps, int stage, double Percentiles::*stat) {
+  std::vector<double> values;
+  for (const Repeat& rep : reps) values.push_back(rep.stage[stage].*stat);
+  return median_of(values);
+}
+
+// Integration of each multires cell against the single-res cell with the same settings (the
+// matrix puts them next to each other): times by the median frame and by the mean frame, whose
+// ratio is the sustained speed-up over the sequence (the paper's frame-rate measure), and memory.
+std::string comparison_table(const std::vector<Cell>& cells,
+                             const std::vector<std::vector<Repeat>>& results) {
+  std::ostringstream md;
+  md << "\nIntegration, multires vs single-res (same run; speed-up = single / multires):\n\n"
+     << "| scene | voxel | threads | poses | median ms multires/single | speed-up by median | "
+        "mean ms multires/single | speed-up by mean | map MB used multires/single |\n"
+     << "|---|---|---|---|---|---|---|---|---|\n";
+  constexpr int kIntegrate = 2;
+  for (std::size_t c = 0; c + 1 < cells.size(); ++c) {
+    const Cell& m = cells[c];
+    const Cell& s = cells[c + 1];
+    if (m.map != octofuse::MapKind::multires || s.map != octofuse::MapKind::single_res ||
+        m.scene != s.scene || m.voxel_m != s.voxel_m || m.threads != s.threads ||
+        m.poses != s.poses) {
+      continue;
+    }
+    const double m_median = stage_stat(results[c], kIntegrate, &Percentiles::median);
+    const double s_median = stage_stat(results[c + 1], kIntegrate, &Percentiles::median);
+    const double m_mean = stage_stat(results[c], kIntegrate, &Percentiles::mean);
+    const double s_mean = stage_stat(results[c + 1], kIntegrate, &Percentiles::mean);
+    auto used_mb = [&](std::size_t cell) {
+      return static_cast<double>(results[cell].front().summary.map_memory.bytes_used) / 1048576.0;
+    };
+    auto ratio = [](double single, double multires) {
+      return multires > 0.0 ? single / multires : 0.0;
+    };
+    char row[512];
+    std::snprintf(row, sizeof(row),
+                  "| %s | %g mm | %d | %s | %.1f/%.1f | %.2fx | %.1f/%.1f | %.2fx | %.0f/%.0f |\n",
+                  m.scene.substr(0, m.scene.find('/')).c_str(),
+                  static_cast<double>(m.voxel_m) * 1000.0, m.threads,
+                  m.poses == octofuse::PoseSource::track ? "ICP" : "ground truth", m_median,
+                  s_median, ratio(s_median, m_median), m_mean, s_mean, ratio(s_mean, m_mean),
+                  used_mb(c), used_mb(c + 1));
+    md << row;
+  }
+  return md.str();
+}
+
 void usage() {
   std::printf(
       "usage: octofuse-bench [--quick] [--data DIR] [--out DIR] [--repeats N] [--frames N]\n"
@@ -333,13 +382,14 @@ int main(int argc, char** argv) {
   for (std::size_t c = 0; c < cells.size(); ++c) {
     const Cell& cell = cells[c];
     const std::vector<Repeat>& reps = results[c];
-    std::vector<double> per_stage[5][4], fps, rss, ate, rmse, recall;
+    std::vector<double> per_stage[5][5], fps, rss, ate, rmse, recall;
     for (const Repeat& rep : reps) {
       for (int s = 0; s < 5; ++s) {
         per_stage[s][0].push_back(rep.stage[s].median);
         per_stage[s][1].push_back(rep.stage[s].p90);
         per_stage[s][2].push_back(rep.stage[s].p99);
         per_stage[s][3].push_back(rep.stage[s].max);
+        per_stage[s][4].push_back(rep.stage[s].mean);
       }
       fps.push_back(rep.fps);
       rss.push_back(rep.peak_rss_mb);
@@ -387,6 +437,7 @@ int main(int argc, char** argv) {
       json.key("p90_ms").value(median_of(per_stage[s][1]));
       json.key("p99_ms").value(median_of(per_stage[s][2]));
       json.key("max_ms").value(median_of(per_stage[s][3]));
+      json.key("mean_ms").value(median_of(per_stage[s][4]));
       json.key("spread_of_medians_ms").value(spread_of(per_stage[s][0]));
       json.end_object();
     }
@@ -404,6 +455,7 @@ int main(int argc, char** argv) {
   }
   json.end_array();
   json.end_object();
+  md << comparison_table(cells, results);
 
   const std::string md_path = out_dir + "/bench.md";
   std::ofstream(md_path) << md.str();

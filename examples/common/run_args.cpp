@@ -39,6 +39,8 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --budget-new-blocks N, --budget-blocks N, --budget-raycast-steps N,\n"
       "  --budget-icp A,B,C   per-frame work budgets (ICP: finest,middle,coarsest)\n"
       "  --no-mesh            skip mesh.ply\n"
+      "  --mesh-scale S       multires mesh.ply from each block's current scale (default) or\n"
+      "                       finest: the finest scale it was fused at (static scenes)\n"
       "  --write-frames       also write DIR/frames/render_NNNNNN.png for every frame\n"
       "  --quiet              no progress line\n",
       program, default_source, supported_sources().c_str());
@@ -162,6 +164,15 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       options.write_frames = true;
     } else if (arg == "--no-mesh") {
       options.write_mesh = false;
+    } else if (arg == "--mesh-scale") {
+      if (!need_value(&value)) return fail("--mesh-scale needs current or finest");
+      if (value == "current") {
+        options.mesh_read_scale = MeshReadScale::current;
+      } else if (value == "finest") {
+        options.mesh_read_scale = MeshReadScale::finest_fused;
+      } else {
+        return fail("--mesh-scale must be current or finest");
+      }
     } else if (arg == "--quiet") {
       options.progress = false;
     } else {

@@ -358,6 +358,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
   if (write_mesh_file || options.keep_mesh) {
     MeshConfig mesh_config;
+    mesh_config.read_scale = options.mesh_read_scale;
     // Dual marching cubes yields a few dozen vertices per surface block: size the
     // de-duplication table (48-96 bytes per vertex) from the map, capped at 8 M vertices.
     mesh_config.vertex_capacity = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(

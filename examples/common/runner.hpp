@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "octofuse/mesh/mesher.hpp"
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/ports/host/trajectory_io.hpp"
 #include "sources.hpp"
@@ -31,6 +32,7 @@ struct RunOptions {
   bool bilateral = false;
   float icp_depth_knee_m = -1.0f;  // < 0: the library's default
   bool write_mesh = true;
+  MeshReadScale mesh_read_scale = MeshReadScale::current;
   bool write_frames = false;  // frames/render_NNNNNN.png after every frame
   bool keep_mesh = false;     // keep the mesh in RunSummary (for evaluation)
   bool progress = true;       // a progress line on stderr when it is a terminal

@@ -34,6 +34,7 @@ struct Cell {
   int threads = 1;
   octofuse::PoseSource poses = octofuse::PoseSource::track;
   long frames = 0;
+  octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
 
   std::string label() const {
     char text[160];
@@ -131,6 +132,7 @@ Repeat run_cell(const Cell& cell, const std::string& out_dir, const SimEvaluatio
   options.out_dir = out_dir;
   options.write_mesh = false;
   options.keep_mesh = eval != nullptr;
+  options.mesh_read_scale = cell.mesh_read_scale;
   options.progress = false;
   options.map_memory_mb = cell.voxel_m < 0.005f ? 2048.0f : 1024.0f;
   Repeat r;
@@ -228,7 +230,9 @@ void usage() {
       "  --voxels LIST  finest voxel sizes in metres, comma separated (default 0.01,0.002)\n"
       "  --scenes LIST  sim scenes, comma separated (default desk,room)\n"
       "  --threads LIST worker counts, comma separated (default 1,2)\n"
-      "  --poses MODE   icp, gt or both (default both)\n");
+      "  --poses MODE   icp, gt or both (default both)\n"
+      "  --mesh-scale S multires meshes (mesh RMSE, thin recall) at each block's current scale\n"
+      "                 (default) or finest: the finest scale it was fused at\n");
 }
 
 }  // namespace
@@ -240,6 +244,7 @@ int main(int argc, char** argv) {
   std::vector<float> voxels = {0.01f, 0.002f};
   std::vector<std::string> sim_scenes = {"desk", "room"};
   std::vector<int> thread_counts = {1, 2};
+  octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
                                                   octofuse::PoseSource::ground_truth};
   auto split = [](const std::string& text) {
@@ -304,6 +309,15 @@ int main(int argc, char** argv) {
       } else {
         return octofuse::cli::fail("--poses must be icp, gt or both");
       }
+    } else if (arg == "--mesh-scale" && i + 1 < argc) {
+      const std::string scale = argv[++i];
+      if (scale == "current") {
+        mesh_read_scale = octofuse::MeshReadScale::current;
+      } else if (scale == "finest") {
+        mesh_read_scale = octofuse::MeshReadScale::finest_fused;
+      } else {
+        return octofuse::cli::fail("--mesh-scale must be current or finest");
+      }
     } else if (arg == "-h" || arg == "--help") {
       usage();
       return 0;
@@ -331,7 +345,7 @@ int main(int argc, char** argv) {
         for (auto poses :
              quick ? std::vector<octofuse::PoseSource>{octofuse::PoseSource::track} : pose_modes) {
           for (auto map : {octofuse::MapKind::multires, octofuse::MapKind::single_res}) {
-            cells.push_back(Cell{scene, map, voxel, threads, poses, frames});
+            cells.push_back(Cell{scene, map, voxel, threads, poses, frames, mesh_read_scale});
           }
         }
       }

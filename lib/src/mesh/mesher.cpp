@@ -19,7 +19,24 @@ Status validate(const MeshConfig& config) {
     return StatusCode::invalid_argument;
   }
   if (config.vertex_capacity > (1u << 30)) return StatusCode::invalid_argument;
+  if (config.read_scale != MeshReadScale::current &&
+      config.read_scale != MeshReadScale::finest_fused) {
+    return StatusCode::invalid_argument;
+  }
   return ok_status();
+}
+
+template <typename VoxelT>
+int Mesher<VoxelT>::read_scale(const VoxelBlock<VoxelT>& block) const {
+  if constexpr (IsMultiresVoxel<VoxelT>::value) {
+    if (config_.read_scale == MeshReadScale::finest_fused && block.integrated()) {
+      const int finest = block.min_scale;
+      // A block whose finest level went back to the pool reads its next scale.
+      if (finest == 0 && !block.has_finest()) return 1;
+      return finest > kMaxBlockScale ? kMaxBlockScale : finest;
+    }
+  }
+  return block_read_scale(block);
 }
 
 template <typename VoxelT>
@@ -82,7 +99,7 @@ template <typename VoxelT>
 Status Mesher<VoxelT>::mesh_block(const Octree<VoxelT>& map, std::uint32_t block_index,
                                   MeshSink& sink, MeshStats& stats) {
   const VoxelBlock<VoxelT>& block = map.block(block_index);
-  const int scale = block_read_scale(block);
+  const int scale = read_scale(block);
   const int coarse_mask = (1 << scale) - 1;
   const Eigen::Vector3i origin = block.min_voxel();
 
@@ -116,7 +133,7 @@ Status Mesher<VoxelT>::mesh_block(const Octree<VoxelT>& map, std::uint32_t block
             complete = false;
             break;
           }
-          const int s = block_read_scale(*nb);
+          const int s = read_scale(*nb);
           const int index = block_voxel_index_finest(ux & 7, uy & 7, uz & 7, s);
           const VoxelT& voxel = nb->voxel(index);
           if (!voxel_observed(voxel)) {

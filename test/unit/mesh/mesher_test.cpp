@@ -195,6 +195,52 @@ TEST_CASE("across a scale boundary the sphere stays closed") {
   REQUIRE(signed_volume(meshing.buffer) == Approx(expected).epsilon(0.02));
 }
 
+TEST_CASE("finest_fused meshes a block at the finest scale it was fused at, current at its last") {
+  // Fused up close at scale 0, then seen from afar: every block last integrated at scale 2 (its
+  // scale-2 level holds the mean of the fine one, as up-propagation leaves it).
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, sphere_sdf, [](const Eigen::Vector3i&) { return 0; });
+  for (std::uint32_t b = 0; b < owned.map.block_count(); ++b) {
+    owned.map.block(b).current_scale = 2;
+    owned.map.block(b).mip_scale = 2;
+  }
+  auto mesh_at = [&](MeshReadScale read_scale, int* worst_scale, float* worst_m) {
+    MeshConfig config;
+    config.read_scale = read_scale;
+    Meshing<MultiresVoxel> meshing(config);
+    REQUIRE(meshing.mesher.extract(owned.map, meshing.buffer).ok());
+    const EdgeReport edges = check_edges(meshing.buffer);
+    REQUIRE(edges.boundary_edges == 0u);
+    REQUIRE(euler_characteristic(meshing.buffer) == 2);
+    *worst_scale = 0;
+    *worst_m = 0.0f;
+    for (const MeshVertex& v : meshing.buffer.vertices()) {
+      *worst_scale = std::max<int>(*worst_scale, v.scale);
+      *worst_m = std::max(*worst_m, std::fabs(sphere_sdf(v.p_W)));
+    }
+    return meshing.buffer.vertices().size();
+  };
+  int current_scale = -1;
+  float current_m = 0.0f;
+  const std::size_t current_vertices = mesh_at(MeshReadScale::current, &current_scale, &current_m);
+  int finest_scale = -1;
+  float finest_m = 0.0f;
+  const std::size_t finest_vertices =
+      mesh_at(MeshReadScale::finest_fused, &finest_scale, &finest_m);
+  CHECK(current_scale == 2);
+  CHECK(finest_scale == 0);  // every vertex from scale-0 voxels
+  CHECK(finest_m < kVertexTolerance_m);
+  CHECK(finest_vertices > 8 * current_vertices);  // 4x finer grid: ~16x the vertices
+  CHECK(current_m < 0.25f * 4.0f * kVoxel_m);
+}
+
+TEST_CASE("an unknown mesh read scale is invalid_argument") {
+  MeshConfig config;
+  config.read_scale = static_cast<MeshReadScale>(7);
+  CHECK(validate(config).code() == StatusCode::invalid_argument);
+  CHECK(Mesher<MultiresVoxel>::bytes_required(config) == 0u);
+}
+
 TEST_CASE("an empty map gives an empty mesh") {
   test::OwnedMap<MultiresVoxel> owned(test_map_config());
   Meshing<MultiresVoxel> meshing;

@@ -1,6 +1,6 @@
 #pragma once
 // Mesh extraction over the multi-resolution map: dual marching cubes (as supereight2 does, after
-// Wald et al.). Why dual: every block is read at the scale it was last integrated, and the cell
+// Wald et al.). Why dual: every block is read at one scale (MeshConfig::read_scale), and the cell
 // around each finest-grid corner point is formed by the 8 voxels (of whatever size) touching that
 // point, their samples at the voxel centres. Two neighbouring cells share a face made of the same
 // 4 voxels and cut it the same way, and a vertex is identified by the pair of voxels it
@@ -23,9 +23,20 @@
 
 namespace octofuse {
 
+// The scale each multires block is meshed at (single-res maps always use scale 0).
+enum class MeshReadScale : std::uint8_t {
+  // The scale it was last integrated at: what ray-casting and tracking see.
+  current,
+  // The finest scale it was ever integrated at (min_scale), as last fused there. Detail seen up
+  // close survives later far views, but fusion at coarser scales since then is not in it (lazy
+  // down-propagation would add it on the next close view): for static scenes.
+  finest_fused,
+};
+
 struct MeshConfig {
   std::uint32_t vertex_capacity = 1u << 20;  // unique vertices per extraction
   std::uint32_t batch_capacity = 4096;       // vertices and triangles per sink call
+  MeshReadScale read_scale = MeshReadScale::current;
 };
 
 struct MeshStats {
@@ -88,6 +99,7 @@ class Mesher {
 
  private:
   struct Corner;
+  int read_scale(const VoxelBlock<VoxelT>& block) const;
   Status mesh_block(const Octree<VoxelT>& map, std::uint32_t block_index, MeshSink& sink,
                     MeshStats& stats);
   Result<std::uint32_t> vertex_for(const Corner& p, const Corner& q, MeshSink& sink,

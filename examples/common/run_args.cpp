@@ -165,12 +165,7 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
     } else if (arg == "--no-mesh") {
       options.write_mesh = false;
     } else if (arg == "--mesh-scale") {
-      if (!need_value(&value)) return fail("--mesh-scale needs current or finest");
-      if (value == "current") {
-        options.mesh_read_scale = MeshReadScale::current;
-      } else if (value == "finest") {
-        options.mesh_read_scale = MeshReadScale::finest_fused;
-      } else {
+      if (!need_value(&value) || !parse_mesh_read_scale(value, &options.mesh_read_scale)) {
         return fail("--mesh-scale must be current or finest");
       }
     } else if (arg == "--quiet") {

@@ -498,6 +498,17 @@ Percentiles percentiles(std::vector<double> values) {
   return p;
 }
 
+bool parse_mesh_read_scale(const std::string& text, MeshReadScale* scale) {
+  if (text == "current") {
+    *scale = MeshReadScale::current;
+  } else if (text == "finest") {
+    *scale = MeshReadScale::finest_fused;
+  } else {
+    return false;
+  }
+  return true;
+}
+
 int run_pipeline(const RunOptions& options, RunSummary* summary) {
   *summary = RunSummary();
   if (options.map_kind == MapKind::multires) return run_typed<MultiresVoxel>(options, summary);

@@ -70,4 +70,7 @@ struct Percentiles {
 };
 Percentiles percentiles(std::vector<double> values);
 
+// "current" or "finest" (the --mesh-scale values); false for anything else.
+bool parse_mesh_read_scale(const std::string& text, MeshReadScale* scale);
+
 }  // namespace octofuse::examples

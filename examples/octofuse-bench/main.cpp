@@ -310,12 +310,7 @@ int main(int argc, char** argv) {
         return octofuse::cli::fail("--poses must be icp, gt or both");
       }
     } else if (arg == "--mesh-scale" && i + 1 < argc) {
-      const std::string scale = argv[++i];
-      if (scale == "current") {
-        mesh_read_scale = octofuse::MeshReadScale::current;
-      } else if (scale == "finest") {
-        mesh_read_scale = octofuse::MeshReadScale::finest_fused;
-      } else {
+      if (!octofuse::examples::parse_mesh_read_scale(argv[++i], &mesh_read_scale)) {
         return octofuse::cli::fail("--mesh-scale must be current or finest");
       }
     } else if (arg == "-h" || arg == "--help") {

@@ -63,7 +63,7 @@ struct RunSummary {
 // 0 on success; otherwise prints "error: ..." and returns the exit code.
 int run_pipeline(const RunOptions& options, RunSummary* summary);
 
-// Median, p90, p99, max of a sample (sorted copy); zeros for an empty one.
+// Median, p90, p99, max and mean of a sample (sorted copy); zeros for an empty one.
 struct Percentiles {
   double median = 0.0, p90 = 0.0, p99 = 0.0, max = 0.0;
   double mean = 0.0;  // sets the sustained frame rate, where the median shows a typical frame

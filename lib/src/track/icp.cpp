@@ -26,12 +26,9 @@ struct Pass {
 };
 
 void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
-  // Sums in locals, stored once at the end: the compiler cannot keep sums that live behind
+  // Sums in a local, stored once at the end: the compiler cannot keep sums that live behind
   // `out` in registers across the image reads.
-  double jtj[21] = {};
-  double jtr[6] = {};
-  double residual_sq = 0.0;
-  std::uint32_t count = 0;
+  IcpTracker::Partial sums{};
   const int width = pass.vertices_C.width;
   const TaskRange rows =
       task_range(static_cast<std::size_t>(pass.vertices_C.height), task, kTrackTasks);
@@ -73,17 +70,14 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
       int k = 0;
       for (int a = 0; a < 6; ++a) {
         const double wj = w * j[a];
-        for (int b = a; b < 6; ++b) jtj[k++] += wj * j[b];
-        jtr[a] += wj * r;
+        for (int b = a; b < 6; ++b) sums.jtj[k++] += wj * j[b];
+        sums.jtr[a] += wj * r;
       }
-      residual_sq += r * r;
-      ++count;
+      sums.residual_sq += r * r;
+      ++sums.count;
     }
   }
-  for (int k = 0; k < 21; ++k) out.jtj[k] = jtj[k];
-  for (int k = 0; k < 6; ++k) out.jtr[k] = jtr[k];
-  out.residual_sq = residual_sq;
-  out.count = count;
+  out = sums;
 }
 
 // Sums the task partials in task order.

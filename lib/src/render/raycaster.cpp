@@ -451,6 +451,7 @@ struct RowJob {
   RaycastStats* row_stats;
   ImageView<const TileDepthRange> ranges;
   ImageView<const float> guide_depth_m;  // empty: no guide
+  Eigen::Vector3f origin_v;              // the camera centre, where every ray starts, in voxels
 
   // One task: kRowsPerTask consecutive rows, so a worker's cache keeps the voxels that
   // neighbouring rows share (rows dealt out one by one split them between the cores).
@@ -469,8 +470,6 @@ struct RowJob {
     const std::uint64_t rows = static_cast<std::uint64_t>(config->height);
     std::uint64_t steps_left = std::numeric_limits<std::uint64_t>::max();
     if (budget != 0) steps_left = budget / rows + (row < budget % rows ? 1u : 0u);
-    // Every ray starts at the camera centre: its voxel coordinates once per row.
-    const Eigen::Vector3f origin_v = map->point_to_voxel_f(t_W_C);
     const float voxel_m = map->voxel_size_m();
     for (int x = 0; x < config->width; ++x) {
       surface_W.vertices(x, y) = Eigen::Vector3f::Zero();
@@ -569,7 +568,8 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
                      scale_,
                      row_stats_,
                      ranges_,
-                     guide_depth_m};
+                     guide_depth_m,
+                     map.point_to_voxel_f(T_W_C.translation().cast<float>())};
   const std::size_t tasks = (static_cast<std::size_t>(config_.height) + kRowsPerTask - 1) /
                             static_cast<std::size_t>(kRowsPerTask);
   team.for_each_task(tasks, job);

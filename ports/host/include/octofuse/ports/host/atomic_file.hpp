@@ -1,0 +1,57 @@
+#pragma once
+// A file that appears whole or not at all: written to a temporary beside the destination
+// ("<path>.tmp"), then flushed, fsync'ed, renamed over the destination and the folder fsync'ed.
+// A crash or kill at any instant leaves the previous file (or none) or the new one, complete;
+// never a mix. Writers that speak std::FILE* write through file(); commit() publishes.
+//
+//   AtomicFile out;
+//   OCTOFUSE_TRY(out.open("out/mesh.ply"));
+//   std::fwrite(bytes, 1, n, out.file());
+//   OCTOFUSE_TRY(out.commit());          // or let it go out of scope: the temporary is removed
+
+#include <cstddef>
+#include <cstdio>
+#include <string>
+
+#include "octofuse/core/error_text.hpp"
+#include "octofuse/core/status.hpp"
+
+namespace octofuse::host {
+
+class AtomicFile {
+ public:
+  AtomicFile() = default;
+  AtomicFile(const AtomicFile&) = delete;
+  AtomicFile& operator=(const AtomicFile&) = delete;
+  // Abandons an uncommitted file: the temporary is removed, the destination untouched.
+  ~AtomicFile();
+
+  // Creates the temporary. invalid_argument: empty path; unavailable: it cannot be created
+  // (missing folder, no permission); failed_precondition: already open.
+  Status open(const char* path);
+  // The temporary's stream, for fprintf/fwrite; nullptr when not open.
+  std::FILE* file() const { return file_; }
+  // data_loss on a short write; failed_precondition when not open.
+  Status write(const void* data, std::size_t bytes);
+  // Flushes, syncs, closes and renames over the destination, then syncs the folder. data_loss
+  // when any of that fails (the temporary is removed, the destination untouched);
+  // failed_precondition when not open. A stream error seen earlier on file() fails it too.
+  Status commit();
+  // Closes and removes the temporary; the destination stays as it was.
+  void abandon();
+
+  const std::string& path() const { return path_; }
+  const char* last_error() const { return error_.c_str(); }
+
+ private:
+  std::FILE* file_ = nullptr;
+  std::string path_;
+  std::string temporary_;
+  ErrorText error_;
+};
+
+// fsyncs the folder holding `path`, so a rename or a new file in it survives a power cut.
+// unavailable when the folder cannot be opened or synced.
+Status sync_parent_folder(const char* path);
+
+}  // namespace octofuse::host

@@ -126,8 +126,9 @@ bool TrackConfig::valid() const {
          min_normal_dot >= -1.0f && min_normal_dot <= 1.0f && std::isfinite(convergence_norm) &&
          convergence_norm >= 0.0 && std::isfinite(lost_max_rms_m) && lost_max_rms_m >= 0.0f &&
          std::isfinite(lost_min_inlier_fraction) && lost_min_inlier_fraction >= 0.0f &&
-         lost_min_inlier_fraction <= 1.0f && std::isfinite(depth_weight_knee_m) &&
-         depth_weight_knee_m >= 0.0f;
+         lost_min_inlier_fraction <= 1.0f && std::isfinite(lost_min_image_fraction) &&
+         lost_min_image_fraction >= 0.0f && lost_min_image_fraction <= 1.0f &&
+         std::isfinite(depth_weight_knee_m) && depth_weight_knee_m >= 0.0f;
 }
 
 const char* track_outcome_name(TrackOutcome outcome) {
@@ -229,15 +230,26 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   }
   if (!have_final) final_total = run_pass(0, estimate);
 
+  // Serial integer count: the same for any worker count, and a few tens of microseconds.
+  std::uint32_t model_pixels = 0;
+  for (int y = 0; y < model_W.height(); ++y) {
+    for (int x = 0; x < model_W.width(); ++x) model_pixels += model_W.valid(x, y) ? 1u : 0u;
+  }
   const double pixels = static_cast<double>(width_) * static_cast<double>(height_);
   report.status = ok_status();
   report.inliers = final_total.count;
-  report.inlier_fraction = static_cast<float>(final_total.count / pixels);
+  report.model_pixels = model_pixels;
+  report.inlier_fraction =
+      model_pixels > 0 ? static_cast<float>(final_total.count / static_cast<double>(model_pixels))
+                       : 0.0f;
+  const bool too_few_in_image =
+      static_cast<double>(final_total.count) < config_.lost_min_image_fraction * pixels;
   report.rms_residual_m =
       final_total.count > 0
           ? static_cast<float>(std::sqrt(final_total.residual_sq / final_total.count))
           : 0.0f;
-  if (report.inlier_fraction < config_.lost_min_inlier_fraction || final_total.count == 0) {
+  if (report.inlier_fraction < config_.lost_min_inlier_fraction || too_few_in_image ||
+      final_total.count == 0) {
     report.outcome = TrackOutcome::lost_inliers;
   } else if (singular) {
     report.outcome = TrackOutcome::lost_singular;

@@ -143,7 +143,68 @@ TEST_CASE("ICP recovers a known small offset on a synthetic pair") {
   CHECK(report.iterations[0] >= 1);
   CHECK(report.inlier_fraction > 0.8f);
   CHECK(report.rms_residual_m < 1e-3f);
-  CHECK(report.inliers == static_cast<std::uint32_t>(report.inlier_fraction * 320 * 240 + 0.5f));
+  CHECK(report.model_pixels > 0u);
+  CHECK(report.inliers ==
+        static_cast<std::uint32_t>(report.inlier_fraction * report.model_pixels + 0.5f));
+}
+
+TEST_CASE("ICP tracks against a model that covers only part of the view (a full block pool)") {
+  // A full pool leaves the map, and so the ray-cast, covering a fraction of what the camera sees:
+  // the inliers are counted against the model's valid pixels, not the whole image.
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const Se3d T_W_C_true = offset_pose();
+  test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  // Keep the lower-left window where the three walls meet (14% of the pixels): enough geometry
+  // to fix all six degrees of freedom.
+  const int x0 = 0;
+  const int x1 = 110;
+  const int y0 = 140;
+  const int y1 = model.height;
+  std::uint32_t kept = 0;
+  for (int y = 0; y < model.height; ++y) {
+    for (int x = 0; x < model.width; ++x) {
+      const std::size_t i = static_cast<std::size_t>(y) * model.width + x;
+      if (x >= x0 && x < x1 && y >= y0 && y < y1) {
+        kept += is_invalid_normal(model.normals_W[i]) ? 0u : 1u;
+      } else {
+        model.normals_W[i] = Eigen::Vector3f::Zero();
+      }
+    }
+  }
+  REQUIRE(kept < 320u * 240u * 15u / 100u);  // below the old "15% of the image" gate
+  f.set_live(scene, T_W_C_true);
+  Se3d T_W_C = T_W_Cref;
+  const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                             T_W_Cref, T_W_C, WorkerTeam(1));
+  REQUIRE(report.status.ok());
+  CHECK(report.model_pixels == kept);
+  CHECK(report.outcome == TrackOutcome::tracked);
+  CHECK(report.inlier_fraction > 0.5f);
+  CHECK(translation_error_m(T_W_C, T_W_C_true) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(T_W_C, T_W_C_true) < kRotationTolerance_deg);
+}
+
+TEST_CASE("a model too small to constrain the pose is reported lost") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  // 20 x 20 valid pixels: 0.5% of the image, under lost_min_image_fraction (2%).
+  for (int y = 0; y < model.height; ++y) {
+    for (int x = 0; x < model.width; ++x) {
+      if (x >= 150 && x < 170 && y >= 110 && y < 130) continue;
+      model.normals_W[static_cast<std::size_t>(y) * model.width + x] = Eigen::Vector3f::Zero();
+    }
+  }
+  f.set_live(scene, T_W_Cref);
+  Se3d T_W_C = T_W_Cref;
+  const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                             T_W_Cref, T_W_C, WorkerTeam(1));
+  REQUIRE(report.status.ok());
+  CHECK(report.outcome == TrackOutcome::lost_inliers);
+  CHECK(report.inliers < 320u * 240u * 2u / 100u);
 }
 
 TEST_CASE("ICP stays at the identity when already aligned") {

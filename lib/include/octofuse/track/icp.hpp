@@ -13,8 +13,10 @@
 //
 // The reported residual and inliers are those of the last level-0 pass when it converged, else
 // of one more pass at the final estimate. Tracking is lost when the RMS residual exceeds
-// lost_max_rms_m or the inliers are fewer than lost_min_inlier_fraction of the level-0 pixels;
-// T_W_C then keeps the value passed in.
+// lost_max_rms_m, or the inliers are fewer than lost_min_inlier_fraction of the model's valid
+// pixels or fewer than lost_min_image_fraction of all level-0 pixels; T_W_C then keeps the value
+// passed in. Counting inliers against the model, not the image, keeps a map that covers part of
+// the view (a full block pool) trackable.
 
 #include <cstddef>
 #include <cstdint>
@@ -38,7 +40,8 @@ struct TrackConfig {
   float min_normal_dot = 0.8f;                  // association gate on n_live_W . n_model_W
   double convergence_norm = 1e-5;               // stop a level when |twist| falls below this
   float lost_max_rms_m = 0.02f;                 // RMS point-to-plane residual
-  float lost_min_inlier_fraction = 0.15f;       // of all level-0 pixels
+  float lost_min_inlier_fraction = 0.15f;       // of the model's valid pixels
+  float lost_min_image_fraction = 0.02f;        // of all level-0 pixels (enough to constrain 6 DoF)
   // Level-0 pairs are weighted by the inverse of their expected residual variance, the model's
   // own error plus depth noise growing as z^2 (structured light, stereo): 1 / (1 + (z / knee)^4)
   // with z the live point's depth and knee where the two are equal (Kinect-class noise reaches
@@ -67,8 +70,9 @@ struct TrackReport {
   TrackOutcome outcome = TrackOutcome::failed;
   int iterations[kPyramidLevels] = {0, 0, 0};  // Gauss-Newton steps taken per level
   float rms_residual_m = 0.0f;                 // at the estimate, level 0
-  float inlier_fraction = 0.0f;                // inliers / level-0 pixels
+  float inlier_fraction = 0.0f;                // inliers / model_pixels
   std::uint32_t inliers = 0;                   // level-0 pairs that passed the gates
+  std::uint32_t model_pixels = 0;              // valid pixels of the model (ray-cast)
 
   bool tracked() const { return outcome == TrackOutcome::tracked; }
 };

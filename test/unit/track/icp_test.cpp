@@ -191,7 +191,7 @@ TEST_CASE("a model too small to constrain the pose is reported lost") {
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
   test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
-  // 20 x 20 valid pixels: 0.5% of the image, under lost_min_image_fraction (2%).
+  // 20 x 20 valid pixels: 0.5% of the image, under lost_min_image_fraction (5%).
   for (int y = 0; y < model.height; ++y) {
     for (int x = 0; x < model.width; ++x) {
       if (x >= 150 && x < 170 && y >= 110 && y < 130) continue;
@@ -204,7 +204,7 @@ TEST_CASE("a model too small to constrain the pose is reported lost") {
                                              T_W_Cref, T_W_C, WorkerTeam(1));
   REQUIRE(report.status.ok());
   CHECK(report.outcome == TrackOutcome::lost_inliers);
-  CHECK(report.inliers < 320u * 240u * 2u / 100u);
+  CHECK(report.inliers < 320u * 240u * 5u / 100u);
 }
 
 TEST_CASE("ICP stays at the identity when already aligned") {

@@ -51,8 +51,14 @@ Status validate(const PipelineConfig& config) {
   OCTOFUSE_TRY(validate(config.fusion));
   if (!config.preprocess.valid() || !config.track.valid()) return StatusCode::invalid_argument;
   if (config.workers < 1 || config.workers > 64) return StatusCode::invalid_argument;
+  int icp_iterations = 0;
   for (int level = 0; level < kPyramidLevels; ++level) {
     if (config.budget.icp_iterations[level] < 0) return StatusCode::invalid_argument;
+    icp_iterations += config.budget.icp_iterations[level];
+  }
+  // No iteration at all would report every frame tracked at the predicted pose.
+  if (config.pose_source == PoseSource::track && icp_iterations == 0) {
+    return StatusCode::invalid_argument;
   }
   if (!is_rigid(config.initial_T_W_C.matrix(), config.validator.rigid_tolerance)) {
     return StatusCode::invalid_argument;

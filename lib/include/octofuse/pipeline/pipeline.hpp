@@ -49,8 +49,10 @@ struct PipelineBudget {
   std::uint32_t max_new_blocks = 0xFFFFFFFFu;         // per frame
   std::uint32_t max_integrated_blocks = 0xFFFFFFFFu;  // per frame
   std::uint64_t max_voxel_updates = ~std::uint64_t{0};
-  std::uint64_t raycast_steps = 0;                  // 0 = unbounded
-  int icp_iterations[kPyramidLevels] = {4, 5, 10};  // index 0 = finest level
+  std::uint64_t raycast_steps = 0;  // 0 = unbounded
+  // Index 0 = finest level. When tracking, at least one level must iterate (init() returns
+  // invalid_argument otherwise): no iteration would report every frame tracked, unchecked.
+  int icp_iterations[kPyramidLevels] = {4, 5, 10};
 };
 
 struct PipelineConfig {

@@ -141,6 +141,22 @@ TEST_CASE("init rejects a map kind that does not match the voxel type and bad co
   REQUIRE(pipeline.process(frame, &stats).code() == StatusCode::failed_precondition);
 }
 
+TEST_CASE("init rejects an ICP budget of no iteration when tracking") {
+  sim::SimSource source(small_sim(2));
+  REQUIRE(source.open().ok());
+  PipelineConfig config = small_config(source, 0.02f, 1);
+  Buffer buffer(bytes_required(config));
+  for (int& iterations : config.budget.icp_iterations) iterations = 0;
+  Pipeline<MultiresVoxel> pipeline;
+  CHECK(pipeline.init(buffer.data, bytes_required(config), config).code() ==
+        StatusCode::invalid_argument);
+  config.pose_source = PoseSource::ground_truth;  // ICP unused: no iteration is fine
+  CHECK(pipeline.init(buffer.data, bytes_required(config), config).ok());
+  config.pose_source = PoseSource::track;
+  config.budget.icp_iterations[2] = 1;
+  CHECK(pipeline.init(buffer.data, bytes_required(config), config).ok());
+}
+
 TEST_CASE("300 frames after init allocate nothing, tracked or lost") {
   sim::SimSource source(small_sim(300));
   REQUIRE(source.open().ok());
@@ -323,6 +339,50 @@ TEST_CASE("a block pool too small for the scene degrades and reports instead of 
       REQUIRE(s.integration.pool_refusals > 0);
     }
   }
+}
+
+TEST_CASE("a block pool that fills on the first frame still tracks what it holds") {
+  // The first frame alone wants four times the pool; the next frames see mostly the same part of
+  // the scene and must track against the ray-cast of the blocks that exist. Inliers counted
+  // against the whole image (the former gate, lost_min_image_fraction = 0.15) lose most of them.
+  constexpr double kMaxError_m = 0.01;
+  constexpr std::size_t kChecked = 12;  // the first frames, while the mapped part is in view
+  const sim::SimConfig sim_config = small_sim(60, /*noise=*/false);
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  std::vector<FrameStats> unbounded;
+  run<MultiresVoxel>(sim_config, small_config(truth, 0.01f, 1), &unbounded);
+  const std::uint32_t blocks = unbounded.front().memory.blocks_used / 4;
+  REQUIRE(blocks > 50u);
+
+  auto count_lost = [&](const PipelineConfig& config) {
+    std::vector<FrameStats> stats;
+    const std::vector<Se3d> poses = run<MultiresVoxel>(sim_config, config, &stats);
+    REQUIRE(poses.size() == 60);
+    REQUIRE(stats.front().integration.pool_refusals > 0);
+    int lost = 0;
+    for (std::size_t i = 0; i < kChecked; ++i) {
+      CAPTURE(i);
+      REQUIRE(stats[i].memory.blocks_used == blocks);
+      if (stats[i].result == FrameResult::lost) {
+        ++lost;
+        continue;
+      }
+      // A pose reported tracked is right.
+      const double error_m =
+          (poses[i].translation() - truth.ground_truth_T_W_C(static_cast<int>(i)).translation())
+              .norm();
+      REQUIRE(error_m < kMaxError_m);
+    }
+    return lost;
+  };
+  const PipelineConfig config = small_config(truth, 0.01f, 1, blocks);
+  PipelineConfig former = config;
+  former.track.lost_min_image_fraction = 0.15f;
+  const int lost = count_lost(config);
+  const int lost_former = count_lost(former);
+  CHECK(lost <= 2);
+  CHECK(lost_former >= 4);
 }
 
 }  // namespace

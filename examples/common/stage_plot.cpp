@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include "octofuse/ports/host/atomic_file.hpp"
+
 namespace octofuse::plot {
 
 bool write_stacked_svg(const std::string& path, const std::string& title,
@@ -38,8 +40,10 @@ bool write_stacked_svg(const std::string& path, const std::string& title,
   };
   auto y_of = [&](double v) { return top_margin + plot_h * (1.0 - v / axis_max); };
 
-  std::FILE* f = std::fopen(path.c_str(), "w");
-  if (f == nullptr) return false;
+  // Through a temporary renamed into place: a crash leaves the previous plot or this one, whole.
+  host::AtomicFile out;
+  if (!out.open(path.c_str()).ok()) return false;
+  std::FILE* f = out.file();
   std::fprintf(f,
                "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" "
                "font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%%\" "
@@ -85,8 +89,7 @@ bool write_stacked_svg(const std::string& path, const std::string& title,
                "transform=\"translate(16,%.0f) rotate(-90)\" text-anchor=\"middle\">time per "
                "frame (ms)</text>\n</svg>\n",
                left + plot_w / 2.0, height - 10.0, top_margin + plot_h / 2.0);
-  const bool ok = std::ferror(f) == 0;
-  return std::fclose(f) == 0 && ok;
+  return out.commit().ok();  // fails on any earlier stream error too
 }
 
 }  // namespace octofuse::plot

@@ -1,5 +1,7 @@
 #include "octofuse/ports/host/json_writer.hpp"
 
+#include "octofuse/ports/host/atomic_file.hpp"
+
 #include <cerrno>
 #include <cinttypes>
 #include <cmath>
@@ -167,19 +169,14 @@ Status JsonWriter::write_file(const char* path, ErrorText* error) const {
     err.set("%s: JSON document is incomplete", path);
     return StatusCode::failed_precondition;
   }
-  std::FILE* file = std::fopen(path, "w");
-  if (file == nullptr) {
-    err.set("%s: cannot create (%s)", path, std::strerror(errno));
-    return StatusCode::unavailable;
-  }
-  bool ok = std::fwrite(c_str(), 1, size(), file) == size();
-  ok = std::fputc('\n', file) != EOF && ok;
-  ok = std::fclose(file) == 0 && ok;
-  if (!ok) {
-    err.set("%s: write failed", path);
-    return StatusCode::data_loss;
-  }
-  return ok_status();
+  // Through a temporary renamed into place: a crash leaves the previous file or this one, whole.
+  AtomicFile out;
+  Status status = out.open(path);
+  if (status.ok()) status = out.write(c_str(), size());
+  if (status.ok()) status = out.write("\n", 1);
+  if (status.ok()) status = out.commit();
+  if (!status.ok()) err.set("%s", out.last_error());
+  return status;
 }
 
 }  // namespace octofuse::host

@@ -1,5 +1,6 @@
 #include "octofuse/ports/host/ply.hpp"
 
+#include "octofuse/ports/host/atomic_file.hpp"
 #include "octofuse/ports/host/host_buffer.hpp"
 
 #include <cerrno>
@@ -49,12 +50,14 @@ Status write_ply(const char* path, const MeshView& mesh, ErrorText* error) {
       return StatusCode::invalid_argument;
     }
   }
-  std::FILE* file = std::fopen(path, "wb");
-  if (file == nullptr) {
-    err.set("%s: cannot create (%s)", path, std::strerror(errno));
-    return StatusCode::unavailable;
+  // Through a temporary renamed into place: a crash leaves the previous mesh or this one, whole.
+  AtomicFile atomic;
+  const Status opened = atomic.open(path);
+  if (!opened.ok()) {
+    err.set("%s", atomic.last_error());
+    return opened;
   }
-  FileCloser closer{file};
+  std::FILE* file = atomic.file();
   const bool with_scale = mesh.vertex_scale != nullptr;
   std::fprintf(file,
                "ply\nformat binary_little_endian 1.0\ncomment octofuse mesh, metres\n"
@@ -77,13 +80,13 @@ Status write_ply(const char* path, const MeshView& mesh, ErrorText* error) {
     for (int k = 0; k < 3; ++k) put_u32(out + 1 + 4 * k, mesh.indices[3 * t + k]);
   }
   ok = ok && std::fwrite(buffer.data(), 1, buffer.size(), file) == buffer.size();
-  closer.file = nullptr;
-  ok = (std::fclose(file) == 0) && ok;
   if (!ok) {
     err.set("%s: write failed", path);
-    return StatusCode::data_loss;
+    return StatusCode::data_loss;  // `atomic` removes the temporary
   }
-  return ok_status();
+  const Status committed = atomic.commit();
+  if (!committed.ok()) err.set("%s", atomic.last_error());
+  return committed;
 }
 
 Status read_ply_into(const char* path, const PlyMeshTarget& target, ErrorText* error) {

@@ -31,7 +31,8 @@ Status TumTrajectoryWriter::open(const char* path) {
     error_.set("%s: cannot create (%s)", path, std::strerror(errno));
     return StatusCode::unavailable;
   }
-  if (std::fputs("# timestamp tx ty tz qx qy qz qw (camera to world)\n", file_) < 0) {
+  if (std::fputs("# timestamp tx ty tz qx qy qz qw (camera to world)\n", file_) < 0 ||
+      std::fflush(file_) != 0) {
     error_.set("%s: write failed", path_);
     return StatusCode::data_loss;
   }
@@ -43,7 +44,8 @@ Status TumTrajectoryWriter::append(const TimedPose& pose) {
     error_.set("trajectory writer: not open");
     return StatusCode::failed_precondition;
   }
-  if (!write_pose(file_, pose)) {
+  // Flushed per line: a killed process leaves every line it appended, each whole (one write(2)).
+  if (!write_pose(file_, pose) || std::fflush(file_) != 0) {
     error_.set("%s: write failed", path_);
     return StatusCode::data_loss;
   }

@@ -59,3 +59,23 @@ TEST_CASE("JSON writer refuses to write an incomplete document", "[host][json]")
   std::getline(in, text);
   CHECK(text == "{}");
 }
+
+TEST_CASE("JSON writer replaces a file whole, through a temporary it removes", "[host][json]") {
+  const std::string dir = octofuse::test::make_test_dir("json-atomic");
+  const std::string path = dir + "/stats.json";
+  octofuse::ErrorText error;
+  JsonWriter first;
+  first.begin_object().key("run").value(1).end_object();
+  REQUIRE(first.write_file(path.c_str(), &error).ok());
+  JsonWriter second;
+  second.begin_object().key("run").value(2).end_object();
+  REQUIRE(second.write_file(path.c_str(), &error).ok());
+  std::ifstream in(path);
+  std::string text;
+  std::getline(in, text);
+  CHECK(text == "{\"run\":2}");
+  CHECK(!std::ifstream(path + ".tmp").good());
+  const std::string missing = dir + "/no-such-folder/stats.json";
+  CHECK(second.write_file(missing.c_str(), &error) == octofuse::StatusCode::unavailable);
+  CHECK(std::string(error.c_str()).find("no-such-folder") != std::string::npos);
+}

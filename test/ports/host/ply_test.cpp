@@ -88,3 +88,31 @@ TEST_CASE("PLY reader reports truncated and malformed files", "[host][ply]") {
     CHECK(std::string(error.c_str()).find("not a PLY") != std::string::npos);
   }
 }
+
+TEST_CASE("PLY writer replaces a mesh whole or leaves the old one", "[host][ply]") {
+  const std::string dir = octofuse::test::make_test_dir("ply-atomic");
+  const std::string path = dir + "/mesh.ply";
+  ErrorText error;
+  const Mesh first = tetrahedron(false);
+  REQUIRE(octofuse::host::write_ply(path.c_str(), first.view(), &error).ok());
+  // A failed write (bad index) leaves the previous file as it was and no temporary beside it.
+  Mesh bad = tetrahedron(true);
+  bad.indices[0] = 9;
+  CHECK(octofuse::host::write_ply(path.c_str(), bad.view(), &error) ==
+        StatusCode::invalid_argument);
+  Mesh read;
+  REQUIRE(octofuse::host::read_ply(path.c_str(), &read, &error).ok());
+  CHECK(read.vertices == first.vertices);
+  CHECK(read.vertex_scale.empty());
+  CHECK(!std::ifstream(path + ".tmp").good());
+  // A good one replaces it.
+  const Mesh second = tetrahedron(true);
+  REQUIRE(octofuse::host::write_ply(path.c_str(), second.view(), &error).ok());
+  REQUIRE(octofuse::host::read_ply(path.c_str(), &read, &error).ok());
+  CHECK(read.vertex_scale == second.vertex_scale);
+  CHECK(!std::ifstream(path + ".tmp").good());
+  // A folder that does not exist: unavailable, nothing created.
+  const std::string missing = dir + "/no-such-folder/mesh.ply";
+  CHECK(octofuse::host::write_ply(missing.c_str(), second.view(), &error) ==
+        StatusCode::unavailable);
+}

@@ -107,3 +107,23 @@ TEST_CASE("TUM trajectory writer appends one line per pose", "[host][trajectory]
   CHECK(header[0] == '#');
   CHECK(line == "0.500000 1 2 3 0 0 0 1");
 }
+
+TEST_CASE("TUM trajectory writer: each appended line is in the file before close",
+          "[host][trajectory]") {
+  // What a process killed mid-run leaves: every line appended so far, each whole.
+  const std::string dir = octofuse::test::make_test_dir("traj-flush");
+  const std::string path = dir + "/t.txt";
+  const std::vector<TimedPose> poses = random_trajectory(5, 7);
+  octofuse::host::TumTrajectoryWriter writer;
+  REQUIRE(writer.open(path.c_str()).ok());
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    REQUIRE(writer.append(poses[i]).ok());
+    std::vector<TimedPose> on_disk;
+    ErrorText error;
+    REQUIRE(octofuse::host::read_tum_trajectory(path.c_str(), &on_disk, &error).ok());
+    REQUIRE(on_disk.size() == i + 1);
+    CHECK(on_disk[i].timestamp_s == Approx(poses[i].timestamp_s).margin(1e-6));
+    CHECK((on_disk[i].T_W_C.translation() - poses[i].T_W_C.translation()).norm() < 1e-6);
+  }
+  REQUIRE(writer.close().ok());
+}

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstring>
 
+#include "octofuse/ports/host/atomic_file.hpp"
 #include "octofuse/ports/host/png_writer.hpp"
 
 namespace octofuse::host {
@@ -69,18 +70,20 @@ Status write_job(const WriteJob& job, ErrorText* error) {
     err.set("%s: empty image", job.path);
     return StatusCode::invalid_argument;
   }
-  std::FILE* file = std::fopen(job.path, "wb");
-  if (file == nullptr) {
-    err.set("%s: cannot create (%s)", job.path, std::strerror(errno));
-    return StatusCode::unavailable;
+  // Through a temporary renamed into place: a crash leaves the previous image or this one, whole.
+  AtomicFile out;
+  const Status opened = out.open(job.path);
+  if (!opened.ok()) {
+    err.set("%s", out.last_error());
+    return opened;
   }
-  bool ok = write_with_libpng(file, job);
-  ok = std::fclose(file) == 0 && ok;
-  if (!ok) {
+  if (!write_with_libpng(out.file(), job)) {
     err.set("%s: PNG write failed", job.path);
-    return StatusCode::data_loss;
+    return StatusCode::data_loss;  // `out` removes the temporary
   }
-  return ok_status();
+  const Status committed = out.commit();
+  if (!committed.ok()) err.set("%s", out.last_error());
+  return committed;
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstring>
 
+#include "octofuse/ports/host/atomic_file.hpp"
 #include "octofuse/ports/host/host_buffer.hpp"
 #include "octofuse/ports/host/png_writer.hpp"
 
@@ -91,18 +92,13 @@ Status write_stored_png(const char* path, int width, int height, int bit_depth, 
   put_chunk(&file_bytes, "IDAT", zlib);
   put_chunk(&file_bytes, "IEND", Bytes());
 
-  std::FILE* file = std::fopen(path, "wb");
-  if (file == nullptr) {
-    err.set("%s: cannot create (%s)", path, std::strerror(errno));
-    return StatusCode::unavailable;
-  }
-  bool ok = std::fwrite(file_bytes.data(), 1, file_bytes.size(), file) == file_bytes.size();
-  ok = std::fclose(file) == 0 && ok;
-  if (!ok) {
-    err.set("%s: PNG write failed", path);
-    return StatusCode::data_loss;
-  }
-  return ok_status();
+  // Through a temporary renamed into place: a crash leaves the previous image or this one, whole.
+  AtomicFile out;
+  Status status = out.open(path);
+  if (status.ok()) status = out.write(file_bytes.data(), file_bytes.size());
+  if (status.ok()) status = out.commit();
+  if (!status.ok()) err.set("%s", out.last_error());
+  return status;
 }
 
 }  // namespace

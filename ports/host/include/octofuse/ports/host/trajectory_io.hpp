@@ -16,7 +16,9 @@ struct TimedPose {
   Se3d T_W_C = Se3d::Identity();
 };
 
-// Writes poses one per line as they come (octofuse-replay appends one per frame).
+// Writes poses one per line as they come (octofuse-replay appends one per frame). Each line is
+// flushed to the kernel as it is appended, so a process killed at any instant leaves whole lines
+// only; it is not fsync'ed (a power cut may lose the last seconds, see the README).
 class TumTrajectoryWriter {
  public:
   TumTrajectoryWriter() = default;

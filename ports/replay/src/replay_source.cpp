@@ -29,6 +29,7 @@ std::int64_t synthetic_timestamp_us(std::size_t index) {
   return static_cast<std::int64_t>(index) * kMicrosecondsPerSecond / 30;
 }
 
+// Callers pass timestamps the parsers bounded by kMaxTimestamp_s, so this cannot overflow.
 std::int64_t seconds_to_us(double seconds) {
   return static_cast<std::int64_t>(std::llround(seconds * 1e6));
 }
@@ -125,6 +126,35 @@ PinholeCamera tum_default_intrinsics(const char* path) {
   if (std::strstr(path, "freiburg3") != nullptr)
     camera = {535.4f, 539.2f, 320.1f, 247.6f, 640, 480};
   return camera;
+}
+
+// The highest N of DIR/frame-NNNNNN.depth.png (the listing, so a missing frame in the middle
+// does not end the sequence); -1 when there is none or the folder cannot be listed.
+long highest_seven_scenes_frame(const char* dir) {
+  DIR* listing = ::opendir(dir);
+  if (listing == nullptr) return -1;
+  long highest = -1;
+  while (const dirent* entry = ::readdir(listing)) {
+    constexpr const char kPrefix[] = "frame-";
+    constexpr const char kSuffix[] = ".depth.png";
+    constexpr std::size_t kPrefixLength = sizeof(kPrefix) - 1;
+    constexpr std::size_t kDigits = 6;
+    if (std::strlen(entry->d_name) != kPrefixLength + kDigits + sizeof(kSuffix) - 1 ||
+        std::strncmp(entry->d_name, kPrefix, kPrefixLength) != 0 ||
+        std::strcmp(entry->d_name + kPrefixLength + kDigits, kSuffix) != 0) {
+      continue;
+    }
+    long index = 0;
+    bool digits = true;
+    for (std::size_t i = 0; i < kDigits && digits; ++i) {
+      const char c = entry->d_name[kPrefixLength + i];
+      digits = c >= '0' && c <= '9';
+      index = index * 10 + (c - '0');
+    }
+    if (digits && index > highest) highest = index;
+  }
+  ::closedir(listing);
+  return highest;
 }
 
 // Finds the first DIR/*.gt.freiburg (ICL-NUIM's ground truth name).
@@ -470,16 +500,19 @@ Status ReplaySource::open_seven_scenes() {
                                          &intrinsics_, path, &error_));
   }
   char path[ReplayConfig::kMaxPath + 32];
-  for (;;) {
-    if (!frame_path(frame_count_, path, sizeof(path))) {
-      error_.set("%s: path too long", dir);
-      return StatusCode::invalid_argument;
-    }
-    if (!is_file(path)) break;
-    if (frame_count_ == static_cast<std::size_t>(config_.max_frames)) {
-      error_.set("%s: more than %d frames (raise max_frames)", dir, config_.max_frames);
-      return StatusCode::resource_exhausted;
-    }
+  if (!frame_path(0, path, sizeof(path))) {
+    error_.set("%s: path too long", dir);
+    return StatusCode::invalid_argument;
+  }
+  // Frames 0 to the highest number present: a missing one in between is skipped by next() (it
+  // fails to load) and counted, instead of ending the sequence there.
+  const long highest = is_file(path) ? highest_seven_scenes_frame(dir) : -1;
+  if (highest >= config_.max_frames) {
+    error_.set("%s: frame-%06ld.depth.png: more than %d frames (raise max_frames)", dir, highest,
+               config_.max_frames);
+    return StatusCode::resource_exhausted;
+  }
+  for (long i = 0; i <= highest; ++i) {
     FrameEntry& entry = entries_[frame_count_];
     entry = FrameEntry();
     entry.timestamp_us = synthetic_timestamp_us(frame_count_);
@@ -703,8 +736,15 @@ NextFrame ReplaySource::next(DepthFrame& frame) {
         ++next_index_;
         ++frames_dropped_;
       }
-      const std::int64_t due_us =
-          clock_start_us_ + entries_[next_index_].timestamp_us - data_start_us_;
+      std::int64_t due_us = clock_start_us_ + entries_[next_index_].timestamp_us - data_start_us_;
+      if (due_us - (clock_start_us_ + elapsed_us) > kMaxRealTimeWait_us) {
+        // A pause in the recording (or a corrupt timestamp): replay it as no pause, restarting
+        // the clock at this frame, rather than sleeping through it.
+        clock_start_us_ += elapsed_us;
+        data_start_us_ = entries_[next_index_].timestamp_us;
+        due_us = clock_start_us_;
+        ++gaps_shortened_;
+      }
       if (due_us > clock_start_us_ + elapsed_us) clock.sleep_until_us(clock.context, due_us);
     }
   }

@@ -66,6 +66,11 @@ Status parse_timestamped_name(const char* line, std::size_t length, TimestampedN
     error->set("%s:%d: expected a timestamp at the start of the line", label, line_number);
     return StatusCode::data_loss;
   }
+  if (!(out->timestamp_s >= 0.0 && out->timestamp_s <= kMaxTimestamp_s)) {
+    error->set("%s:%d: timestamp %g s is outside [0, %g] s", label, line_number, out->timestamp_s,
+               kMaxTimestamp_s);
+    return StatusCode::data_loss;
+  }
   p = skip_blanks(p, end);
   const char* name = p;
   while (p < end && *p != ' ' && *p != '\t') ++p;
@@ -87,6 +92,11 @@ Status parse_tum_pose_line(const char* line, std::size_t length, TimestampedPose
   if (parsed != 8 || skip_blanks(p, end) != end) {
     error->set("%s:%d: expected 8 numbers (timestamp tx ty tz qx qy qz qw)%s", label, line_number,
                parsed == 8 ? " and nothing after them" : "");
+    return StatusCode::data_loss;
+  }
+  if (!(v[0] >= 0.0 && v[0] <= kMaxTimestamp_s)) {
+    error->set("%s:%d: timestamp %g s is outside [0, %g] s", label, line_number, v[0],
+               kMaxTimestamp_s);
     return StatusCode::data_loss;
   }
   const Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);

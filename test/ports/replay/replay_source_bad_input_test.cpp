@@ -324,3 +324,46 @@ TEST_CASE(".raw with a short last frame or absurd sizes", "[replay][bad]") {
     CHECK(has(source.last_error(), "empty.raw: empty file"));
   }
 }
+
+TEST_CASE("a 7-Scenes frame missing between others is skipped, not the end", "[replay][bad]") {
+  const std::string parent = fx::make_test_dir("bad-seven-gap");
+  const std::string dir = fx::write_seven_scenes(parent, 6);
+  std::remove((dir + "/frame-000002.depth.png").c_str());
+  std::remove((dir + "/frame-000003.depth.png").c_str());
+  fx::write_text(dir + "/frame-00004.depth.png", "a name with five digits is not a frame");
+  ReplaySource source(config_for("7scenes:" + dir));
+  REQUIRE(source.open().ok());
+  CHECK(source.frame_count() == 6);
+  const Replayed replayed = replay_all(source);
+  CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1, 4, 5});
+  REQUIRE(replayed.skips.size() == 2);
+  CHECK(has(replayed.skips[0].c_str(), dir + "/frame-000002.depth.png: cannot open"));
+  CHECK(has(replayed.skips[1].c_str(), dir + "/frame-000003.depth.png: cannot open"));
+  CHECK(replayed.ended);
+}
+
+TEST_CASE("timestamps too large for microseconds are refused", "[replay][bad]") {
+  // 1e300 s overflowed the conversion to microseconds (undefined behaviour).
+  const std::string parent = fx::make_test_dir("bad-huge-time");
+  SECTION("in depth.txt") {
+    const fx::TumFixture tum = fx::write_tum(parent, "huge");
+    fx::write_text(tum.dir + "/depth.txt", "1.0 depth/a.png\n1e300 depth/b.png\n");
+    ReplaySource source(config_for("tum:" + tum.dir));
+    CHECK(source.open() == StatusCode::data_loss);
+    CHECK(has(source.last_error(), "depth.txt:2: timestamp 1e+300 s is outside [0, 1e+11] s"));
+  }
+  SECTION("negative, in depth.txt") {
+    const fx::TumFixture tum = fx::write_tum(parent, "negative");
+    fx::write_text(tum.dir + "/depth.txt", "-5.0 depth/a.png\n");
+    ReplaySource source(config_for("tum:" + tum.dir));
+    CHECK(source.open() == StatusCode::data_loss);
+    CHECK(has(source.last_error(), "depth.txt:1: timestamp -5 s is outside"));
+  }
+  SECTION("in groundtruth.txt") {
+    const fx::TumFixture tum = fx::write_tum(parent, "gthuge");
+    fx::write_text(tum.dir + "/groundtruth.txt", "1e300 0 0 0 0 0 0 1\n");
+    ReplaySource source(config_for("tum:" + tum.dir));
+    CHECK(source.open() == StatusCode::data_loss);
+    CHECK(has(source.last_error(), "groundtruth.txt:1: timestamp 1e+300 s is outside"));
+  }
+}

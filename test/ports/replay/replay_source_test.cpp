@@ -343,3 +343,41 @@ TEST_CASE("as-fast-as-possible pacing never waits and never drops", "[replay]") 
   CHECK(clock.sleeps == 0);
   CHECK(source.frames_dropped() == 0);
 }
+
+TEST_CASE("real-time pacing replays a long gap between timestamps as no gap", "[replay]") {
+  // A recording paused for 11.6 days (or a corrupt timestamp): --real-time slept through it.
+  const std::string parent = fx::make_test_dir("pacing-gap");
+  const fx::TumFixture tum = fx::write_tum(parent, "gap", 4, false);
+  std::string list;
+  const double times_s[4] = {10.0, 10.05, 1000010.0, 1000010.05};
+  for (int i = 0; i < 4; ++i) {
+    char line[128];
+    std::snprintf(line, sizeof(line), "%.6f depth/%.6f.png\n", times_s[i],
+                  tum.timestamps[static_cast<std::size_t>(i)]);
+    list += line;
+  }
+  fx::write_text(tum.dir + "/depth.txt", list);
+  ReplayConfig config = config_for("tum:" + tum.dir);
+  FakeClock clock;
+  config.pacing = Pacing::real_time;
+  config.clock.now_us = &FakeClock::now;
+  config.clock.sleep_until_us = &FakeClock::sleep_until;
+  config.clock.context = &clock;
+  ReplaySource source(config);
+  {
+    const octofuse::Status opened = source.open();
+    INFO(source.last_error());
+    REQUIRE(opened.ok());
+  }
+  const std::int64_t start_us = clock.now_us;
+  DepthFrame frame;
+  for (std::uint64_t i = 0; i < 4; ++i) {
+    REQUIRE(source.next(frame).outcome == FrameOutcome::frame);
+    CHECK(frame.sequence == i);
+  }
+  // Waits of 50 ms before frames 1 and 3, none across the gap.
+  CHECK(clock.sleeps == 2);
+  CHECK(clock.now_us == start_us + 100000);
+  CHECK(source.gaps_shortened() == 1);
+  CHECK(source.frames_dropped() == 0);
+}

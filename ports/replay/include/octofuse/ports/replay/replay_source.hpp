@@ -14,9 +14,9 @@
 // file buffer, the PNG decoder's scratch memory and the frame index (names, timestamps,
 // ground-truth poses). next() reads and decodes into the ring without allocating.
 //
-// A bad frame (unreadable PNG, short .raw frame, a pose that is not a rotation) gives
-// FrameOutcome::skip with last_error() naming the file and the problem; after the last frame
-// next() gives end_of_stream.
+// A bad frame (unreadable PNG, a 7-Scenes frame missing between others, short .raw frame, a pose
+// that is not a rotation) gives FrameOutcome::skip with last_error() naming the file and the
+// problem; after the last frame next() gives end_of_stream.
 
 #include <cstddef>
 #include <cstdint>
@@ -34,6 +34,9 @@ enum class Pacing : std::uint8_t {
   as_fast_as_possible,  // every frame, no waiting (tests, benchmarks)
   real_time,            // frames come due at their timestamps; late reads drop frames
 };
+// real_time never waits longer than this for a frame: a longer gap between timestamps (a pause
+// in the recording, a corrupt timestamp) is replayed as no gap.
+inline constexpr std::int64_t kMaxRealTimeWait_us = 2000000;
 
 // A monotonic clock in microseconds and a way to wait for it; tests inject a fake one.
 struct ReplayClock {
@@ -93,6 +96,8 @@ class ReplaySource final : public DepthSource {
 
   std::size_t frame_count() const { return frame_count_; }
   std::uint64_t frames_dropped() const { return frames_dropped_; }
+  // real_time: gaps between timestamps longer than kMaxRealTimeWait_us replayed as no gap.
+  std::uint64_t gaps_shortened() const { return gaps_shortened_; }
   float metres_per_unit() const { return metres_per_unit_; }
   const ReplayConfig& config() const { return config_; }
 
@@ -139,6 +144,7 @@ class ReplaySource final : public DepthSource {
   std::size_t next_index_ = 0;
   std::uint64_t delivered_ = 0;
   std::uint64_t frames_dropped_ = 0;
+  std::uint64_t gaps_shortened_ = 0;
   int raw_fd_ = -1;
   std::uint64_t raw_file_size_ = 0;
   bool any_ground_truth_ = false;

@@ -37,6 +37,10 @@ bool is_blank_or_comment(const char* line, std::size_t length);
 // is not finite.
 bool parse_double(const char** p, const char* end, double* value);
 
+// Timestamps are seconds in [0, kMaxTimestamp_s] (a little over 3000 years: Unix times and frame
+// indices fit; microseconds of it fit in 64 bits); others are data_loss.
+inline constexpr double kMaxTimestamp_s = 1e11;
+
 // "timestamp name [more columns]" as in TUM's depth.txt / rgb.txt and ICL-NUIM's
 // associations.txt (only the first two columns are used). `name` points into `line`.
 struct TimestampedName {

@@ -65,7 +65,9 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
     } else if (arg == "--source") {
       if (!need_value(&options.source_spec)) return fail("--source needs a value");
     } else if (arg == "--out") {
-      if (!need_value(&options.out_dir)) return fail("--out needs a folder");
+      if (!need_value(&options.out_dir) || options.out_dir.empty()) {
+        return fail("--out needs a folder name");
+      }
     } else if (arg == "--map") {
       if (!need_value(&value)) return fail("--map needs multires or single");
       if (value == "multires") {
@@ -140,11 +142,16 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       options.budget.raycast_steps = static_cast<std::uint64_t>(integer);
     } else if (arg == "--budget-icp") {
       int levels[3];
+      int consumed = 0;
       if (!need_value(&value) ||
-          std::sscanf(value.c_str(), "%d,%d,%d", &levels[0], &levels[1], &levels[2]) != 3 ||
-          levels[0] < 0 || levels[1] < 0 || levels[2] < 0 || levels[0] > 100 || levels[1] > 100 ||
-          levels[2] > 100) {
+          std::sscanf(value.c_str(), "%d,%d,%d%n", &levels[0], &levels[1], &levels[2], &consumed) !=
+              3 ||
+          static_cast<std::size_t>(consumed) != value.size() || levels[0] < 0 || levels[1] < 0 ||
+          levels[2] < 0 || levels[0] > 100 || levels[1] > 100 || levels[2] > 100) {
         return fail("--budget-icp needs three iteration counts A,B,C in [0, 100]");
+      }
+      if (levels[0] + levels[1] + levels[2] == 0) {
+        return fail("--budget-icp 0,0,0 would track nothing: give at least one iteration");
       }
       for (int l = 0; l < 3; ++l) options.budget.icp_iterations[l] = levels[l];
     } else if (arg == "--gt-poses") {
@@ -197,8 +204,10 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
     std::printf("ATE RMSE %.2f cm (max %.2f cm)\n", summary.ate_rmse_m * 100.0,
                 summary.ate_max_m * 100.0);
   }
-  std::printf("wrote %s/{trajectory.txt,mesh.ply,render.png,stats.json,stage_times.svg}\n",
-              options.out_dir.c_str());
+  if (summary.files_written.empty()) return;
+  std::string names;
+  for (const std::string& name : summary.files_written) names += (names.empty() ? "" : ",") + name;
+  std::printf("wrote %s/{%s}\n", options.out_dir.c_str(), names.c_str());
 }
 
 }  // namespace octofuse::examples

@@ -136,6 +136,100 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.end_object();
 }
 
+// Intrinsics a depth camera can have: the principal point in the middle half of the image and a
+// field of view between 10 and 170 degrees on each axis. Anything else is a mix-up (intrinsics for
+// another image size, a typo) that would lose every frame after the first.
+bool plausible_intrinsics(const PinholeCamera& camera, std::string* why) {
+  constexpr double kMinFov_deg = 10.0;
+  constexpr double kMaxFov_deg = 170.0;
+  constexpr double kRadToDeg = 57.29577951308232;
+  char text[256];
+  const double w = camera.width, h = camera.height;
+  std::snprintf(text, sizeof(text), "intrinsics fx %g fy %g cx %g cy %g for %dx%d images: ",
+                static_cast<double>(camera.fx), static_cast<double>(camera.fy),
+                static_cast<double>(camera.cx), static_cast<double>(camera.cy), camera.width,
+                camera.height);
+  *why = text;
+  if (!camera.valid()) {
+    *why += "not finite and positive";
+    return false;
+  }
+  if (!(camera.cx >= 0.25 * w && camera.cx <= 0.75 * w && camera.cy >= 0.25 * h &&
+        camera.cy <= 0.75 * h)) {
+    *why += "the principal point is far from the image centre (intrinsics for another size?)";
+    return false;
+  }
+  const double fov_x_deg = 2.0 * std::atan(0.5 * w / camera.fx) * kRadToDeg;
+  const double fov_y_deg = 2.0 * std::atan(0.5 * h / camera.fy) * kRadToDeg;
+  if (!(fov_x_deg >= kMinFov_deg && fov_x_deg <= kMaxFov_deg && fov_y_deg >= kMinFov_deg &&
+        fov_y_deg <= kMaxFov_deg)) {
+    std::snprintf(text, sizeof(text), "a field of view of %.1f x %.1f degrees (10 to 170 accepted)",
+                  fov_x_deg, fov_y_deg);
+    *why += text;
+    return false;
+  }
+  return true;
+}
+
+// Warnings about frames that did not do their part, each kind said once with what to change
+// (a long run would otherwise print thousands); the counts are in stats.json and the summary.
+struct FrameWarnings {
+  static constexpr int kLostReports = 5;
+  int lost_reported = 0;
+  bool pool_full = false;
+  bool fusion_budget = false;
+  bool raycast_budget = false;
+  bool unfused = false;
+  bool icp_budget_set = false;  // --budget-icp given: the default iterations are no budget
+
+  void after(const FrameStats& s) {
+    const unsigned long index = static_cast<unsigned long>(s.frame_index);
+    if (s.integration.pool_refusals > 0 && !pool_full) {
+      pool_full = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the block pool is full (%u blocks): surface it has no room "
+                   "for is not mapped (raise --map-memory)\n",
+                   index, s.memory.block_capacity);
+    }
+    if (s.integration.budget_hit && !fusion_budget) {
+      fusion_budget = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: an integration budget bound (blocks coarsened, skipped or "
+                   "not allocated; see budget_hits in stats.json)\n",
+                   index);
+    }
+    if (s.raycast.budget_hit() && !raycast_budget) {
+      raycast_budget = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the ray-cast step budget bound (pixels left invalid)\n",
+                   index);
+    }
+    if (s.result == FrameResult::lost && lost_reported <= kLostReports) {
+      if (lost_reported++ == kLostReports) {
+        std::fprintf(stderr, "warning: more frames lost; counted in the summary and stats.json\n");
+        return;
+      }
+      std::fprintf(
+          stderr, "warning: frame %lu lost (%s: %u pixels matched, %.0f%% of the model)%s%s\n",
+          index, track_outcome_name(s.track.outcome), s.track.inliers,
+          100.0 * static_cast<double>(s.track.inlier_fraction),
+          icp_budget_set && s.budget_icp_hit ? "; ICP stopped at its iteration budget" : "",
+          s.memory.block_capacity > 0 && s.memory.blocks_used == s.memory.block_capacity
+              ? "; the block pool is full"
+              : "");
+    }
+    const bool fused_nothing =
+        (s.result == FrameResult::tracked || s.result == FrameResult::first) &&
+        s.integration.blocks_integrated == 0;
+    if (fused_nothing && !unfused) {
+      unfused = true;
+      std::fprintf(
+          stderr, "warning: frame %lu fused nothing%s\n", index,
+          s.integration.rays_outside_cube > 0 ? " (its view lies outside the map's cube)" : "");
+    }
+  }
+};
+
 struct PoolSizes {
   std::uint32_t blocks = 0;
   std::uint32_t finest = 0;  // 0: one per block
@@ -197,9 +291,6 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   if (!source->open().ok()) {
     return error_exit(options.source_spec + ": " + source->last_error());
   }
-  if (!options.out_dir.empty() && !make_dir(options.out_dir)) {
-    return error_exit("cannot create output folder " + options.out_dir);
-  }
   PinholeCamera input_camera = source->intrinsics();
   if (options.source.have_intrinsics) {
     // Live sources learn their size only when opened; the override keeps it.
@@ -208,8 +299,16 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     input_camera.cx = static_cast<float>(options.source.intrinsics[2]);
     input_camera.cy = static_cast<float>(options.source.intrinsics[3]);
   }
+  // Before any output exists: a run that cannot work leaves nothing behind.
+  std::string implausible;
+  if (!plausible_intrinsics(input_camera, &implausible)) {
+    return error_exit(options.source_spec + ": " + implausible);
+  }
   const auto start_time = std::chrono::steady_clock::now();
 
+  if (!options.out_dir.empty() && !make_dir(options.out_dir)) {
+    return error_exit("cannot create output folder " + options.out_dir);
+  }
   std::unique_ptr<host::TumTrajectoryWriter> trajectory_file;
   if (!options.out_dir.empty()) {
     trajectory_file = std::make_unique<host::TumTrajectoryWriter>();
@@ -222,6 +321,13 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   const Clock clock{&steady_now_us, nullptr};
   const bool show_progress = options.progress && ::isatty(STDERR_FILENO);
   DepthFrame frame;
+  FrameWarnings warnings;
+  const PipelineBudget default_budget;
+  for (int level = 0; level < kPyramidLevels; ++level) {
+    warnings.icp_budget_set = warnings.icp_budget_set || options.budget.icp_iterations[level] !=
+                                                             default_budget.icp_iterations[level];
+  }
+  std::uint64_t fused_after_first = 0;
   long processed = 0;
   int consecutive_failures = 0;
   long frames_since_status = 0;
@@ -288,6 +394,12 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
         status.code() != StatusCode::data_loss && stats.result != FrameResult::lost) {
       return error_exit(std::string("frame processing failed: ") + status.name());
     }
+    warnings.after(stats);
+    const bool fused = stats.integration.blocks_integrated > 0;
+    if ((stats.result == FrameResult::tracked || stats.result == FrameResult::first) && !fused) {
+      ++summary->frames_unfused;
+    }
+    if (stats.result == FrameResult::tracked && fused) ++fused_after_first;
     summary->frames.push_back(stats);
     host::TimedPose pose;
     pose.timestamp_s = static_cast<double>(frame.timestamp_us) * 1e-6;
@@ -332,8 +444,9 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
   }
   if (show_progress) std::fprintf(stderr, "\n");
-  if (trajectory_file != nullptr && !trajectory_file->close().ok()) {
-    return error_exit(trajectory_file->last_error());
+  if (trajectory_file != nullptr) {
+    if (!trajectory_file->close().ok()) return error_exit(trajectory_file->last_error());
+    summary->files_written.push_back("trajectory.txt");
   }
   source->close();
   summary->wall_s =
@@ -385,6 +498,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       if (!host::write_ply(path.c_str(), mesh, &ply_error).ok()) {
         return error_exit(ply_error.c_str());
       }
+      summary->files_written.push_back("mesh.ply");
     }
     summary->mesh_vertices = mesh.vertex_count;
     summary->mesh_triangles = mesh.triangle_count;
@@ -392,6 +506,22 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       summary->mesh_positions = std::move(sink.positions);
       summary->mesh_indices = std::move(sink.indices);
     }
+  }
+
+  // What the run claims: most frames gave a pose from tracking, and tracking fused new views.
+  const std::uint64_t frames_read =
+      summary->frames.size() + summary->frames_rejected + summary->frames_skipped_by_source;
+  const std::uint64_t frames_failed =
+      summary->frames_lost + summary->frames_rejected + summary->frames_skipped_by_source;
+  if (frames_read >= 2 && 2 * frames_failed > frames_read) {
+    summary->failure = std::to_string(frames_failed) + " of " + std::to_string(frames_read) +
+                       " frames lost, rejected or unreadable (" +
+                       std::to_string(summary->frames_lost) + " lost, " +
+                       std::to_string(summary->frames_rejected) + " rejected, " +
+                       std::to_string(summary->frames_skipped_by_source) + " unreadable)";
+  } else if (summary->frames.size() >= 2 && fused_after_first == 0) {
+    summary->failure = "nothing was fused after the first frame (" +
+                       std::to_string(summary->frames.size()) + " frames)";
   }
 
   if (options.out_dir.empty()) return 0;
@@ -402,6 +532,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     if (!write_render(pipeline, join(options.out_dir, "render.png"), &png_error)) {
       return error_exit(png_error.c_str());
     }
+    summary->files_written.push_back("render.png");
   }
 
   // stats.json
@@ -430,6 +561,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("frames_rejected").value(summary->frames_rejected);
     json.key("frames_skipped_by_source").value(summary->frames_skipped_by_source);
     json.key("frames_nearly_empty").value(summary->frames_nearly_empty);
+    json.key("frames_unfused").value(summary->frames_unfused);
     json.key("total_ms").begin_object();
     json.key("median").value(total.median);
     json.key("p90").value(total.p90);
@@ -452,6 +584,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("pool_refusals").value(summary->map_memory.refusals);
     json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));
     json.key("mesh_triangles").value(static_cast<std::uint64_t>(summary->mesh_triangles));
+    json.key("failure").value(summary->failure.c_str());
     if (summary->have_ate) {
       json.key("ate_rmse_m").value(summary->ate_rmse_m);
       json.key("ate_max_m").value(summary->ate_max_m);
@@ -462,6 +595,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     ErrorText json_error;
     const std::string path = join(options.out_dir, "stats.json");
     if (!json.write_file(path.c_str(), &json_error).ok()) return error_exit(json_error.c_str());
+    summary->files_written.push_back("stats.json");
 
     const std::vector<plot::StageSeries> series = {
         {"pre-process", "#7f7f7f", preprocess},
@@ -473,6 +607,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     if (!plot::write_stacked_svg(plot_path, options.source_spec + " stage times", series)) {
       return error_exit("cannot write " + plot_path);
     }
+    summary->files_written.push_back("stage_times.svg");
   }
   return 0;
 }

@@ -58,9 +58,15 @@ struct RunSummary {
   std::vector<Eigen::Vector3f> mesh_positions;  // with keep_mesh
   std::vector<std::uint32_t> mesh_indices;
   double wall_s = 0.0;
+  std::uint64_t frames_unfused = 0;        // tracked (or ground truth) but nothing integrated
+  std::vector<std::string> files_written;  // names in out_dir, once each is complete on disk
+  // Why the run did not produce what it claims (most frames lost or rejected, nothing fused after
+  // the first frame); empty when it did. The outputs are still written, for diagnosis.
+  std::string failure;
 };
 
-// 0 on success; otherwise prints "error: ..." and returns the exit code.
+// 0 when the outputs were written (check summary->failure too); otherwise prints "error: ..."
+// and returns the exit code.
 int run_pipeline(const RunOptions& options, RunSummary* summary);
 
 // Median, p90, p99, max and mean of a sample (sorted copy); zeros for an empty one.

@@ -2,20 +2,10 @@
 // tracking state as it goes; on Ctrl-C (or the end of a recording) it writes the same outputs as
 // octofuse-replay.
 
-#include <csignal>
 #include <cstdio>
 
 #include "run_args.hpp"
-
-namespace {
-
-std::atomic<bool> g_stop{false};
-
-extern "C" void on_signal(int) {
-  g_stop.store(true);
-}
-
-}  // namespace
+#include "stop_signal.hpp"
 
 int main(int argc, char** argv) {
   octofuse::examples::RunOptions options;
@@ -29,13 +19,17 @@ int main(int argc, char** argv) {
     std::printf("\nCtrl-C stops the run and writes the outputs.\n");
     return 0;
   }
-  std::signal(SIGINT, on_signal);
-  std::signal(SIGTERM, on_signal);
-  options.stop = &g_stop;
+  // Ctrl-C or SIGTERM is how a live run ends: finish the frame, write everything, exit 0 (a
+  // second signal ends it at once).
+  options.stop = octofuse::examples::install_stop_handlers();
   options.live_status = true;
   octofuse::examples::RunSummary summary;
   const int rc = octofuse::examples::run_pipeline(options, &summary);
   if (rc != 0) return rc;
   octofuse::examples::print_run_summary(options, summary);
+  if (!summary.failure.empty()) {
+    std::fprintf(stderr, "error: %s\n", summary.failure.c_str());
+    return 1;
+  }
   return 0;
 }

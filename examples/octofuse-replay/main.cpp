@@ -1,7 +1,10 @@
 // octofuse-replay: the main job. Runs the pipeline over a source (the built-in synthetic desk by
 // default) and writes trajectory.txt, mesh.ply, render.png, stats.json and stage_times.svg.
 
+#include <cstdio>
+
 #include "run_args.hpp"
+#include "stop_signal.hpp"
 
 int main(int argc, char** argv) {
   octofuse::examples::RunOptions options;
@@ -13,9 +16,20 @@ int main(int argc, char** argv) {
     octofuse::examples::print_run_usage("octofuse-replay", "sim:desk");
     return 0;
   }
+  // SIGINT/SIGTERM: finish the frame, write everything, exit 128 + the signal (cut short).
+  options.stop = octofuse::examples::install_stop_handlers();
   octofuse::examples::RunSummary summary;
   const int rc = octofuse::examples::run_pipeline(options, &summary);
   if (rc != 0) return rc;
   octofuse::examples::print_run_summary(options, summary);
+  if (!summary.failure.empty()) {
+    std::fprintf(stderr, "error: %s\n", summary.failure.c_str());
+    return 1;
+  }
+  if (const int signal_number = octofuse::examples::stop_signal_number()) {
+    std::fprintf(stderr, "stopped by %s after %zu frames; outputs written\n",
+                 octofuse::examples::stop_signal_name(signal_number), summary.frames.size());
+    return 128 + signal_number;
+  }
   return 0;
 }

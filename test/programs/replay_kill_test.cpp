@@ -1,0 +1,162 @@
+// octofuse-replay killed at random moments: whatever files it leaves are complete. SIGKILL (no
+// chance to clean up) at seeded random moments of a short sim:desk run, then every file present
+// must parse: trajectory.txt a prefix of the uninterrupted run's (byte for byte: the run is
+// deterministic), mesh.ply the whole mesh, stats.json whole JSON, render.png ending in its IEND
+// chunk, stage_times.svg closed. Temporaries ("*.tmp") are what a kill mid-write leaves; they
+// are never read as outputs. SIGTERM finishes the frame and writes everything.
+#include <algorithm>
+#include <catch2/catch.hpp>
+#include <chrono>
+#include <cstdio>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "octofuse/ports/host/ply.hpp"
+#include "octofuse/ports/host/trajectory_io.hpp"
+#include "replay_process.hpp"
+#include "support/test_dir.hpp"
+
+namespace octofuse {
+namespace {
+
+#ifdef OCTOFUSE_TEST_SANITIZED
+constexpr int kKills = 3;
+#else
+constexpr int kKills = 6;
+#endif
+constexpr unsigned kSeed = 17;
+
+std::vector<std::string> replay_args(const std::string& out) {
+  // 20 frames of a 300-frame path, 2 cm voxels: short, and every output has content.
+  return {"--source", "sim:desk", "--frames", "20",     "--voxel-size",
+          "0.02",     "--out",    out,        "--quiet"};
+}
+
+bool ends_with(const std::string& text, const std::string& tail) {
+  return text.size() >= tail.size() &&
+         text.compare(text.size() - tail.size(), tail.size(), tail) == 0;
+}
+
+struct Seen {
+  bool trajectory = false, mesh = false, stats = false, render = false, plot = false;
+};
+
+// Checks every output present in `out` against the uninterrupted run in `reference`.
+void check_outputs(const std::string& out, const std::string& reference, Seen* seen) {
+  const std::string trajectory = out + "/trajectory.txt";
+  if (test::file_exists(trajectory)) {
+    seen->trajectory = true;
+    const std::string text = test::read_file(trajectory);
+    const std::string whole = test::read_file(reference + "/trajectory.txt");
+    // Every line whole: a prefix of the full file that ends at a line end (or is empty).
+    CHECK(whole.compare(0, text.size(), text) == 0);
+    CHECK((text.empty() || text.back() == '\n'));
+    std::vector<host::TimedPose> poses;
+    ErrorText error;
+    CHECK(host::read_tum_trajectory(trajectory.c_str(), &poses, &error).ok());
+  }
+  const std::string mesh = out + "/mesh.ply";
+  if (test::file_exists(mesh)) {
+    seen->mesh = true;
+    CHECK(test::read_file(mesh) == test::read_file(reference + "/mesh.ply"));
+    host::Mesh read;
+    ErrorText error;
+    CHECK(host::read_ply(mesh.c_str(), &read, &error).ok());
+  }
+  const std::string stats = out + "/stats.json";
+  if (test::file_exists(stats)) {
+    seen->stats = true;
+    const std::string text = test::read_file(stats);
+    CHECK(test::JsonChecker(text).valid());
+  }
+  const std::string render = out + "/render.png";
+  if (test::file_exists(render)) {
+    seen->render = true;
+    const std::string png = test::read_file(render);
+    CHECK(png.compare(0, 8, "\x89PNG\r\n\x1a\n") == 0);
+    CHECK(ends_with(png, std::string("IEND\xae\x42\x60\x82", 8)));
+  }
+  const std::string plot = out + "/stage_times.svg";
+  if (test::file_exists(plot)) {
+    seen->plot = true;
+    CHECK(ends_with(test::read_file(plot), "</svg>\n"));
+  }
+}
+
+TEST_CASE("octofuse-replay killed at random moments leaves only complete files", "[programs]") {
+  const std::string dir = test::make_test_dir("replay-kill");
+  REQUIRE(!dir.empty());
+  const std::string reference = dir + "/reference";
+  const auto start = std::chrono::steady_clock::now();
+  const test::RunResult full = test::run_replay(replay_args(reference), dir + "/reference.log");
+  const double run_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  INFO(full.output);
+  REQUIRE(full.exit_status == 0);
+  Seen all;
+  check_outputs(reference, reference, &all);
+  REQUIRE((all.trajectory && all.mesh && all.stats && all.render && all.plot));
+
+  // Moments spread over the whole run, a little past its usual end (outputs being written).
+  std::mt19937 rng(kSeed);
+  std::uniform_real_distribution<double> moment(0.0, 1.1 * run_s);
+  Seen seen;
+  int before_end = 0;
+  for (int k = 0; k < kKills; ++k) {
+    const std::string out = dir + "/kill" + std::to_string(k);
+    const double after_s = moment(rng);
+    CAPTURE(k, after_s, run_s);
+    const test::Child child = test::start_replay(replay_args(out), out + ".log");
+    REQUIRE(child.pid > 0);
+    std::this_thread::sleep_for(std::chrono::duration<double>(after_s));
+    ::kill(child.pid, SIGKILL);
+    const int status = test::wait_for(child);
+    CHECK((status == 128 + SIGKILL || status == 0));
+    before_end += status == 128 + SIGKILL;
+    check_outputs(out, reference, &seen);
+  }
+  // The kills must have hit runs in progress, or the test proves nothing.
+  CHECK(before_end >= kKills / 2);
+  CHECK(seen.trajectory);
+}
+
+TEST_CASE("octofuse-replay on SIGTERM finishes the frame and writes everything", "[programs]") {
+  const std::string dir = test::make_test_dir("replay-term");
+  REQUIRE(!dir.empty());
+  const std::string out = dir + "/out";
+  const test::Child child = test::start_replay(
+      {"--source", "sim:desk", "--frames", "300", "--voxel-size", "0.02", "--out", out, "--quiet"},
+      dir + "/log.txt");
+  REQUIRE(child.pid > 0);
+  // Wait until a few frames are in trajectory.txt (one line each, after the "#" header).
+  for (int i = 0; i < 1200; ++i) {
+    const std::string text = test::read_file(out + "/trajectory.txt");
+    if (std::count(text.begin(), text.end(), '\n') >= 4) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ::kill(child.pid, SIGTERM);
+  const int status = test::wait_for(child);
+  const std::string log = test::read_file(dir + "/log.txt");
+  INFO(log);
+  CHECK(status == 128 + SIGTERM);
+  CHECK(log.find("stopped by SIGTERM after ") != std::string::npos);
+  std::vector<host::TimedPose> poses;
+  ErrorText error;
+  REQUIRE(host::read_tum_trajectory((out + "/trajectory.txt").c_str(), &poses, &error).ok());
+  CHECK(poses.size() >= 3);
+  CHECK(poses.size() < 300);
+  // Everything written, and it agrees with the trajectory.
+  host::Mesh mesh;
+  CHECK(host::read_ply((out + "/mesh.ply").c_str(), &mesh, &error).ok());
+  CHECK(!mesh.vertices.empty());
+  const std::string stats = test::read_file(out + "/stats.json");
+  CHECK(test::JsonChecker(stats).valid());
+  CHECK(stats.find("\"frames\":" + std::to_string(poses.size()) + ",") != std::string::npos);
+  CHECK(test::file_exists(out + "/render.png"));
+  CHECK(test::file_exists(out + "/stage_times.svg"));
+}
+
+}  // namespace
+}  // namespace octofuse

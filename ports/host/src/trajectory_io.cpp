@@ -88,6 +88,13 @@ Status for_each_tum_pose(const char* path, TimedPoseSink sink, void* context, Er
   Status status;
   while (std::fgets(line, sizeof(line), file) != nullptr) {
     ++line_number;
+    const std::size_t length = std::strlen(line);
+    if (length == sizeof(line) - 1 && line[length - 1] != '\n' && !std::feof(file)) {
+      // The rest would be read as a line of its own.
+      err.set("%s:%d: line longer than %zu characters", path, line_number, sizeof(line) - 2);
+      status = StatusCode::data_loss;
+      break;
+    }
     const char* p = line;
     while (*p == ' ' || *p == '\t') ++p;
     if (*p == '#' || *p == '\n' || *p == '\r' || *p == '\0') continue;
@@ -99,16 +106,18 @@ Status for_each_tum_pose(const char* path, TimedPoseSink sink, void* context, Er
       if (end == p || !std::isfinite(v[parsed])) break;
       p = end;
     }
-    if (parsed != 8) {
-      err.set("%s:%d: expected 8 numbers (timestamp tx ty tz qx qy qz qw), got %d", path,
-              line_number, parsed);
+    while (*p == ' ' || *p == '\t' || *p == '\r' || *p == '\n') ++p;
+    if (parsed != 8 || *p != '\0') {
+      err.set("%s:%d: expected 8 numbers (timestamp tx ty tz qx qy qz qw)%s, got %d", path,
+              line_number, parsed == 8 ? " and nothing after them" : "", parsed);
       status = StatusCode::data_loss;
       break;
     }
+    // A unit quaternion as written to a few digits; far from it is a cut or corrupt line.
     Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
     const double norm = q.norm();
-    if (!(norm > 1e-6)) {
-      err.set("%s:%d: quaternion has zero length", path, line_number);
+    if (!(std::fabs(norm - 1.0) <= kQuaternionNormTolerance)) {
+      err.set("%s:%d: quaternion has length %g, not 1", path, line_number, norm);
       status = StatusCode::data_loss;
       break;
     }

@@ -80,6 +80,26 @@ TEST_CASE("TUM trajectory reader reports the file and line of bad input", "[host
           StatusCode::data_loss);
     CHECK(std::string(error.c_str()).find("quaternion") != std::string::npos);
   }
+  SECTION("a line cut short or with junk after it") {
+    // A cut inside the last number leaves 8 numbers but not a unit quaternion.
+    for (const char* text :
+         {"1.0 0 0 0 0 0 0.7071068 0.", "1.0 0 0 0 0 0 0 1 junk\n", "1.0 0 0 0 0 0 0 1 2\n"}) {
+      CAPTURE(text);
+      const std::string path = dir + "/cut.txt";
+      write_text(path, text);
+      CHECK(octofuse::host::read_tum_trajectory(path.c_str(), &poses, &error) ==
+            StatusCode::data_loss);
+      CHECK(std::string(error.c_str()).find("cut.txt:1") != std::string::npos);
+    }
+  }
+  SECTION("a line too long for the reader") {
+    const std::string path = dir + "/long.txt";
+    const std::string text = "#" + std::string(2000, 'x') + "\n1.0 0 0 0 0 0 0 1\n";
+    write_text(path, text.c_str());
+    CHECK(octofuse::host::read_tum_trajectory(path.c_str(), &poses, &error) ==
+          StatusCode::data_loss);
+    CHECK(std::string(error.c_str()).find("long.txt:1: line longer than") != std::string::npos);
+  }
   SECTION("timestamps going backwards") {
     const std::string path = dir + "/back.txt";
     write_text(path, "2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n");

@@ -41,8 +41,10 @@ class TumTrajectoryWriter {
 };
 
 // Whole-file helpers. write: unavailable / data_loss. read: unavailable (missing file),
-// data_loss (a line that does not parse, a zero quaternion, timestamps going backwards); the
-// message names the file and line.
+// data_loss (a line that is not exactly 8 numbers, a quaternion whose length is not 1 within
+// kQuaternionNormTolerance, timestamps going backwards, a line over 1022 characters); the message
+// names the file and line.
+inline constexpr double kQuaternionNormTolerance = 1e-2;
 Status write_tum_trajectory(const char* path, const std::vector<TimedPose>& poses,
                             ErrorText* error);
 

@@ -167,6 +167,8 @@ class RecordReader {
     index_ = index;
     crc_ = 0;
   }
+  // Names the record without restarting its checksum.
+  void rename_record(const char* kind) { kind_ = kind; }
   bool ok() const { return status_.ok(); }
   Status status() const { return status_; }
 
@@ -358,7 +360,7 @@ void write_header_record(RecordWriter& w, const MapFileHeader& h) {
 }
 
 Result<MapFileHeader> read_header_record(RecordReader& r) {
-  r.begin_record("header", -1);
+  r.begin_record(nullptr, -1);  // a file without the magic is not told of a header
   std::uint8_t magic[sizeof(kMagic)];
   if (!r.bytes(magic, sizeof(magic))) {
     r.fail(StatusCode::invalid_argument, "not an octofuse map (too short)");
@@ -368,6 +370,7 @@ Result<MapFileHeader> read_header_record(RecordReader& r) {
     r.fail(StatusCode::invalid_argument, "not an octofuse map (bad magic)");
     return r.status();
   }
+  r.rename_record("header");
   MapFileHeader h;
   if (!r.u32(h.version)) return r.status();
   if (h.version > kMapFormatVersion) {

@@ -235,12 +235,6 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   }
   const auto start_time = std::chrono::steady_clock::now();
 
-  std::unique_ptr<host::TumTrajectoryWriter> trajectory_file;
-  if (!options.out_dir.empty()) {
-    trajectory_file = std::make_unique<host::TumTrajectoryWriter>();
-    const std::string path = join(options.out_dir, "trajectory.txt");
-    if (!trajectory_file->open(path.c_str()).ok()) return error_exit(trajectory_file->last_error());
-  }
 
   Pipeline<VoxelT> pipeline;
   std::unique_ptr<AlignedBuffer> buffer;
@@ -315,6 +309,13 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     summary->map_loaded_blocks = header.block_count;
     summary->map_load_s =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+
+  std::unique_ptr<host::TumTrajectoryWriter> trajectory_file;
+  if (!options.out_dir.empty()) {
+    trajectory_file = std::make_unique<host::TumTrajectoryWriter>();
+    const std::string path = join(options.out_dir, "trajectory.txt");
+    if (!trajectory_file->open(path.c_str()).ok()) return error_exit(trajectory_file->last_error());
   }
   const bool show_progress = options.progress && ::isatty(STDERR_FILENO);
   DepthFrame frame;

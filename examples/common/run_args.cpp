@@ -70,9 +70,10 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --write-frames       also write DIR/frames/render_NNNNNN.png for every frame\n"
       "  --save-map FILE      write the map to FILE at the end (also when stopped)\n"
       "  --save-every N       and after every N frames (needs --save-map)\n"
-      "  --load-map FILE      start from a saved map (its voxel type, size and cube win over\n"
-      "                       --map, --voxel-size, --map-size); the first frame's pose comes from\n"
-      "                       the source's ground truth or --initial-pose\n"
+      "  --load-map FILE      start from a saved map (its voxel type, size, mu and cube win over\n"
+      "                       --map, --voxel-size, --mu, --map-size); the first frame's pose "
+      "comes\n"
+      "                       from the source's ground truth or --initial-pose\n"
       "  --initial-pose tx,ty,tz,qx,qy,qz,qw   first camera pose in the world (metres, unit\n"
       "                       quaternion), instead of the source's ground truth\n"
       "  --quiet              no progress line\n",

@@ -201,9 +201,10 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
                   std::string* error) {
   const auto start = std::chrono::steady_clock::now();
   ErrorText text;
-  if (!host::save_map_file(options.save_map_path.c_str(), pipeline.map(), pipeline.frame_count(),
-                           &text)
-           .ok()) {
+  MapSaveInfo info;
+  info.frames = pipeline.frame_count();
+  info.mu_m = pipeline.config().fusion.mu_m;
+  if (!host::save_map_file(options.save_map_path.c_str(), pipeline.map(), info, &text).ok()) {
     *error = text.c_str();
     return false;
   }
@@ -234,7 +235,6 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     input_camera.cy = static_cast<float>(options.source.intrinsics[3]);
   }
   const auto start_time = std::chrono::steady_clock::now();
-
 
   Pipeline<VoxelT> pipeline;
   std::unique_ptr<AlignedBuffer> buffer;
@@ -275,6 +275,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     config.map_kind =
         std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires : MapKind::single_res;
     if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;
+    if (load_map) config.fusion.mu_m = loaded.mu_m;  // the TSDF is normalised by it
     config.workers = options.threads;
     config.pose_source = options.pose_source;
     config.budget = options.budget;

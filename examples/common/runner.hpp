@@ -40,7 +40,7 @@ struct RunOptions {
   const std::atomic<bool>* stop = nullptr;  // set from a signal handler to end early
   // Maps: --save-map writes the map at the end (also when stopped) and, with --save-every N,
   // after every N processed frames; --load-map starts from a saved map (its voxel type, voxel
-  // size and cube replace --map, --voxel-size and --map-size).
+  // size, mu and cube replace --map, --voxel-size, --mu and --map-size).
   std::string save_map_path;
   long save_every = 0;
   std::string load_map_path;

@@ -95,6 +95,8 @@ int run(const std::string& command, const char* path, const MapFileHeader& heade
     std::printf("format version  %u\n", static_cast<unsigned>(header.version));
     std::printf("voxel type      %s\n", map_voxel_type_name(header.voxel_type));
     std::printf("voxel size      %g m\n", static_cast<double>(header.voxel_size_m));
+    std::printf("mu              %g m (truncation distance it was fused with)\n",
+                static_cast<double>(header.mu_m));
     std::printf("cube            %d voxels per side (%g m), origin %g %g %g m\n",
                 1 << header.voxel_depth,
                 static_cast<double>(header.voxel_size_m) * (1 << header.voxel_depth),

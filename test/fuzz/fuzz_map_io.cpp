@@ -49,7 +49,10 @@ void load(FuzzMap<VoxelT>& target, const std::uint8_t* data, std::size_t size) {
     return;
   }
   VectorSink again;
-  if (!octofuse::save_map(target.map, header.frames, again).ok()) std::abort();
+  octofuse::MapSaveInfo info;
+  info.frames = header.frames;
+  info.mu_m = header.mu_m;
+  if (!octofuse::save_map(target.map, info, again).ok()) std::abort();
   if (again.data.size() != size || std::memcmp(again.data.data(), data, size) != 0) std::abort();
 }
 

@@ -93,9 +93,10 @@ TEST_CASE("a map saved mid-sequence, loaded and tracked on matches the uninterru
     first.frames(source, 0, kSaveAt);
     blocks_at_save = first.pipeline.map().block_count();
     ErrorText error;
-    REQUIRE(host::save_map_file(path.c_str(), first.pipeline.map(), first.pipeline.frame_count(),
-                                &error)
-                .ok());
+    MapSaveInfo info;
+    info.frames = first.pipeline.frame_count();
+    info.mu_m = first.pipeline.config().fusion.mu_m;
+    REQUIRE(host::save_map_file(path.c_str(), first.pipeline.map(), info, &error).ok());
   }
 
   // A fresh pipeline: the map from the file, the first pose from the source's ground truth.

@@ -348,6 +348,7 @@ void write_header_record(RecordWriter& w, const MapFileHeader& h) {
   w.u32(h.version);
   w.u8(static_cast<std::uint8_t>(h.voxel_type));
   w.f32(h.voxel_size_m);
+  w.f32(h.mu_m);
   w.u8(static_cast<std::uint8_t>(h.voxel_depth));
   w.f32(h.origin_W.x());
   w.f32(h.origin_W.y());
@@ -384,9 +385,10 @@ Result<MapFileHeader> read_header_record(RecordReader& r) {
   }
   std::uint8_t type = 0;
   std::uint8_t depth = 0;
-  if (!r.u8(type) || !r.f32(h.voxel_size_m) || !r.u8(depth) || !r.f32(h.origin_W.x()) ||
-      !r.f32(h.origin_W.y()) || !r.f32(h.origin_W.z()) || !r.u32(h.node_count) ||
-      !r.u32(h.block_count) || !r.u32(h.finest_count) || !r.u64(h.frames) || !r.end_record()) {
+  if (!r.u8(type) || !r.f32(h.voxel_size_m) || !r.f32(h.mu_m) || !r.u8(depth) ||
+      !r.f32(h.origin_W.x()) || !r.f32(h.origin_W.y()) || !r.f32(h.origin_W.z()) ||
+      !r.u32(h.node_count) || !r.u32(h.block_count) || !r.u32(h.finest_count) || !r.u64(h.frames) ||
+      !r.end_record()) {
     return r.status();
   }
   if (type != static_cast<std::uint8_t>(MapVoxelType::single_res) &&
@@ -398,9 +400,9 @@ Result<MapFileHeader> read_header_record(RecordReader& r) {
   h.voxel_depth = depth;
   MapConfig geometry = map_config_for(h);
   geometry.node_capacity = geometry.block_capacity = geometry.finest_capacity = 1;
-  if (!validate(geometry).ok() || !(h.voxel_size_m <= 1e3f) ||
-      !(h.origin_W.cwiseAbs().maxCoeff() <= 1e9f)) {
-    r.fail(StatusCode::data_loss, "voxel size, depth or origin out of range");
+  if (!validate(geometry).ok() || !(h.voxel_size_m <= 1e3f) || !(h.mu_m > 0.0f) ||
+      !(h.mu_m <= 1e3f) || !(h.origin_W.cwiseAbs().maxCoeff() <= 1e9f)) {
+    r.fail(StatusCode::data_loss, "voxel size, mu, depth or origin out of range");
     return r.status();
   }
   if (h.node_count == 0 || h.node_count > (1u << 31) || h.block_count > (1u << 30) ||
@@ -528,8 +530,9 @@ MapConfig map_config_for(const MapFileHeader& header) {
 }
 
 template <typename VoxelT>
-Status save_map(const Octree<VoxelT>& map, std::uint64_t frames, ByteSink& sink) {
+Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink) {
   if (!map.reserved()) return StatusCode::failed_precondition;
+  if (!(info.mu_m > 0.0f) || !(info.mu_m <= 1e3f)) return StatusCode::invalid_argument;
   const MapMemory memory = map.memory();
   MapFileHeader h;
   h.voxel_type = map_voxel_type<VoxelT>();
@@ -539,7 +542,8 @@ Status save_map(const Octree<VoxelT>& map, std::uint64_t frames, ByteSink& sink)
   h.node_count = map.node_count();
   h.block_count = map.block_count();
   h.finest_count = memory.finest_used;
-  h.frames = frames;
+  h.mu_m = info.mu_m;
+  h.frames = info.frames;
   RecordWriter w(sink);
   write_header_record(w, h);
   for (std::uint32_t i = 0; i < map.node_count(); ++i) write_node_record(w, map.node(i));
@@ -649,8 +653,8 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_o
   return ok_status();
 }
 
-template Status save_map(const Octree<TsdfVoxel>&, std::uint64_t, ByteSink&);
-template Status save_map(const Octree<MultiresVoxel>&, std::uint64_t, ByteSink&);
+template Status save_map(const Octree<TsdfVoxel>&, const MapSaveInfo&, ByteSink&);
+template Status save_map(const Octree<MultiresVoxel>&, const MapSaveInfo&, ByteSink&);
 template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
 

@@ -57,7 +57,7 @@ void prefix_path(const char* path, const ErrorText& reason, ErrorText* error) {
 }  // namespace
 
 template <typename VoxelT>
-Status save_map_file(const char* path, const Octree<VoxelT>& map, std::uint64_t frames,
+Status save_map_file(const char* path, const Octree<VoxelT>& map, const MapSaveInfo& info,
                      ErrorText* error) {
   AtomicFile file;
   const Status opened = file.open(path);
@@ -66,9 +66,15 @@ Status save_map_file(const char* path, const Octree<VoxelT>& map, std::uint64_t 
     return opened;
   }
   FileSink sink(file);
-  const Status saved = save_map(map, frames, sink);
+  const Status saved = save_map(map, info, sink);
   if (!saved.ok()) {
-    if (error != nullptr) error->set("%s", file.last_error());
+    if (error != nullptr) {
+      if (file.last_error()[0] != '\0') {
+        error->set("%s", file.last_error());
+      } else {
+        error->set("%s: not written (%s)", path, saved.name());
+      }
+    }
     return saved;  // the temporary goes with `file`
   }
   const Status committed = file.commit();
@@ -101,8 +107,10 @@ Status load_map_file(const char* path, Octree<VoxelT>& map, MapFileHeader* heade
   return loaded;
 }
 
-template Status save_map_file(const char*, const Octree<TsdfVoxel>&, std::uint64_t, ErrorText*);
-template Status save_map_file(const char*, const Octree<MultiresVoxel>&, std::uint64_t, ErrorText*);
+template Status save_map_file(const char*, const Octree<TsdfVoxel>&, const MapSaveInfo&,
+                              ErrorText*);
+template Status save_map_file(const char*, const Octree<MultiresVoxel>&, const MapSaveInfo&,
+                              ErrorText*);
 template Status load_map_file(const char*, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 template Status load_map_file(const char*, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
 

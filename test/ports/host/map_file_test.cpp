@@ -70,7 +70,10 @@ TEST_CASE("a map file loads, and saves back to the same bytes atomically", "[hos
     std::ofstream old(path, std::ios::binary);
     old << "the previous map";
   }
-  REQUIRE(host::save_map_file(path.c_str(), target.map, loaded_header.frames, &error).ok());
+  MapSaveInfo info;
+  info.frames = loaded_header.frames;
+  info.mu_m = loaded_header.mu_m;
+  REQUIRE(host::save_map_file(path.c_str(), target.map, info, &error).ok());
   CHECK(read_all(path) == read_all(kFixture));
   CHECK(!exists(path + ".tmp"));
 }
@@ -92,8 +95,16 @@ TEST_CASE("missing, unwritable and damaged map files say which file and what is 
         StatusCode::unavailable);
 
   const std::string unwritable = dir + "/no/such/folder/map.ofmap";
-  CHECK(host::save_map_file(unwritable.c_str(), target.map, 0, &error).code() ==
+  MapSaveInfo info;
+  info.mu_m = 0.04f;
+  CHECK(host::save_map_file(unwritable.c_str(), target.map, info, &error).code() ==
         StatusCode::unavailable);
+  info.mu_m = 0.0f;  // not a truncation distance: refused, nothing written
+  const std::string no_mu = dir + "/no_mu.ofmap";
+  CHECK(host::save_map_file(no_mu.c_str(), target.map, info, &error).code() ==
+        StatusCode::invalid_argument);
+  CHECK(!exists(no_mu));
+  CHECK(!exists(no_mu + ".tmp"));
 
   // Cut in the middle of the block records: the loader names the file and the record.
   const std::vector<char> bytes = read_all(kFixture);

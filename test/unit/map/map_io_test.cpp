@@ -145,9 +145,13 @@ struct BareMap {
 };
 
 template <typename VoxelT>
-std::vector<std::uint8_t> save(const Octree<VoxelT>& map, std::uint64_t frames = 0) {
+std::vector<std::uint8_t> save(const Octree<VoxelT>& map, std::uint64_t frames = 0,
+                               float mu_m = 0.16f) {
   VectorSink sink;
-  REQUIRE(save_map(map, frames, sink).ok());
+  MapSaveInfo info;
+  info.frames = frames;
+  info.mu_m = mu_m;
+  REQUIRE(save_map(map, info, sink).ok());
   return sink.data;
 }
 
@@ -235,9 +239,9 @@ std::vector<std::size_t> record_offsets(const std::vector<std::uint8_t>& f, bool
            (static_cast<std::uint32_t>(f[at + 2]) << 16) |
            (static_cast<std::uint32_t>(f[at + 3]) << 24);
   };
-  const std::size_t header = 8 + 4 + 1 + 4 + 1 + 12 + 4 + 4 + 4 + 8 + 4;
-  const std::uint32_t nodes = u32(30);
-  const std::uint32_t blocks = u32(34);
+  const std::size_t header = 8 + 4 + 1 + 4 + 4 + 1 + 12 + 4 + 4 + 4 + 8 + 4;
+  const std::uint32_t nodes = u32(34);
+  const std::uint32_t blocks = u32(38);
   std::vector<std::size_t> at = {0, header};
   for (std::uint32_t i = 0; i < nodes; ++i) at.push_back(at.back() + 30);
   const std::size_t voxel_bytes = multires ? 16 : 8;
@@ -294,6 +298,7 @@ TEMPLATE_TEST_CASE("a loaded map is the saved one: same bytes, mesh and ray-cast
   }
   CHECK(header.version == kMapFormatVersion);
   CHECK(header.frames == 6);
+  CHECK(header.mu_m == 0.16f);
   CHECK(header.block_count == original.block_count());
   CHECK(header.node_count == original.node_count());
   CHECK(loaded.map.block_count() == original.block_count());
@@ -471,20 +476,20 @@ TEST_CASE("foreign, newer, other-type, mismatched and oversized files are told a
     CHECK(empty(tiny.map));
   }
   SECTION("absurd counts") {
-    for (std::size_t field : {std::size_t{30}, std::size_t{34}, std::size_t{38}}) {
+    for (std::size_t field : {std::size_t{34}, std::size_t{38}, std::size_t{42}}) {
       std::vector<std::uint8_t> bad = file;
       put_u32(bad, field, 0xFFFFFFF0u);
       reseal(bad, 0, header_end);
       CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
     }
     std::vector<std::uint8_t> no_root = file;
-    put_u32(no_root, 30, 0);
+    put_u32(no_root, 34, 0);
     reseal(no_root, 0, header_end);
     CHECK(load_bytes(no_root, target.map, &error).code() == StatusCode::data_loss);
   }
   SECTION("counts that disagree with the records") {
     std::vector<std::uint8_t> bad = file;
-    put_u32(bad, 34, mapper.pipeline.map().block_count() - 1);
+    put_u32(bad, 38, mapper.pipeline.map().block_count() - 1);
     reseal(bad, 0, header_end);
     CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
     CHECK(empty(target.map));
@@ -549,7 +554,7 @@ TEST_CASE("the committed small map is what every build writes and loads", "[fixt
   config.budget.max_new_blocks = 12;
   Mapper<MultiresVoxel> mapper(config);
   mapper.run(Frames(1), 0, 1);
-  const std::vector<std::uint8_t> written = save(mapper.pipeline.map(), 1);
+  const std::vector<std::uint8_t> written = save(mapper.pipeline.map(), 1, config.fusion.mu_m);
   const std::string path =
       std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v1.ofmap";
   const char* regenerate = std::getenv("OCTOFUSE_WRITE_MAP_FIXTURE");

@@ -7,8 +7,9 @@
 // records, each ending with the CRC-32 (IEEE 802.3) of its own bytes:
 //
 //   header  "OCTOFMAP" u32 version, u8 voxel type (1 single-res, 2 multires), f32 voxel_size_m,
-//           u8 voxel_depth, 3 x f32 origin_W, u32 nodes, u32 blocks, u32 finest levels,
-//           u64 frames (frames the map's pipeline had processed), crc
+//           f32 mu_m (the truncation distance the TSDF is normalised by), u8 voxel_depth,
+//           3 x f32 origin_W, u32 nodes, u32 blocks, u32 finest levels, u64 frames (frames the
+//           map's pipeline had processed), crc
 //   node    u8 'N' u8 level u64 morton, 4 x f32 summary (tsdf_mean, weight_mean, tsdf_min,
 //           tsdf_max), crc                                  -- one per inner node, root first
 //   block   u8 'B' u64 morton, u32 last_updated_frame, i8 current_scale, i8 min_scale,
@@ -121,6 +122,7 @@ struct MapFileHeader {
   std::uint32_t version = kMapFormatVersion;
   MapVoxelType voxel_type = MapVoxelType::multires;
   float voxel_size_m = 0.0f;
+  float mu_m = 0.0f;  // fusion's truncation distance: a pipeline continuing the map must use it
   int voxel_depth = 0;
   Eigen::Vector3f origin_W = Eigen::Vector3f::Zero();
   std::uint32_t node_count = 0;
@@ -132,11 +134,18 @@ struct MapFileHeader {
 // CRC-32 (IEEE 802.3, reflected, as zlib's crc32()) of `count` bytes, continuing from `crc`.
 std::uint32_t crc32(const std::uint8_t* bytes, std::size_t count, std::uint32_t crc = 0);
 
-// Writes `map` (reserved) to `sink`; `frames` goes into the header (see MapFileHeader). ok, or the
-// sink's error (what was written before it is incomplete: the host port writes a temporary and
-// renames it only on success).
+// What a map file records beside the map itself (see MapFileHeader).
+struct MapSaveInfo {
+  std::uint64_t frames = 0;
+  float mu_m = 0.0f;
+};
+
+// Writes `map` (reserved) to `sink`. ok; invalid_argument when info.mu_m is not finite and
+// positive; failed_precondition when the map is not reserved; or the sink's error (what was
+// written before it is incomplete: the host port writes a temporary and renames it only on
+// success).
 template <typename VoxelT>
-Status save_map(const Octree<VoxelT>& map, std::uint64_t frames, ByteSink& sink);
+Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink);
 
 // Reads and checks the header record only. ok; invalid_argument: not a map file (magic);
 // out_of_range: a newer format version; data_loss: truncated, checksum mismatch or a field out
@@ -158,8 +167,8 @@ template <typename VoxelT>
 Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_out = nullptr,
                 ErrorText* error = nullptr);
 
-extern template Status save_map(const Octree<TsdfVoxel>&, std::uint64_t, ByteSink&);
-extern template Status save_map(const Octree<MultiresVoxel>&, std::uint64_t, ByteSink&);
+extern template Status save_map(const Octree<TsdfVoxel>&, const MapSaveInfo&, ByteSink&);
+extern template Status save_map(const Octree<MultiresVoxel>&, const MapSaveInfo&, ByteSink&);
 extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
 

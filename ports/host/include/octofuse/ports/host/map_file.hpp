@@ -14,9 +14,9 @@
 namespace octofuse::host {
 
 // ok; unavailable: the file cannot be created; data_loss: a write or the sync failed (the
-// destination is untouched).
+// destination is untouched); invalid_argument: see save_map.
 template <typename VoxelT>
-Status save_map_file(const char* path, const Octree<VoxelT>& map, std::uint64_t frames,
+Status save_map_file(const char* path, const Octree<VoxelT>& map, const MapSaveInfo& info,
                      ErrorText* error);
 
 // The header of a map file (see read_map_header): unavailable when the file cannot be opened.
@@ -28,9 +28,9 @@ template <typename VoxelT>
 Status load_map_file(const char* path, Octree<VoxelT>& map, MapFileHeader* header,
                      ErrorText* error);
 
-extern template Status save_map_file(const char*, const Octree<TsdfVoxel>&, std::uint64_t,
+extern template Status save_map_file(const char*, const Octree<TsdfVoxel>&, const MapSaveInfo&,
                                      ErrorText*);
-extern template Status save_map_file(const char*, const Octree<MultiresVoxel>&, std::uint64_t,
+extern template Status save_map_file(const char*, const Octree<MultiresVoxel>&, const MapSaveInfo&,
                                      ErrorText*);
 extern template Status load_map_file(const char*, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 extern template Status load_map_file(const char*, Octree<MultiresVoxel>&, MapFileHeader*,

@@ -269,7 +269,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       if (pools.blocks < loaded.block_count) {
         return error_exit(options.load_map_path + ": needs " + std::to_string(loaded.block_count) +
                           " blocks, the map memory holds " + std::to_string(pools.blocks) +
-                          " (raise --map-memory)");
+                          " (raise --map-memory or --max-blocks)");
       }
     }
     config.map_kind =

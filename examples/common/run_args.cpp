@@ -1,5 +1,6 @@
 #include "run_args.hpp"
 
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <string>
@@ -10,6 +11,31 @@
 namespace octofuse::examples {
 
 using cli::fail;
+
+namespace {
+
+// "tx,ty,tz,qx,qy,qz,qw": finite, |t| <= 1e6 m, a quaternion of norm within 1% of 1 (normalised).
+bool parse_pose(const std::string& text, Se3d* T_W_C) {
+  double v[7];
+  std::size_t start = 0;
+  for (int i = 0; i < 7; ++i) {
+    const std::size_t comma = text.find(',', start);
+    const bool last = i == 6;
+    if (last != (comma == std::string::npos)) return false;
+    const std::string token = text.substr(start, last ? std::string::npos : comma - start);
+    if (!cli::parse_double(token, -1e6, 1e6, v[i])) return false;
+    start = comma + 1;
+  }
+  Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+  if (std::abs(q.norm() - 1.0) > 0.01) return false;
+  q.normalize();
+  *T_W_C = Se3d::Identity();
+  T_W_C->linear() = q.toRotationMatrix();
+  T_W_C->translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+  return true;
+}
+
+}  // namespace
 
 void print_run_usage(const char* program, const char* default_source) {
   std::printf(
@@ -42,6 +68,14 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --mesh-scale S       multires mesh.ply from each block's current scale (default) or\n"
       "                       finest: the finest scale it was fused at (static scenes)\n"
       "  --write-frames       also write DIR/frames/render_NNNNNN.png for every frame\n"
+      "  --save-map FILE      write the map to FILE at the end (also when stopped)\n"
+      "  --save-every N       and after every N frames (needs --save-map)\n"
+      "  --load-map FILE      start from a saved map (its voxel type, size, mu and cube win over\n"
+      "                       --map, --voxel-size, --mu, --map-size); the first frame's pose "
+      "comes\n"
+      "                       from the source's ground truth or --initial-pose\n"
+      "  --initial-pose tx,ty,tz,qx,qy,qz,qw   first camera pose in the world (metres, unit\n"
+      "                       quaternion), instead of the source's ground truth\n"
       "  --quiet              no progress line\n",
       program, default_source, supported_sources().c_str());
 }
@@ -175,6 +209,24 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       if (!need_value(&value) || !parse_mesh_read_scale(value, &options.mesh_read_scale)) {
         return fail("--mesh-scale must be current or finest");
       }
+    } else if (arg == "--save-map") {
+      if (!need_value(&options.save_map_path) || options.save_map_path.empty()) {
+        return fail("--save-map needs a file name");
+      }
+    } else if (arg == "--save-every") {
+      if (!need_value(&value) || !cli::parse_int(value, 1, 100000000, integer)) {
+        return fail("--save-every needs a positive frame count");
+      }
+      options.save_every = static_cast<long>(integer);
+    } else if (arg == "--load-map") {
+      if (!need_value(&options.load_map_path) || options.load_map_path.empty()) {
+        return fail("--load-map needs a file name");
+      }
+    } else if (arg == "--initial-pose") {
+      if (!need_value(&value) || !parse_pose(value, &options.initial_T_W_C)) {
+        return fail("--initial-pose needs tx,ty,tz,qx,qy,qz,qw (metres, a unit quaternion)");
+      }
+      options.have_initial_pose = true;
     } else if (arg == "--quiet") {
       options.progress = false;
     } else {
@@ -182,6 +234,9 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
     }
   }
 
+  if (options.save_every > 0 && options.save_map_path.empty()) {
+    return fail("--save-every needs --save-map FILE");
+  }
   return 0;
 }
 
@@ -204,10 +259,22 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
     std::printf("ATE RMSE %.2f cm (max %.2f cm)\n", summary.ate_rmse_m * 100.0,
                 summary.ate_max_m * 100.0);
   }
-  if (summary.files_written.empty()) return;
-  std::string names;
-  for (const std::string& name : summary.files_written) names += (names.empty() ? "" : ",") + name;
-  std::printf("wrote %s/{%s}\n", options.out_dir.c_str(), names.c_str());
+  if (summary.map_loaded) {
+    std::printf("loaded %s: %u blocks in %.3f s\n", options.load_map_path.c_str(),
+                summary.map_loaded_blocks, summary.map_load_s);
+  }
+  if (!summary.files_written.empty()) {
+    std::string names;
+    for (const std::string& name : summary.files_written) {
+      names += (names.empty() ? "" : ",") + name;
+    }
+    std::printf("wrote %s/{%s}\n", options.out_dir.c_str(), names.c_str());
+  }
+  if (summary.map_saves > 0) {
+    std::printf("wrote %s (%.1f MB in %.3f s; %u saves)\n", options.save_map_path.c_str(),
+                static_cast<double>(summary.map_file_bytes) / 1048576.0, summary.map_last_save_s,
+                summary.map_saves);
+  }
 }
 
 }  // namespace octofuse::examples

@@ -13,6 +13,7 @@
 
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/json_writer.hpp"
+#include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/ply.hpp"
 #include "octofuse/ports/host/png_writer.hpp"
 #include "octofuse/ports/host/trajectory_eval.hpp"
@@ -283,6 +284,31 @@ bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, Err
       .ok();
 }
 
+std::uint64_t file_size(const std::string& path) {
+  struct stat st;
+  return ::stat(path.c_str(), &st) == 0 ? static_cast<std::uint64_t>(st.st_size) : 0;
+}
+
+// Writes --save-map's file; false (with the reason in *error) when it could not.
+template <typename VoxelT>
+bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
+                  std::string* error) {
+  const auto start = std::chrono::steady_clock::now();
+  ErrorText text;
+  MapSaveInfo info;
+  info.frames = pipeline.frame_count();
+  info.mu_m = pipeline.config().fusion.mu_m;
+  if (!host::save_map_file(options.save_map_path.c_str(), pipeline.map(), info, &text).ok()) {
+    *error = text.c_str();
+    return false;
+  }
+  summary->map_last_save_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  summary->map_file_bytes = file_size(options.save_map_path);
+  ++summary->map_saves;
+  return true;
+}
+
 template <typename VoxelT>
 int run_typed(const RunOptions& options, RunSummary* summary) {
   std::string error;
@@ -306,6 +332,82 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   }
   const auto start_time = std::chrono::steady_clock::now();
 
+  Pipeline<VoxelT> pipeline;
+  std::unique_ptr<AlignedBuffer> buffer;
+  const Clock clock{&steady_now_us, nullptr};
+  // With --load-map: the saved map's header (its geometry replaces the one around the first
+  // camera).
+  const bool load_map = !options.load_map_path.empty();
+  MapFileHeader loaded;
+  if (load_map) {
+    ErrorText header_error;
+    const Result<MapFileHeader> header =
+        host::read_map_file_header(options.load_map_path.c_str(), &header_error);
+    if (!header.ok()) return error_exit(header_error.c_str());
+    loaded = header.value();
+  }
+  auto init_pipeline = [&](const Se3d& T_W_C0) {
+    // Without a loaded map the first frame fixes where the map's cube sits: around the first
+    // camera, shifted along its view direction so what it sees is inside.
+    const int depth =
+        load_map ? loaded.voxel_depth : voxel_depth_for(options.map_size_m, options.voxel_size_m);
+    const float side_m = options.voxel_size_m * static_cast<float>(1 << depth);
+    const Eigen::Vector3f centre_W =
+        (T_W_C0.translation() + T_W_C0.linear().col(2) * (0.25 * side_m)).cast<float>();
+    const PoolSizes pools = pool_sizes<VoxelT>(options, input_camera);
+    PipelineConfig config =
+        default_pipeline_config(input_camera, options.voxel_size_m, depth, pools.blocks, centre_W);
+    config.map.finest_capacity = pools.finest;
+    if (load_map) {
+      config.map.origin_W = loaded.origin_W;
+      config.map.voxel_size_m = loaded.voxel_size_m;
+      config.map.node_capacity = std::max(config.map.node_capacity, loaded.node_count);
+      if (pools.blocks < loaded.block_count) {
+        return error_exit(options.load_map_path + ": needs " + std::to_string(loaded.block_count) +
+                          " blocks, the map memory holds " + std::to_string(pools.blocks) +
+                          " (raise --map-memory or --max-blocks)");
+      }
+    }
+    config.map_kind =
+        std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires : MapKind::single_res;
+    if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;
+    if (load_map) config.fusion.mu_m = loaded.mu_m;  // the TSDF is normalised by it
+    config.workers = options.threads;
+    config.pose_source = options.pose_source;
+    config.budget = options.budget;
+    config.preprocess.bilateral = options.bilateral;
+    if (options.icp_depth_knee_m >= 0.0f)
+      config.track.depth_weight_knee_m = options.icp_depth_knee_m;
+    config.initial_T_W_C = T_W_C0;
+    config.initial_pose_from_ground_truth = !options.have_initial_pose;
+    const std::size_t bytes = bytes_required(config);
+    if (bytes == 0) return error_exit("invalid configuration (check voxel size, mu, threads)");
+    buffer = std::make_unique<AlignedBuffer>(bytes);
+    if (buffer->data == nullptr) return error_exit("cannot reserve the map memory");
+    const Status init = pipeline.init(buffer->data, bytes, config, clock);
+    if (!init.ok()) return error_exit(std::string("pipeline init failed: ") + init.name());
+    summary->arena_bytes = bytes;
+    return 0;
+  };
+  if (load_map) {
+    const int rc = init_pipeline(options.initial_T_W_C);
+    if (rc != 0) return rc;
+    const auto start = std::chrono::steady_clock::now();
+    ErrorText load_error;
+    MapFileHeader header;
+    if (!host::load_map_file(options.load_map_path.c_str(), pipeline.map(), &header, &load_error)
+             .ok()) {
+      return error_exit(load_error.c_str());
+    }
+    if (!pipeline.resume_frame_count(header.frames).ok()) {
+      return error_exit("cannot continue the map's frame count");
+    }
+    summary->map_loaded = true;
+    summary->map_loaded_blocks = header.block_count;
+    summary->map_load_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+
   if (!options.out_dir.empty() && !make_dir(options.out_dir)) {
     return error_exit("cannot create output folder " + options.out_dir);
   }
@@ -315,10 +417,6 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     const std::string path = join(options.out_dir, "trajectory.txt");
     if (!trajectory_file->open(path.c_str()).ok()) return error_exit(trajectory_file->last_error());
   }
-
-  Pipeline<VoxelT> pipeline;
-  std::unique_ptr<AlignedBuffer> buffer;
-  const Clock clock{&steady_now_us, nullptr};
   const bool show_progress = options.progress && ::isatty(STDERR_FILENO);
   DepthFrame frame;
   FrameWarnings warnings;
@@ -346,35 +444,17 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       continue;
     }
     if (buffer == nullptr) {
-      // The first frame fixes where the map's cube sits: around the first camera, shifted along
-      // its view direction so what it sees is inside.
-      Se3d T_W_C0 = Se3d::Identity();
-      if (frame.has_ground_truth) T_W_C0.matrix() = frame.T_W_C_ground_truth;
-      const int depth = voxel_depth_for(options.map_size_m, options.voxel_size_m);
-      const float side_m = options.voxel_size_m * static_cast<float>(1 << depth);
-      const Eigen::Vector3f centre_W =
-          (T_W_C0.translation() + T_W_C0.linear().col(2) * (0.25 * side_m)).cast<float>();
-      const PoolSizes pools = pool_sizes<VoxelT>(options, input_camera);
-      PipelineConfig config = default_pipeline_config(input_camera, options.voxel_size_m, depth,
-                                                      pools.blocks, centre_W);
-      config.map.finest_capacity = pools.finest;
-      config.map_kind =
-          std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires : MapKind::single_res;
-      if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;
-      config.workers = options.threads;
-      config.pose_source = options.pose_source;
-      config.budget = options.budget;
-      config.preprocess.bilateral = options.bilateral;
-      if (options.icp_depth_knee_m >= 0.0f)
-        config.track.depth_weight_knee_m = options.icp_depth_knee_m;
-      config.initial_T_W_C = T_W_C0;
-      const std::size_t bytes = bytes_required(config);
-      if (bytes == 0) return error_exit("invalid configuration (check voxel size, mu, threads)");
-      buffer = std::make_unique<AlignedBuffer>(bytes);
-      if (buffer->data == nullptr) return error_exit("cannot reserve the map memory");
-      const Status init = pipeline.init(buffer->data, bytes, config, clock);
-      if (!init.ok()) return error_exit(std::string("pipeline init failed: ") + init.name());
-      summary->arena_bytes = bytes;
+      Se3d T_W_C0 = options.initial_T_W_C;
+      if (!options.have_initial_pose && frame.has_ground_truth) {
+        T_W_C0.matrix() = frame.T_W_C_ground_truth;
+      }
+      const int rc = init_pipeline(T_W_C0);
+      if (rc != 0) return rc;
+    }
+    if (load_map && processed == 0 && !options.have_initial_pose && !frame.has_ground_truth) {
+      return error_exit(options.source_spec +
+                        ": no ground truth to place the first frame in the loaded map; give "
+                        "--initial-pose tx,ty,tz,qx,qy,qz,qw");
     }
 
     FrameStats stats;
@@ -407,6 +487,13 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     summary->trajectory.push_back(pose);
     if (trajectory_file != nullptr && !trajectory_file->append(pose).ok()) {
       return error_exit(trajectory_file->last_error());
+    }
+    if (options.save_every > 0 && !options.save_map_path.empty() &&
+        processed % options.save_every == 0) {
+      std::string save_error;
+      if (!save_map_now(options, pipeline, summary, &save_error)) {
+        std::fprintf(stderr, "warning: map not saved: %s\n", save_error.c_str());
+      }
     }
     if (frame.has_ground_truth) {
       host::TimedPose truth;
@@ -454,6 +541,10 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   if (buffer == nullptr) return error_exit(options.source_spec + ": no usable frame");
   summary->frames_lost = pipeline.frames_lost();
   summary->map_memory = pipeline.map().memory();
+  if (!options.save_map_path.empty()) {
+    std::string save_error;
+    if (!save_map_now(options, pipeline, summary, &save_error)) return error_exit(save_error);
+  }
 
   if (summary->ground_truth.size() >= 3 &&
       summary->ground_truth.size() == summary->trajectory.size()) {
@@ -644,8 +735,20 @@ bool parse_mesh_read_scale(const std::string& text, MeshReadScale* scale) {
   return true;
 }
 
-int run_pipeline(const RunOptions& options, RunSummary* summary) {
+int run_pipeline(const RunOptions& options_in, RunSummary* summary) {
   *summary = RunSummary();
+  RunOptions options = options_in;
+  if (!options.load_map_path.empty()) {
+    // The saved map decides the voxel type and size (its header is checked again, with the rest
+    // of the file, before the first frame).
+    ErrorText error;
+    const Result<MapFileHeader> header =
+        host::read_map_file_header(options.load_map_path.c_str(), &error);
+    if (!header.ok()) return error_exit(error.c_str());
+    options.map_kind = header.value().voxel_type == MapVoxelType::multires ? MapKind::multires
+                                                                           : MapKind::single_res;
+    options.voxel_size_m = header.value().voxel_size_m;
+  }
   if (options.map_kind == MapKind::multires) return run_typed<MultiresVoxel>(options, summary);
   return run_typed<TsdfVoxel>(options, summary);
 }

@@ -38,6 +38,15 @@ struct RunOptions {
   bool progress = true;       // a progress line on stderr when it is a terminal
   bool live_status = false;   // once a second on stdout: frame rate and tracking state
   const std::atomic<bool>* stop = nullptr;  // set from a signal handler to end early
+  // Maps: --save-map writes the map at the end (also when stopped) and, with --save-every N,
+  // after every N processed frames; --load-map starts from a saved map (its voxel type, voxel
+  // size, mu and cube replace --map, --voxel-size, --mu and --map-size).
+  std::string save_map_path;
+  long save_every = 0;
+  std::string load_map_path;
+  // --initial-pose: the first frame's pose (camera to world) instead of the source's ground truth.
+  bool have_initial_pose = false;
+  Se3d initial_T_W_C = Se3d::Identity();
 };
 
 struct RunSummary {
@@ -63,6 +72,12 @@ struct RunSummary {
   // Why the run did not produce what it claims (most frames lost or rejected, nothing fused after
   // the first frame); empty when it did. The outputs are still written, for diagnosis.
   std::string failure;
+  bool map_loaded = false;  // with --load-map: its blocks and save time
+  std::uint32_t map_loaded_blocks = 0;
+  double map_load_s = 0.0;
+  std::uint32_t map_saves = 0;  // files written by --save-map (periodic and final)
+  double map_last_save_s = 0.0;
+  std::uint64_t map_file_bytes = 0;  // size of the last map file written
 };
 
 // 0 when the outputs were written (check summary->failure too); otherwise prints "error: ..."

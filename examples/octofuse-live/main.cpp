@@ -1,6 +1,6 @@
 // octofuse-live: the pipeline on a live camera (or a camera recording). Prints the frame rate and
-// tracking state as it goes; on Ctrl-C (or the end of a recording) it writes the same outputs as
-// octofuse-replay.
+// tracking state as it goes; on Ctrl-C or SIGTERM (or the end of a recording) it writes the same
+// outputs as octofuse-replay, and the map with --save-map.
 
 #include <cstdio>
 
@@ -16,7 +16,9 @@ int main(int argc, char** argv) {
   if (parse_rc != 0) return parse_rc;
   if (help) {
     octofuse::examples::print_run_usage("octofuse-live", "openni2");
-    std::printf("\nCtrl-C stops the run and writes the outputs.\n");
+    std::printf(
+        "\nCtrl-C or SIGTERM stops the run and writes the outputs (and the map, with "
+        "--save-map).\n");
     return 0;
   }
   // Ctrl-C or SIGTERM is how a live run ends: finish the frame, write everything, exit 0 (a

@@ -157,6 +157,13 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
 }
 
 template <typename VoxelT>
+Status Pipeline<VoxelT>::resume_frame_count(std::uint64_t frames) {
+  if (!initialised_ || frame_index_ != 0) return StatusCode::failed_precondition;
+  frame_index_ = frames;
+  return ok_status();
+}
+
+template <typename VoxelT>
 Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out) {
   FrameStats stats;
   stats.frame_index = frame_index_;

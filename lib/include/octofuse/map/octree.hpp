@@ -380,6 +380,11 @@ class Octree {
   }
   static constexpr std::uint32_t root_index() { return 0; }
   const OctreeNode& node(std::uint32_t index) const { return nodes_[index]; }
+  // Sets an inner node's summary as a saved map recorded it (map_io.hpp restores maps with it),
+  // so a loaded map skips empty space exactly as the saved one did.
+  void restore_node_summary(std::uint32_t index, const NodeSummary& summary) {
+    nodes_[index].summary = summary;
+  }
 
   // --- Iteration. Blocks are numbered 0..block_count()-1 in allocation order, which is
   // deterministic for a deterministic sequence of allocate() calls.

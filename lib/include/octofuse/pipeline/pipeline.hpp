@@ -150,6 +150,12 @@ class Pipeline {
   const Se3d& reference_T_W_C() const { return T_W_Cref_; }
   const char* last_error() const { return validator_.last_error(); }
   std::uint64_t frames_lost() const { return frames_lost_; }
+  // Frames given to process() (the index the next frame gets).
+  std::uint64_t frame_count() const { return frame_index_; }
+  // Continues the frame numbering of a loaded map (blocks record the index of the frame that last
+  // updated them): the next frame gets index `frames`. failed_precondition before init() or once
+  // a frame was processed.
+  Status resume_frame_count(std::uint64_t frames);
   std::uint64_t frames_rejected() const { return validator_.frames_rejected(); }
   std::size_t bytes_used() const { return arena_.bytes_used(); }
 

@@ -1,0 +1,200 @@
+// octofuse-map: looks into a saved map (octofuse-replay --save-map). `info FILE` checks the whole
+// file and prints its format version, voxel type and size, blocks per scale and memory;
+// `mesh FILE OUT.ply` meshes it as octofuse-replay's mesh.ply.
+
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include "octofuse/mesh/mesher.hpp"
+#include "octofuse/ports/host/map_file.hpp"
+#include "octofuse/ports/host/ply.hpp"
+
+namespace octofuse {
+namespace {
+
+void print_usage() {
+  std::printf(
+      "usage: octofuse-map info FILE\n"
+      "       octofuse-map mesh FILE OUT.ply [--mesh-scale current|finest]\n"
+      "\n"
+      "  info   check FILE whole and print its format version, voxel type and size, cube,\n"
+      "         blocks per scale and the memory it takes\n"
+      "  mesh   write FILE's surface as a binary PLY (as octofuse-replay's mesh.ply)\n");
+}
+
+int error_exit(const std::string& message) {
+  std::fprintf(stderr, "error: %s\n", message.c_str());
+  return 1;
+}
+
+// Heap memory for a map exactly as large as the file needs.
+struct MapBuffer {
+  void* data = nullptr;
+  explicit MapBuffer(std::size_t bytes) {
+    data = std::aligned_alloc(kArenaAlignment,
+                              align_up(std::max<std::size_t>(bytes, 1), kArenaAlignment));
+  }
+  ~MapBuffer() { std::free(data); }
+  MapBuffer(const MapBuffer&) = delete;
+  MapBuffer& operator=(const MapBuffer&) = delete;
+};
+
+class VectorMeshSink final : public MeshSink {
+ public:
+  Status add_vertices(const MeshVertex* vertices, std::size_t count) override {
+    for (std::size_t i = 0; i < count; ++i) {
+      positions.push_back(vertices[i].p_W);
+      scales.push_back(vertices[i].scale);
+    }
+    return ok_status();
+  }
+  Status add_triangles(const MeshTriangle* triangles, std::size_t count) override {
+    for (std::size_t i = 0; i < count; ++i) {
+      for (int k = 0; k < 3; ++k) indices.push_back(triangles[i].v[k]);
+    }
+    return ok_status();
+  }
+  std::vector<Eigen::Vector3f> positions;
+  std::vector<std::uint8_t> scales;
+  std::vector<std::uint32_t> indices;
+};
+
+template <typename VoxelT>
+int run(const std::string& command, const char* path, const MapFileHeader& header,
+        const char* out_path, MeshReadScale read_scale) {
+  const MapConfig config = map_config_for(header);
+  const std::size_t bytes = Octree<VoxelT>::bytes_required(config);
+  if (bytes == 0) return error_exit(std::string(path) + ": cannot size a map for it");
+  MapBuffer buffer(bytes);
+  if (buffer.data == nullptr) return error_exit("cannot reserve the map memory");
+  LinearArena arena(buffer.data, bytes);
+  Octree<VoxelT> map;
+  if (!map.reserve(arena, config).ok()) return error_exit("cannot reserve the map");
+  ErrorText error;
+  if (!host::load_map_file(path, map, nullptr, &error).ok()) return error_exit(error.c_str());
+
+  if (command == "info") {
+    std::uint32_t per_scale[kMaxBlockScale + 1] = {};
+    std::uint32_t never = 0;
+    map.for_each_block([&](const VoxelBlock<VoxelT>& b) {
+      if (b.integrated()) {
+        ++per_scale[b.current_scale];
+      } else {
+        ++never;
+      }
+    });
+    const MapMemory memory = map.memory();
+    struct stat st;
+    const long long file_bytes = ::stat(path, &st) == 0 ? static_cast<long long>(st.st_size) : -1;
+    std::printf("file            %s (%lld bytes, every record checked)\n", path, file_bytes);
+    std::printf("format version  %u\n", static_cast<unsigned>(header.version));
+    std::printf("voxel type      %s\n", map_voxel_type_name(header.voxel_type));
+    std::printf("voxel size      %g m\n", static_cast<double>(header.voxel_size_m));
+    std::printf("mu              %g m (truncation distance it was fused with)\n",
+                static_cast<double>(header.mu_m));
+    std::printf("cube            %d voxels per side (%g m), origin %g %g %g m\n",
+                1 << header.voxel_depth,
+                static_cast<double>(header.voxel_size_m) * (1 << header.voxel_depth),
+                static_cast<double>(header.origin_W.x()), static_cast<double>(header.origin_W.y()),
+                static_cast<double>(header.origin_W.z()));
+    std::printf("frames          %llu\n", static_cast<unsigned long long>(header.frames));
+    std::printf("inner nodes     %u\n", memory.nodes_used);
+    std::printf("blocks          %u\n", memory.blocks_used);
+    for (int s = 0; s <= kMaxBlockScale; ++s) {
+      std::printf("  at scale %d     %u\n", s, per_scale[s]);
+    }
+    std::printf("  never fused   %u\n", never);
+    if (Octree<VoxelT>::kSplitFinest) {
+      std::printf("finest levels   %u\n", memory.finest_used);
+    }
+    std::printf("memory          %.2f MB (blocks, finest levels and nodes)\n",
+                static_cast<double>(memory.bytes_used) / 1048576.0);
+    return 0;
+  }
+
+  MeshConfig mesh_config;
+  mesh_config.read_scale = read_scale;
+  mesh_config.vertex_capacity = static_cast<std::uint32_t>(
+      std::clamp<std::uint64_t>(std::uint64_t{96} * map.block_count(), 1u << 16, 1u << 23));
+  const std::size_t mesh_bytes = Mesher<VoxelT>::bytes_required(mesh_config);
+  MapBuffer mesh_buffer(mesh_bytes);
+  LinearArena mesh_arena(mesh_buffer.data, mesh_bytes);
+  Mesher<VoxelT> mesher;
+  if (mesh_buffer.data == nullptr || !mesher.reserve(mesh_arena, mesh_config).ok()) {
+    return error_exit("cannot reserve the mesher");
+  }
+  VectorMeshSink sink;
+  const Result<MeshStats> meshed = mesher.extract(map, sink);
+  if (!meshed.ok()) {
+    std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
+  }
+  host::MeshView mesh;
+  mesh.vertices = sink.positions.data();
+  mesh.vertex_count = sink.positions.size();
+  mesh.indices = sink.indices.data();
+  mesh.triangle_count = sink.indices.size() / 3;
+  mesh.vertex_scale = sink.scales.data();
+  ErrorText ply_error;
+  if (!host::write_ply(out_path, mesh, &ply_error).ok()) return error_exit(ply_error.c_str());
+  std::printf("wrote %s (%zu vertices, %zu triangles)\n", out_path, mesh.vertex_count,
+              mesh.triangle_count);
+  return 0;
+}
+
+}  // namespace
+}  // namespace octofuse
+
+int main(int argc, char** argv) {
+  using namespace octofuse;
+  if (argc >= 2 && (std::string(argv[1]) == "-h" || std::string(argv[1]) == "--help")) {
+    print_usage();
+    return 0;
+  }
+  if (argc < 3) {
+    std::fprintf(stderr, "error: expected a command and a map file (see --help)\n");
+    return 2;
+  }
+  const std::string command = argv[1];
+  const char* path = argv[2];
+  const char* out_path = nullptr;
+  MeshReadScale read_scale = MeshReadScale::current;
+  if (command == "info") {
+    if (argc != 3) {
+      std::fprintf(stderr, "error: info takes one map file\n");
+      return 2;
+    }
+  } else if (command == "mesh") {
+    if (argc != 4 && !(argc == 6 && std::string(argv[4]) == "--mesh-scale")) {
+      std::fprintf(stderr, "error: mesh takes a map file and an output .ply (see --help)\n");
+      return 2;
+    }
+    out_path = argv[3];
+    if (argc == 6) {
+      const std::string scale = argv[5];
+      if (scale == "finest") {
+        read_scale = MeshReadScale::finest_fused;
+      } else if (scale != "current") {
+        std::fprintf(stderr, "error: --mesh-scale must be current or finest\n");
+        return 2;
+      }
+    }
+  } else {
+    std::fprintf(stderr, "error: unknown command '%s' (info or mesh)\n", command.c_str());
+    return 2;
+  }
+  ErrorText error;
+  const Result<MapFileHeader> header = host::read_map_file_header(path, &error);
+  if (!header.ok()) {
+    std::fprintf(stderr, "error: %s\n", error.c_str());
+    return 1;
+  }
+  if (header.value().voxel_type == MapVoxelType::multires) {
+    return run<MultiresVoxel>(command, path, header.value(), out_path, read_scale);
+  }
+  return run<TsdfVoxel>(command, path, header.value(), out_path, read_scale);
+}

@@ -1,0 +1,175 @@
+#pragma once
+// Saving and loading a whole map through byte sinks and sources (no file access here: the host
+// port's map_file.hpp puts them on files; a board may use flash or a socket).
+//
+// Format (version 1). All integers and floats little-endian, written byte by byte, so the bytes
+// do not depend on the machine; floats are their IEEE-754 bit patterns. The file is a sequence of
+// records, each ending with the CRC-32 (IEEE 802.3) of its own bytes:
+//
+//   header  "OCTOFMAP" u32 version, u8 voxel type (1 single-res, 2 multires), f32 voxel_size_m,
+//           f32 mu_m (the truncation distance the TSDF is normalised by), u8 voxel_depth,
+//           3 x f32 origin_W, u32 nodes, u32 blocks, u32 finest levels, u64 frames (frames the
+//           map's pipeline had processed), crc
+//   node    u8 'N' u8 level u64 morton, 4 x f32 summary (tsdf_mean, weight_mean, tsdf_min,
+//           tsdf_max), crc                                  -- one per inner node, root first
+//   block   u8 'B' u64 morton, u32 last_updated_frame, i8 current_scale, i8 min_scale,
+//           i8 mip_scale, u8 flags (bit 0: holds a finest level), 4 x f32 summary (tsdf_min,
+//           tsdf_max, tsdf_mean, weight_mean), voxels, crc   -- one per block
+//           voxels: the finest level (512) when held (always for single-res), then scales 1-3
+//           (73); single-res: tsdf, weight; multires: x, x_last, y, delta_y
+//   end     u8 'E' u32 nodes u32 blocks, crc; nothing may follow
+//
+// Nodes and blocks are written in pool index order. A node is allocated after its parent and a
+// block after its parent node, so a loader that allocates them in file order rebuilds the same
+// pool indices, hash and tree: the loaded map meshes, ray-casts and keeps fusing exactly as the
+// saved one would (not only the same surface: the same bytes). The same map always gives the
+// same file. Not saved: the finest-level pool's slot numbers (a block's data does not depend on
+// them), refusal counters and summary-pass scratch, which start afresh.
+//
+// Loading validates every field before it is used: magic, version, voxel type, the geometry
+// against the map it is loaded into, counts against its pools, record tags and checksums, each
+// node's and block's key (canonical, inside the cube, parent present, not a duplicate), block
+// states and every float (finite; TSDF values in [-1, 1], weights in [0, kMaxSavedWeight]).
+//
+// Adding a node field (e.g. free-space state) means: bump kMapFormatVersion, extend
+// write_node_record() / read_node_record() in map_io.cpp, and keep reading older versions there.
+
+#include <cstddef>
+#include <cstdint>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/error_text.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/core/status.hpp"
+#include "octofuse/map/octree.hpp"
+
+namespace octofuse {
+
+inline constexpr std::uint32_t kMapFormatVersion = 1;
+// Largest weight a saved voxel or summary may hold (2^24: integers stay exact in a float).
+inline constexpr float kMaxSavedWeight = 16777216.0f;
+
+// Where save_map() writes. write() returns ok or the sink's own error (unavailable, data_loss...),
+// which save_map() passes on.
+class ByteSink {
+ public:
+  virtual Status write(const std::uint8_t* bytes, std::size_t count) = 0;
+
+ protected:
+  ~ByteSink() = default;
+};
+
+// Where load_map() reads. read() fills up to `count` bytes and returns how many it read: fewer
+// only at the end of the data; or an error (unavailable, data_loss...) passed on by load_map().
+class ByteSource {
+ public:
+  virtual Result<std::size_t> read(std::uint8_t* bytes, std::size_t count) = 0;
+
+ protected:
+  ~ByteSource() = default;
+};
+
+// A sink over a caller's buffer (tests, boards writing to RAM before flash).
+class MemorySink final : public ByteSink {
+ public:
+  MemorySink(std::uint8_t* buffer, std::size_t capacity) : buffer_(buffer), capacity_(capacity) {}
+  // resource_exhausted when the buffer is full (nothing of this call is written then).
+  Status write(const std::uint8_t* bytes, std::size_t count) override;
+  std::size_t size() const { return size_; }
+
+ private:
+  std::uint8_t* buffer_;
+  std::size_t capacity_;
+  std::size_t size_ = 0;
+};
+
+// A source over bytes in memory.
+class MemorySource final : public ByteSource {
+ public:
+  MemorySource(const std::uint8_t* bytes, std::size_t size) : bytes_(bytes), size_(size) {}
+  Result<std::size_t> read(std::uint8_t* bytes, std::size_t count) override;
+
+ private:
+  const std::uint8_t* bytes_;
+  std::size_t size_;
+  std::size_t offset_ = 0;
+};
+
+// A sink that only counts: how many bytes save_map() would write.
+class CountingSink final : public ByteSink {
+ public:
+  Status write(const std::uint8_t*, std::size_t count) override {
+    size_ += count;
+    return ok_status();
+  }
+  std::size_t size() const { return size_; }
+
+ private:
+  std::size_t size_ = 0;
+};
+
+enum class MapVoxelType : std::uint8_t { single_res = 1, multires = 2 };
+
+template <typename VoxelT>
+constexpr MapVoxelType map_voxel_type() {
+  return IsMultiresVoxel<VoxelT>::value ? MapVoxelType::multires : MapVoxelType::single_res;
+}
+const char* map_voxel_type_name(MapVoxelType type);
+
+// What a map file's header says.
+struct MapFileHeader {
+  std::uint32_t version = kMapFormatVersion;
+  MapVoxelType voxel_type = MapVoxelType::multires;
+  float voxel_size_m = 0.0f;
+  float mu_m = 0.0f;  // fusion's truncation distance: a pipeline continuing the map must use it
+  int voxel_depth = 0;
+  Eigen::Vector3f origin_W = Eigen::Vector3f::Zero();
+  std::uint32_t node_count = 0;
+  std::uint32_t block_count = 0;
+  std::uint32_t finest_count = 0;  // multires blocks holding a finest level
+  std::uint64_t frames = 0;        // frames processed when saved (the next frame's index)
+};
+
+// CRC-32 (IEEE 802.3, reflected, as zlib's crc32()) of `count` bytes, continuing from `crc`.
+std::uint32_t crc32(const std::uint8_t* bytes, std::size_t count, std::uint32_t crc = 0);
+
+// What a map file records beside the map itself (see MapFileHeader).
+struct MapSaveInfo {
+  std::uint64_t frames = 0;
+  float mu_m = 0.0f;
+};
+
+// Writes `map` (reserved) to `sink`. ok; invalid_argument when info.mu_m is not finite and
+// positive; failed_precondition when the map is not reserved; or the sink's error (what was
+// written before it is incomplete: the host port writes a temporary and renames it only on
+// success).
+template <typename VoxelT>
+Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink);
+
+// Reads and checks the header record only. ok; invalid_argument: not a map file (magic);
+// out_of_range: a newer format version; data_loss: truncated, checksum mismatch or a field out
+// of range; or the source's error. `error` (optional) says what is wrong in one line.
+Result<MapFileHeader> read_map_header(ByteSource& source, ErrorText* error = nullptr);
+
+// The MapConfig a map file needs (geometry from the header, pools exactly as large as its
+// counts, at least 1). Callers usually raise the capacities before reserving.
+MapConfig map_config_for(const MapFileHeader& header);
+
+// Replaces the contents of `map` (reserved) with the map in `source`. Returns ok, or (with a
+// one-line reason in `error`): invalid_argument when the source is not a map file or holds the
+// other voxel type or a different geometry (voxel size, depth, origin) than `map` was reserved
+// with; out_of_range for a newer format version; resource_exhausted when the map's pools are too
+// small for it; data_loss when it is truncated, corrupt (a checksum, a tag, a key, a state or a
+// value out of range) or followed by extra bytes; or the source's error. On any error the map is
+// left empty (cleared), never half-loaded. `header_out` (optional) gets the header on success.
+template <typename VoxelT>
+Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_out = nullptr,
+                ErrorText* error = nullptr);
+
+extern template Status save_map(const Octree<TsdfVoxel>&, const MapSaveInfo&, ByteSink&);
+extern template Status save_map(const Octree<MultiresVoxel>&, const MapSaveInfo&, ByteSink&);
+extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
+extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
+
+}  // namespace octofuse

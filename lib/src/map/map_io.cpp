@@ -1,0 +1,661 @@
+#include "octofuse/map/map_io.hpp"
+
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <cstring>
+
+namespace octofuse {
+
+namespace {
+
+constexpr std::uint8_t kMagic[8] = {'O', 'C', 'T', 'O', 'F', 'M', 'A', 'P'};
+constexpr std::uint8_t kNodeTag = 'N';
+constexpr std::uint8_t kBlockTag = 'B';
+constexpr std::uint8_t kEndTag = 'E';
+constexpr std::uint8_t kHasFinestFlag = 1;
+// Voxels are moved in chunks of this many through a stack buffer (1 KiB for multires).
+constexpr int kVoxelChunk = 16;
+
+struct CrcTable {
+  std::uint32_t entries[256];
+  constexpr CrcTable() : entries() {
+    for (std::uint32_t i = 0; i < 256; ++i) {
+      std::uint32_t c = i;
+      for (int k = 0; k < 8; ++k) c = (c & 1u) != 0 ? 0xEDB88320u ^ (c >> 1) : c >> 1;
+      entries[i] = c;
+    }
+  }
+};
+constexpr CrcTable kCrcTable;
+
+std::uint32_t float_bits(float f) {
+  std::uint32_t u;
+  std::memcpy(&u, &f, sizeof(u));
+  return u;
+}
+float bits_float(std::uint32_t u) {
+  float f;
+  std::memcpy(&f, &u, sizeof(f));
+  return f;
+}
+void put_u32(std::uint8_t* p, std::uint32_t v) {
+  for (int i = 0; i < 4; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
+}
+std::uint32_t get_u32(const std::uint8_t* p) {
+  return static_cast<std::uint32_t>(p[0]) | (static_cast<std::uint32_t>(p[1]) << 8) |
+         (static_cast<std::uint32_t>(p[2]) << 16) | (static_cast<std::uint32_t>(p[3]) << 24);
+}
+
+bool tsdf_ok(float t) {
+  return t >= -1.0f && t <= 1.0f;  // false for NaN
+}
+bool weight_ok(float w) {
+  return w >= 0.0f && w <= kMaxSavedWeight;
+}
+
+// Voxel <-> floats, in the file's field order.
+constexpr int voxel_fields(const TsdfVoxel*) {
+  return 2;
+}
+constexpr int voxel_fields(const MultiresVoxel*) {
+  return 4;
+}
+void voxel_to_floats(const TsdfVoxel& v, float* f) {
+  f[0] = v.tsdf;
+  f[1] = v.weight;
+}
+void voxel_to_floats(const MultiresVoxel& v, float* f) {
+  f[0] = v.x;
+  f[1] = v.x_last;
+  f[2] = v.y;
+  f[3] = v.delta_y;
+}
+bool floats_to_voxel(const float* f, TsdfVoxel& v) {
+  if (!tsdf_ok(f[0]) || !weight_ok(f[1])) return false;
+  v.tsdf = f[0];
+  v.weight = f[1];
+  return true;
+}
+bool floats_to_voxel(const float* f, MultiresVoxel& v) {
+  if (!tsdf_ok(f[0]) || !tsdf_ok(f[1]) || !weight_ok(f[2]) || !weight_ok(f[3])) return false;
+  v.x = f[0];
+  v.x_last = f[1];
+  v.y = f[2];
+  v.delta_y = f[3];
+  return true;
+}
+
+// Buffers bytes for the sink and keeps the running CRC of the current record.
+class RecordWriter {
+ public:
+  explicit RecordWriter(ByteSink& sink) : sink_(sink) {}
+
+  void bytes(const std::uint8_t* p, std::size_t count) {
+    crc_ = crc32(p, count, crc_);
+    raw(p, count);
+  }
+  void u8(std::uint8_t v) { bytes(&v, 1); }
+  void u32(std::uint32_t v) {
+    std::uint8_t b[4];
+    put_u32(b, v);
+    bytes(b, 4);
+  }
+  void u64(std::uint64_t v) {
+    u32(static_cast<std::uint32_t>(v));
+    u32(static_cast<std::uint32_t>(v >> 32));
+  }
+  void f32(float v) { u32(float_bits(v)); }
+  template <typename VoxelT>
+  void voxels(const VoxelT* v, int count) {
+    constexpr int kFields = voxel_fields(static_cast<const VoxelT*>(nullptr));
+    std::uint8_t chunk[kVoxelChunk * kFields * 4];
+    for (int start = 0; start < count; start += kVoxelChunk) {
+      const int n = count - start < kVoxelChunk ? count - start : kVoxelChunk;
+      for (int i = 0; i < n; ++i) {
+        float f[kFields];
+        voxel_to_floats(v[start + i], f);
+        for (int k = 0; k < kFields; ++k) put_u32(chunk + (i * kFields + k) * 4, float_bits(f[k]));
+      }
+      bytes(chunk, static_cast<std::size_t>(n) * kFields * 4);
+    }
+  }
+  // Appends the record's CRC and starts the next record.
+  void end_record() {
+    std::uint8_t b[4];
+    put_u32(b, crc_);
+    raw(b, 4);
+    crc_ = 0;
+  }
+  Status finish() {
+    flush();
+    return status_;
+  }
+
+ private:
+  void raw(const std::uint8_t* p, std::size_t count) {
+    while (count > 0) {
+      if (used_ == sizeof(buffer_)) flush();
+      const std::size_t n = count < sizeof(buffer_) - used_ ? count : sizeof(buffer_) - used_;
+      std::memcpy(buffer_ + used_, p, n);
+      used_ += n;
+      p += n;
+      count -= n;
+    }
+  }
+  void flush() {
+    if (used_ > 0 && status_.ok()) status_ = sink_.write(buffer_, used_);
+    used_ = 0;
+  }
+
+  ByteSink& sink_;
+  std::uint8_t buffer_[4096];
+  std::size_t used_ = 0;
+  std::uint32_t crc_ = 0;
+  Status status_;
+};
+
+// Reads through a buffer, keeps the running CRC of the current record, and turns the first
+// problem into a Status and a one-line message naming the record.
+class RecordReader {
+ public:
+  RecordReader(ByteSource& source, ErrorText* error) : source_(source), error_(error) {}
+
+  // Names the record being read, for messages ("block record 12"; no number when index < 0).
+  void begin_record(const char* kind, std::int64_t index) {
+    kind_ = kind;
+    index_ = index;
+    crc_ = 0;
+  }
+  // Names the record without restarting its checksum.
+  void rename_record(const char* kind) { kind_ = kind; }
+  bool ok() const { return status_.ok(); }
+  Status status() const { return status_; }
+
+  bool bytes(std::uint8_t* p, std::size_t count) {
+    if (!raw(p, count)) return false;
+    crc_ = crc32(p, count, crc_);
+    return true;
+  }
+  bool u8(std::uint8_t& v) { return bytes(&v, 1); }
+  bool u32(std::uint32_t& v) {
+    std::uint8_t b[4];
+    if (!bytes(b, 4)) return false;
+    v = get_u32(b);
+    return true;
+  }
+  bool u64(std::uint64_t& v) {
+    std::uint32_t lo, hi;
+    if (!u32(lo) || !u32(hi)) return false;
+    v = static_cast<std::uint64_t>(lo) | (static_cast<std::uint64_t>(hi) << 32);
+    return true;
+  }
+  bool f32(float& v) {
+    std::uint32_t u;
+    if (!u32(u)) return false;
+    v = bits_float(u);
+    return true;
+  }
+  template <typename VoxelT>
+  bool voxels(VoxelT* v, int count) {
+    constexpr int kFields = voxel_fields(static_cast<const VoxelT*>(nullptr));
+    std::uint8_t chunk[kVoxelChunk * kFields * 4];
+    for (int start = 0; start < count; start += kVoxelChunk) {
+      const int n = count - start < kVoxelChunk ? count - start : kVoxelChunk;
+      if (!bytes(chunk, static_cast<std::size_t>(n) * kFields * 4)) return false;
+      for (int i = 0; i < n; ++i) {
+        float f[kFields];
+        for (int k = 0; k < kFields; ++k) f[k] = bits_float(get_u32(chunk + (i * kFields + k) * 4));
+        if (!floats_to_voxel(f, v[start + i])) {
+          return fail(StatusCode::data_loss, "voxel %d out of range", start + i);
+        }
+      }
+    }
+    return true;
+  }
+  // Reads the record's CRC and compares it with the bytes read since begin_record().
+  bool end_record() {
+    const std::uint32_t computed = crc_;
+    std::uint8_t b[4];
+    if (!raw(b, 4)) return false;
+    if (get_u32(b) != computed) return fail(StatusCode::data_loss, "checksum mismatch");
+    return true;
+  }
+  // True when the source has nothing left (a read error counts as not at the end).
+  bool at_end() {
+    if (pos_ < len_) return false;
+    const bool more = fill();
+    return !more && ok();
+  }
+
+  // Records the first failure; always returns false.
+  bool fail(Status status, const char* format, ...) __attribute__((format(printf, 3, 4))) {
+    if (!status_.ok()) return false;
+    status_ = status;
+    if (error_ != nullptr) {
+      char what[160];
+      va_list args;
+      va_start(args, format);
+      std::vsnprintf(what, sizeof(what), format, args);
+      va_end(args);
+      if (kind_ == nullptr) {
+        error_->set("%s", what);
+      } else if (index_ < 0) {
+        error_->set("%s in the %s", what, kind_);
+      } else {
+        error_->set("%s in %s %lld", what, kind_, static_cast<long long>(index_));
+      }
+    }
+    return false;
+  }
+
+ private:
+  bool fill() {
+    if (!status_.ok()) return false;
+    pos_ = 0;
+    len_ = 0;
+    Result<std::size_t> got = source_.read(buffer_, sizeof(buffer_));
+    if (!got.ok()) {
+      fail(got.status(), "read error (%s)", got.status().name());
+      return false;
+    }
+    len_ = got.value() > sizeof(buffer_) ? sizeof(buffer_) : got.value();
+    return len_ > 0;
+  }
+  bool raw(std::uint8_t* p, std::size_t count) {
+    while (count > 0) {
+      if (pos_ == len_ && !fill()) {
+        return fail(StatusCode::data_loss, "truncated");
+      }
+      const std::size_t n = count < len_ - pos_ ? count : len_ - pos_;
+      std::memcpy(p, buffer_ + pos_, n);
+      pos_ += n;
+      p += n;
+      count -= n;
+    }
+    return true;
+  }
+
+  ByteSource& source_;
+  ErrorText* error_;
+  std::uint8_t buffer_[4096];
+  std::size_t pos_ = 0;
+  std::size_t len_ = 0;
+  std::uint32_t crc_ = 0;
+  const char* kind_ = nullptr;
+  std::int64_t index_ = -1;
+  Status status_;
+};
+
+bool summary_ok(const NodeSummary& s) {
+  return tsdf_ok(s.tsdf_mean) && tsdf_ok(s.tsdf_min) && tsdf_ok(s.tsdf_max) &&
+         weight_ok(s.weight_mean);
+}
+
+// The one place a node's record is written and read; a new node field goes here (with a
+// format version bump).
+void write_node_record(RecordWriter& w, const OctreeNode& n) {
+  w.u8(kNodeTag);
+  w.u8(n.level);
+  w.u64(n.morton);
+  w.f32(n.summary.tsdf_mean);
+  w.f32(n.summary.weight_mean);
+  w.f32(n.summary.tsdf_min);
+  w.f32(n.summary.tsdf_max);
+  w.end_record();
+}
+struct NodeRecord {
+  Key key;
+  NodeSummary summary;
+};
+bool read_node_record(RecordReader& r, NodeRecord& out) {
+  std::uint8_t tag = 0;
+  if (!r.u8(tag)) return false;
+  if (tag != kNodeTag) return r.fail(StatusCode::data_loss, "wrong record tag");
+  if (!r.u8(out.key.level) || !r.u64(out.key.morton) || !r.f32(out.summary.tsdf_mean) ||
+      !r.f32(out.summary.weight_mean) || !r.f32(out.summary.tsdf_min) ||
+      !r.f32(out.summary.tsdf_max) || !r.end_record()) {
+    return false;
+  }
+  if (!summary_ok(out.summary)) return r.fail(StatusCode::data_loss, "summary out of range");
+  return true;
+}
+
+template <typename VoxelT>
+void write_block_record(RecordWriter& w, const VoxelBlock<VoxelT>& b) {
+  w.u8(kBlockTag);
+  w.u64(b.morton);
+  w.u32(b.last_updated_frame);
+  w.u8(static_cast<std::uint8_t>(b.current_scale));
+  w.u8(static_cast<std::uint8_t>(b.min_scale));
+  w.u8(static_cast<std::uint8_t>(b.mip_scale));
+  const bool has_finest = VoxelBlock<VoxelT>::kSplitFinest && b.has_finest();
+  w.u8(has_finest ? kHasFinestFlag : 0);
+  w.f32(b.tsdf_min);
+  w.f32(b.tsdf_max);
+  w.f32(b.tsdf_mean);
+  w.f32(b.weight_mean);
+  if (!VoxelBlock<VoxelT>::kSplitFinest || has_finest) {
+    w.voxels(b.scale_begin(0), kBlockFinestVoxelCount);
+  }
+  w.voxels(b.scale_begin(1), kBlockVoxelCount - kBlockFinestVoxelCount);
+  w.end_record();
+}
+
+// Writes the header record (also used by tests to make headers).
+void write_header_record(RecordWriter& w, const MapFileHeader& h) {
+  w.bytes(kMagic, sizeof(kMagic));
+  w.u32(h.version);
+  w.u8(static_cast<std::uint8_t>(h.voxel_type));
+  w.f32(h.voxel_size_m);
+  w.f32(h.mu_m);
+  w.u8(static_cast<std::uint8_t>(h.voxel_depth));
+  w.f32(h.origin_W.x());
+  w.f32(h.origin_W.y());
+  w.f32(h.origin_W.z());
+  w.u32(h.node_count);
+  w.u32(h.block_count);
+  w.u32(h.finest_count);
+  w.u64(h.frames);
+  w.end_record();
+}
+
+Result<MapFileHeader> read_header_record(RecordReader& r) {
+  r.begin_record(nullptr, -1);  // a file without the magic is not told of a header
+  std::uint8_t magic[sizeof(kMagic)];
+  if (!r.bytes(magic, sizeof(magic))) {
+    r.fail(StatusCode::invalid_argument, "not an octofuse map (too short)");
+    return r.status();
+  }
+  if (std::memcmp(magic, kMagic, sizeof(kMagic)) != 0) {
+    r.fail(StatusCode::invalid_argument, "not an octofuse map (bad magic)");
+    return r.status();
+  }
+  r.rename_record("header");
+  MapFileHeader h;
+  if (!r.u32(h.version)) return r.status();
+  if (h.version > kMapFormatVersion) {
+    r.fail(StatusCode::out_of_range, "format version %u is newer than this build reads (%u)",
+           static_cast<unsigned>(h.version), static_cast<unsigned>(kMapFormatVersion));
+    return r.status();
+  }
+  if (h.version == 0) {
+    r.fail(StatusCode::data_loss, "format version 0");
+    return r.status();
+  }
+  std::uint8_t type = 0;
+  std::uint8_t depth = 0;
+  if (!r.u8(type) || !r.f32(h.voxel_size_m) || !r.f32(h.mu_m) || !r.u8(depth) ||
+      !r.f32(h.origin_W.x()) || !r.f32(h.origin_W.y()) || !r.f32(h.origin_W.z()) ||
+      !r.u32(h.node_count) || !r.u32(h.block_count) || !r.u32(h.finest_count) || !r.u64(h.frames) ||
+      !r.end_record()) {
+    return r.status();
+  }
+  if (type != static_cast<std::uint8_t>(MapVoxelType::single_res) &&
+      type != static_cast<std::uint8_t>(MapVoxelType::multires)) {
+    r.fail(StatusCode::data_loss, "unknown voxel type %u", static_cast<unsigned>(type));
+    return r.status();
+  }
+  h.voxel_type = static_cast<MapVoxelType>(type);
+  h.voxel_depth = depth;
+  MapConfig geometry = map_config_for(h);
+  geometry.node_capacity = geometry.block_capacity = geometry.finest_capacity = 1;
+  if (!validate(geometry).ok() || !(h.voxel_size_m <= 1e3f) || !(h.mu_m > 0.0f) ||
+      !(h.mu_m <= 1e3f) || !(h.origin_W.cwiseAbs().maxCoeff() <= 1e9f)) {
+    r.fail(StatusCode::data_loss, "voxel size, mu, depth or origin out of range");
+    return r.status();
+  }
+  if (h.node_count == 0 || h.node_count > (1u << 31) || h.block_count > (1u << 30) ||
+      h.finest_count > h.block_count ||
+      (h.voxel_type == MapVoxelType::single_res && h.finest_count != 0)) {
+    r.fail(StatusCode::data_loss, "inconsistent node, block or finest-level counts");
+    return r.status();
+  }
+  return h;
+}
+
+bool same_bits(float a, float b) {
+  return float_bits(a) == float_bits(b);
+}
+
+template <typename VoxelT>
+bool read_block_record(RecordReader& r, Octree<VoxelT>& map, std::uint32_t index,
+                       std::uint32_t& finest_loaded, std::uint32_t finest_expected) {
+  using Block = VoxelBlock<VoxelT>;
+  std::uint8_t tag = 0;
+  if (!r.u8(tag)) return false;
+  if (tag != kBlockTag) return r.fail(StatusCode::data_loss, "wrong record tag");
+  std::uint64_t morton = 0;
+  std::uint32_t last_updated = 0;
+  std::uint8_t current = 0, min_scale = 0, mip = 0, flags = 0;
+  float summary[4];
+  if (!r.u64(morton) || !r.u32(last_updated) || !r.u8(current) || !r.u8(min_scale) || !r.u8(mip) ||
+      !r.u8(flags) || !r.f32(summary[0]) || !r.f32(summary[1]) || !r.f32(summary[2]) ||
+      !r.f32(summary[3])) {
+    return false;
+  }
+  // The key: block-aligned, inside the cube, its parent node present, not a duplicate.
+  const int depth = map.voxel_depth();
+  const std::uint64_t aligned_mask = (std::uint64_t{1} << (3 * kBlockSideLog2)) - 1;
+  if ((morton & aligned_mask) != 0 || (morton >> (3 * depth)) != 0) {
+    return r.fail(StatusCode::data_loss, "block key outside the cube or not block-aligned");
+  }
+  const Key key{morton, static_cast<std::uint8_t>(map.block_level())};
+  AllocationCounts counts;
+  const Status allocated = map.allocate(&key, 1, &counts);
+  if (counts.new_nodes != 0 || counts.new_blocks != 1 || !allocated.ok() ||
+      map.block_count() != index + 1) {
+    return r.fail(StatusCode::data_loss, "block without its parent node, or a duplicate");
+  }
+  const auto s_current = static_cast<std::int8_t>(current);
+  const auto s_min = static_cast<std::int8_t>(min_scale);
+  const auto s_mip = static_cast<std::int8_t>(mip);
+  const bool integrated = s_min != kNeverIntegrated;
+  const bool state_ok = s_current >= 0 && s_current <= kMaxBlockScale &&
+                        (integrated ? (s_min >= 0 && s_min <= s_current && s_mip >= s_current &&
+                                       s_mip <= kMaxBlockScale)
+                                    : s_mip == kNeverIntegrated);
+  if (!state_ok) return r.fail(StatusCode::data_loss, "block scales inconsistent");
+  if ((flags & ~kHasFinestFlag) != 0 || (!Block::kSplitFinest && flags != 0)) {
+    return r.fail(StatusCode::data_loss, "unknown block flags");
+  }
+  const bool has_finest = Block::kSplitFinest ? (flags & kHasFinestFlag) != 0 : true;
+  if (Block::kSplitFinest && integrated && s_current == 0 && !has_finest) {
+    return r.fail(StatusCode::data_loss, "block at scale 0 without its finest level");
+  }
+  if (!tsdf_ok(summary[0]) || !tsdf_ok(summary[1]) || !tsdf_ok(summary[2]) ||
+      !weight_ok(summary[3])) {
+    return r.fail(StatusCode::data_loss, "block summary out of range");
+  }
+  Block& block = map.block(index);
+  block.last_updated_frame = last_updated;
+  block.current_scale = s_current;
+  block.min_scale = s_min;
+  block.mip_scale = s_mip;
+  block.tsdf_min = summary[0];
+  block.tsdf_max = summary[1];
+  block.tsdf_mean = summary[2];
+  block.weight_mean = summary[3];
+  if (Block::kSplitFinest && has_finest) {
+    if (finest_loaded == finest_expected) {
+      return r.fail(StatusCode::data_loss, "more finest levels than the header says");
+    }
+    if (!map.acquire_finest(block).ok()) {
+      return r.fail(StatusCode::resource_exhausted, "the finest-level pool is too small");
+    }
+    ++finest_loaded;
+  }
+  if (has_finest && !r.voxels(block.scale_begin(0), kBlockFinestVoxelCount)) return false;
+  if (!r.voxels(block.scale_begin(1), kBlockVoxelCount - kBlockFinestVoxelCount)) return false;
+  return r.end_record();
+}
+
+}  // namespace
+
+Status MemorySink::write(const std::uint8_t* bytes, std::size_t count) {
+  if (count > capacity_ - size_) return StatusCode::resource_exhausted;
+  std::memcpy(buffer_ + size_, bytes, count);
+  size_ += count;
+  return ok_status();
+}
+
+Result<std::size_t> MemorySource::read(std::uint8_t* bytes, std::size_t count) {
+  const std::size_t n = count < size_ - offset_ ? count : size_ - offset_;
+  if (n > 0) std::memcpy(bytes, bytes_ + offset_, n);
+  offset_ += n;
+  return n;
+}
+
+const char* map_voxel_type_name(MapVoxelType type) {
+  return type == MapVoxelType::multires ? "multires" : "single-res";
+}
+
+std::uint32_t crc32(const std::uint8_t* bytes, std::size_t count, std::uint32_t crc) {
+  crc = ~crc;
+  for (std::size_t i = 0; i < count; ++i) {
+    crc = kCrcTable.entries[(crc ^ bytes[i]) & 0xFFu] ^ (crc >> 8);
+  }
+  return ~crc;
+}
+
+MapConfig map_config_for(const MapFileHeader& header) {
+  MapConfig config;
+  config.voxel_size_m = header.voxel_size_m;
+  config.voxel_depth = header.voxel_depth;
+  config.origin_W = header.origin_W;
+  config.node_capacity = header.node_count > 0 ? header.node_count : 1;
+  config.block_capacity = header.block_count > 0 ? header.block_count : 1;
+  config.finest_capacity = header.finest_count > 0 ? header.finest_count : 1;
+  return config;
+}
+
+template <typename VoxelT>
+Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink) {
+  if (!map.reserved()) return StatusCode::failed_precondition;
+  if (!(info.mu_m > 0.0f) || !(info.mu_m <= 1e3f)) return StatusCode::invalid_argument;
+  const MapMemory memory = map.memory();
+  MapFileHeader h;
+  h.voxel_type = map_voxel_type<VoxelT>();
+  h.voxel_size_m = map.voxel_size_m();
+  h.voxel_depth = map.voxel_depth();
+  h.origin_W = map.config().origin_W;
+  h.node_count = map.node_count();
+  h.block_count = map.block_count();
+  h.finest_count = memory.finest_used;
+  h.mu_m = info.mu_m;
+  h.frames = info.frames;
+  RecordWriter w(sink);
+  write_header_record(w, h);
+  for (std::uint32_t i = 0; i < map.node_count(); ++i) write_node_record(w, map.node(i));
+  for (std::uint32_t i = 0; i < map.block_count(); ++i) write_block_record(w, map.block(i));
+  w.u8(kEndTag);
+  w.u32(h.node_count);
+  w.u32(h.block_count);
+  w.end_record();
+  return w.finish();
+}
+
+Result<MapFileHeader> read_map_header(ByteSource& source, ErrorText* error) {
+  RecordReader r(source, error);
+  return read_header_record(r);
+}
+
+template <typename VoxelT>
+Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_out,
+                ErrorText* error) {
+  if (!map.reserved()) return StatusCode::failed_precondition;
+  map.clear();
+  RecordReader r(source, error);
+  auto failed = [&]() {
+    map.clear();
+    return r.status();
+  };
+  const Result<MapFileHeader> header = read_header_record(r);
+  if (!header.ok()) return header.status();
+  const MapFileHeader& h = header.value();
+  if (h.voxel_type != map_voxel_type<VoxelT>()) {
+    r.fail(StatusCode::invalid_argument, "holds a %s map, this one is %s",
+           map_voxel_type_name(h.voxel_type), map_voxel_type_name(map_voxel_type<VoxelT>()));
+    return r.status();
+  }
+  const MapConfig& config = map.config();
+  if (!same_bits(h.voxel_size_m, config.voxel_size_m) || h.voxel_depth != config.voxel_depth ||
+      !same_bits(h.origin_W.x(), config.origin_W.x()) ||
+      !same_bits(h.origin_W.y(), config.origin_W.y()) ||
+      !same_bits(h.origin_W.z(), config.origin_W.z())) {
+    r.fail(StatusCode::invalid_argument,
+           "voxel size, depth or origin differ from the map it is loaded into");
+    return r.status();
+  }
+  const MapMemory memory = map.memory();
+  if (h.node_count > memory.node_capacity || h.block_count > memory.block_capacity ||
+      (Octree<VoxelT>::kSplitFinest && h.finest_count > memory.finest_capacity)) {
+    r.fail(StatusCode::resource_exhausted,
+           "needs %u nodes, %u blocks and %u finest levels; the pools hold %u, %u and %u",
+           static_cast<unsigned>(h.node_count), static_cast<unsigned>(h.block_count),
+           static_cast<unsigned>(h.finest_count), static_cast<unsigned>(memory.node_capacity),
+           static_cast<unsigned>(memory.block_capacity),
+           static_cast<unsigned>(memory.finest_capacity));
+    return r.status();
+  }
+
+  const int block_level = map.block_level();
+  const int depth = map.voxel_depth();
+  for (std::uint32_t i = 0; i < h.node_count; ++i) {
+    r.begin_record("node record", i);
+    NodeRecord node;
+    if (!read_node_record(r, node)) return failed();
+    if (i == 0) {
+      if (node.key.level != 0 || node.key.morton != 0) {
+        r.fail(StatusCode::data_loss, "the first node is not the root");
+        return failed();
+      }
+    } else {
+      const bool level_ok = node.key.level >= 1 && node.key.level < block_level;
+      const int below = level_ok ? 3 * (depth - node.key.level) : 0;
+      if (!level_ok || (node.key.morton & ((std::uint64_t{1} << below) - 1)) != 0 ||
+          (node.key.morton >> (3 * depth)) != 0) {
+        r.fail(StatusCode::data_loss, "node key outside the cube, not aligned or at a bad level");
+        return failed();
+      }
+      AllocationCounts counts;
+      const Status allocated = map.allocate(&node.key, 1, &counts);
+      if (!allocated.ok() || counts.new_nodes != 1 || map.node_count() != i + 1) {
+        r.fail(StatusCode::data_loss, "node without its parent, or a duplicate");
+        return failed();
+      }
+    }
+    map.restore_node_summary(i, node.summary);
+  }
+  std::uint32_t finest_loaded = 0;
+  for (std::uint32_t i = 0; i < h.block_count; ++i) {
+    r.begin_record("block record", i);
+    if (!read_block_record(r, map, i, finest_loaded, h.finest_count)) return failed();
+  }
+  r.begin_record("end record", -1);
+  std::uint8_t tag = 0;
+  std::uint32_t nodes = 0;
+  std::uint32_t blocks = 0;
+  if (!r.u8(tag) || !r.u32(nodes) || !r.u32(blocks) || !r.end_record()) return failed();
+  if (tag != kEndTag || nodes != h.node_count || blocks != h.block_count) {
+    r.fail(StatusCode::data_loss, "end record does not match the header");
+    return failed();
+  }
+  if (finest_loaded != h.finest_count) {
+    r.fail(StatusCode::data_loss, "fewer finest levels than the header says");
+    return failed();
+  }
+  if (!r.at_end()) {
+    if (r.ok()) r.fail(StatusCode::data_loss, "extra bytes after the end");
+    return failed();
+  }
+  if (header_out != nullptr) *header_out = h;
+  return ok_status();
+}
+
+template Status save_map(const Octree<TsdfVoxel>&, const MapSaveInfo&, ByteSink&);
+template Status save_map(const Octree<MultiresVoxel>&, const MapSaveInfo&, ByteSink&);
+template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
+template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
+
+}  // namespace octofuse

@@ -1,0 +1,39 @@
+#pragma once
+// Map files on a POSIX file system: save_map()/load_map() (octofuse/map/map_io.hpp) over files.
+// Saving writes a temporary, syncs it and renames it over the destination (AtomicFile), so a
+// crash or power cut at any instant leaves the previous map file or the new one, whole. Errors
+// come with a one-line reason in `error` that starts with the file name ("maps/a.ofmap:
+// checksum mismatch in block record 12").
+
+#include <cstdint>
+
+#include "octofuse/core/error_text.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/map/map_io.hpp"
+
+namespace octofuse::host {
+
+// ok; unavailable: the file cannot be created; data_loss: a write or the sync failed (the
+// destination is untouched); invalid_argument: see save_map.
+template <typename VoxelT>
+Status save_map_file(const char* path, const Octree<VoxelT>& map, const MapSaveInfo& info,
+                     ErrorText* error);
+
+// The header of a map file (see read_map_header): unavailable when the file cannot be opened.
+Result<MapFileHeader> read_map_file_header(const char* path, ErrorText* error);
+
+// Loads a map file into `map` (see load_map for the codes; unavailable when the file cannot be
+// opened). On error the map is empty.
+template <typename VoxelT>
+Status load_map_file(const char* path, Octree<VoxelT>& map, MapFileHeader* header,
+                     ErrorText* error);
+
+extern template Status save_map_file(const char*, const Octree<TsdfVoxel>&, const MapSaveInfo&,
+                                     ErrorText*);
+extern template Status save_map_file(const char*, const Octree<MultiresVoxel>&, const MapSaveInfo&,
+                                     ErrorText*);
+extern template Status load_map_file(const char*, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
+extern template Status load_map_file(const char*, Octree<MultiresVoxel>&, MapFileHeader*,
+                                     ErrorText*);
+
+}  // namespace octofuse::host

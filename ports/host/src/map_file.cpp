@@ -1,0 +1,117 @@
+#include "octofuse/ports/host/map_file.hpp"
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+
+#include "octofuse/ports/host/atomic_file.hpp"
+
+namespace octofuse::host {
+namespace {
+
+class FileSink final : public ByteSink {
+ public:
+  explicit FileSink(AtomicFile& file) : file_(file) {}
+  Status write(const std::uint8_t* bytes, std::size_t count) override {
+    return file_.write(bytes, count);
+  }
+
+ private:
+  AtomicFile& file_;
+};
+
+class FileSource final : public ByteSource {
+ public:
+  explicit FileSource(std::FILE* file) : file_(file) {}
+  Result<std::size_t> read(std::uint8_t* bytes, std::size_t count) override {
+    const std::size_t n = std::fread(bytes, 1, count, file_);
+    if (n < count && std::ferror(file_) != 0) return StatusCode::unavailable;
+    return n;
+  }
+
+ private:
+  std::FILE* file_;
+};
+
+// Closes on every path out.
+struct OpenFile {
+  std::FILE* file = nullptr;
+  explicit OpenFile(const char* path) : file(std::fopen(path, "rb")) {}
+  ~OpenFile() {
+    if (file != nullptr) std::fclose(file);
+  }
+  OpenFile(const OpenFile&) = delete;
+  OpenFile& operator=(const OpenFile&) = delete;
+};
+
+Status cannot_open(const char* path, ErrorText* error) {
+  if (error != nullptr) error->set("%s: cannot open (%s)", path, std::strerror(errno));
+  return StatusCode::unavailable;
+}
+
+// "path: reason" from the loader's reason.
+void prefix_path(const char* path, const ErrorText& reason, ErrorText* error) {
+  if (error != nullptr) error->set("%s: %s", path, reason.c_str());
+}
+
+}  // namespace
+
+template <typename VoxelT>
+Status save_map_file(const char* path, const Octree<VoxelT>& map, const MapSaveInfo& info,
+                     ErrorText* error) {
+  AtomicFile file;
+  const Status opened = file.open(path);
+  if (!opened.ok()) {
+    if (error != nullptr) error->set("%s", file.last_error());
+    return opened;
+  }
+  FileSink sink(file);
+  const Status saved = save_map(map, info, sink);
+  if (!saved.ok()) {
+    if (error != nullptr) {
+      if (file.last_error()[0] != '\0') {
+        error->set("%s", file.last_error());
+      } else {
+        error->set("%s: not written (%s)", path, saved.name());
+      }
+    }
+    return saved;  // the temporary goes with `file`
+  }
+  const Status committed = file.commit();
+  if (!committed.ok() && error != nullptr) error->set("%s", file.last_error());
+  return committed;
+}
+
+Result<MapFileHeader> read_map_file_header(const char* path, ErrorText* error) {
+  OpenFile in(path);
+  if (in.file == nullptr) return cannot_open(path, error);
+  FileSource source(in.file);
+  ErrorText reason;
+  Result<MapFileHeader> header = read_map_header(source, &reason);
+  if (!header.ok()) prefix_path(path, reason, error);
+  return header;
+}
+
+template <typename VoxelT>
+Status load_map_file(const char* path, Octree<VoxelT>& map, MapFileHeader* header,
+                     ErrorText* error) {
+  OpenFile in(path);
+  if (in.file == nullptr) {
+    if (map.reserved()) map.clear();
+    return cannot_open(path, error);
+  }
+  FileSource source(in.file);
+  ErrorText reason;
+  const Status loaded = load_map(source, map, header, &reason);
+  if (!loaded.ok()) prefix_path(path, reason, error);
+  return loaded;
+}
+
+template Status save_map_file(const char*, const Octree<TsdfVoxel>&, const MapSaveInfo&,
+                              ErrorText*);
+template Status save_map_file(const char*, const Octree<MultiresVoxel>&, const MapSaveInfo&,
+                              ErrorText*);
+template Status load_map_file(const char*, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
+template Status load_map_file(const char*, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
+
+}  // namespace octofuse::host

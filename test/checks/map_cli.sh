@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# The map commands as a user runs them: octofuse-replay --save-map / --save-every / --load-map
+# and octofuse-map info / mesh on the sim, then damaged, foreign and newer map files, which must
+# end the run before any frame with one "error: FILE: ..." line and a non-zero exit.
+# Usage: map_cli.sh OCTOFUSE-REPLAY OCTOFUSE-MAP WORK-DIR
+set -uo pipefail
+replay=$1
+map=$2
+work=$3
+rm -rf "${work}"
+mkdir -p "${work}"
+export OMP_WAIT_POLICY=passive
+failures=0
+fail() {
+  echo "FAIL: $*"
+  failures=$((failures + 1))
+}
+common=(--source sim:desk --voxel-size 0.04 --quiet)
+
+# expect_error NAME EXPECTED-TEXT COMMAND...: non-zero exit, stderr one line "error: ...TEXT..."
+expect_error() {
+  local name=$1 text=$2
+  shift 2
+  "$@" >"${work}/${name}.out" 2>"${work}/${name}.err"
+  local rc=$?
+  [[ ${rc} -ne 0 ]] || fail "${name}: exit 0"
+  [[ $(wc -l <"${work}/${name}.err") -eq 1 ]] || fail "${name}: stderr is not one line: $(cat "${work}/${name}.err")"
+  grep -q "^error: .*${text}" "${work}/${name}.err" || fail "${name}: no '${text}' in: $(cat "${work}/${name}.err")"
+}
+
+"${replay}" "${common[@]}" --frames 4 --out "${work}/a" --save-map "${work}/a.ofmap" --save-every 2 \
+  >"${work}/a.out" 2>&1 || fail "save run: $(cat "${work}/a.out")"
+grep -q "3 saves" "${work}/a.out" || fail "save run: expected 3 saves (2 periodic, 1 final): $(cat "${work}/a.out")"
+[[ ! -e "${work}/a.ofmap.tmp" ]] || fail "temporary left behind"
+
+"${map}" info "${work}/a.ofmap" >"${work}/info.out" 2>&1 || fail "info: $(cat "${work}/info.out")"
+grep -q "^format version  1$" "${work}/info.out" || fail "info: no format version"
+grep -q "^voxel size      0.04 m$" "${work}/info.out" || fail "info: no voxel size"
+grep -q "^frames          4$" "${work}/info.out" || fail "info: no frame count"
+"${map}" mesh "${work}/a.ofmap" "${work}/a_mesh.ply" >/dev/null 2>&1 || fail "mesh failed"
+cmp -s "${work}/a_mesh.ply" "${work}/a/mesh.ply" || fail "octofuse-map mesh differs from the run's mesh.ply"
+
+"${replay}" "${common[@]}" --frames 2 --out "${work}/b" --load-map "${work}/a.ofmap" \
+  >"${work}/b.out" 2>&1 || fail "load run: $(cat "${work}/b.out")"
+grep -q "^loaded " "${work}/b.out" || fail "load run: no 'loaded' line"
+"${replay}" "${common[@]}" --frames 2 --out "${work}/p" --load-map "${work}/a.ofmap" \
+  --initial-pose 0,0,0,0,0,0,1 >"${work}/p.out" 2>&1 || fail "--initial-pose run: $(cat "${work}/p.out")"
+
+head -c 700 "${work}/a.ofmap" >"${work}/cut.ofmap"
+expect_error cut "cut.ofmap: truncated" "${replay}" "${common[@]}" --out "${work}/c" \
+  --load-map "${work}/cut.ofmap"
+[[ ! -s "${work}/c/trajectory.txt" ]] || fail "cut: frames were processed"
+expect_error foreign "mesh.ply: not an octofuse map" "${replay}" "${common[@]}" --out "${work}/c" \
+  --load-map "${work}/a/mesh.ply"
+cp "${work}/a.ofmap" "${work}/newer.ofmap"
+printf '\x09' | dd of="${work}/newer.ofmap" bs=1 seek=8 conv=notrunc status=none
+expect_error newer "newer.ofmap: format version 9 is newer" "${replay}" "${common[@]}" \
+  --out "${work}/c" --load-map "${work}/newer.ofmap"
+cp "${work}/a.ofmap" "${work}/flipped.ofmap"
+printf '\xff' | dd of="${work}/flipped.ofmap" bs=1 seek=2000 conv=notrunc status=none
+expect_error flipped "flipped.ofmap: " "${map}" info "${work}/flipped.ofmap"
+expect_error missing "none.ofmap: cannot open" "${map}" mesh "${work}/none.ofmap" "${work}/x.ply"
+expect_error small "needs .* blocks" "${replay}" "${common[@]}" --out "${work}/c" \
+  --load-map "${work}/a.ofmap" --max-blocks 10
+expect_error every "--save-every needs --save-map" "${replay}" --save-every 3
+expect_error pose "--initial-pose needs" "${replay}" --initial-pose 1,2,3,0,0,0,5
+expect_error command "unknown command" "${map}" show "${work}/a.ofmap"
+
+if [[ ${failures} -ne 0 ]]; then
+  echo "map_cli: ${failures} failure(s)"
+  exit 1
+fi
+echo "map_cli: all checks passed"

@@ -1,0 +1,583 @@
+// Map persistence: a saved and loaded map is the same map (same file bytes, same mesh, same
+// ray-cast, same fusion afterwards), and every kind of damage to a file is reported with a Status
+// and leaves the map empty rather than half-loaded.
+
+#include "octofuse/map/map_io.hpp"
+
+#include <algorithm>
+#include <catch2/catch.hpp>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "octofuse/mesh/mesher.hpp"
+#include "octofuse/pipeline/pipeline.hpp"
+#include "octofuse/render/raycaster.hpp"
+#include "unit/fusion/analytic_scene.hpp"
+#include "unit/map/arena_buffer.hpp"
+
+namespace octofuse {
+namespace {
+
+constexpr int kWidth = 64;
+constexpr int kHeight = 48;
+
+class VectorSink final : public ByteSink {
+ public:
+  Status write(const std::uint8_t* bytes, std::size_t count) override {
+    data.insert(data.end(), bytes, bytes + count);
+    return ok_status();
+  }
+  std::vector<std::uint8_t> data;
+};
+
+// A source that hands out at most `chunk` bytes per read, to exercise the reader's buffering.
+class TrickleSource final : public ByteSource {
+ public:
+  TrickleSource(const std::vector<std::uint8_t>& bytes, std::size_t chunk)
+      : bytes_(bytes), chunk_(chunk) {}
+  Result<std::size_t> read(std::uint8_t* out, std::size_t count) override {
+    std::size_t n = std::min({count, chunk_, bytes_.size() - offset_});
+    std::memcpy(out, bytes_.data() + offset_, n);
+    offset_ += n;
+    return n;
+  }
+
+ private:
+  const std::vector<std::uint8_t>& bytes_;
+  std::size_t chunk_;
+  std::size_t offset_ = 0;
+};
+
+test::AnalyticScene scene() {
+  test::AnalyticScene s;
+  s.planes.push_back({Eigen::Vector3d(0.0, 0.0, -1.0), -1.6});  // a wall at z = 1.6 m
+  s.planes.push_back({Eigen::Vector3d(0.0, -1.0, 0.0), -0.3});  // a floor at y = 0.3 m
+  s.spheres.push_back({Eigen::Vector3d(0.15, 0.0, 0.9), 0.2});
+  return s;
+}
+
+Se3d pose(int frame) {
+  return test::looking_along_z(Eigen::Vector3d(0.01 * frame, -0.005 * frame, 0.0));
+}
+
+PinholeCamera camera() {
+  return test::test_camera(kWidth, kHeight, 55.0f);
+}
+
+// Depth frames of the analytic scene along pose(i), in millimetres, with ground truth.
+class Frames {
+ public:
+  explicit Frames(int count) {
+    const test::AnalyticScene s = scene();
+    for (int i = 0; i < count; ++i) {
+      std::vector<float> depth_m;
+      s.render(camera(), pose(i), depth_m);
+      std::vector<std::uint16_t> raw(depth_m.size());
+      for (std::size_t p = 0; p < raw.size(); ++p) {
+        raw[p] = static_cast<std::uint16_t>(std::lround(depth_m[p] * 1000.0f));
+      }
+      raw_.push_back(std::move(raw));
+    }
+  }
+  DepthFrame frame(int i) const {
+    DepthFrame f;
+    f.depth_raw = ImageView<const std::uint16_t>(raw_[i].data(), kWidth, kHeight);
+    f.metres_per_unit = 0.001f;
+    f.timestamp_us = 33333 * static_cast<std::int64_t>(i + 1);
+    f.sequence = static_cast<std::uint64_t>(i);
+    f.has_ground_truth = true;
+    f.T_W_C_ground_truth = pose(i).matrix();
+    return f;
+  }
+  int count() const { return static_cast<int>(raw_.size()); }
+
+ private:
+  std::vector<std::vector<std::uint16_t>> raw_;
+};
+
+template <typename VoxelT>
+PipelineConfig config_for(float voxel_m = 0.02f) {
+  PipelineConfig c = default_pipeline_config(camera(), voxel_m, 7, 4096, Eigen::Vector3f(0, 0, 1));
+  c.map_kind = IsMultiresVoxel<VoxelT>::value ? MapKind::multires : MapKind::single_res;
+  c.preprocess.downsample_factor = 1;
+  c.pose_source = PoseSource::ground_truth;
+  c.initial_T_W_C = pose(0);
+  return c;
+}
+
+// A pipeline with its buffer.
+template <typename VoxelT>
+struct Mapper {
+  explicit Mapper(const PipelineConfig& config)
+      : bytes(bytes_required(config)),
+        buffer(std::aligned_alloc(kArenaAlignment, align_up(bytes + 1, kArenaAlignment))) {
+    REQUIRE(bytes > 0);
+    REQUIRE(pipeline.init(buffer.get(), bytes, config).ok());
+  }
+  void run(const Frames& frames, int from, int to) {
+    for (int i = from; i < to; ++i) {
+      FrameStats stats;
+      const Status s = pipeline.process(frames.frame(i), &stats);
+      REQUIRE((s.ok() || s.code() == StatusCode::resource_exhausted));
+    }
+  }
+  std::size_t bytes;
+  std::unique_ptr<void, test::AlignedFree> buffer;
+  Pipeline<VoxelT> pipeline;
+};
+
+// A bare map reserved with `config`.
+template <typename VoxelT>
+struct BareMap {
+  explicit BareMap(const MapConfig& config) : buffer(Octree<VoxelT>::bytes_required(config)) {
+    REQUIRE(map.reserve(buffer.arena(), config).ok());
+  }
+  test::ArenaBuffer buffer;
+  Octree<VoxelT> map;
+};
+
+template <typename VoxelT>
+std::vector<std::uint8_t> save(const Octree<VoxelT>& map, std::uint64_t frames = 0,
+                               float mu_m = 0.16f) {
+  VectorSink sink;
+  MapSaveInfo info;
+  info.frames = frames;
+  info.mu_m = mu_m;
+  REQUIRE(save_map(map, info, sink).ok());
+  return sink.data;
+}
+
+// Everything the mesher produces, as bytes.
+class ByteMeshSink final : public MeshSink {
+ public:
+  Status add_vertices(const MeshVertex* v, std::size_t count) override {
+    for (std::size_t i = 0; i < count; ++i) {
+      append(v[i].p_W.data(), sizeof(float) * 3);
+      append(&v[i].scale, 1);
+      ++vertices;
+    }
+    return ok_status();
+  }
+  Status add_triangles(const MeshTriangle* t, std::size_t count) override {
+    append(t, sizeof(MeshTriangle) * count);
+    return ok_status();
+  }
+  std::vector<std::uint8_t> bytes;
+  std::size_t vertices = 0;
+
+ private:
+  void append(const void* p, std::size_t n) {
+    const auto* b = static_cast<const std::uint8_t*>(p);
+    bytes.insert(bytes.end(), b, b + n);
+  }
+};
+
+template <typename VoxelT>
+ByteMeshSink mesh_of(const Octree<VoxelT>& map) {
+  MeshConfig config;
+  config.vertex_capacity = 1u << 16;
+  test::ArenaBuffer buffer(Mesher<VoxelT>::bytes_required(config));
+  Mesher<VoxelT> mesher;
+  REQUIRE(mesher.reserve(buffer.arena(), config).ok());
+  ByteMeshSink sink;
+  REQUIRE(mesher.extract(map, sink).ok());
+  return sink;
+}
+
+// Vertices, normals and scales of a ray-cast from `T_W_C`, as bytes.
+template <typename VoxelT>
+std::vector<std::uint8_t> raycast_of(const Octree<VoxelT>& map, const PipelineConfig& pc,
+                                     const Se3d& T_W_C) {
+  RaycastConfig config;
+  config.width = kWidth;
+  config.height = kHeight;
+  config.mu_m = pc.fusion.mu_m;
+  test::ArenaBuffer buffer(Raycaster<VoxelT>::bytes_required(config));
+  Raycaster<VoxelT> raycaster;
+  REQUIRE(raycaster.reserve(buffer.arena(), config).ok());
+  const Result<RaycastStats> stats = raycaster.raycast(map, camera(), T_W_C, WorkerTeam());
+  REQUIRE(stats.ok());
+  REQUIRE(stats.value().valid_pixels > kWidth * kHeight / 2);
+  std::vector<std::uint8_t> out;
+  const SurfaceMap s = raycaster.surface_W();
+  for (int y = 0; y < kHeight; ++y) {
+    for (int x = 0; x < kWidth; ++x) {
+      const auto* v = reinterpret_cast<const std::uint8_t*>(s.vertices(x, y).data());
+      const auto* n = reinterpret_cast<const std::uint8_t*>(s.normals(x, y).data());
+      out.insert(out.end(), v, v + 12);
+      out.insert(out.end(), n, n + 12);
+      out.push_back(raycaster.scale_image()(x, y));
+    }
+  }
+  return out;
+}
+
+template <typename VoxelT>
+Status load_bytes(const std::vector<std::uint8_t>& bytes, Octree<VoxelT>& map,
+                  ErrorText* error = nullptr, MapFileHeader* header = nullptr) {
+  MemorySource source(bytes.data(), bytes.size());
+  return load_map(source, map, header, error);
+}
+
+template <typename VoxelT>
+bool empty(const Octree<VoxelT>& map) {
+  return map.block_count() == 0 && map.node_count() == 1 && map.memory().finest_used == 0;
+}
+
+// Offsets where records start (and the file's size last), walking the layout of map_io.hpp.
+std::vector<std::size_t> record_offsets(const std::vector<std::uint8_t>& f, bool multires) {
+  auto u32 = [&](std::size_t at) {
+    return static_cast<std::uint32_t>(f[at]) | (static_cast<std::uint32_t>(f[at + 1]) << 8) |
+           (static_cast<std::uint32_t>(f[at + 2]) << 16) |
+           (static_cast<std::uint32_t>(f[at + 3]) << 24);
+  };
+  const std::size_t header = 8 + 4 + 1 + 4 + 4 + 1 + 12 + 4 + 4 + 4 + 8 + 4;
+  const std::uint32_t nodes = u32(34);
+  const std::uint32_t blocks = u32(38);
+  std::vector<std::size_t> at = {0, header};
+  for (std::uint32_t i = 0; i < nodes; ++i) at.push_back(at.back() + 30);
+  const std::size_t voxel_bytes = multires ? 16 : 8;
+  for (std::uint32_t i = 0; i < blocks; ++i) {
+    const std::size_t start = at.back();
+    const bool finest = !multires || (f[start + 16] & 1) != 0;
+    at.push_back(start + 1 + 8 + 4 + 4 + 16 + (finest ? 585 : 73) * voxel_bytes + 4);
+  }
+  at.push_back(at.back() + 1 + 4 + 4 + 4);
+  return at;
+}
+
+// Rewrites the CRC of the record [begin, end) after a deliberate edit.
+void reseal(std::vector<std::uint8_t>& f, std::size_t begin, std::size_t end) {
+  const std::uint32_t crc = crc32(f.data() + begin, end - 4 - begin);
+  for (int i = 0; i < 4; ++i) f[end - 4 + i] = static_cast<std::uint8_t>(crc >> (8 * i));
+}
+void put_u32(std::vector<std::uint8_t>& f, std::size_t at, std::uint32_t v) {
+  for (int i = 0; i < 4; ++i) f[at + i] = static_cast<std::uint8_t>(v >> (8 * i));
+}
+
+TEST_CASE("crc32 matches the IEEE check value and continues across calls") {
+  const char* text = "123456789";
+  const auto* bytes = reinterpret_cast<const std::uint8_t*>(text);
+  CHECK(crc32(bytes, 9) == 0xCBF43926u);
+  CHECK(crc32(bytes + 4, 5, crc32(bytes, 4)) == 0xCBF43926u);
+  CHECK(crc32(bytes, 0) == 0u);
+}
+
+TEMPLATE_TEST_CASE("a loaded map is the saved one: same bytes, mesh and ray-cast", "", TsdfVoxel,
+                   MultiresVoxel) {
+  const PipelineConfig config = config_for<TestType>();
+  const Frames frames(6);
+  Mapper<TestType> mapper(config);
+  mapper.run(frames, 0, frames.count());
+  const Octree<TestType>& original = mapper.pipeline.map();
+  REQUIRE(original.block_count() > 20);
+  if constexpr (IsMultiresVoxel<TestType>::value) {
+    // Both kinds of multires block: with and without a finest level.
+    REQUIRE(original.memory().finest_used > 0);
+    REQUIRE(original.memory().finest_used < original.block_count());
+  }
+  const std::vector<std::uint8_t> file = save(original, mapper.pipeline.frame_count());
+
+  BareMap<TestType> loaded(config.map);
+  MapFileHeader header;
+  ErrorText error;
+  // Reads of any size: the reader must not depend on how the source splits the bytes.
+  for (std::size_t chunk : {std::size_t{1}, std::size_t{7}, std::size_t{1} << 20}) {
+    TrickleSource source(file, chunk);
+    const Status s = load_map(source, loaded.map, &header, &error);
+    INFO(error.c_str());
+    REQUIRE(s.ok());
+  }
+  CHECK(header.version == kMapFormatVersion);
+  CHECK(header.frames == 6);
+  CHECK(header.mu_m == 0.16f);
+  CHECK(header.block_count == original.block_count());
+  CHECK(header.node_count == original.node_count());
+  CHECK(loaded.map.block_count() == original.block_count());
+  CHECK(loaded.map.node_count() == original.node_count());
+  CHECK(loaded.map.memory().finest_used == original.memory().finest_used);
+  for (std::uint32_t i = 0; i < original.block_count(); ++i) {
+    REQUIRE(loaded.map.find_block_index(original.block(i).coords) == i);
+    REQUIRE(loaded.map.block(i).parent_node == original.block(i).parent_node);
+  }
+  CHECK(save(loaded.map, 6) == file);
+
+  const ByteMeshSink mesh_a = mesh_of(original);
+  const ByteMeshSink mesh_b = mesh_of(loaded.map);
+  CHECK(mesh_a.vertices > 100);
+  CHECK(mesh_a.bytes == mesh_b.bytes);
+  for (const Se3d& T : {pose(5), pose(0), test::looking_along_z(Eigen::Vector3d(0.1, 0.05, 0.2))}) {
+    CHECK(raycast_of(original, config, T) == raycast_of(loaded.map, config, T));
+  }
+}
+
+TEMPLATE_TEST_CASE("fusing on in a loaded map gives the map of an uninterrupted run", "", TsdfVoxel,
+                   MultiresVoxel) {
+  // Ground-truth poses: the loaded run's first frame takes the same pose the uninterrupted run
+  // had, so every later integration is the same and so must be the maps.
+  const PipelineConfig config = config_for<TestType>();
+  const Frames frames(10);
+  Mapper<TestType> whole(config);
+  whole.run(frames, 0, 10);
+
+  Mapper<TestType> first_half(config);
+  first_half.run(frames, 0, 5);
+  const std::vector<std::uint8_t> saved =
+      save(first_half.pipeline.map(), first_half.pipeline.frame_count());
+
+  Mapper<TestType> resumed(config);
+  MapFileHeader header;
+  REQUIRE(load_bytes(saved, resumed.pipeline.map(), nullptr, &header).ok());
+  REQUIRE(resumed.pipeline.resume_frame_count(header.frames).ok());
+  CHECK(resumed.pipeline.resume_frame_count(1).code() == StatusCode::failed_precondition);
+  resumed.run(frames, 5, 10);
+  CHECK(resumed.pipeline.frame_count() == 10);
+  CHECK(save(resumed.pipeline.map(), 10) == save(whole.pipeline.map(), 10));
+}
+
+// A dozen blocks, with and without finest levels: small enough to load thousands of times.
+PipelineConfig corruption_config() {
+  PipelineConfig config = config_for<MultiresVoxel>(0.01f);
+  config.budget.max_new_blocks = 10;
+  config.map.finest_capacity = 12;  // the others stay at scale 1 without a finest level
+  return config;
+}
+
+TEST_CASE("truncation anywhere is data_loss and leaves the map empty") {
+  const PipelineConfig config = corruption_config();
+  Mapper<MultiresVoxel> mapper(config);
+  mapper.run(Frames(2), 0, 2);
+  INFO(mapper.pipeline.map().memory().finest_used << " of " << mapper.pipeline.map().block_count());
+  REQUIRE(mapper.pipeline.map().memory().finest_used > 0);
+  REQUIRE(mapper.pipeline.map().memory().finest_used < mapper.pipeline.map().block_count());
+  const std::vector<std::uint8_t> file = save(mapper.pipeline.map());
+  const std::vector<std::size_t> records = record_offsets(file, true);
+  REQUIRE(records.back() == file.size());
+
+  // At and around every record boundary, every byte of the header and first nodes, and a
+  // stride through the block records.
+  std::vector<std::size_t> cuts;
+  for (std::size_t r : records) {
+    for (std::size_t d : {std::size_t{0}, std::size_t{1}, std::size_t{3}, std::size_t{4}}) {
+      if (r >= d) cuts.push_back(r - d);
+      cuts.push_back(r + d);
+    }
+  }
+  for (std::size_t i = 0; i < 200; ++i) cuts.push_back(i);
+  for (std::size_t i = 0; i < file.size(); i += 211) cuts.push_back(i);
+
+  BareMap<MultiresVoxel> target(config.map);
+  int tried = 0;
+  for (std::size_t cut : cuts) {
+    if (cut >= file.size()) continue;
+    REQUIRE(load_bytes(file, target.map).ok());  // full beforehand: failure must clear it
+    const std::vector<std::uint8_t> part(file.begin(), file.begin() + cut);
+    ErrorText error;
+    const Status s = load_bytes(part, target.map, &error);
+    INFO("cut at " << cut << ": " << error.c_str());
+    REQUIRE(s.code() == StatusCode::data_loss);
+    REQUIRE(empty(target.map));
+    REQUIRE(std::strstr(error.c_str(), "truncated") != nullptr);
+    ++tried;
+  }
+  CHECK(tried > 300);
+}
+
+TEST_CASE("a flipped bit anywhere is caught and leaves the map empty") {
+  const PipelineConfig config = corruption_config();
+  Mapper<MultiresVoxel> mapper(config);
+  mapper.run(Frames(2), 0, 2);
+  const std::vector<std::uint8_t> file = save(mapper.pipeline.map());
+  BareMap<MultiresVoxel> target(config.map);
+  std::vector<std::size_t> positions;
+  for (std::size_t r : record_offsets(file, true)) {
+    for (std::size_t d = 0; d < 12; ++d) positions.push_back(r + d);
+  }
+  for (std::size_t i = 0; i < file.size(); i += 97) positions.push_back(i);
+  for (std::size_t at : positions) {
+    if (at >= file.size()) continue;
+    for (int bit : {0, 7}) {
+      std::vector<std::uint8_t> bad = file;
+      bad[at] = static_cast<std::uint8_t>(bad[at] ^ (1u << bit));
+      ErrorText error;
+      const Status s = load_bytes(bad, target.map, &error);
+      INFO("byte " << at << " bit " << bit << ": " << error.c_str());
+      REQUIRE(!s.ok());
+      REQUIRE(empty(target.map));
+      if (at >= 12) REQUIRE(s.code() == StatusCode::data_loss);
+    }
+  }
+}
+
+TEST_CASE("foreign, newer, other-type, mismatched and oversized files are told apart") {
+  const PipelineConfig config = corruption_config();
+  Mapper<MultiresVoxel> mapper(config);
+  mapper.run(Frames(2), 0, 2);
+  const std::vector<std::uint8_t> file = save(mapper.pipeline.map());
+  const std::vector<std::size_t> records = record_offsets(file, true);
+  const std::size_t header_end = records[1];
+  BareMap<MultiresVoxel> target(config.map);
+  ErrorText error;
+
+  SECTION("wrong magic") {
+    std::vector<std::uint8_t> bad = file;
+    std::memcpy(bad.data(), "PLYFORMA", 8);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::invalid_argument);
+    CHECK(std::string(error.c_str()).find("not an octofuse map") != std::string::npos);
+    const std::vector<std::uint8_t> text = {'p', 'l', 'y', '\n'};
+    CHECK(load_bytes(text, target.map, &error).code() == StatusCode::data_loss);
+    CHECK(load_bytes(std::vector<std::uint8_t>(), target.map, &error).code() ==
+          StatusCode::data_loss);
+  }
+  SECTION("a newer version, whatever follows") {
+    std::vector<std::uint8_t> bad = file;
+    put_u32(bad, 8, kMapFormatVersion + 1);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::out_of_range);
+    CHECK(std::string(error.c_str()).find("newer") != std::string::npos);
+    MemorySource source(bad.data(), bad.size());
+    CHECK(read_map_header(source).status().code() == StatusCode::out_of_range);
+  }
+  SECTION("the other voxel type") {
+    BareMap<TsdfVoxel> single(config.map);
+    CHECK(load_bytes(file, single.map, &error).code() == StatusCode::invalid_argument);
+    CHECK(std::string(error.c_str()).find("multires") != std::string::npos);
+    CHECK(empty(single.map));
+  }
+  SECTION("an unknown voxel type") {
+    std::vector<std::uint8_t> bad = file;
+    bad[12] = 9;
+    reseal(bad, 0, header_end);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+  }
+  SECTION("a different geometry than the map's") {
+    MapConfig other = config.map;
+    other.origin_W.x() += 0.5f;
+    BareMap<MultiresVoxel> shifted(other);
+    CHECK(load_bytes(file, shifted.map, &error).code() == StatusCode::invalid_argument);
+    other = config.map;
+    other.voxel_depth = 8;
+    BareMap<MultiresVoxel> deeper(other);
+    CHECK(load_bytes(file, deeper.map, &error).code() == StatusCode::invalid_argument);
+  }
+  SECTION("pools too small for the file") {
+    MapConfig small = config.map;
+    small.block_capacity = mapper.pipeline.map().block_count() - 1;
+    BareMap<MultiresVoxel> tiny(small);
+    CHECK(load_bytes(file, tiny.map, &error).code() == StatusCode::resource_exhausted);
+    CHECK(std::string(error.c_str()).find("needs") != std::string::npos);
+    CHECK(empty(tiny.map));
+  }
+  SECTION("absurd counts") {
+    for (std::size_t field : {std::size_t{34}, std::size_t{38}, std::size_t{42}}) {
+      std::vector<std::uint8_t> bad = file;
+      put_u32(bad, field, 0xFFFFFFF0u);
+      reseal(bad, 0, header_end);
+      CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    }
+    std::vector<std::uint8_t> no_root = file;
+    put_u32(no_root, 34, 0);
+    reseal(no_root, 0, header_end);
+    CHECK(load_bytes(no_root, target.map, &error).code() == StatusCode::data_loss);
+  }
+  SECTION("counts that disagree with the records") {
+    std::vector<std::uint8_t> bad = file;
+    put_u32(bad, 38, mapper.pipeline.map().block_count() - 1);
+    reseal(bad, 0, header_end);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    CHECK(empty(target.map));
+  }
+  SECTION("non-finite or out-of-range values, even with a valid checksum") {
+    const std::size_t block = records[records.size() - 3];  // the last block record
+    const std::size_t end = records[records.size() - 2];
+    const float bad_values[] = {std::numeric_limits<float>::quiet_NaN(),
+                                std::numeric_limits<float>::infinity(), 1.5f, -2.0f};
+    for (float v : bad_values) {
+      std::uint32_t bits;
+      std::memcpy(&bits, &v, 4);
+      std::vector<std::uint8_t> bad = file;
+      put_u32(bad, block + 1 + 8 + 4 + 4 + 16, bits);  // the first voxel's TSDF
+      reseal(bad, block, end);
+      CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+      CHECK(std::string(error.c_str()).find("out of range") != std::string::npos);
+      bad = file;
+      put_u32(bad, records[1] + 10, bits);  // the root's summary
+      reseal(bad, records[1], records[2]);
+      CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    }
+  }
+  SECTION("bad keys and states, even with a valid checksum") {
+    const std::size_t block = records[records.size() - 3];
+    const std::size_t end = records[records.size() - 2];
+    std::vector<std::uint8_t> bad = file;
+    bad[block + 1] |= 1;  // not block-aligned
+    reseal(bad, block, end);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    bad = file;
+    std::memcpy(&bad[block + 1], &file[records[records.size() - 4] + 1], 8);  // a duplicate
+    reseal(bad, block, end);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    bad = file;
+    bad[block + 13] = 5;  // current scale 5
+    reseal(bad, block, end);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    bad = file;
+    bad[records[2] + 1] = 0;  // a second root
+    reseal(bad, records[2], records[3]);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    CHECK(empty(target.map));
+  }
+  SECTION("bytes after the end record") {
+    std::vector<std::uint8_t> bad = file;
+    bad.push_back(0);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    CHECK(std::string(error.c_str()).find("extra bytes") != std::string::npos);
+    CHECK(empty(target.map));
+  }
+}
+
+// The cross-architecture fixture: a small map every build must write byte for byte and load to
+// the same mesh. To regenerate it after a deliberate format or fusion change, run
+//   OCTOFUSE_WRITE_MAP_FIXTURE=1 build/host-release/test/unit_map "[fixture]"
+// and commit test/unit/map/data/small_multires_v1.ofmap.
+TEST_CASE("the committed small map is what every build writes and loads", "[fixture]") {
+  // 5 mm voxels seen from 0.7 m and further integrate at scales 1-2 (no 8 KiB finest levels),
+  // and a few blocks per frame keep the file small.
+  PipelineConfig config = config_for<MultiresVoxel>(0.005f);
+  config.budget.max_new_blocks = 12;
+  Mapper<MultiresVoxel> mapper(config);
+  mapper.run(Frames(1), 0, 1);
+  const std::vector<std::uint8_t> written = save(mapper.pipeline.map(), 1, config.fusion.mu_m);
+  const std::string path =
+      std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v1.ofmap";
+  const char* regenerate = std::getenv("OCTOFUSE_WRITE_MAP_FIXTURE");
+  if (regenerate != nullptr && regenerate[0] == '1') {
+    std::ofstream out(path, std::ios::binary);
+    out.write(reinterpret_cast<const char*>(written.data()),
+              static_cast<std::streamsize>(written.size()));
+    REQUIRE(out.good());
+  }
+  std::ifstream in(path, std::ios::binary);
+  REQUIRE(in.good());
+  const std::vector<std::uint8_t> committed((std::istreambuf_iterator<char>(in)),
+                                            std::istreambuf_iterator<char>());
+  CHECK(committed.size() < 16384);
+  CHECK(written == committed);
+  BareMap<MultiresVoxel> loaded(config.map);
+  ErrorText error;
+  REQUIRE(load_bytes(committed, loaded.map, &error).ok());
+  CHECK(loaded.map.block_count() == mapper.pipeline.map().block_count());
+  const ByteMeshSink mesh = mesh_of(loaded.map);
+  CHECK(mesh.vertices > 0);
+  CHECK(mesh.bytes == mesh_of(mapper.pipeline.map()).bytes);
+}
+
+}  // namespace
+}  // namespace octofuse

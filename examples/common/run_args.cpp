@@ -1,5 +1,6 @@
 #include "run_args.hpp"
 
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <string>
@@ -31,6 +32,17 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --intrinsics fx,fy,cx,cy   override the source's intrinsics (pixels)\n"
       "  --depth-scale S      raw depth units per metre (TUM 5000, mm 1000)\n"
       "  --gt-poses           fuse with ground-truth poses instead of tracking\n"
+      "  --odometry FILE      the vehicle's poses as a prior for ICP: a TUM trajectory (camera to\n"
+      "                       world, interpolated to each frame's time; the first frame's pose\n"
+      "                       anchors it), or "
+      "sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
+      "                       for a drifting noisy odometry of the source's ground truth\n"
+      "                       (default 1 %%/m drift); writes DIR/odometry.txt\n"
+      "  --odometry-mode M    prior (default): ICP from the odometry's motion, the odometry wins\n"
+      "                       when ICP is lost or off by more than 3 cm / 2 deg;\n"
+      "                       only: fuse at the odometry without ICP\n"
+      "  --initial-pose tx,ty,tz,qx,qy,qz,qw   the first frame's pose when the source has no\n"
+      "                       ground truth (default identity)\n"
       "  --bilateral          bilateral-filter the depth before tracking\n"
       "  --icp-depth-knee M   ICP weighs pairs by 1/(1+(z/M)^4) (default 1; 0: all alike)\n"
       "  --no-noise           sim: noiseless depth\n"
@@ -49,6 +61,7 @@ void print_run_usage(const char* program, const char* default_source) {
 int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
   RunOptions& options = *options_out;
   *help = false;
+  bool odometry_mode_given = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto need_value = [&](std::string* value) {
@@ -149,6 +162,33 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       for (int l = 0; l < 3; ++l) options.budget.icp_iterations[l] = levels[l];
     } else if (arg == "--gt-poses") {
       options.pose_source = PoseSource::ground_truth;
+    } else if (arg == "--odometry") {
+      if (!need_value(&options.odometry) || options.odometry.empty()) {
+        return fail("--odometry needs a TUM trajectory file or sim[:options]");
+      }
+    } else if (arg == "--odometry-mode") {
+      if (!need_value(&value) || (value != "prior" && value != "only")) {
+        return fail("--odometry-mode must be prior or only");
+      }
+      odometry_mode_given = true;
+      options.odometry_only = value == "only";
+    } else if (arg == "--initial-pose") {
+      double v[7];
+      char tail = 0;
+      if (!need_value(&value) ||
+          std::sscanf(value.c_str(), "%lf,%lf,%lf,%lf,%lf,%lf,%lf%c", &v[0], &v[1], &v[2], &v[3],
+                      &v[4], &v[5], &v[6], &tail) != 7) {
+        return fail("--initial-pose needs tx,ty,tz,qx,qy,qz,qw");
+      }
+      bool finite = true;
+      for (double x : v) finite = finite && std::isfinite(x);
+      const Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+      if (!finite || !(q.norm() > 1e-6)) {
+        return fail("--initial-pose needs finite numbers and a non-zero quaternion");
+      }
+      options.initial_T_W_C = Se3d::Identity();
+      options.initial_T_W_C.linear() = q.normalized().toRotationMatrix();
+      options.initial_T_W_C.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
     } else if (arg == "--icp-depth-knee") {
       if (!need_value(&value) || !cli::parse_double(value, 0.0, 100.0, number)) {
         return fail("--icp-depth-knee needs metres in [0, 100]");
@@ -174,6 +214,12 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       return fail("unknown option '" + arg + "' (see --help)");
     }
   }
+  if (odometry_mode_given && options.odometry.empty()) {
+    return fail("--odometry-mode needs --odometry");
+  }
+  if (!options.odometry.empty() && options.pose_source == PoseSource::ground_truth) {
+    return fail("--odometry and --gt-poses exclude each other");
+  }
 
   return 0;
 }
@@ -196,6 +242,18 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
   if (summary.have_ate) {
     std::printf("ATE RMSE %.2f cm (max %.2f cm)\n", summary.ate_rmse_m * 100.0,
                 summary.ate_max_m * 100.0);
+  }
+  if (!options.odometry.empty()) {
+    std::printf(
+        "odometry: %llu frames without it, %llu fused at it after ICP was lost, %llu "
+        "after ICP disagreed",
+        static_cast<unsigned long long>(summary.frames_without_odometry),
+        static_cast<unsigned long long>(summary.frames_prior_lost),
+        static_cast<unsigned long long>(summary.frames_prior_gate));
+    if (summary.have_odometry_ate) {
+      std::printf("; odometry alone ATE RMSE %.2f cm", summary.odometry_ate_rmse_m * 100.0);
+    }
+    std::printf("\n");
   }
   std::printf("wrote %s/{trajectory.txt,mesh.ply,render.png,stats.json,stage_times.svg}\n",
               options.out_dir.c_str());

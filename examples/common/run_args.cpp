@@ -172,6 +172,16 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       }
       odometry_mode_given = true;
       options.odometry_only = value == "only";
+    } else if (arg == "--odometry-weight") {
+      double t = 0.0, r = 0.0;
+      char tail = 0;
+      if (!need_value(&value) || std::sscanf(value.c_str(), "%lf,%lf%c", &t, &r, &tail) != 2 ||
+          !std::isfinite(t) || !std::isfinite(r) || t < 0.0 || r < 0.0) {
+        return fail(
+            "--odometry-weight needs T,R >= 0 (pull towards the odometry, per m^2 and rad^2)");
+      }
+      options.odometry_information[0] = t;
+      options.odometry_information[1] = r;
     } else if (arg == "--initial-pose") {
       double v[7];
       char tail = 0;

@@ -334,6 +334,10 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;
       config.workers = options.threads;
       config.pose_source = options.pose_source;
+      if (options.odometry_information[0] >= 0.0) {
+        config.prior_information_t = options.odometry_information[0];
+        config.prior_information_r = options.odometry_information[1];
+      }
       if (!options.odometry.empty()) {
         config.pose_source =
             options.odometry_only ? PoseSource::external : PoseSource::external_prior;

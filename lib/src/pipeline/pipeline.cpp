@@ -130,6 +130,10 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
   if (!positive_finite(config.prior_gate_m) || !positive_finite(config.prior_gate_rad)) {
     return bad("prior_gate_m and prior_gate_rad must be finite and > 0");
   }
+  if (!std::isfinite(config.prior_information_t) || !(config.prior_information_t >= 0.0) ||
+      !std::isfinite(config.prior_information_r) || !(config.prior_information_r >= 0.0)) {
+    return bad("prior_information_t and prior_information_r must be finite and >= 0");
+  }
   return ok_status();
 }
 
@@ -372,8 +376,13 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     }
     stats.has_prediction = predict;
     stats.track_attempted = true;
+    IcpPrior icp_prior;
+    icp_prior.T_W_C = prediction;
+    icp_prior.information_t = config_.prior_information_t;
+    icp_prior.information_r = config_.prior_information_r;
+    const bool pull = predict && (icp_prior.information_t > 0.0 || icp_prior.information_r > 0.0);
     stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
-                                 T_W_Cref_, estimate, team_);
+                                 T_W_Cref_, estimate, team_, pull ? &icp_prior : nullptr);
     for (int level = 0; level < kPyramidLevels; ++level) {
       const int budget = config_.budget.icp_iterations[level];
       if (budget > 0 && stats.track.iterations[level] >= budget) stats.budget_icp_hit = true;

@@ -98,6 +98,10 @@ struct PipelineConfig {
   // gate. 3 cm and 2 degrees sit between the two.
   double prior_gate_m = 0.03;
   double prior_gate_rad = 0.035;
+  // external_prior: how strongly ICP is pulled towards the prediction (IcpPrior; 0 = not at all,
+  // the prediction is then only ICP's starting point and the gate's reference).
+  double prior_information_t = 0.0;  // per m^2
+  double prior_information_r = 0.0;  // per rad^2
 };
 
 // The reference defaults for a camera: QVGA working resolution from VGA, mu = 8

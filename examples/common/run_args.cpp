@@ -57,6 +57,15 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --intrinsics fx,fy,cx,cy   override the source's intrinsics (pixels)\n"
       "  --depth-scale S      raw depth units per metre (TUM 5000, mm 1000)\n"
       "  --gt-poses           fuse with ground-truth poses instead of tracking\n"
+      "  --odometry FILE      the vehicle's poses as a prior for ICP: a TUM trajectory (camera to\n"
+      "                       world, interpolated to each frame's time; the first frame's pose\n"
+      "                       anchors it), or "
+      "sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
+      "                       for a drifting noisy odometry of the source's ground truth\n"
+      "                       (default 1 %%/m drift); writes DIR/odometry.txt\n"
+      "  --odometry-mode M    prior (default): ICP from the odometry's motion, the odometry wins\n"
+      "                       when ICP is lost or off by more than 3 cm / 2 deg;\n"
+      "                       only: fuse at the odometry without ICP\n"
       "  --bilateral          bilateral-filter the depth before tracking\n"
       "  --icp-depth-knee M   ICP weighs pairs by 1/(1+(z/M)^4) (default 1; 0: all alike)\n"
       "  --no-noise           sim: noiseless depth\n"
@@ -75,7 +84,8 @@ void print_run_usage(const char* program, const char* default_source) {
       "comes\n"
       "                       from the source's ground truth or --initial-pose\n"
       "  --initial-pose tx,ty,tz,qx,qy,qz,qw   first camera pose in the world (metres, unit\n"
-      "                       quaternion), instead of the source's ground truth\n"
+      "                       quaternion), instead of the source's ground truth (default:\n"
+      "                       the ground truth, else identity)\n"
       "  --quiet              no progress line\n",
       program, default_source, supported_sources().c_str());
 }
@@ -83,6 +93,7 @@ void print_run_usage(const char* program, const char* default_source) {
 int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
   RunOptions& options = *options_out;
   *help = false;
+  bool odometry_mode_given = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto need_value = [&](std::string* value) {
@@ -190,6 +201,26 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       for (int l = 0; l < 3; ++l) options.budget.icp_iterations[l] = levels[l];
     } else if (arg == "--gt-poses") {
       options.pose_source = PoseSource::ground_truth;
+    } else if (arg == "--odometry") {
+      if (!need_value(&options.odometry) || options.odometry.empty()) {
+        return fail("--odometry needs a TUM trajectory file or sim[:options]");
+      }
+    } else if (arg == "--odometry-mode") {
+      if (!need_value(&value) || (value != "prior" && value != "only")) {
+        return fail("--odometry-mode must be prior or only");
+      }
+      odometry_mode_given = true;
+      options.odometry_only = value == "only";
+    } else if (arg == "--odometry-weight") {
+      double t = 0.0, r = 0.0;
+      char tail = 0;
+      if (!need_value(&value) || std::sscanf(value.c_str(), "%lf,%lf%c", &t, &r, &tail) != 2 ||
+          !std::isfinite(t) || !std::isfinite(r) || t < 0.0 || r < 0.0) {
+        return fail(
+            "--odometry-weight needs T,R >= 0 (pull towards the odometry, per m^2 and rad^2)");
+      }
+      options.odometry_information[0] = t;
+      options.odometry_information[1] = r;
     } else if (arg == "--icp-depth-knee") {
       if (!need_value(&value) || !cli::parse_double(value, 0.0, 100.0, number)) {
         return fail("--icp-depth-knee needs metres in [0, 100]");
@@ -233,6 +264,12 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       return fail("unknown option '" + arg + "' (see --help)");
     }
   }
+  if (odometry_mode_given && options.odometry.empty()) {
+    return fail("--odometry-mode needs --odometry");
+  }
+  if (!options.odometry.empty() && options.pose_source == PoseSource::ground_truth) {
+    return fail("--odometry and --gt-poses exclude each other");
+  }
 
   if (options.save_every > 0 && options.save_map_path.empty()) {
     return fail("--save-every needs --save-map FILE");
@@ -274,6 +311,18 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
     std::printf("wrote %s (%.1f MB in %.3f s; %u saves)\n", options.save_map_path.c_str(),
                 static_cast<double>(summary.map_file_bytes) / 1048576.0, summary.map_last_save_s,
                 summary.map_saves);
+  }
+  if (!options.odometry.empty()) {
+    std::printf(
+        "odometry: %llu frames without it, %llu fused at it after ICP was lost, %llu "
+        "after ICP disagreed",
+        static_cast<unsigned long long>(summary.frames_without_odometry),
+        static_cast<unsigned long long>(summary.frames_prior_lost),
+        static_cast<unsigned long long>(summary.frames_prior_gate));
+    if (summary.have_odometry_ate) {
+      std::printf("; odometry alone ATE RMSE %.2f cm", summary.odometry_ate_rmse_m * 100.0);
+    }
+    std::printf("\n");
   }
 }
 

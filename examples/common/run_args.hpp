@@ -1,5 +1,5 @@
 #pragma once
-// The command line shared by octofuse-replay and octofuse-live (DESIGN.md section 6).
+// The command line shared by octofuse-replay and octofuse-live (options listed in the README).
 
 #include "runner.hpp"
 

@@ -20,6 +20,10 @@
 #include "octofuse/render/shade.hpp"
 #include "stage_plot.hpp"
 
+#if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
+#include "octofuse/ports/sim/odometry.hpp"
+#endif
+
 namespace octofuse::examples {
 namespace {
 
@@ -94,6 +98,12 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("timestamp_us").value(s.timestamp_us);
   json.key("result").value(frame_result_name(s.result));
   json.key("tracked").value(s.result == FrameResult::tracked || s.result == FrameResult::first);
+  json.key("pose").value(pose_origin_name(s.pose_origin));
+  json.key("prior").value(s.has_prior);
+  if (s.has_prediction && s.track_attempted) {
+    json.key("prior_gap_m").value(s.prior_gap_m);
+    json.key("prior_gap_rad").value(s.prior_gap_rad);
+  }
   json.key("ms").begin_object();
   json.key("validate").value(s.times.validate_ms);
   json.key("preprocess").value(s.times.preprocess_ms);
@@ -374,18 +384,30 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     if (load_map) config.fusion.mu_m = loaded.mu_m;  // the TSDF is normalised by it
     config.workers = options.threads;
     config.pose_source = options.pose_source;
+    if (options.odometry_information[0] >= 0.0) {
+      config.prior_information_t = options.odometry_information[0];
+      config.prior_information_r = options.odometry_information[1];
+    }
+    if (!options.odometry.empty()) {
+      config.pose_source = options.odometry_only ? PoseSource::external : PoseSource::external_prior;
+    }
     config.budget = options.budget;
     config.preprocess.bilateral = options.bilateral;
     if (options.icp_depth_knee_m >= 0.0f)
       config.track.depth_weight_knee_m = options.icp_depth_knee_m;
     config.initial_T_W_C = T_W_C0;
     config.initial_pose_from_ground_truth = !options.have_initial_pose;
+    ErrorText config_error;
+    if (!validate(config, &config_error).ok()) return error_exit(config_error.c_str());
     const std::size_t bytes = bytes_required(config);
     if (bytes == 0) return error_exit("invalid configuration (check voxel size, mu, threads)");
     buffer = std::make_unique<AlignedBuffer>(bytes);
     if (buffer->data == nullptr) return error_exit("cannot reserve the map memory");
     const Status init = pipeline.init(buffer->data, bytes, config, clock);
-    if (!init.ok()) return error_exit(std::string("pipeline init failed: ") + init.name());
+    if (!init.ok()) {
+      return error_exit(std::string("pipeline init failed (") + init.name() +
+                        "): " + pipeline.last_error());
+    }
     summary->arena_bytes = bytes;
     return 0;
   };
@@ -407,6 +429,33 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     summary->map_load_s =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }
+
+  // The vehicle's odometry, mapped so the first frame's pose anchors the world:
+  // T_W_C(t) = T_W_C0 * inverse(T_O_C0) * T_O_C(t).
+  const bool odometry_sim = options.odometry == "sim" || options.odometry.rfind("sim:", 0) == 0;
+  std::vector<host::TimedPose> odometry_O;
+#if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
+  sim::OdometryDriftConfig drift_config;
+  if (odometry_sim) {
+    ErrorText odometry_error;
+    const char* spec = options.odometry.size() > 4 ? options.odometry.c_str() + 4 : "";
+    if (!sim::odometry_config_from_spec(spec, &drift_config, &odometry_error).ok()) {
+      return error_exit(std::string("--odometry: ") + odometry_error.c_str());
+    }
+  }
+  sim::DriftingOdometry drifting_odometry(drift_config);
+#else
+  if (odometry_sim) return error_exit("--odometry sim: built without the sim port");
+#endif
+  if (!odometry_sim && !options.odometry.empty()) {
+    ErrorText odometry_error;
+    if (!host::read_tum_trajectory(options.odometry.c_str(), &odometry_O, &odometry_error).ok()) {
+      return error_exit(odometry_error.c_str());
+    }
+    if (odometry_O.empty()) return error_exit(options.odometry + ": no poses");
+  }
+  Se3d T_W_O = Se3d::Identity();
+
 
   if (!options.out_dir.empty() && !make_dir(options.out_dir)) {
     return error_exit("cannot create output folder " + options.out_dir);
@@ -443,6 +492,49 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       std::fprintf(stderr, "warning: skipped a frame: %s\n", source->last_error());
       continue;
     }
+    PosePrior prior;
+    if (!options.odometry.empty()) {
+      const double t_s = static_cast<double>(frame.timestamp_us) * 1e-6;
+      Se3d T_O_C = Se3d::Identity();
+      bool have_odometry = false;
+      if (odometry_sim) {
+        if (!frame.has_ground_truth) {
+          return error_exit("--odometry sim needs a source with ground truth");
+        }
+        Se3d truth = Se3d::Identity();
+        truth.matrix() = frame.T_W_C_ground_truth;
+#if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
+        T_O_C = drifting_odometry.next(truth);
+        have_odometry = true;
+#endif
+      } else {
+        have_odometry = host::interpolate_pose(odometry_O, t_s, kOdometryEndTolerance_s, &T_O_C);
+      }
+      if (processed == 0) {
+        if (!have_odometry) {
+          char text[160];
+          std::snprintf(text, sizeof(text),
+                        ": does not cover the first frame (t = %.6f s; poses span %.6f to %.6f s)",
+                        t_s, odometry_O.front().timestamp_s, odometry_O.back().timestamp_s);
+          return error_exit(options.odometry + text);
+        }
+        Se3d T_W_C0 = options.initial_T_W_C;
+        if (!options.have_initial_pose && frame.has_ground_truth) {
+          T_W_C0.matrix() = frame.T_W_C_ground_truth;
+        }
+        T_W_O = T_W_C0 * T_O_C.inverse();
+      }
+      if (have_odometry) {
+        prior.valid = true;
+        prior.T_W_C = (T_W_O * T_O_C).matrix();
+        host::TimedPose pose;
+        pose.timestamp_s = t_s;
+        pose.T_W_C.matrix() = prior.T_W_C;
+        summary->odometry.push_back(pose);
+      } else {
+        ++summary->frames_without_odometry;
+      }
+    }
     if (buffer == nullptr) {
       Se3d T_W_C0 = options.initial_T_W_C;
       if (!options.have_initial_pose && frame.has_ground_truth) {
@@ -458,7 +550,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
 
     FrameStats stats;
-    const Status status = pipeline.process(frame, &stats);
+    const Status status = pipeline.process(frame, prior, &stats);
     ++processed;
     if (stats.result == FrameResult::rejected) {
       ++summary->frames_rejected;
@@ -470,6 +562,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     consecutive_failures = 0;
     if (stats.result == FrameResult::lost) ++summary->frames_lost;
     if (stats.result == FrameResult::nearly_empty) ++summary->frames_nearly_empty;
+    if (stats.pose_origin == PoseOrigin::prior_gate) ++summary->frames_prior_gate;
+    if (stats.pose_origin == PoseOrigin::prior_lost) ++summary->frames_prior_lost;
     if (!status.ok() && status.code() != StatusCode::resource_exhausted &&
         status.code() != StatusCode::data_loss && stats.result != FrameResult::lost) {
       return error_exit(std::string("frame processing failed: ") + status.name());
@@ -525,9 +619,9 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       }
     }
     if (show_progress) {
-      std::fprintf(stderr, "\rframe %5ld  %-8s  %6.1f ms  blocks %u/%u  ", processed,
-                   frame_result_name(stats.result), stats.times.total_ms, stats.memory.blocks_used,
-                   stats.memory.block_capacity);
+      std::fprintf(stderr, "\rframe %5ld  %-8s  pose %-10s  %6.1f ms  blocks %u/%u  ", processed,
+                   frame_result_name(stats.result), pose_origin_name(stats.pose_origin),
+                   stats.times.total_ms, stats.memory.blocks_used, stats.memory.block_capacity);
     }
   }
   if (show_progress) std::fprintf(stderr, "\n");
@@ -555,6 +649,23 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       summary->have_ate = true;
       summary->ate_rmse_m = ate.value().translation_m.rmse;
       summary->ate_max_m = ate.value().translation_m.max;
+    }
+  }
+
+  if (summary->odometry.size() >= 3 && !summary->ground_truth.empty()) {
+    ErrorText ate_error;
+    const Result<host::AteResult> ate =
+        host::compute_ate(summary->odometry, summary->ground_truth, 1e-3, &ate_error);
+    if (ate.ok()) {
+      summary->have_odometry_ate = true;
+      summary->odometry_ate_rmse_m = ate.value().translation_m.rmse;
+    }
+  }
+  if (!options.odometry.empty() && !options.out_dir.empty()) {
+    ErrorText odometry_error;
+    const std::string path = join(options.out_dir, "odometry.txt");
+    if (!host::write_tum_trajectory(path.c_str(), summary->odometry, &odometry_error).ok()) {
+      return error_exit(odometry_error.c_str());
     }
   }
 
@@ -653,6 +764,15 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("frames_skipped_by_source").value(summary->frames_skipped_by_source);
     json.key("frames_nearly_empty").value(summary->frames_nearly_empty);
     json.key("frames_unfused").value(summary->frames_unfused);
+    if (!options.odometry.empty()) {
+      json.key("pose_source").value(options.odometry_only ? "external" : "external_prior");
+      json.key("frames_without_odometry").value(summary->frames_without_odometry);
+      json.key("frames_prior_gate").value(summary->frames_prior_gate);
+      json.key("frames_prior_lost").value(summary->frames_prior_lost);
+      if (summary->have_odometry_ate) {
+        json.key("odometry_ate_rmse_m").value(summary->odometry_ate_rmse_m);
+      }
+    }
     json.key("total_ms").begin_object();
     json.key("median").value(total.median);
     json.key("p90").value(total.p90);

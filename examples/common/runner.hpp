@@ -1,7 +1,7 @@
 #pragma once
-// Runs the pipeline over a source and writes what DESIGN.md section 6 promises into a folder:
-// trajectory.txt (TUM), mesh.ply, render.png, stats.json, stage_times.svg. Shared by
-// octofuse-replay, octofuse-live and octofuse-bench.
+// Runs the pipeline over a source and writes the files octofuse-replay documents into a folder:
+// trajectory.txt (TUM), mesh.ply, render.png, stats.json, stage_times.svg (and odometry.txt with
+// --odometry). Shared by octofuse-replay, octofuse-live and octofuse-bench.
 
 #include <atomic>
 #include <cstdint>
@@ -26,8 +26,13 @@ struct RunOptions {
   long max_frames = -1;     // stop after this many frames; -1 = the whole source
   int threads = 1;
   PoseSource pose_source = PoseSource::track;
-  std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
-  float map_memory_mb = 1024.0f;  // used when max_blocks is 0
+  // --odometry: a TUM trajectory file, or "sim[:drift=..,noise=..,seed=..]" for a drifting noisy
+  // odometry of the source's ground truth; empty: none. Used as the pose prior.
+  std::string odometry;
+  bool odometry_only = false;  // --odometry-mode only: fuse at the odometry, no ICP
+  double odometry_information[2] = {-1.0, -1.0};  // --odometry-weight T,R; < 0: the defaults
+  std::uint32_t max_blocks = 0;           // block pool capacity; 0 = from voxel size and map memory
+  float map_memory_mb = 1024.0f;          // used when max_blocks is 0
   PipelineBudget budget;
   bool bilateral = false;
   float icp_depth_knee_m = -1.0f;  // < 0: the library's default
@@ -57,6 +62,12 @@ struct RunSummary {
   std::uint64_t frames_rejected = 0;
   std::uint64_t frames_lost = 0;
   std::uint64_t frames_nearly_empty = 0;
+  std::vector<host::TimedPose> odometry;      // the prior given to each frame (world frame)
+  std::uint64_t frames_without_odometry = 0;  // outside the odometry's time span
+  std::uint64_t frames_prior_gate = 0;        // PoseOrigin::prior_gate
+  std::uint64_t frames_prior_lost = 0;        // PoseOrigin::prior_lost
+  bool have_odometry_ate = false;
+  double odometry_ate_rmse_m = 0.0;
   bool have_ate = false;
   double ate_rmse_m = 0.0;
   double ate_max_m = 0.0;
@@ -90,6 +101,10 @@ struct Percentiles {
   double mean = 0.0;  // sets the sustained frame rate, where the median shows a typical frame
 };
 Percentiles percentiles(std::vector<double> values);
+
+// Frames up to this far before the first or after the last odometry pose take that end pose;
+// further out they get no prior (no extrapolation).
+inline constexpr double kOdometryEndTolerance_s = 0.02;
 
 // "current" or "finest" (the --mesh-scale values); false for anything else.
 bool parse_mesh_read_scale(const std::string& text, MeshReadScale* scale);

@@ -21,8 +21,46 @@ const char* frame_result_name(FrameResult result) {
   return "unknown";
 }
 
+const char* pose_source_name(PoseSource source) {
+  switch (source) {
+    case PoseSource::track:
+      return "track";
+    case PoseSource::ground_truth:
+      return "ground_truth";
+    case PoseSource::external:
+      return "external";
+    case PoseSource::external_prior:
+      return "external_prior";
+  }
+  return "unknown";
+}
+
+const char* pose_origin_name(PoseOrigin origin) {
+  switch (origin) {
+    case PoseOrigin::none:
+      return "none";
+    case PoseOrigin::initial:
+      return "initial";
+    case PoseOrigin::icp:
+      return "icp";
+    case PoseOrigin::ground_truth:
+      return "ground_truth";
+    case PoseOrigin::prior:
+      return "prior";
+    case PoseOrigin::prior_gate:
+      return "prior_gate";
+    case PoseOrigin::prior_lost:
+      return "prior_lost";
+  }
+  return "unknown";
+}
+
 namespace {
 constexpr float kSmallVoxel_m = 0.005f;
+
+bool positive_finite(double v) {
+  return std::isfinite(v) && v > 0.0;
+}
 }  // namespace
 
 PipelineConfig default_pipeline_config(const PinholeCamera& input_camera, float voxel_size_m,
@@ -45,23 +83,62 @@ PipelineConfig default_pipeline_config(const PinholeCamera& input_camera, float 
   return c;
 }
 
-Status validate(const PipelineConfig& config) {
-  if (!config.input_camera.valid()) return StatusCode::invalid_argument;
-  OCTOFUSE_TRY(validate(config.map));
-  OCTOFUSE_TRY(validate(config.fusion));
-  if (!config.preprocess.valid() || !config.track.valid()) return StatusCode::invalid_argument;
-  if (config.workers < 1 || config.workers > 64) return StatusCode::invalid_argument;
+// Names the first setting that is wrong; each part's own validate() stays the authority.
+Status validate(const PipelineConfig& config, ErrorText* error) {
+  ErrorText scratch;
+  ErrorText& err = error != nullptr ? *error : scratch;
+  auto bad = [&](const char* what) {
+    err.set("invalid configuration: %s", what);
+    return Status(StatusCode::invalid_argument);
+  };
+  if (!config.input_camera.valid()) {
+    return bad("input_camera (size > 0, finite fx, fy > 0 and cx, cy)");
+  }
+  const MapConfig& m = config.map;
+  if (!positive_finite(m.voxel_size_m)) return bad("map.voxel_size_m must be finite and > 0");
+  if (m.voxel_depth < kMinVoxelDepth || m.voxel_depth > kMaxVoxelDepth) {
+    return bad("map.voxel_depth out of range");
+  }
+  if (!m.origin_W.allFinite()) return bad("map.origin_W must be finite");
+  if (m.block_capacity == 0 || m.block_capacity > (1u << 30)) {
+    return bad("map.block_capacity must be in [1, 2^30]");
+  }
+  if (m.finest_capacity > (1u << 30)) return bad("map.finest_capacity must be <= 2^30");
+  if (m.node_capacity == 0 || m.node_capacity > (1u << 31)) {
+    return bad("map.node_capacity must be in [1, 2^31]");
+  }
+  if (!validate(config.map).ok()) return bad("map");
+  const FusionConfig& f = config.fusion;
+  if (!positive_finite(f.mu_m)) return bad("fusion.mu_m must be finite and > 0");
+  if (!positive_finite(f.near_m) || !std::isfinite(f.far_m) || !(f.near_m < f.far_m)) {
+    return bad("fusion.near_m/far_m must be finite with 0 < near < far");
+  }
+  if (!validate(config.fusion).ok()) {
+    return bad(
+        "fusion (y_max >= 1, allocation_pixel_step >= 1, max_blocks_per_frame > 0, "
+        "scale_hysteresis in [0, 1), fixed_scale <= 3, task_count >= 1)");
+  }
+  if (!config.preprocess.valid()) return bad("preprocess");
+  if (!config.track.valid()) return bad("track");
+  if (config.workers < 1 || config.workers > 64) return bad("workers must be in [1, 64]");
   int icp_iterations = 0;
   for (int level = 0; level < kPyramidLevels; ++level) {
-    if (config.budget.icp_iterations[level] < 0) return StatusCode::invalid_argument;
+    if (config.budget.icp_iterations[level] < 0) return bad("budget.icp_iterations must be >= 0");
     icp_iterations += config.budget.icp_iterations[level];
   }
   // No iteration at all would report every frame tracked at the predicted pose.
   if (config.pose_source == PoseSource::track && icp_iterations == 0) {
-    return StatusCode::invalid_argument;
+    return bad("budget.icp_iterations must allow at least one iteration when tracking");
   }
   if (!is_rigid(config.initial_T_W_C.matrix(), config.validator.rigid_tolerance)) {
-    return StatusCode::invalid_argument;
+    return bad("initial_T_W_C must be finite and rigid");
+  }
+  if (!positive_finite(config.prior_gate_m) || !positive_finite(config.prior_gate_rad)) {
+    return bad("prior_gate_m and prior_gate_rad must be finite and > 0");
+  }
+  if (!std::isfinite(config.prior_information_t) || !(config.prior_information_t >= 0.0) ||
+      !std::isfinite(config.prior_information_r) || !(config.prior_information_r >= 0.0)) {
+    return bad("prior_information_t and prior_information_r must be finite and >= 0");
   }
   return ok_status();
 }
@@ -132,16 +209,33 @@ template <typename VoxelT>
 Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineConfig& config,
                               Clock clock) {
   initialised_ = false;
-  OCTOFUSE_TRY(validate(config));
+  own_error_ = true;
+  OCTOFUSE_TRY(validate(config, &error_));
   const MapKind expected =
       std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires : MapKind::single_res;
-  if (config.map_kind != expected) return StatusCode::invalid_argument;
+  if (config.map_kind != expected) {
+    error_.set("invalid configuration: map_kind is %s but the pipeline's voxel type is %s",
+               config.map_kind == MapKind::multires ? "multires" : "single_res",
+               expected == MapKind::multires ? "multires" : "single_res");
+    return StatusCode::invalid_argument;
+  }
   if (buffer == nullptr || reinterpret_cast<std::uintptr_t>(buffer) % kArenaAlignment != 0) {
+    error_.set("buffer is null or not aligned to %zu bytes", kArenaAlignment);
     return StatusCode::invalid_argument;
   }
   arena_ = LinearArena(buffer, bytes);
-  OCTOFUSE_TRY(reserve(arena_, config));
-  OCTOFUSE_TRY(validator_.init(config.input_camera, config.validator));
+  const Status reserved = reserve(arena_, config);
+  if (!reserved.ok()) {
+    error_.set("buffer of %zu bytes is too small: bytes_required() gives %zu (%s)", bytes,
+               bytes_required(config), reserved.name());
+    return reserved;
+  }
+  const Status validator = validator_.init(config.input_camera, config.validator);
+  if (!validator.ok()) {
+    error_.set("invalid configuration: validator (%s)", validator_.last_error());
+    return validator;
+  }
+  own_error_ = false;
   config_ = config;
   clock_ = clock;
   team_ = WorkerTeam(config.workers);
@@ -149,9 +243,13 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   T_W_C_ = rigid_from(config.initial_T_W_C.matrix());
   T_W_Cref_ = T_W_C_;
   T_Cprev_C_ = Se3d::Identity();
+  prior_prev_ = Se3d::Identity();
+  have_prior_prev_ = false;
   have_reference_ = false;
+  pose_set_ = false;
   frame_index_ = 0;
   frames_lost_ = 0;
+  priors_rejected_ = 0;
   initialised_ = true;
   return ok_status();
 }
@@ -164,7 +262,44 @@ Status Pipeline<VoxelT>::resume_frame_count(std::uint64_t frames) {
 }
 
 template <typename VoxelT>
-Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out) {
+Status Pipeline<VoxelT>::reset() {
+  if (!initialised_) return StatusCode::failed_precondition;
+  map_.clear();
+  validator_.restart_stream();
+  T_W_C_ = rigid_from(config_.initial_T_W_C.matrix());
+  T_W_Cref_ = T_W_C_;
+  T_Cprev_C_ = Se3d::Identity();
+  have_prior_prev_ = false;
+  have_reference_ = false;
+  pose_set_ = false;
+  // frame_index_ keeps counting: the integrator's per-frame stamps must not repeat.
+  return ok_status();
+}
+
+template <typename VoxelT>
+Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
+  if (!initialised_) return StatusCode::failed_precondition;
+  if (!is_rigid(T_W_C.matrix(), config_.validator.rigid_tolerance)) {
+    return StatusCode::invalid_argument;
+  }
+  T_W_C_ = rigid_from(T_W_C.matrix());
+  T_Cprev_C_ = Se3d::Identity();  // the motion into the new pose is unknown
+  have_prior_prev_ = false;       // and so is the prior that goes with it
+  if (!have_reference_) {
+    pose_set_ = true;
+    T_W_Cref_ = T_W_C_;
+    return ok_status();
+  }
+  // The old reference was seen from elsewhere: ray-cast what the map shows from here.
+  const Result<RaycastStats> raycast = raycaster_.raycast(map_, working_camera_, T_W_C_, team_);
+  if (!raycast.ok()) return raycast.status();
+  T_W_Cref_ = T_W_C_;
+  return ok_status();
+}
+
+template <typename VoxelT>
+Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior,
+                                 FrameStats* stats_out) {
   FrameStats stats;
   stats.frame_index = frame_index_;
   stats.timestamp_us = frame.timestamp_us;
@@ -174,13 +309,25 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
   }
   ++frame_index_;
   const std::int64_t t_start = clock_.now();
+  own_error_ = false;
 
-  // 1. Validate and convert to metres.
-  const Status valid = validator_.validate(frame, input_depth_m_, &stats.input);
+  // 1. Validate and convert to metres; a bad prior rejects the frame before anything changes.
+  Status valid;
+  if (prior.valid && !is_rigid(prior.T_W_C, config_.validator.rigid_tolerance)) {
+    own_error_ = true;
+    error_.set("pose prior is not finite and rigid (tolerance %g)",
+               config_.validator.rigid_tolerance);
+    ++priors_rejected_;
+    valid = StatusCode::invalid_argument;
+  } else {
+    valid = validator_.validate(frame, input_depth_m_, &stats.input);
+  }
   const std::int64_t t_validated = clock_.now();
   stats.times.validate_ms = elapsed_ms(t_start, t_validated);
+  PoseOrigin origin = PoseOrigin::none;
   auto finish = [&](FrameResult result, Status status) {
     stats.result = result;
+    stats.pose_origin = origin;
     stats.T_W_C = T_W_C_;
     stats.memory = map_.memory();
     stats.times.total_ms = elapsed_ms(t_start, clock_.now());
@@ -198,37 +345,90 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
   // 3. Pose.
   Se3d ground_truth = Se3d::Identity();
   if (frame.has_ground_truth) ground_truth = rigid_from(frame.T_W_C_ground_truth);
+  Se3d prior_T_W_C = Se3d::Identity();
+  if (prior.valid) prior_T_W_C = rigid_from(prior.T_W_C);
+  const bool use_prior = prior.valid && (config_.pose_source == PoseSource::external ||
+                                         config_.pose_source == PoseSource::external_prior);
+  stats.has_prior = prior.valid;
   FrameResult result = FrameResult::tracked;
   if (!have_reference_) {
     result = FrameResult::first;
-    if (config_.initial_pose_from_ground_truth && frame.has_ground_truth) T_W_C_ = ground_truth;
+    origin = PoseOrigin::initial;
+    if (pose_set_) {
+      // set_pose() chose it.
+    } else if (use_prior) {
+      T_W_C_ = prior_T_W_C;
+    } else if (config_.initial_pose_from_ground_truth && frame.has_ground_truth) {
+      T_W_C_ = ground_truth;
+    }
   } else if (config_.pose_source == PoseSource::ground_truth && frame.has_ground_truth) {
+    origin = PoseOrigin::ground_truth;
     T_Cprev_C_ = rigid_from((T_W_C_.inverse() * ground_truth).matrix());
     T_W_C_ = ground_truth;
+  } else if (config_.pose_source == PoseSource::external) {
+    if (!prior.valid) {
+      // Nothing to fuse at: lost until a prior comes.
+      T_Cprev_C_ = Se3d::Identity();
+      ++frames_lost_;
+      return finish(FrameResult::lost, ok_status());
+    }
+    origin = PoseOrigin::prior;
+    T_Cprev_C_ = rigid_from((T_W_C_.inverse() * prior_T_W_C).matrix());
+    T_W_C_ = prior_T_W_C;
   } else {
+    // track, or external_prior: predict from the prior's own motion when there is one.
+    const bool predict = use_prior && have_prior_prev_;
+    Se3d prediction = Se3d::Identity();
     Se3d estimate = T_W_C_;
-    if (config_.constant_velocity_prediction) {
+    if (predict) {
+      prediction = rigid_from((T_W_C_ * prior_prev_.inverse() * prior_T_W_C).matrix());
+      estimate = prediction;
+    } else if (config_.constant_velocity_prediction) {
       // Compositions drift off SO(3); keep the guess exactly rigid for ICP's checks.
       estimate = rigid_from((T_W_C_ * T_Cprev_C_).matrix());
     }
+    stats.has_prediction = predict;
     stats.track_attempted = true;
+    IcpPrior icp_prior;
+    icp_prior.T_W_C = prediction;
+    icp_prior.information_t = config_.prior_information_t;
+    icp_prior.information_r = config_.prior_information_r;
+    const bool pull = predict && (icp_prior.information_t > 0.0 || icp_prior.information_r > 0.0);
     stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
-                                 T_W_Cref_, estimate, team_);
+                                 T_W_Cref_, estimate, team_, pull ? &icp_prior : nullptr);
     for (int level = 0; level < kPyramidLevels; ++level) {
       const int budget = config_.budget.icp_iterations[level];
       if (budget > 0 && stats.track.iterations[level] >= budget) stats.budget_icp_hit = true;
     }
     if (stats.track.tracked()) {
       estimate = rigid_from(estimate.matrix());
-      T_Cprev_C_ = rigid_from((T_W_C_.inverse() * estimate).matrix());
-      T_W_C_ = estimate;
+      origin = PoseOrigin::icp;
+      if (predict) {
+        const Se3d gap = prediction.inverse() * estimate;
+        stats.prior_gap_m = gap.translation().norm();
+        stats.prior_gap_rad = Eigen::AngleAxisd(gap.linear()).angle();
+        if (!(stats.prior_gap_m <= config_.prior_gate_m) ||
+            !(stats.prior_gap_rad <= config_.prior_gate_rad)) {
+          estimate = prediction;
+          origin = PoseOrigin::prior_gate;
+        }
+      }
+    } else if (predict) {
+      estimate = prediction;  // lost with a prior: fused at the prior, not lost
+      origin = PoseOrigin::prior_lost;
     } else {
       T_Cprev_C_ = Se3d::Identity();  // the motion is unknown again
       ++frames_lost_;
       stats.times.track_ms = elapsed_ms(t_preprocessed, clock_.now());
       return finish(FrameResult::lost, stats.track.status);
     }
+    T_Cprev_C_ = rigid_from((T_W_C_.inverse() * estimate).matrix());
+    T_W_C_ = estimate;
   }
+  // T_W_C_ was set by this frame: its prior is the one the next prediction starts from.
+  pose_set_ = false;
+  have_prior_prev_ = use_prior;
+  if (use_prior) prior_prev_ = prior_T_W_C;
   const std::int64_t t_tracked = clock_.now();
   stats.times.track_ms = elapsed_ms(t_preprocessed, t_tracked);
 

@@ -94,7 +94,8 @@ IcpTracker::Partial reduce(const IcpTracker::Partial* partials) {
 }
 
 // The Gauss-Newton step, or false when the system is singular or the pairs too few.
-bool solve_step(const IcpTracker::Partial& total, Vector6d& twist) {
+bool solve_step(const IcpTracker::Partial& total, const IcpPrior* prior, const Se3d& estimate,
+                Vector6d& twist) {
   if (total.count < 6) return false;
   Matrix6d A;
   int k = 0;
@@ -107,6 +108,14 @@ bool solve_step(const IcpTracker::Partial& total, Vector6d& twist) {
   }
   Vector6d g;
   for (int a = 0; a < 6; ++a) g(a) = total.jtr[a];
+  if (prior != nullptr) {
+    const Vector6d e = se3_log(estimate * prior->T_W_C.inverse());
+    for (int a = 0; a < 6; ++a) {
+      const double information = a < 3 ? prior->information_t : prior->information_r;
+      A(a, a) += information;
+      g(a) += information * e(a);
+    }
+  }
   const Eigen::LDLT<Matrix6d> ldlt(A);
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return false;
   // A pivot many orders below the largest means an unconstrained direction (one plane in view).
@@ -155,7 +164,7 @@ Status IcpTracker::set_config(const TrackConfig& config) {
 
 TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
                               const PinholeCamera& camera_level0, const Se3d& T_W_Cref, Se3d& T_W_C,
-                              const WorkerTeam& team) {
+                              const WorkerTeam& team, const IcpPrior* prior) {
   TrackReport report;
   if (!reserved_) {
     report.status = StatusCode::failed_precondition;
@@ -167,6 +176,11 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
                  model_W.normals.width == camera_level0.width &&
                  model_W.normals.height == camera_level0.height && is_rigid(T_W_Cref.matrix()) &&
                  is_rigid(T_W_C.matrix());
+  if (prior != nullptr) {
+    args_ok = args_ok && is_rigid(prior->T_W_C.matrix()) && std::isfinite(prior->information_t) &&
+              prior->information_t >= 0.0 && std::isfinite(prior->information_r) &&
+              prior->information_r >= 0.0;
+  }
   for (int level = 0; level < kPyramidLevels && args_ok; ++level) {
     const int w = width_ >> level;
     const int h = height_ >> level;
@@ -215,7 +229,7 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
     for (int it = 0; it < config_.iterations[level]; ++it) {
       const Partial total = run_pass(level, estimate);
       Vector6d twist;
-      if (!solve_step(total, twist)) {
+      if (!solve_step(total, prior, estimate, twist)) {
         singular = level == 0;
         break;
       }

@@ -1,5 +1,6 @@
 #include "octofuse/ports/host/trajectory_io.hpp"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
@@ -137,6 +138,38 @@ Status for_each_tum_pose(const char* path, TimedPoseSink sink, void* context, Er
   }
   std::fclose(file);
   return status;
+}
+
+bool interpolate_pose(const std::vector<TimedPose>& poses, double timestamp_s, double tolerance_s,
+                      Se3d* T_W_C) {
+  if (poses.empty() || !std::isfinite(timestamp_s)) return false;
+  const TimedPose& first = poses.front();
+  const TimedPose& last = poses.back();
+  if (timestamp_s <= first.timestamp_s) {
+    if (first.timestamp_s - timestamp_s > tolerance_s) return false;
+    *T_W_C = first.T_W_C;
+    return true;
+  }
+  if (timestamp_s >= last.timestamp_s) {
+    if (timestamp_s - last.timestamp_s > tolerance_s) return false;
+    *T_W_C = last.T_W_C;
+    return true;
+  }
+  // First pose strictly after the time; the one before it is at or before it.
+  const auto after =
+      std::upper_bound(poses.begin(), poses.end(), timestamp_s,
+                       [](double t, const TimedPose& pose) { return t < pose.timestamp_s; });
+  const TimedPose& b = *after;
+  const TimedPose& a = *(after - 1);
+  const double span_s = b.timestamp_s - a.timestamp_s;
+  const double w = span_s > 0.0 ? (timestamp_s - a.timestamp_s) / span_s : 1.0;
+  const Eigen::Quaterniond qa(a.T_W_C.rotation());
+  const Eigen::Quaterniond qb(b.T_W_C.rotation());
+  Se3d out = Se3d::Identity();
+  out.linear() = qa.slerp(w, qb).normalized().toRotationMatrix();
+  out.translation() = (1.0 - w) * a.T_W_C.translation() + w * b.T_W_C.translation();
+  *T_W_C = out;
+  return true;
 }
 
 }  // namespace octofuse::host

@@ -337,6 +337,45 @@ TEST_CASE("a single plane in view is degenerate and reported as such") {
   CHECK(T_W_C.matrix() == T_W_Cref.matrix());
 }
 
+TEST_CASE("a prior holds the directions a single plane leaves open; ICP keeps the rest") {
+  test::AnalyticScene wall;
+  wall.planes.push_back({Eigen::Vector3d(0.0, 0.0, 1.0), 2.0});
+  TrackConfig config;
+  config.depth_weight_knee_m = 0.0f;  // every pair weighs 1: the wall gives ~76800 per m^2
+  TrackFixture f(config);
+  const Se3d T_W_Cref = Se3d::Identity();
+  // The camera moved 1 cm along the wall (invisible to ICP) and 4 mm towards it (visible).
+  const Se3d T_W_C_true =
+      make_pose(Eigen::Vector3d(0.01, 0.005, 0.004), Eigen::Vector3d::UnitZ(), 0.0);
+  const test::RenderedModel model = test::render_model(wall, f.camera_level0(), T_W_Cref);
+  f.set_live(wall, T_W_C_true);
+  // The prior knows the motion along the wall but is 2 mm off towards it.
+  IcpPrior prior;
+  prior.T_W_C = T_W_C_true;
+  prior.T_W_C.translation().z() -= 0.002;
+  prior.information_t = 100.0;
+  prior.information_r = 100.0;
+  Se3d T_W_C = T_W_Cref;
+  const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
+                                             T_W_Cref, T_W_C, WorkerTeam(1), &prior);
+  REQUIRE(report.status.ok());
+  REQUIRE(report.outcome == TrackOutcome::tracked);  // not singular: the prior fills the gap
+  CHECK(std::abs(T_W_C.translation().x() - 0.01) < 1e-4);
+  CHECK(std::abs(T_W_C.translation().y() - 0.005) < 1e-4);
+  // Along the normal the wall's 76800 pairs outweigh the prior's 100: 2 mm * 100 / 76900.
+  CHECK(std::abs(T_W_C.translation().z() - 0.004) < 1e-4);
+  CHECK(rotation_error_deg(T_W_C, T_W_C_true) < 0.01);
+
+  // A prior with a negative or NaN weight is refused.
+  prior.information_t = -1.0;
+  Se3d unchanged = T_W_Cref;
+  CHECK(f.tracker
+            .track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref, unchanged,
+                   WorkerTeam(1), &prior)
+            .status.code() == StatusCode::invalid_argument);
+  CHECK(unchanged.matrix() == T_W_Cref.matrix());
+}
+
 TEST_CASE("1 and 2 workers give bit-identical poses and reports") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;

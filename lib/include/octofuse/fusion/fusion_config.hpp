@@ -1,6 +1,6 @@
 #pragma once
 // Settings, per-frame budgets and the per-frame report of depth fusion, plus the multires scale
-// selection rule (paper 4.3.1, DESIGN.md section 4).
+// selection rule (paper 4.3.1; the architecture is in lib/README.md).
 
 #include <cstdint>
 

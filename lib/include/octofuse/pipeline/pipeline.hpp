@@ -10,11 +10,24 @@
 //   OCTOFUSE_TRY(pipeline.init(buffer, bytes, config, clock));
 //   while (source.next(frame) ...) pipeline.process(frame, &stats);
 //
-// Tracking: the first frame fixes the pose (config.initial_T_W_C, or the frame's ground truth when
-// config.initial_pose_from_ground_truth); later frames are tracked by ICP against the ray-cast of
-// the previous tracked pose, or take the ground truth (PoseSource::ground_truth). When tracking is
-// lost the pose stays, nothing is integrated, the reference view is kept, and the next frames try
-// again against it (recovery when the view matches again).
+// Tracking: the first frame fixes the pose (a pose given with set_pose(), else the frame's pose
+// prior in the external modes, else the frame's ground truth when
+// config.initial_pose_from_ground_truth, else config.initial_T_W_C); later frames are tracked by
+// ICP against the ray-cast of the previous tracked pose, or take the ground truth
+// (PoseSource::ground_truth). When tracking is lost the pose stays, nothing is integrated, the
+// reference view is kept, and the next frames try again against it (recovery when the view
+// matches again).
+//
+// The vehicle's own poses (VIO, wheel or flight-controller odometry) come as a PosePrior passed
+// with each frame, separate from the ground truth datasets carry:
+//   external        the frame is fused at the prior; no ICP. A frame without a prior is lost.
+//   external_prior  ICP starts from the prediction: the prior's motion since the frame that last
+//                   set the pose, applied to that pose (T_W_C * inverse(prior_prev) * prior), so
+//                   the prior's drift does not enter the map. When ICP is lost, or its result
+//                   differs from the prediction by more than the gate (prior_gate_m or
+//                   prior_gate_rad), the frame is fused at the prediction instead; a frame
+//                   without a prediction (no prior for it or for the last posed frame) is tracked
+//                   as in `track`. FrameStats::pose_origin says which pose the frame got.
 //
 // Degradation when a budget binds, in this fixed order: (1) ICP does at most the budgeted
 // iterations per level; (2) fusion stops allocating new blocks beyond max_new_blocks (farthest
@@ -26,6 +39,7 @@
 #include <cstdint>
 
 #include "octofuse/core/arena.hpp"
+#include "octofuse/core/error_text.hpp"
 #include "octofuse/core/parallel.hpp"
 #include "octofuse/core/status.hpp"
 #include "octofuse/fusion/fusion_config.hpp"
@@ -43,7 +57,15 @@
 namespace octofuse {
 
 enum class MapKind : std::uint8_t { multires, single_res };
-enum class PoseSource : std::uint8_t { track, ground_truth };
+enum class PoseSource : std::uint8_t { track, ground_truth, external, external_prior };
+const char* pose_source_name(PoseSource source);
+
+// A camera-to-world pose for one frame from outside the pipeline (odometry); `valid` false: none.
+// It must be finite and rigid within FrameValidatorConfig::rigid_tolerance, as the ground truth.
+struct PosePrior {
+  bool valid = false;
+  Eigen::Matrix4d T_W_C = Eigen::Matrix4d::Identity();
+};
 
 struct PipelineBudget {
   std::uint32_t max_new_blocks = 0xFFFFFFFFu;         // per frame
@@ -71,17 +93,28 @@ struct PipelineConfig {
   // instead of the last pose.
   bool constant_velocity_prediction = true;
   Se3d initial_T_W_C = Se3d::Identity();
+  // external_prior: ICP's pose loses to the prior's prediction beyond this gap. A camera moved by
+  // hand or on a small robot covers at most ~5 cm per frame at 30 Hz; over one frame 1 %/m
+  // odometry drift is under a millimetre and converged ICP is within a few millimetres, while ICP
+  // that slid along a plane or into another minimum is off by centimetres to its 0.1 m pairing
+  // gate. 3 cm and 2 degrees sit between the two.
+  double prior_gate_m = 0.03;
+  double prior_gate_rad = 0.035;
+  // external_prior: how strongly ICP is pulled towards the prediction (IcpPrior; 0 = not at all,
+  // the prediction is then only ICP's starting point and the gate's reference).
+  double prior_information_t = 0.0;  // per m^2
+  double prior_information_r = 0.0;  // per rad^2
 };
 
-// The defaults DESIGN.md section 4 gives for a camera: QVGA working resolution from VGA, mu = 8
+// The reference defaults for a camera: QVGA working resolution from VGA, mu = 8
 // voxels, near/far 0.4/4 m, a cube of 2^voxel_depth voxels centred on `centre_W`, pools sized for
 // `block_capacity` blocks, room for 2^17 blocks touched per frame (2^18 below 5 mm voxels).
 PipelineConfig default_pipeline_config(const PinholeCamera& input_camera, float voxel_size_m,
                                        int voxel_depth, std::uint32_t block_capacity,
                                        const Eigen::Vector3f& centre_W);
 
-// ok, or invalid_argument naming nothing (see validate() of each part) when a part is invalid.
-Status validate(const PipelineConfig& config);
+// ok, or invalid_argument when a part is invalid; `error`, when given, names the setting.
+Status validate(const PipelineConfig& config, ErrorText* error = nullptr);
 
 // Bytes init() carves from its buffer for this config (0 if the config is invalid).
 std::size_t bytes_required(const PipelineConfig& config);
@@ -104,6 +137,18 @@ enum class FrameResult : std::uint8_t {
 };
 const char* frame_result_name(FrameResult result);
 
+// Where a frame's pose came from.
+enum class PoseOrigin : std::uint8_t {
+  none,          // no new pose (lost, rejected, nearly empty): the previous one stays
+  initial,       // the first frame (or the first after reset())
+  icp,           // ICP (in external_prior: within the gate of the prior's prediction)
+  ground_truth,  // PoseSource::ground_truth
+  prior,         // PoseSource::external: the frame's prior
+  prior_gate,    // external_prior: ICP differed from the prediction by more than the gate
+  prior_lost,    // external_prior: ICP was lost; fused at the prediction
+};
+const char* pose_origin_name(PoseOrigin origin);
+
 struct FrameStats {
   std::uint64_t frame_index = 0;  // frames given to process(), from 0
   std::int64_t timestamp_us = 0;
@@ -117,6 +162,11 @@ struct FrameStats {
   bool budget_icp_hit = false;  // ICP stopped by its iteration budget on some level
   MapMemory memory;
   Se3d T_W_C = Se3d::Identity();
+  PoseOrigin pose_origin = PoseOrigin::none;
+  bool has_prior = false;       // the frame came with a valid PosePrior
+  bool has_prediction = false;  // external_prior: a prediction from the prior was formed
+  double prior_gap_m = 0.0;     // |ICP - prediction| translation, when both exist
+  double prior_gap_rad = 0.0;   // and rotation angle
   bool any_budget_hit() const {
     return budget_icp_hit || integration.budget_hit || raycast.budget_hit();
   }
@@ -129,14 +179,30 @@ class Pipeline {
 
   // Carves everything from `buffer` (kArenaAlignment-aligned, `bytes` >= bytes_required(config))
   // and starts the worker team. invalid_argument: bad config or map kind not matching VoxelT;
-  // resource_exhausted: buffer too small.
+  // resource_exhausted: buffer too small. last_error() names what was wrong.
   Status init(void* buffer, std::size_t bytes, const PipelineConfig& config, Clock clock = {});
 
   // Processes one frame. Returns ok (see stats->result: tracked, first, lost, nearly_empty),
   // invalid_argument (the frame failed validation: last_error() says why; the pipeline is
   // unchanged), resource_exhausted (the map's pool is full: the frame was integrated into what
   // exists; the map is intact), failed_precondition before init(). Never allocates.
-  Status process(const DepthFrame& frame, FrameStats* stats);
+  Status process(const DepthFrame& frame, FrameStats* stats) {
+    return process(frame, PosePrior{}, stats);
+  }
+  // The same with the vehicle's pose for this frame (used by the external pose sources; ignored
+  // by track and ground_truth). A prior that is not finite and rigid rejects the frame
+  // (invalid_argument, nothing changes).
+  Status process(const DepthFrame& frame, const PosePrior& prior, FrameStats* stats);
+
+  // Forgets the map and starts over: the next frame is a first frame. Memory stays reserved,
+  // nothing is allocated; the counters (frames given, lost, rejected) keep running and the
+  // frame timestamps may start again. failed_precondition before init().
+  Status reset();
+  // Relocalises: the camera is now at T_W_C. With a map, the reference view is ray-cast again from
+  // there, so the next frame tracks against what the map shows from the new pose; before the
+  // first frame, the first frame takes this pose. invalid_argument: not finite and rigid;
+  // failed_precondition before init().
+  Status set_pose(const Se3d& T_W_C);
 
   const Se3d& T_W_C() const { return T_W_C_; }
   const Map& map() const { return map_; }
@@ -148,7 +214,7 @@ class Pipeline {
   ImageView<const std::uint8_t> scale_image() const { return raycaster_.scale_image(); }
   const PinholeCamera& working_camera() const { return working_camera_; }
   const Se3d& reference_T_W_C() const { return T_W_Cref_; }
-  const char* last_error() const { return validator_.last_error(); }
+  const char* last_error() const { return own_error_ ? error_.c_str() : validator_.last_error(); }
   std::uint64_t frames_lost() const { return frames_lost_; }
   // Frames given to process() (the index the next frame gets).
   std::uint64_t frame_count() const { return frame_index_; }
@@ -156,7 +222,7 @@ class Pipeline {
   // updated them): the next frame gets index `frames`. failed_precondition before init() or once
   // a frame was processed.
   Status resume_frame_count(std::uint64_t frames);
-  std::uint64_t frames_rejected() const { return validator_.frames_rejected(); }
+  std::uint64_t frames_rejected() const { return validator_.frames_rejected() + priors_rejected_; }
   std::size_t bytes_used() const { return arena_.bytes_used(); }
 
  private:
@@ -177,11 +243,17 @@ class Pipeline {
   Raycaster<VoxelT> raycaster_;
   PinholeCamera working_camera_;
   Se3d T_W_C_ = Se3d::Identity();
-  Se3d T_W_Cref_ = Se3d::Identity();   // pose of the current ray-cast reference
-  Se3d T_Cprev_C_ = Se3d::Identity();  // last tracked frame-to-frame motion
+  Se3d T_W_Cref_ = Se3d::Identity();    // pose of the current ray-cast reference
+  Se3d T_Cprev_C_ = Se3d::Identity();   // last tracked frame-to-frame motion
+  Se3d prior_prev_ = Se3d::Identity();  // the prior of the frame that last set T_W_C_
+  bool have_prior_prev_ = false;
   bool have_reference_ = false;
+  bool pose_set_ = false;  // set_pose() before the first frame: the first frame keeps it
   std::uint64_t frame_index_ = 0;
   std::uint64_t frames_lost_ = 0;
+  std::uint64_t priors_rejected_ = 0;
+  ErrorText error_;
+  bool own_error_ = false;  // last_error() is error_ rather than the validator's
   bool initialised_ = false;
 };
 

@@ -79,6 +79,17 @@ struct TrackReport {
   bool tracked() const { return outcome == TrackOutcome::tracked; }
 };
 
+// A pose the estimate is pulled towards (the vehicle's odometry): each Gauss-Newton step solves
+// (A + L) dx = -(g + L e), e the twist from the prior to the estimate (world frame, translation
+// first, as the steps) and L = diag(information_t x3, information_r x3), in the units of the
+// weighted point-to-plane normal equations A (each pair adds up to n n^T to the translation
+// block). Directions the view constrains poorly (a wall, a floor) follow the prior; others ICP.
+struct IcpPrior {
+  Se3d T_W_C = Se3d::Identity();
+  double information_t = 0.0;  // per m^2
+  double information_r = 0.0;  // per rad^2
+};
+
 class IcpTracker {
  public:
   // Carves the per-task reduction buffers from `arena` (LinearArena or ArenaSizer) for a live
@@ -91,9 +102,10 @@ class IcpTracker {
   // world-frame vertices and normals ray-cast at T_W_Cref with `camera_level0` (same size).
   // report.status: ok; invalid_argument when sizes do not match reserve(), the camera is not
   // valid or a pose is not rigid/finite (outcome failed); failed_precondition before reserve().
+  // `prior` (optional, must be rigid) adds a pull towards a pose; see IcpPrior.
   TrackReport track(const DepthPyramid& live, ConstSurfaceMap model_W,
                     const PinholeCamera& camera_level0, const Se3d& T_W_Cref, Se3d& T_W_C,
-                    const WorkerTeam& team);
+                    const WorkerTeam& team, const IcpPrior* prior = nullptr);
 
   const TrackConfig& config() const { return config_; }
   // Changes iteration counts etc. between frames (a per-frame budget); invalid_argument if bad.

@@ -66,4 +66,11 @@ inline Status read_tum_trajectory(const char* path, std::vector<TimedPose>* pose
   return status;
 }
 
+// The pose at `timestamp_s` in a trajectory sorted by time (as read_tum_trajectory returns it):
+// the position interpolated linearly and the rotation by slerp between the poses either side.
+// No extrapolation: a time before the first or after the last pose by at most `tolerance_s`
+// takes that end pose; further out there is no pose (false). Equal timestamps take the later pose.
+bool interpolate_pose(const std::vector<TimedPose>& poses, double timestamp_s, double tolerance_s,
+                      Se3d* T_W_C);
+
 }  // namespace octofuse::host

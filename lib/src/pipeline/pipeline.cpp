@@ -49,6 +49,7 @@ Status validate(const PipelineConfig& config) {
   if (!config.input_camera.valid()) return StatusCode::invalid_argument;
   OCTOFUSE_TRY(validate(config.map));
   OCTOFUSE_TRY(validate(config.fusion));
+  OCTOFUSE_TRY(validate(config.free_space));
   if (!config.preprocess.valid() || !config.track.valid()) return StatusCode::invalid_argument;
   if (config.workers < 1 || config.workers > 64) return StatusCode::invalid_argument;
   for (int level = 0; level < kPyramidLevels; ++level) {
@@ -104,6 +105,14 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
   raycast.mu_m = config.fusion.mu_m;
   raycast.step_budget = config.budget.raycast_steps;
   OCTOFUSE_TRY(raycaster_.reserve(arena, raycast));
+  if (config.free_space.enabled) {
+    FreeSpaceConfig free_space = config.free_space;
+    if (!(free_space.clearance_m > 0.0f)) free_space.clearance_m = 0.5f * config.fusion.mu_m;
+    if (!(free_space.occlusion_clear_m > 0.0f)) {
+      free_space.occlusion_clear_m = 4.0f * config.fusion.mu_m;
+    }
+    OCTOFUSE_TRY(free_space_.reserve(arena, free_space, config.map, working_width, working_height));
+  }
   OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
   return ok_status();
 }
@@ -146,6 +155,7 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   have_reference_ = false;
   frame_index_ = 0;
   frames_lost_ = 0;
+  map_version_ = 0;
   initialised_ = true;
   return ok_status();
 }
@@ -224,11 +234,27 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
   budget.max_new_blocks = config_.budget.max_new_blocks;
   budget.max_integrated_blocks = config_.budget.max_integrated_blocks;
   budget.max_voxel_updates = config_.budget.max_voxel_updates;
-  stats.integration =
-      integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
-                            static_cast<std::uint32_t>(stats.frame_index), budget, team_);
-  const std::int64_t t_integrated = clock_.now();
+  std::int64_t t_integrated = 0;
+  std::int64_t t_carved = 0;
+  {
+    // Queries from other threads wait here, and see the map before or after this frame.
+    ExclusiveHold hold(guard_);
+    stats.integration =
+        integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
+                              static_cast<std::uint32_t>(stats.frame_index), budget, team_);
+    t_integrated = clock_.now();
+    const Status fused = stats.integration.status;
+    // 4b. Free space seen by this frame (after the TSDF, which takes precedence in its band).
+    if (config_.free_space.enabled &&
+        (fused.ok() || fused.code() == StatusCode::resource_exhausted)) {
+      stats.free_space = free_space_.carve(preprocessor_.pyramid().depth_m[0], working_camera_,
+                                           T_W_C_, static_cast<std::uint32_t>(stats.frame_index));
+    }
+    ++map_version_;
+    t_carved = clock_.now();
+  }
   stats.times.integrate_ms = elapsed_ms(t_tracked, t_integrated);
+  stats.times.free_space_ms = elapsed_ms(t_integrated, t_carved);
   const Status integration_status = stats.integration.status;
   if (!integration_status.ok() && integration_status.code() != StatusCode::resource_exhausted) {
     return finish(result, integration_status);
@@ -238,7 +264,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, FrameStats* stats_out)
   // Guided by the depth just fused from this pose: most rays start in the band in front of it.
   const Result<RaycastStats> raycast =
       raycaster_.raycast(map_, working_camera_, T_W_C_, team_, preprocessor_.pyramid().depth_m[0]);
-  stats.times.raycast_ms = elapsed_ms(t_integrated, clock_.now());
+  stats.times.raycast_ms = elapsed_ms(t_carved, clock_.now());
   if (!raycast.ok()) return finish(result, raycast.status());
   stats.raycast = raycast.value();
   T_W_Cref_ = T_W_C_;

@@ -42,6 +42,10 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --mesh-scale S       multires mesh.ply from each block's current scale (default) or\n"
       "                       finest: the finest scale it was fused at (static scenes)\n"
       "  --write-frames       also write DIR/frames/render_NNNNNN.png for every frame\n"
+      "  --no-free-space      do not record free space (queries then know only the TSDF band)\n"
+      "  --query-points FILE  answer FILE's points (one 'x y z' per line, metres, world frame)\n"
+      "                       against the final map into DIR/queries.txt:\n"
+      "                       'x y z STATE DISTANCE', STATE outside|unknown|free|near|inside\n"
       "  --quiet              no progress line\n",
       program, default_source, supported_sources().c_str());
 }
@@ -168,6 +172,12 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
       if (!need_value(&value) || !parse_mesh_read_scale(value, &options.mesh_read_scale)) {
         return fail("--mesh-scale must be current or finest");
       }
+    } else if (arg == "--no-free-space") {
+      options.free_space = false;
+    } else if (arg == "--query-points") {
+      if (!need_value(&options.query_points_path) || options.query_points_path.empty()) {
+        return fail("--query-points needs a file");
+      }
     } else if (arg == "--quiet") {
       options.progress = false;
     } else {
@@ -199,6 +209,9 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
   }
   std::printf("wrote %s/{trajectory.txt,mesh.ply,render.png,stats.json,stage_times.svg}\n",
               options.out_dir.c_str());
+  if (!options.query_points_path.empty()) {
+    std::printf("wrote %s/queries.txt\n", options.out_dir.c_str());
+  }
 }
 
 }  // namespace octofuse::examples

@@ -17,6 +17,7 @@
 #include "octofuse/ports/host/png_writer.hpp"
 #include "octofuse/ports/host/trajectory_eval.hpp"
 #include "octofuse/render/shade.hpp"
+#include "query_points.hpp"
 #include "stage_plot.hpp"
 
 namespace octofuse::examples {
@@ -98,6 +99,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("preprocess").value(s.times.preprocess_ms);
   json.key("track").value(s.times.track_ms);
   json.key("integrate").value(s.times.integrate_ms);
+  json.key("free_space").value(s.times.free_space_ms);
   json.key("raycast").value(s.times.raycast_ms);
   json.key("total").value(s.times.total_ms);
   json.end_object();
@@ -131,7 +133,10 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("icp").value(s.budget_icp_hit);
   json.key("fusion").value(s.integration.budget_hit);
   json.key("raycast").value(s.raycast.budget_hit());
+  json.key("free_space").value(s.free_space.budget_hit);
   json.end_object();
+  json.key("free_space_visits").value(static_cast<std::uint64_t>(s.free_space.node_visits));
+  json.key("free_space_nodes").value(static_cast<std::uint64_t>(s.free_space.nodes_used));
   json.key("blocks_used").value(static_cast<std::uint64_t>(s.memory.blocks_used));
   json.end_object();
 }
@@ -192,6 +197,11 @@ bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, Err
 template <typename VoxelT>
 int run_typed(const RunOptions& options, RunSummary* summary) {
   std::string error;
+  std::vector<Eigen::Vector3f> query_points;
+  if (!options.query_points_path.empty() &&
+      !load_query_points(options.query_points_path, &query_points, &error)) {
+    return error_exit(error);
+  }
   std::unique_ptr<DepthSource> source = make_source(options.source_spec, options.source, &error);
   if (source == nullptr) return error_exit(error);
   if (!source->open().ok()) {
@@ -258,6 +268,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       config.workers = options.threads;
       config.pose_source = options.pose_source;
       config.budget = options.budget;
+      config.free_space.enabled = options.free_space;
       config.preprocess.bilateral = options.bilateral;
       if (options.icp_depth_knee_m >= 0.0f)
         config.track.depth_weight_knee_m = options.icp_depth_knee_m;
@@ -341,6 +352,15 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   if (buffer == nullptr) return error_exit(options.source_spec + ": no usable frame");
   summary->frames_lost = pipeline.frames_lost();
   summary->map_memory = pipeline.map().memory();
+  if (options.free_space) summary->free_space_bytes = pipeline.free_space().bytes_used();
+  if constexpr (std::is_same_v<VoxelT, MultiresVoxel>) {
+    if (options.inspect_final_map) options.inspect_final_map(pipeline.query());
+  }
+  if (!options.query_points_path.empty() && !options.out_dir.empty() &&
+      !write_query_answers(pipeline.query(), query_points, join(options.out_dir, "queries.txt"),
+                           &error)) {
+    return error_exit(error);
+  }
 
   if (summary->ground_truth.size() >= 3 &&
       summary->ground_truth.size() == summary->trajectory.size()) {
@@ -411,9 +431,10 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("frames").begin_array();
     for (const FrameStats& s : summary->frames) write_frame_json(json, s);
     json.end_array();
-    std::vector<double> totals, track, integrate, raycast, preprocess;
+    std::vector<double> totals, track, integrate, raycast, preprocess, free_space;
     for (const FrameStats& s : summary->frames) {
       totals.push_back(s.times.total_ms);
+      free_space.push_back(s.times.free_space_ms);
       track.push_back(s.times.track_ms);
       integrate.push_back(s.times.integrate_ms);
       raycast.push_back(s.times.raycast_ms);
@@ -441,6 +462,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("track").value(percentiles(track).median);
     json.key("integrate").value(percentiles(integrate).median);
     json.key("raycast").value(percentiles(raycast).median);
+    json.key("free_space").value(percentiles(free_space).median);
     json.end_object();
     json.key("arena_bytes").value(static_cast<std::uint64_t>(summary->arena_bytes));
     json.key("map_bytes_reserved")
@@ -450,6 +472,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("pool_block_capacity")
         .value(static_cast<std::uint64_t>(summary->map_memory.block_capacity));
     json.key("pool_refusals").value(summary->map_memory.refusals);
+    json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
     json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));
     json.key("mesh_triangles").value(static_cast<std::uint64_t>(summary->mesh_triangles));
     if (summary->have_ate) {

@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -34,9 +35,14 @@ struct RunOptions {
   bool write_mesh = true;
   MeshReadScale mesh_read_scale = MeshReadScale::current;
   bool write_frames = false;  // frames/render_NNNNNN.png after every frame
-  bool keep_mesh = false;     // keep the mesh in RunSummary (for evaluation)
-  bool progress = true;       // a progress line on stderr when it is a terminal
-  bool live_status = false;   // once a second on stdout: frame rate and tracking state
+  bool free_space = true;     // carve free space (PipelineConfig::free_space.enabled)
+  // --query-points FILE: answered against the final map into DIR/queries.txt (empty: none).
+  std::string query_points_path;
+  // Called with the final multires map's queries before the run returns (benchmarks).
+  std::function<void(const MapQuery<MultiresVoxel>&)> inspect_final_map;
+  bool keep_mesh = false;    // keep the mesh in RunSummary (for evaluation)
+  bool progress = true;      // a progress line on stderr when it is a terminal
+  bool live_status = false;  // once a second on stdout: frame rate and tracking state
   const std::atomic<bool>* stop = nullptr;  // set from a signal handler to end early
 };
 
@@ -53,6 +59,7 @@ struct RunSummary {
   double ate_max_m = 0.0;
   std::size_t arena_bytes = 0;
   MapMemory map_memory;
+  std::size_t free_space_bytes = 0;  // free-space nodes in use at the end
   std::size_t mesh_vertices = 0;
   std::size_t mesh_triangles = 0;
   std::vector<Eigen::Vector3f> mesh_positions;  // with keep_mesh

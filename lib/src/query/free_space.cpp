@@ -12,6 +12,10 @@ Status validate(const FreeSpaceConfig& config) {
       config.occlusion_clear_m < 0.0f || config.near_m < 0.0f) {
     return StatusCode::invalid_argument;
   }
+  if (config.finest_octant_voxels != 2 && config.finest_octant_voxels != 4 &&
+      config.finest_octant_voxels != 8) {
+    return StatusCode::invalid_argument;
+  }
   if (config.max_free_count == 0 || config.max_node_visits == 0) {
     return StatusCode::invalid_argument;
   }

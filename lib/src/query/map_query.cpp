@@ -121,6 +121,13 @@ PointAnswer MapQuery<VoxelT>::point_unguarded(const Eigen::Vector3f& p_W) const 
       } else if (tsdf < 1.0f) {
         out.state = PointState::near;
         out.distance_m = tsdf * mu_m_;
+        // The TSDF holds distances along camera rays, which exceed the Euclidean distance by
+        // 1 / cos(incidence) on slanted surfaces; the gradient's length is that factor.
+        const float slope = out.gradient.norm();
+        if (out.has_gradient && slope > 1.0f) {
+          out.distance_m /= slope;
+          out.gradient /= slope;
+        }
       } else {
         out.state = PointState::free;
       }
@@ -165,7 +172,7 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
     }
   }
   const int depth = map_->voxel_depth();
-  const int leaf = map_->block_level();
+  const int leaf = free_ != nullptr ? free_->leaf_level() : map_->block_level();
   const float mu_voxels = mu_m_ / map_->voxel_size_m();
   bool unknown = false;
   bool stopped = false;
@@ -177,9 +184,10 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
     ++out.visits;
     return true;
   };
-  // Reads the voxels of `block` the shape touches. region_free: its octant was seen free (then
-  // unobserved voxels are free). Returns false when blocked.
-  auto check_block = [&](const VoxelBlock<VoxelT>& block, bool region_free) {
+  // Reads the voxels of `block` inside the cell [cell_lo, cell_hi) that the shape touches.
+  // region_free: the cell was seen free (then unobserved voxels are free). False when blocked.
+  auto check_block = [&](const VoxelBlock<VoxelT>& block, bool region_free,
+                         const Eigen::Vector3f& cell_lo, const Eigen::Vector3f& cell_hi) {
     const int scale = block_read_scale(block);
     const int side = block_scale_side(scale);
     const float size = static_cast<float>(1 << scale);
@@ -194,7 +202,11 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
               origin +
               Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) *
                   size;
-          if (!shape.touches(lo, lo + Eigen::Vector3f::Constant(size))) continue;
+          const Eigen::Vector3f hi = lo + Eigen::Vector3f::Constant(size);
+          if ((hi.array() <= cell_lo.array()).any() || (lo.array() >= cell_hi.array()).any()) {
+            continue;
+          }
+          if (!shape.touches(lo, hi)) continue;
           if (!spend()) return true;
           const VoxelT& v = level[x + y * side + z * side * side];
           if (!voxel_observed(v)) {
@@ -237,7 +249,11 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
             continue;
           }
           if (region_free && block->last_updated_frame < free_frame) continue;
-          if (!check_block(*block, region_free)) return false;
+          const Eigen::Vector3f cell_lo_f = cell_lo.cast<float>();
+          if (!check_block(*block, region_free, cell_lo_f,
+                           cell_lo_f + Eigen::Vector3f::Constant(static_cast<float>(cell_size)))) {
+            return false;
+          }
           if (stopped) return true;
         }
       }

@@ -256,6 +256,39 @@ TEST_CASE("carving is bit-identical for 1 and 2 workers and stays within its bud
   REQUIRE(capped.free_space.node_count() <= 11);
 }
 
+TEST_CASE("octants down to 2 voxels carve closer to the view's edges, and no closer to the wall") {
+  FreeSpaceConfig fine_config;
+  fine_config.finest_octant_voxels = 2;
+  Mapper fine(fine_config);
+  Mapper coarse;
+  fine.fuse(wall_at(kWall_m));
+  coarse.fuse(wall_at(kWall_m));
+  REQUIRE(fine.free_space.leaf_level() == coarse.free_space.leaf_level() + 2);
+  int fine_free = 0;
+  int coarse_free = 0;
+  for (float z = 0.5f; z < 2.3f; z += 0.02f) {
+    for (float y = -0.6f; y <= 0.6f; y += 0.05f) {
+      const PointAnswer f = ask(fine, 0.03f, y, z);
+      const PointAnswer c = ask(coarse, 0.03f, y, z);
+      if (f.state == PointState::free) {
+        ++fine_free;
+        REQUIRE(z < kWall_m - kVoxel_m);
+      }
+      if (c.state == PointState::free) ++coarse_free;
+      // Whatever the coarse octants call free, the fine ones do too.
+      if (c.state == PointState::free) REQUIRE(f.state == PointState::free);
+    }
+  }
+  REQUIRE(fine_free > coarse_free);
+  REQUIRE(box_state(fine, Eigen::Vector3f(-0.1f, -0.1f, 1.9f), Eigen::Vector3f(0.1f, 0.1f, 2.1f)) ==
+          RegionState::blocked);
+  REQUIRE(box_state(fine, Eigen::Vector3f(-0.2f, -0.2f, 0.9f), Eigen::Vector3f(0.2f, 0.2f, 1.4f)) ==
+          RegionState::free);
+  FreeSpaceConfig bad;
+  bad.finest_octant_voxels = 3;
+  REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
+}
+
 TEST_CASE("bad arguments get invalid_argument") {
   Mapper m;
   m.fuse(wall_at(kWall_m));

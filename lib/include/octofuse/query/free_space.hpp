@@ -77,12 +77,15 @@ struct FreeSpaceConfig {
   // stay free until seen from elsewhere (a known limit).
   float occlusion_clear_m = 0.0f;
   std::uint8_t max_free_count = 8;
+  // Side of the smallest octant carved, in finest voxels: 8 (a block), 4 or 2. Smaller octants
+  // fit more of the view's edges and the air just in front of surfaces, for more node visits.
+  int finest_octant_voxels = 8;
   // Octants nearer than this to the camera plane are not tested (projection degenerates).
   float near_m = 0.05f;
 };
 
 // ok, or invalid_argument for a negative or non-finite margin/clearance/occlusion/near,
-// max_free_count 0,
+// max_free_count 0, finest_octant_voxels not 2, 4 or 8,
 // or a zero visit budget.
 Status validate(const FreeSpaceConfig& config);
 
@@ -149,7 +152,8 @@ class FreeSpace {
   const FreeSpaceConfig& config() const { return config_; }
   const MapConfig& map_config() const { return map_; }
   float margin_m() const { return margin_m_; }
-  int leaf_level() const { return map_.block_level(); }
+  // Level of the smallest octants (the blocks' level for finest_octant_voxels 8).
+  int leaf_level() const { return leaf_level_; }
   std::uint32_t node_count() const { return nodes_.used(); }
   std::uint32_t node_capacity() const { return nodes_.capacity(); }
   const FreeNode& node(std::uint32_t index) const { return nodes_[index]; }
@@ -178,6 +182,7 @@ class FreeSpace {
   float margin_m_ = 0.0f;
   float clearance_m_ = 0.0f;
   float occlusion_clear_m_ = 0.0f;
+  int leaf_level_ = 0;
   // Per-frame projection (set by carve()).
   Eigen::Matrix3f R_C_W_ = Eigen::Matrix3f::Identity();
   Eigen::Vector3f t_C_W_ = Eigen::Vector3f::Zero();
@@ -227,6 +232,9 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   margin_m_ = config.margin_m > 0.0f ? config.margin_m : map.voxel_size_m;
   clearance_m_ = config.clearance_m;
   occlusion_clear_m_ = config.occlusion_clear_m;
+  leaf_level_ = map.block_level() + (config.finest_octant_voxels == 8   ? 0
+                                     : config.finest_octant_voxels == 4 ? 1
+                                                                        : 2);
   bytes_reserved_ = arena.bytes_used() - start;
   if constexpr (!std::is_same_v<Arena, ArenaSizer>) {
     reserved_ = true;

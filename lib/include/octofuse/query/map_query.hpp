@@ -80,6 +80,9 @@ class MapQuery {
            const MapGuard* guard = nullptr, const std::uint64_t* version = nullptr)
       : map_(&map), free_(free_space), mu_m_(mu_m), guard_(guard), version_(version) {}
 
+  const Octree<VoxelT>& map() const { return *map_; }
+  float mu_m() const { return mu_m_; }
+
   // invalid_argument for a non-finite point.
   Result<PointAnswer> point(const Eigen::Vector3f& p_W) const;
   // invalid_argument: a non-finite corner or min > max on some axis, or max_visits 0.

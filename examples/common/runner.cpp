@@ -273,6 +273,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       if (options.icp_depth_knee_m >= 0.0f)
         config.track.depth_weight_knee_m = options.icp_depth_knee_m;
       config.initial_T_W_C = T_W_C0;
+      if (options.adjust_config) options.adjust_config(&config);
       const std::size_t bytes = bytes_required(config);
       if (bytes == 0) return error_exit("invalid configuration (check voxel size, mu, threads)");
       buffer = std::make_unique<AlignedBuffer>(bytes);

@@ -40,6 +40,8 @@ struct RunOptions {
   std::string query_points_path;
   // Called with the final multires map's queries before the run returns (benchmarks).
   std::function<void(const MapQuery<MultiresVoxel>&)> inspect_final_map;
+  // Called with the pipeline's config before init (benchmarks that vary a setting).
+  std::function<void(PipelineConfig*)> adjust_config;
   bool keep_mesh = false;    // keep the mesh in RunSummary (for evaluation)
   bool progress = true;      // a progress line on stderr when it is a terminal
   bool live_status = false;  // once a second on stdout: frame rate and tracking state

@@ -1,5 +1,6 @@
 #include "octofuse/pipeline/pipeline.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <type_traits>
 
@@ -108,6 +109,10 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
   if (config.free_space.enabled) {
     FreeSpaceConfig free_space = config.free_space;
     if (!(free_space.clearance_m > 0.0f)) free_space.clearance_m = 0.5f * config.fusion.mu_m;
+    // A free-space node is 40 bytes: room for one per block costs little beside the blocks.
+    if (free_space.node_capacity == 0) {
+      free_space.node_capacity = std::max(config.map.node_capacity, config.map.block_capacity);
+    }
     if (!(free_space.occlusion_clear_m > 0.0f)) {
       free_space.occlusion_clear_m = 4.0f * config.fusion.mu_m;
     }

@@ -102,13 +102,20 @@ FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_v
   const float side = static_cast<float>(size_voxels) * voxel + 2.0f * margin_m_;
   float z_min = 1e30f;
   float z_max = -1e30f;
+  // One transform, then the cube's edges in the camera frame (the columns of R_C_W scaled).
   Eigen::Vector3f corners_C[8];
+  const Eigen::Vector3f base_C = R_C_W_ * lo_W + t_C_W_;
+  const Eigen::Vector3f ex = R_C_W_.col(0) * side;
+  const Eigen::Vector3f ey = R_C_W_.col(1) * side;
+  const Eigen::Vector3f ez = R_C_W_.col(2) * side;
   for (int c = 0; c < 8; ++c) {
-    const Eigen::Vector3f corner_W =
-        lo_W + Eigen::Vector3f((c & 1) ? side : 0.0f, (c & 2) ? side : 0.0f, (c & 4) ? side : 0.0f);
-    corners_C[c] = R_C_W_ * corner_W + t_C_W_;
-    z_min = std::min(z_min, corners_C[c].z());
-    z_max = std::max(z_max, corners_C[c].z());
+    Eigen::Vector3f p = base_C;
+    if (c & 1) p += ex;
+    if (c & 2) p += ey;
+    if (c & 4) p += ez;
+    corners_C[c] = p;
+    z_min = std::min(z_min, p.z());
+    z_max = std::max(z_max, p.z());
   }
   if (z_max <= config_.near_m) return Seen::not_seen;  // behind the camera
   // Wholly outside one side plane of the view frustum (planes through the camera centre, so

@@ -86,6 +86,10 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --initial-pose tx,ty,tz,qx,qy,qz,qw   first camera pose in the world (metres, unit\n"
       "                       quaternion), instead of the source's ground truth (default:\n"
       "                       the ground truth, else identity)\n"
+      "  --no-free-space      do not record free space (queries then know only the TSDF band)\n"
+      "  --query-points FILE  answer FILE's points (one 'x y z' per line, metres, world frame)\n"
+      "                       against the final map into DIR/queries.txt:\n"
+      "                       'x y z STATE DISTANCE', STATE outside|unknown|free|near|inside\n"
       "  --quiet              no progress line\n",
       program, default_source, supported_sources().c_str());
 }
@@ -258,6 +262,12 @@ int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
         return fail("--initial-pose needs tx,ty,tz,qx,qy,qz,qw (metres, a unit quaternion)");
       }
       options.have_initial_pose = true;
+    } else if (arg == "--no-free-space") {
+      options.free_space = false;
+    } else if (arg == "--query-points") {
+      if (!need_value(&options.query_points_path) || options.query_points_path.empty()) {
+        return fail("--query-points needs a file");
+      }
     } else if (arg == "--quiet") {
       options.progress = false;
     } else {

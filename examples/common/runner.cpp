@@ -18,6 +18,7 @@
 #include "octofuse/ports/host/png_writer.hpp"
 #include "octofuse/ports/host/trajectory_eval.hpp"
 #include "octofuse/render/shade.hpp"
+#include "query_points.hpp"
 #include "stage_plot.hpp"
 
 #if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
@@ -109,6 +110,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("preprocess").value(s.times.preprocess_ms);
   json.key("track").value(s.times.track_ms);
   json.key("integrate").value(s.times.integrate_ms);
+  json.key("free_space").value(s.times.free_space_ms);
   json.key("raycast").value(s.times.raycast_ms);
   json.key("total").value(s.times.total_ms);
   json.end_object();
@@ -142,7 +144,10 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("icp").value(s.budget_icp_hit);
   json.key("fusion").value(s.integration.budget_hit);
   json.key("raycast").value(s.raycast.budget_hit());
+  json.key("free_space").value(s.free_space.budget_hit);
   json.end_object();
+  json.key("free_space_visits").value(static_cast<std::uint64_t>(s.free_space.node_visits));
+  json.key("free_space_nodes").value(static_cast<std::uint64_t>(s.free_space.nodes_used));
   json.key("blocks_used").value(static_cast<std::uint64_t>(s.memory.blocks_used));
   json.end_object();
 }
@@ -322,6 +327,11 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
 template <typename VoxelT>
 int run_typed(const RunOptions& options, RunSummary* summary) {
   std::string error;
+  std::vector<Eigen::Vector3f> query_points;
+  if (!options.query_points_path.empty() &&
+      !load_query_points(options.query_points_path, &query_points, &error)) {
+    return error_exit(error);
+  }
   std::unique_ptr<DepthSource> source = make_source(options.source_spec, options.source, &error);
   if (source == nullptr) return error_exit(error);
   if (!source->open().ok()) {
@@ -389,14 +399,17 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       config.prior_information_r = options.odometry_information[1];
     }
     if (!options.odometry.empty()) {
-      config.pose_source = options.odometry_only ? PoseSource::external : PoseSource::external_prior;
+      config.pose_source =
+          options.odometry_only ? PoseSource::external : PoseSource::external_prior;
     }
     config.budget = options.budget;
+    config.free_space.enabled = options.free_space;
     config.preprocess.bilateral = options.bilateral;
     if (options.icp_depth_knee_m >= 0.0f)
       config.track.depth_weight_knee_m = options.icp_depth_knee_m;
     config.initial_T_W_C = T_W_C0;
     config.initial_pose_from_ground_truth = !options.have_initial_pose;
+    if (options.adjust_config) options.adjust_config(&config);
     ErrorText config_error;
     if (!validate(config, &config_error).ok()) return error_exit(config_error.c_str());
     const std::size_t bytes = bytes_required(config);
@@ -455,7 +468,6 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     if (odometry_O.empty()) return error_exit(options.odometry + ": no poses");
   }
   Se3d T_W_O = Se3d::Identity();
-
 
   if (!options.out_dir.empty() && !make_dir(options.out_dir)) {
     return error_exit("cannot create output folder " + options.out_dir);
@@ -635,6 +647,18 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   if (buffer == nullptr) return error_exit(options.source_spec + ": no usable frame");
   summary->frames_lost = pipeline.frames_lost();
   summary->map_memory = pipeline.map().memory();
+  if (options.free_space) summary->free_space_bytes = pipeline.free_space().bytes_used();
+  if constexpr (std::is_same_v<VoxelT, MultiresVoxel>) {
+    if (options.inspect_final_map) options.inspect_final_map(pipeline.query());
+  }
+  if (!options.query_points_path.empty() && !options.out_dir.empty() &&
+      !write_query_answers(pipeline.query(), query_points, join(options.out_dir, "queries.txt"),
+                           &error)) {
+    return error_exit(error);
+  }
+  if (!options.query_points_path.empty() && !options.out_dir.empty()) {
+    summary->files_written.push_back("queries.txt");
+  }
   if (!options.save_map_path.empty()) {
     std::string save_error;
     if (!save_map_now(options, pipeline, summary, &save_error)) return error_exit(save_error);
@@ -744,9 +768,10 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("frames").begin_array();
     for (const FrameStats& s : summary->frames) write_frame_json(json, s);
     json.end_array();
-    std::vector<double> totals, track, integrate, raycast, preprocess;
+    std::vector<double> totals, track, integrate, raycast, preprocess, free_space;
     for (const FrameStats& s : summary->frames) {
       totals.push_back(s.times.total_ms);
+      free_space.push_back(s.times.free_space_ms);
       track.push_back(s.times.track_ms);
       integrate.push_back(s.times.integrate_ms);
       raycast.push_back(s.times.raycast_ms);
@@ -784,6 +809,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("track").value(percentiles(track).median);
     json.key("integrate").value(percentiles(integrate).median);
     json.key("raycast").value(percentiles(raycast).median);
+    json.key("free_space").value(percentiles(free_space).median);
     json.end_object();
     json.key("arena_bytes").value(static_cast<std::uint64_t>(summary->arena_bytes));
     json.key("map_bytes_reserved")
@@ -793,6 +819,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("pool_block_capacity")
         .value(static_cast<std::uint64_t>(summary->map_memory.block_capacity));
     json.key("pool_refusals").value(summary->map_memory.refusals);
+    json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
     json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));
     json.key("mesh_triangles").value(static_cast<std::uint64_t>(summary->mesh_triangles));
     json.key("failure").value(summary->failure.c_str());

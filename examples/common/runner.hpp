@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -31,17 +32,24 @@ struct RunOptions {
   std::string odometry;
   bool odometry_only = false;  // --odometry-mode only: fuse at the odometry, no ICP
   double odometry_information[2] = {-1.0, -1.0};  // --odometry-weight T,R; < 0: the defaults
-  std::uint32_t max_blocks = 0;           // block pool capacity; 0 = from voxel size and map memory
-  float map_memory_mb = 1024.0f;          // used when max_blocks is 0
+  std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
+  float map_memory_mb = 1024.0f;  // used when max_blocks is 0
   PipelineBudget budget;
   bool bilateral = false;
   float icp_depth_knee_m = -1.0f;  // < 0: the library's default
   bool write_mesh = true;
   MeshReadScale mesh_read_scale = MeshReadScale::current;
   bool write_frames = false;  // frames/render_NNNNNN.png after every frame
-  bool keep_mesh = false;     // keep the mesh in RunSummary (for evaluation)
-  bool progress = true;       // a progress line on stderr when it is a terminal
-  bool live_status = false;   // once a second on stdout: frame rate and tracking state
+  bool free_space = true;     // carve free space (PipelineConfig::free_space.enabled)
+  // --query-points FILE: answered against the final map into DIR/queries.txt (empty: none).
+  std::string query_points_path;
+  // Called with the final multires map's queries before the run returns (benchmarks).
+  std::function<void(const MapQuery<MultiresVoxel>&)> inspect_final_map;
+  // Called with the pipeline's config before init (benchmarks that vary a setting).
+  std::function<void(PipelineConfig*)> adjust_config;
+  bool keep_mesh = false;    // keep the mesh in RunSummary (for evaluation)
+  bool progress = true;      // a progress line on stderr when it is a terminal
+  bool live_status = false;  // once a second on stdout: frame rate and tracking state
   const std::atomic<bool>* stop = nullptr;  // set from a signal handler to end early
   // Maps: --save-map writes the map at the end (also when stopped) and, with --save-every N,
   // after every N processed frames; --load-map starts from a saved map (its voxel type, voxel
@@ -73,6 +81,7 @@ struct RunSummary {
   double ate_max_m = 0.0;
   std::size_t arena_bytes = 0;
   MapMemory map_memory;
+  std::size_t free_space_bytes = 0;  // free-space nodes in use at the end
   std::size_t mesh_vertices = 0;
   std::size_t mesh_triangles = 0;
   std::vector<Eigen::Vector3f> mesh_positions;  // with keep_mesh

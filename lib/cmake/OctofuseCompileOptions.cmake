@@ -25,6 +25,15 @@ if(OCTOFUSE_SANITIZE)
   add_link_options(-fsanitize=address,undefined)
 endif()
 
+# ThreadSanitizer (the tsan preset, for the queries-while-mapping test). Not with ASan.
+if(OCTOFUSE_SANITIZE_THREAD)
+  if(OCTOFUSE_SANITIZE)
+    message(FATAL_ERROR "OCTOFUSE_SANITIZE_THREAD and OCTOFUSE_SANITIZE exclude each other")
+  endif()
+  add_compile_options(-fsanitize=thread -fno-omit-frame-pointer)
+  add_link_options(-fsanitize=thread)
+endif()
+
 # libFuzzer: coverage instrumentation everywhere; the fuzz targets link -fsanitize=fuzzer themselves.
 if(OCTOFUSE_FUZZ)
   if(NOT CMAKE_CXX_COMPILER_ID MATCHES "Clang")

@@ -13,10 +13,12 @@ void note(std::size_t bytes) {
   g_bytes.fetch_add(bytes, std::memory_order_relaxed);
 }
 
-#if defined(__SANITIZE_ADDRESS__)
+// Sanitizers replace malloc themselves (and ThreadSanitizer's runtime calls it before it is
+// ready for instrumented code): count only operator new there.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
 #define OCTOFUSE_COUNT_MALLOC 0
 #elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
 #define OCTOFUSE_COUNT_MALLOC 0
 #endif
 #endif

@@ -1,5 +1,6 @@
 #include "octofuse/pipeline/pipeline.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <type_traits>
 
@@ -118,6 +119,9 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
         "fusion (y_max >= 1, allocation_pixel_step >= 1, max_blocks_per_frame > 0, "
         "scale_hysteresis in [0, 1), fixed_scale <= 3, task_count >= 1)");
   }
+  if (!validate(config.free_space).ok()) {
+    return bad("free_space (finite margins >= 0, max_free_count >= 1, visit budget > 0)");
+  }
   if (!config.preprocess.valid()) return bad("preprocess");
   if (!config.track.valid()) return bad("track");
   if (config.workers < 1 || config.workers > 64) return bad("workers must be in [1, 64]");
@@ -187,6 +191,18 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
   raycast.mu_m = config.fusion.mu_m;
   raycast.step_budget = config.budget.raycast_steps;
   OCTOFUSE_TRY(raycaster_.reserve(arena, raycast));
+  if (config.free_space.enabled) {
+    FreeSpaceConfig free_space = config.free_space;
+    if (!(free_space.clearance_m > 0.0f)) free_space.clearance_m = 0.5f * config.fusion.mu_m;
+    // A free-space node is 40 bytes: room for one per block costs little beside the blocks.
+    if (free_space.node_capacity == 0) {
+      free_space.node_capacity = std::max(config.map.node_capacity, config.map.block_capacity);
+    }
+    if (!(free_space.occlusion_clear_m > 0.0f)) {
+      free_space.occlusion_clear_m = 4.0f * config.fusion.mu_m;
+    }
+    OCTOFUSE_TRY(free_space_.reserve(arena, free_space, config.map, working_width, working_height));
+  }
   OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
   return ok_status();
 }
@@ -250,6 +266,7 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   frame_index_ = 0;
   frames_lost_ = 0;
   priors_rejected_ = 0;
+  map_version_ = 0;
   initialised_ = true;
   return ok_status();
 }
@@ -437,11 +454,27 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   budget.max_new_blocks = config_.budget.max_new_blocks;
   budget.max_integrated_blocks = config_.budget.max_integrated_blocks;
   budget.max_voxel_updates = config_.budget.max_voxel_updates;
-  stats.integration =
-      integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
-                            static_cast<std::uint32_t>(stats.frame_index), budget, team_);
-  const std::int64_t t_integrated = clock_.now();
+  std::int64_t t_integrated = 0;
+  std::int64_t t_carved = 0;
+  {
+    // Queries from other threads wait here, and see the map before or after this frame.
+    ExclusiveHold hold(guard_);
+    stats.integration =
+        integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
+                              static_cast<std::uint32_t>(stats.frame_index), budget, team_);
+    t_integrated = clock_.now();
+    const Status fused = stats.integration.status;
+    // 4b. Free space seen by this frame (after the TSDF, which takes precedence in its band).
+    if (config_.free_space.enabled &&
+        (fused.ok() || fused.code() == StatusCode::resource_exhausted)) {
+      stats.free_space = free_space_.carve(preprocessor_.pyramid().depth_m[0], working_camera_,
+                                           T_W_C_, static_cast<std::uint32_t>(stats.frame_index));
+    }
+    ++map_version_;
+    t_carved = clock_.now();
+  }
   stats.times.integrate_ms = elapsed_ms(t_tracked, t_integrated);
+  stats.times.free_space_ms = elapsed_ms(t_integrated, t_carved);
   const Status integration_status = stats.integration.status;
   if (!integration_status.ok() && integration_status.code() != StatusCode::resource_exhausted) {
     return finish(result, integration_status);
@@ -451,7 +484,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   // Guided by the depth just fused from this pose: most rays start in the band in front of it.
   const Result<RaycastStats> raycast =
       raycaster_.raycast(map_, working_camera_, T_W_C_, team_, preprocessor_.pyramid().depth_m[0]);
-  stats.times.raycast_ms = elapsed_ms(t_integrated, clock_.now());
+  stats.times.raycast_ms = elapsed_ms(t_carved, clock_.now());
   if (!raycast.ok()) return finish(result, raycast.status());
   stats.raycast = raycast.value();
   T_W_Cref_ = T_W_C_;

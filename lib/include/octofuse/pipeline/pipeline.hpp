@@ -1,7 +1,8 @@
 #pragma once
 // The per-frame loop of the paper's section 3: validate -> pre-process -> track -> integrate ->
-// ray-cast, over one caller-provided buffer of bytes_required(config) bytes. After init(),
-// process() performs no heap allocation and its work is bounded by the budgets in the config.
+// carve free space -> ray-cast, over one caller-provided buffer of bytes_required(config) bytes.
+// After init(), process() performs no heap allocation and its work is bounded by the budgets in the
+// config.
 //
 //   PipelineConfig config = ...;
 //   std::size_t bytes = bytes_required(config);
@@ -33,7 +34,15 @@
 // iterations per level; (2) fusion stops allocating new blocks beyond max_new_blocks (farthest
 // first); (3) over max_voxel_updates, far blocks integrate one scale coarser, then are skipped;
 // (4) beyond max_integrated_blocks the farthest blocks are skipped; (5) ray-casting leaves
-// pixels invalid when its step budget runs out. Each hit is reported in FrameStats.
+// pixels invalid when its step budget runs out; (6) free-space carving stops at its node visit
+// and allocation budgets (FreeSpaceConfig), leaving octants it did not reach as they were. Each
+// hit is reported in FrameStats.
+//
+// Queries while mapping: query() answers from any thread while process() runs on another.
+// process() holds the map's guard (query/map_guard.hpp) exclusively over integration and carving
+// only, and every query holds it shared, so an answer always reflects the map after a whole frame
+// (PointAnswer::map_version counts the frames fused), and process() waits for readers at most the
+// longest query in flight (bounded by QueryLimits::max_visits, see query/map_query.hpp).
 
 #include <cstddef>
 #include <cstdint>
@@ -49,6 +58,9 @@
 #include "octofuse/math/camera.hpp"
 #include "octofuse/math/se3.hpp"
 #include "octofuse/pipeline/clock.hpp"
+#include "octofuse/query/free_space.hpp"
+#include "octofuse/query/map_guard.hpp"
+#include "octofuse/query/map_query.hpp"
 #include "octofuse/render/raycaster.hpp"
 #include "octofuse/sensor/depth_frame.hpp"
 #include "octofuse/sensor/frame_validator.hpp"
@@ -86,6 +98,8 @@ struct PipelineConfig {
   FusionConfig fusion;
   TrackConfig track;
   PipelineBudget budget;
+  // Free space carved after integration (query/free_space.hpp); its budgets are step (6).
+  FreeSpaceConfig free_space;
   int workers = 1;
   PoseSource pose_source = PoseSource::track;
   bool initial_pose_from_ground_truth = true;
@@ -124,6 +138,7 @@ struct StageTimes {
   double preprocess_ms = 0.0;
   double track_ms = 0.0;
   double integrate_ms = 0.0;
+  double free_space_ms = 0.0;
   double raycast_ms = 0.0;
   double total_ms = 0.0;
 };
@@ -158,6 +173,7 @@ struct FrameStats {
   TrackReport track;  // meaningful when a track was attempted
   bool track_attempted = false;
   IntegrationReport integration;  // meaningful when integrated
+  FreeSpaceReport free_space;     // meaningful when integrated with free space enabled
   RaycastStats raycast;
   bool budget_icp_hit = false;  // ICP stopped by its iteration budget on some level
   MapMemory memory;
@@ -168,7 +184,8 @@ struct FrameStats {
   double prior_gap_m = 0.0;     // |ICP - prediction| translation, when both exist
   double prior_gap_rad = 0.0;   // and rotation angle
   bool any_budget_hit() const {
-    return budget_icp_hit || integration.budget_hit || raycast.budget_hit();
+    return budget_icp_hit || integration.budget_hit || raycast.budget_hit() ||
+           free_space.budget_hit;
   }
 };
 
@@ -207,6 +224,15 @@ class Pipeline {
   const Se3d& T_W_C() const { return T_W_C_; }
   const Map& map() const { return map_; }
   Map& map() { return map_; }
+  // The free space carved so far (reserved only when config.free_space.enabled).
+  const FreeSpace& free_space() const { return free_space_; }
+  // Point and region queries over the map and its free space, safe to call from other threads
+  // while process() runs (see the top of this file). Valid while the pipeline lives.
+  MapQuery<VoxelT> query() const {
+    return MapQuery<VoxelT>(map_, config_.free_space.enabled ? &free_space_ : nullptr,
+                            config_.fusion.mu_m, &guard_, &map_version_);
+  }
+  const MapGuard& guard() const { return guard_; }
   const PipelineConfig& config() const { return config_; }
   const WorkerTeam& team() const { return team_; }
   // The last ray-cast (world frame) and its scale image, at the working resolution.
@@ -241,6 +267,9 @@ class Pipeline {
   Map map_;
   Integrator<VoxelT> integrator_;
   Raycaster<VoxelT> raycaster_;
+  FreeSpace free_space_;
+  MapGuard guard_;
+  std::uint64_t map_version_ = 0;  // frames fused; written under guard_
   PinholeCamera working_camera_;
   Se3d T_W_C_ = Se3d::Identity();
   Se3d T_W_Cref_ = Se3d::Identity();    // pose of the current ray-cast reference

@@ -1,0 +1,246 @@
+#pragma once
+// Free space at adaptive resolution: what each frame saw through, stored at the coarsest octant
+// that was entirely free (one node for a metre of empty air, not 512 voxels per block).
+//
+// Architecture. The TSDF octree (map/octree.hpp) only holds the band of +-mu around surfaces; the
+// space the camera looked through is recorded here, in a second, sparse octree over the same
+// cube whose nodes come from a fixed pool carved from the arena at reserve(). It is kept apart
+// from the TSDF octree so that ray-casting's empty-space skipping, the block pool and the TSDF
+// octree's node layout stay as they are. Its leaves are at the TSDF octree's block level: below
+// that the blocks' TSDF already says what is where.
+//
+// A node holds a capped count of frames that saw its whole octant free and the index of the last
+// such frame. Reading: a point is free when some node on its root-to-leaf path has
+// free_count >= 1 (the first such node from the root is the free octant). Carving, once per
+// integrated frame (carve()):
+//   1. a min/max pyramid of the working-resolution depth (tiles of 2^l x 2^l pixels, invalid
+//      pixels 0 in both: a min of 0 forbids "free", a max of 0 says nothing is there);
+//   2. a depth-first walk from the root in child order. Each octant, grown by `margin_m` on every
+//      side, is projected (8 corners, + 1 pixel) and compared with the pyramid tiles covering it:
+//      - in the image, every corner in front of the camera and its far corner nearer than
+//        (min observed depth in the tiles - clearance_m): observed free. The count goes up
+//        (capped at max_free_count) and the walk does not descend;
+//      - outside the image, behind the camera, or its near corner beyond the farthest observed
+//        depth in the tiles: not seen; unchanged;
+//      - entirely behind the observed depth but by less than occlusion_clear_m: occluded. Free
+//        nodes there are handed down and cleared like below, without allocating new ones;
+//      - otherwise (a surface, an invalid pixel or the image border inside it) the walk descends.
+//        A free node first hands its count and frame down to its 8 children (allocating them)
+//        and becomes 0, so what this frame saw inside it decides each child; a leaf that is not
+//        entirely free becomes 0 (a surface appearing in free space clears it).
+//   Because the octant is grown by margin_m before the test, every observed surface lies at least
+//   margin_m outside any octant marked free in that frame: the distance bound of a free point is
+//   margin_m + its distance to the free octant's faces.
+//   Missing children are allocated only when they turn out free or need a descent.
+//
+// Healing: a surface seen later clears the free nodes around it (above), and the TSDF of a block
+// integrated after its octant was last seen free wins over the free state; a block whose octant
+// was seen free after its last integration (the object there moved away) reads free.
+//
+// Budgets: the walk visits at most max_node_visits octants and allocates at most max_new_nodes
+// nodes per frame; past them it stops descending (octants not reached keep their state) and the
+// report says so. This is step (6) of the pipeline's degradation order. The walk is serial and
+// in a fixed order, so the result does not depend on the worker count.
+//
+// Threading: carve() and clear() must not overlap reads (the pipeline's MapGuard orders them).
+
+#include <cstddef>
+#include <cstdint>
+#include <type_traits>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/core/pool.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/image/image_view.hpp"
+#include "octofuse/map/map_config.hpp"
+#include "octofuse/math/camera.hpp"
+#include "octofuse/math/se3.hpp"
+
+namespace octofuse {
+
+struct FreeSpaceConfig {
+  bool enabled = true;
+  // Nodes in the free-space pool (the root included); 0 = the TSDF map's node_capacity.
+  std::uint32_t node_capacity = 0;
+  std::uint32_t max_node_visits = 1u << 18;  // per frame
+  std::uint32_t max_new_nodes = 1u << 16;    // per frame
+  // Each octant is grown by this much before it is tested (0 = one finest voxel).
+  float margin_m = 0.0f;
+  // An octant is free only when it lies this far in front of the observed depth (0 = half the
+  // TSDF truncation, set by the pipeline): depth noise must not carve into the surface.
+  float clearance_m = 0.0f;
+  // Free octants less than this behind the observed depth are cleared although the frame does
+  // not see into them (0 = 4 mu, set by the pipeline): an object that appears where free space
+  // was recorded clears it this deep behind its visible surface. Deeper parts of such an object
+  // stay free until seen from elsewhere (a known limit).
+  float occlusion_clear_m = 0.0f;
+  std::uint8_t max_free_count = 8;
+  // Side of the smallest octant carved, in finest voxels: 8 (a block), 4 or 2. Smaller octants
+  // fit more of the view's edges and the air just in front of surfaces, for more node visits.
+  int finest_octant_voxels = 8;
+  // Octants nearer than this to the camera plane are not tested (projection degenerates).
+  float near_m = 0.05f;
+};
+
+// ok, or invalid_argument for a negative or non-finite margin/clearance/occlusion/near,
+// max_free_count 0, finest_octant_voxels not 2, 4 or 8,
+// or a zero visit budget.
+Status validate(const FreeSpaceConfig& config);
+
+struct FreeNode {
+  std::uint32_t children[8] = {0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu,
+                               0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu};
+  std::uint32_t free_frame = 0;  // frame index of the last frame that saw the octant free
+  std::uint8_t free_count = 0;   // frames that saw it free, capped; 0 = not known free
+  std::uint8_t padding_[3] = {};
+};
+
+struct FreeSpaceReport {
+  std::uint32_t node_visits = 0;
+  std::uint32_t new_nodes = 0;
+  std::uint32_t marked_free = 0;  // octants marked free this frame
+  std::uint32_t cleared = 0;      // free octants handed down or cleared
+  std::uint32_t refused = 0;      // node allocations refused (pool full or budget)
+  bool budget_hit = false;        // visits or allocations ran out
+  std::uint32_t nodes_used = 0;   // after this frame
+  std::size_t bytes_used = 0;     // nodes_used * sizeof(FreeNode)
+};
+
+// The free octant containing a point, as found by FreeSpace::find().
+struct FreeOctant {
+  bool free = false;
+  std::uint32_t free_frame = 0;
+  int level = -1;                                       // tree level (root 0)
+  Eigen::Vector3i min_voxel = Eigen::Vector3i::Zero();  // finest-voxel corner
+  int size_voxels = 0;
+};
+
+class FreeSpace {
+ public:
+  static constexpr std::uint32_t kNoNode = 0xFFFFFFFFu;
+  // The walk's stack: at most 8 pending siblings per level.
+  static constexpr int kStackCapacity = 8 * (kMaxVoxelDepth + 2);
+
+  // Carves the pool and the depth pyramid (for `width` x `height` working images) from `arena`.
+  // invalid_argument: bad config or map config; resource_exhausted: the arena is too small.
+  template <typename Arena>
+  Status reserve(Arena& arena, const FreeSpaceConfig& config, const MapConfig& map, int width,
+                 int height);
+
+  // Bytes reserve() takes for this config (0 if invalid).
+  static std::size_t bytes_required(const FreeSpaceConfig& config, const MapConfig& map, int width,
+                                    int height) {
+    ArenaSizer sizer;
+    FreeSpace probe;
+    if (!probe.reserve(sizer, config, map, width, height).ok()) return 0;
+    return sizer.bytes_used();
+  }
+
+  bool reserved() const { return reserved_; }
+  void clear();
+
+  // Records what `depth_m` (working resolution, metres, 0 invalid) seen from T_W_C with
+  // `camera` shows free. `frame` is the pipeline's frame index. Never allocates.
+  FreeSpaceReport carve(ImageView<const float> depth_m, const PinholeCamera& camera,
+                        const Se3d& T_W_C, std::uint32_t frame);
+
+  // The free octant containing finest voxel `voxel` (inside the cube), or free = false.
+  FreeOctant find(const Eigen::Vector3i& voxel) const;
+
+  const FreeSpaceConfig& config() const { return config_; }
+  const MapConfig& map_config() const { return map_; }
+  float margin_m() const { return margin_m_; }
+  // Level of the smallest octants (the blocks' level for finest_octant_voxels 8).
+  int leaf_level() const { return leaf_level_; }
+  std::uint32_t node_count() const { return nodes_.used(); }
+  std::uint32_t node_capacity() const { return nodes_.capacity(); }
+  const FreeNode& node(std::uint32_t index) const { return nodes_[index]; }
+  std::size_t bytes_used() const { return sizeof(FreeNode) * nodes_.used(); }
+  std::size_t bytes_reserved() const { return bytes_reserved_; }
+
+ private:
+  enum class Seen : std::uint8_t { free, not_seen, partial, occluded };
+  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels) const;
+  void build_pyramid(ImageView<const float> depth_m);
+  void tile_range(int level, int u0, int v0, int u1, int v1, float& lo, float& hi) const;
+
+  FreeSpaceConfig config_;
+  MapConfig map_;
+  IndexPool<FreeNode> nodes_;
+  // Depth min/max pyramid: level l is ceil(w / 2^l) x ceil(h / 2^l), stored back to back.
+  static constexpr int kMaxPyramidLevels = 16;
+  float* depth_min_ = nullptr;
+  float* depth_max_ = nullptr;
+  int level_count_ = 0;
+  int level_width_[kMaxPyramidLevels] = {};
+  int level_height_[kMaxPyramidLevels] = {};
+  std::size_t level_offset_[kMaxPyramidLevels] = {};
+  int width_ = 0;
+  int height_ = 0;
+  float margin_m_ = 0.0f;
+  float clearance_m_ = 0.0f;
+  float occlusion_clear_m_ = 0.0f;
+  int leaf_level_ = 0;
+  // Per-frame projection (set by carve()).
+  Eigen::Matrix3f R_C_W_ = Eigen::Matrix3f::Identity();
+  Eigen::Vector3f t_C_W_ = Eigen::Vector3f::Zero();
+  PinholeCamera camera_;
+  std::size_t bytes_reserved_ = 0;
+  bool reserved_ = false;
+};
+
+template <typename Arena>
+Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const MapConfig& map,
+                          int width, int height) {
+  OCTOFUSE_TRY(validate(config));
+  OCTOFUSE_TRY(validate(map));
+  if (width < 1 || height < 1) return StatusCode::invalid_argument;
+  const std::size_t start = arena.bytes_used();
+  OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
+  const std::uint32_t capacity =
+      config.node_capacity != 0 ? config.node_capacity : map.node_capacity;
+  OCTOFUSE_TRY(nodes_.reserve(arena, capacity));
+  std::size_t total = 0;
+  int levels = 0;
+  int w = width;
+  int h = height;
+  for (;;) {
+    if (levels == kMaxPyramidLevels) return StatusCode::invalid_argument;
+    level_width_[levels] = w;
+    level_height_[levels] = h;
+    level_offset_[levels] = total;
+    total += static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
+    ++levels;
+    if (w == 1 && h == 1) break;
+    w = (w + 1) / 2;
+    h = (h + 1) / 2;
+  }
+  Result<float*> lo = arena.template allocate_array<float>(total, kArenaAlignment);
+  OCTOFUSE_TRY(lo);
+  Result<float*> hi = arena.template allocate_array<float>(total, kArenaAlignment);
+  OCTOFUSE_TRY(hi);
+  OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
+  depth_min_ = lo.value();
+  depth_max_ = hi.value();
+  level_count_ = levels;
+  width_ = width;
+  height_ = height;
+  config_ = config;
+  map_ = map;
+  margin_m_ = config.margin_m > 0.0f ? config.margin_m : map.voxel_size_m;
+  clearance_m_ = config.clearance_m;
+  occlusion_clear_m_ = config.occlusion_clear_m;
+  leaf_level_ = map.block_level() + (config.finest_octant_voxels == 8   ? 0
+                                     : config.finest_octant_voxels == 4 ? 1
+                                                                        : 2);
+  bytes_reserved_ = arena.bytes_used() - start;
+  if constexpr (!std::is_same_v<Arena, ArenaSizer>) {
+    reserved_ = true;
+    clear();
+  }
+  return ok_status();
+}
+
+}  // namespace octofuse

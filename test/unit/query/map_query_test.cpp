@@ -1,0 +1,328 @@
+// Free space and map queries on an analytic scene: a wall at z = 2 m in front of a camera at the
+// origin looking along +z, fused with exact depth. Every expected answer follows from that
+// geometry.
+#include "octofuse/query/map_query.hpp"
+
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <vector>
+
+#include <catch2/catch.hpp>
+
+#include "octofuse/fusion/integrator.hpp"
+#include "octofuse/query/free_space.hpp"
+#include "unit/fusion/analytic_scene.hpp"
+#include "unit/map/arena_buffer.hpp"
+
+namespace octofuse {
+namespace {
+
+using test::AnalyticScene;
+
+constexpr float kVoxel_m = 0.02f;
+constexpr float kMu_m = 0.1f;
+constexpr double kWall_m = 2.0;
+// Interpolated signed distance next to a plane fused head-on: within half a voxel.
+constexpr float kDistanceTolerance_m = 0.5f * kVoxel_m;
+
+PinholeCamera small_camera() {
+  PinholeCamera c;
+  c.width = 160;
+  c.height = 120;
+  c.fx = c.fy = 120.0f;
+  c.cx = 79.5f;
+  c.cy = 59.5f;
+  return c;
+}
+
+AnalyticScene wall_at(double z_m) {
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0.0, 0.0, 1.0), z_m});
+  return scene;
+}
+
+// A multires map, an integrator and the free space over one arena; each fuse() integrates and
+// carves one frame, as the pipeline does.
+struct Mapper {
+  explicit Mapper(FreeSpaceConfig free_config = FreeSpaceConfig())
+      : camera(small_camera()),
+        map_config(
+            MapConfig::centred(Eigen::Vector3f(0.0f, 0.0f, 1.5f), kVoxel_m, 8, 20000, 20000)),
+        fusion([] {
+          FusionConfig c;
+          c.mu_m = kMu_m;
+          c.far_m = 6.0f;
+          c.max_blocks_per_frame = 1u << 15;
+          return c;
+        }()),
+        buffer(Octree<MultiresVoxel>::bytes_required(map_config) +
+               Integrator<MultiresVoxel>::bytes_required(fusion, camera.width, camera.height) +
+               FreeSpace::bytes_required(with_defaults(free_config), map_config, camera.width,
+                                         camera.height)) {
+    REQUIRE(map.reserve(buffer.arena(), map_config).ok());
+    REQUIRE(integrator.reserve(buffer.arena(), fusion, camera.width, camera.height).ok());
+    REQUIRE(free_space
+                .reserve(buffer.arena(), with_defaults(free_config), map_config, camera.width,
+                         camera.height)
+                .ok());
+    REQUIRE(buffer.arena().bytes_used() == buffer.bytes());
+  }
+  static FreeSpaceConfig with_defaults(FreeSpaceConfig c) {
+    c.clearance_m = 0.5f * kMu_m;
+    c.occlusion_clear_m = 4.0f * kMu_m;
+    return c;
+  }
+
+  FreeSpaceReport fuse(const AnalyticScene& scene, const Se3d& T_W_C = Se3d::Identity(),
+                       int workers = 1) {
+    scene.render(camera, T_W_C, depth);
+    ImageView<const float> view(depth.data(), camera.width, camera.height);
+    WorkerTeam team(workers);
+    const IntegrationReport fused =
+        integrator.integrate(map, view, camera, T_W_C, frame, FusionBudget(), team);
+    REQUIRE(fused.status.ok());
+    return free_space.carve(view, camera, T_W_C, frame++);
+  }
+  MapQuery<MultiresVoxel> query() const { return MapQuery<MultiresVoxel>(map, &free_space, kMu_m); }
+
+  PinholeCamera camera;
+  MapConfig map_config;
+  FusionConfig fusion;
+  test::ArenaBuffer buffer;
+  Octree<MultiresVoxel> map;
+  Integrator<MultiresVoxel> integrator;
+  FreeSpace free_space;
+  std::vector<float> depth;
+  std::uint32_t frame = 0;
+};
+
+PointAnswer ask(const Mapper& m, float x, float y, float z) {
+  const Result<PointAnswer> a = m.query().point(Eigen::Vector3f(x, y, z));
+  REQUIRE(a.ok());
+  return a.value();
+}
+
+RegionState box_state(const Mapper& m, const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) {
+  const Result<RegionAnswer> a = m.query().box(lo, hi);
+  REQUIRE(a.ok());
+  REQUIRE(!a.value().budget_hit);
+  return a.value().state;
+}
+
+TEST_CASE("free space: air between the camera and a wall is free at a coarse octant") {
+  Mapper m;
+  const FreeSpaceReport report = m.fuse(wall_at(kWall_m));
+  REQUIRE(report.marked_free > 0);
+  REQUIRE(!report.budget_hit);
+
+  const Eigen::Vector3f p_W(0.0f, 0.0f, 1.0f);
+  const FreeOctant octant = m.free_space.find(m.map.point_to_voxel(p_W));
+  REQUIRE(octant.free);
+  // Coarser than a block: a 16 cm block is level 5 here, the octant at least 32 cm.
+  REQUIRE(octant.level < m.free_space.leaf_level());
+  REQUIRE(octant.size_voxels >= 16);
+
+  const PointAnswer a = ask(m, 0.0f, 0.0f, 1.0f);
+  REQUIRE(a.state == PointState::free);
+  // A lower bound: positive, and not beyond the true 1 m to the wall.
+  REQUIRE(a.distance_m > 0.0f);
+  REQUIRE(a.distance_m <= 1.0f);
+  // Nothing within a voxel of the wall reads free.
+  for (float z = 0.3f; z < 2.5f; z += 0.01f) {
+    const PointAnswer b = ask(m, 0.05f, -0.03f, z);
+    if (b.state == PointState::free) REQUIRE(z < kWall_m - kVoxel_m);
+  }
+}
+
+TEST_CASE("points near the wall are near with the signed distance, behind it never free") {
+  Mapper m;
+  for (int i = 0; i < 3; ++i) m.fuse(wall_at(kWall_m));
+  for (float d : {0.06f, 0.03f, 0.01f, -0.02f, -0.05f}) {
+    const PointAnswer a = ask(m, 0.01f, 0.02f, static_cast<float>(kWall_m) - d);
+    REQUIRE(a.state == PointState::near);
+    REQUIRE(a.distance_m == Approx(d).margin(kDistanceTolerance_m));
+    REQUIRE(a.has_gradient);
+    // The distance grows towards the camera (-z).
+    REQUIRE(a.gradient.z() < -0.8f);
+  }
+  for (float z : {2.2f, 2.6f, 3.5f}) {
+    const PointAnswer a = ask(m, 0.0f, 0.0f, z);
+    REQUIRE((a.state == PointState::inside || a.state == PointState::unknown));
+  }
+  REQUIRE(ask(m, 0.0f, 0.0f, 10.0f).state == PointState::outside);
+  REQUIRE(ask(m, 0.0f, 0.0f, -5.0f).state == PointState::outside);
+  // Beside the view: never seen.
+  REQUIRE(ask(m, 2.0f, 0.0f, 1.0f).state == PointState::unknown);
+}
+
+TEST_CASE("boxes, spheres and swept spheres: free only when every part is seen free") {
+  Mapper m;
+  for (int i = 0; i < 3; ++i) m.fuse(wall_at(kWall_m));
+  // In the air in front of the wall.
+  REQUIRE(box_state(m, Eigen::Vector3f(-0.2f, -0.2f, 0.9f), Eigen::Vector3f(0.2f, 0.2f, 1.4f)) ==
+          RegionState::free);
+  // Straddling the wall.
+  REQUIRE(box_state(m, Eigen::Vector3f(-0.1f, -0.1f, 1.9f), Eigen::Vector3f(0.1f, 0.1f, 2.1f)) ==
+          RegionState::blocked);
+  // Touching the wall's near side only through its last centimetre.
+  REQUIRE(box_state(m, Eigen::Vector3f(-0.1f, -0.1f, 1.5f), Eigen::Vector3f(0.1f, 0.1f, 1.995f)) ==
+          RegionState::blocked);
+  // Sticking out of the view at the side.
+  REQUIRE(box_state(m, Eigen::Vector3f(0.3f, -0.1f, 0.9f), Eigen::Vector3f(1.5f, 0.1f, 1.1f)) ==
+          RegionState::unknown);
+  // Partly outside the cube.
+  REQUIRE(box_state(m, Eigen::Vector3f(-0.1f, -0.1f, 1.0f), Eigen::Vector3f(0.1f, 0.1f, 9.0f)) !=
+          RegionState::free);
+
+  const MapQuery<MultiresVoxel> q = m.query();
+  REQUIRE(q.sphere(Eigen::Vector3f(0.0f, 0.0f, 1.2f), 0.2f).value().state == RegionState::free);
+  REQUIRE(q.sphere(Eigen::Vector3f(0.0f, 0.0f, 1.85f), 0.2f).value().state == RegionState::blocked);
+  // A path step towards the wall ending 5 cm short of it, with a 10 cm radius: blocked.
+  REQUIRE(
+      q.swept_sphere(Eigen::Vector3f(0.0f, 0.0f, 1.0f), Eigen::Vector3f(0.0f, 0.0f, 1.95f), 0.1f)
+          .value()
+          .state == RegionState::blocked);
+  REQUIRE(q.swept_sphere(Eigen::Vector3f(0.0f, 0.0f, 0.8f), Eigen::Vector3f(0.1f, 0.0f, 1.3f), 0.1f)
+              .value()
+              .state == RegionState::free);
+  // Through unseen space beside the view.
+  REQUIRE(q.swept_sphere(Eigen::Vector3f(0.0f, 0.0f, 1.0f), Eigen::Vector3f(2.0f, 0.0f, 1.0f), 0.1f)
+              .value()
+              .state == RegionState::unknown);
+  // A visit limit that binds answers unknown and says so.
+  QueryLimits tiny;
+  tiny.max_visits = 3;
+  const RegionAnswer capped =
+      q.box(Eigen::Vector3f(-0.1f, -0.1f, 1.9f), Eigen::Vector3f(0.1f, 0.1f, 2.1f), tiny).value();
+  REQUIRE(capped.budget_hit);
+  REQUIRE(capped.state == RegionState::unknown);
+  REQUIRE(capped.visits == 3);
+}
+
+TEST_CASE("a wall that moves away heals: its old place reads free, the new wall near") {
+  Mapper m;
+  for (int i = 0; i < 3; ++i) m.fuse(wall_at(kWall_m));
+  REQUIRE(ask(m, 0.0f, 0.0f, 2.0f).state == PointState::near);
+  for (int i = 0; i < 2; ++i) m.fuse(wall_at(3.0));
+  REQUIRE(ask(m, 0.0f, 0.0f, 2.0f).state == PointState::free);
+  REQUIRE(box_state(m, Eigen::Vector3f(-0.1f, -0.1f, 1.9f), Eigen::Vector3f(0.1f, 0.1f, 2.1f)) ==
+          RegionState::free);
+  const PointAnswer a = ask(m, 0.0f, 0.0f, 2.97f);
+  REQUIRE(a.state == PointState::near);
+  REQUIRE(a.distance_m == Approx(0.03f).margin(kDistanceTolerance_m));
+}
+
+TEST_CASE("a wall that appears in free space overrides it") {
+  Mapper m;
+  for (int i = 0; i < 2; ++i) m.fuse(wall_at(3.0));
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.5f).state == PointState::free);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.6f).state == PointState::free);
+  const FreeSpaceReport report = m.fuse(wall_at(1.5));
+  REQUIRE(report.cleared > 0);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.5f).state == PointState::near);
+  // Just behind the new wall, within the cleared depth: no longer free.
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.65f).state != PointState::free);
+  REQUIRE(box_state(m, Eigen::Vector3f(-0.1f, -0.1f, 1.4f), Eigen::Vector3f(0.1f, 0.1f, 1.6f)) ==
+          RegionState::blocked);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.0f).state == PointState::free);
+}
+
+TEST_CASE("carving is bit-identical for 1 and 2 workers and stays within its budgets") {
+  Mapper one;
+  Mapper two;
+  AnalyticScene scene = wall_at(kWall_m);
+  scene.spheres.push_back({Eigen::Vector3d(0.2, 0.1, 1.4), 0.15});
+  for (int i = 0; i < 4; ++i) {
+    Se3d T_W_C = Se3d::Identity();
+    T_W_C.translation() = Eigen::Vector3d(0.05 * i, -0.02 * i, 0.1 * i);
+    one.fuse(scene, T_W_C, 1);
+    two.fuse(scene, T_W_C, 2);
+  }
+  REQUIRE(one.free_space.node_count() == two.free_space.node_count());
+  REQUIRE(one.free_space.node_count() > 1);
+  for (std::uint32_t i = 0; i < one.free_space.node_count(); ++i) {
+    REQUIRE(std::memcmp(&one.free_space.node(i), &two.free_space.node(i), sizeof(FreeNode)) == 0);
+  }
+
+  FreeSpaceConfig tight;
+  tight.max_node_visits = 50;
+  tight.max_new_nodes = 10;
+  Mapper capped(tight);
+  const FreeSpaceReport report = capped.fuse(scene);
+  REQUIRE(report.budget_hit);
+  REQUIRE(report.node_visits <= 50);
+  REQUIRE(report.new_nodes <= 10);
+  REQUIRE(capped.free_space.node_count() <= 11);
+}
+
+TEST_CASE("octants down to 2 voxels carve closer to the view's edges, and no closer to the wall") {
+  FreeSpaceConfig fine_config;
+  fine_config.finest_octant_voxels = 2;
+  Mapper fine(fine_config);
+  Mapper coarse;
+  fine.fuse(wall_at(kWall_m));
+  coarse.fuse(wall_at(kWall_m));
+  REQUIRE(fine.free_space.leaf_level() == coarse.free_space.leaf_level() + 2);
+  int fine_free = 0;
+  int coarse_free = 0;
+  for (float z = 0.5f; z < 2.3f; z += 0.02f) {
+    for (float y = -0.6f; y <= 0.6f; y += 0.05f) {
+      const PointAnswer f = ask(fine, 0.03f, y, z);
+      const PointAnswer c = ask(coarse, 0.03f, y, z);
+      if (f.state == PointState::free) {
+        ++fine_free;
+        REQUIRE(z < kWall_m - kVoxel_m);
+      }
+      if (c.state == PointState::free) ++coarse_free;
+      // Whatever the coarse octants call free, the fine ones do too.
+      if (c.state == PointState::free) REQUIRE(f.state == PointState::free);
+    }
+  }
+  REQUIRE(fine_free > coarse_free);
+  REQUIRE(box_state(fine, Eigen::Vector3f(-0.1f, -0.1f, 1.9f), Eigen::Vector3f(0.1f, 0.1f, 2.1f)) ==
+          RegionState::blocked);
+  REQUIRE(box_state(fine, Eigen::Vector3f(-0.2f, -0.2f, 0.9f), Eigen::Vector3f(0.2f, 0.2f, 1.4f)) ==
+          RegionState::free);
+  FreeSpaceConfig bad;
+  bad.finest_octant_voxels = 3;
+  REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
+}
+
+TEST_CASE("bad arguments get invalid_argument") {
+  Mapper m;
+  m.fuse(wall_at(kWall_m));
+  const MapQuery<MultiresVoxel> q = m.query();
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const float inf = std::numeric_limits<float>::infinity();
+  const Eigen::Vector3f p(0.0f, 0.0f, 1.0f);
+  REQUIRE(q.point(Eigen::Vector3f(nan, 0.0f, 1.0f)).status().code() ==
+          StatusCode::invalid_argument);
+  REQUIRE(q.box(p, Eigen::Vector3f(inf, 1.0f, 1.0f)).status().code() ==
+          StatusCode::invalid_argument);
+  REQUIRE(q.box(p, p - Eigen::Vector3f::Constant(0.1f)).status().code() ==
+          StatusCode::invalid_argument);
+  REQUIRE(q.sphere(p, -0.1f).status().code() == StatusCode::invalid_argument);
+  REQUIRE(q.sphere(p, nan).status().code() == StatusCode::invalid_argument);
+  REQUIRE(q.swept_sphere(p, Eigen::Vector3f(0.0f, nan, 0.0f), 0.1f).status().code() ==
+          StatusCode::invalid_argument);
+  QueryLimits none;
+  none.max_visits = 0;
+  REQUIRE(q.sphere(p, 0.1f, none).status().code() == StatusCode::invalid_argument);
+
+  FreeSpaceConfig bad;
+  bad.margin_m = -1.0f;
+  REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
+  bad = FreeSpaceConfig();
+  bad.clearance_m = nan;
+  REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
+  bad = FreeSpaceConfig();
+  bad.max_free_count = 0;
+  REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
+  REQUIRE(validate(FreeSpaceConfig()).ok());
+  // A zero sphere is a point: free in the air.
+  REQUIRE(q.sphere(p, 0.0f).value().state == RegionState::free);
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -45,6 +45,8 @@ void print_run_usage(const char* program, const char* default_source) {
       "                       finest: the finest scale it was fused at (static scenes)\n"
       "  --write-frames       also write DIR/frames/render_NNNNNN.png for every frame\n"
       "  --quiet              no progress line\n"
+      "  --serve ADDR:PORT    live view in a browser at http://ADDR:PORT/ (PORT alone: 127.0.0.1;\n"
+      "                       another address, such as 0.0.0.0, opens it to the network)\n"
       "  --config FILE        read options from FILE: one 'key = value' a line, the key an option\n"
       "                       without '--', flags true or false, '#' starts a comment line;\n"
       "                       options on the command line override the file\n"
@@ -345,6 +347,16 @@ const RunOption kRunOptions[] = {
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(!o.progress, v); }},
+    {"serve", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs PORT or ADDR:PORT");
+       o.serve = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.serve;
+       return !o.serve.empty();
+     }},
 };
 
 const RunOption* find_run_option(const std::string& name) {

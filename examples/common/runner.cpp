@@ -11,6 +11,7 @@
 #include <memory>
 #include <utility>
 
+#include "live_server.hpp"
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/json_writer.hpp"
 #include "octofuse/ports/host/ply.hpp"
@@ -189,6 +190,50 @@ bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, Err
       .ok();
 }
 
+// Fills the live view's snapshot from the run so far; `rgb` is the reused shading buffer.
+template <typename VoxelT>
+void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, long processed,
+                   double fps, std::vector<Rgb8>* rgb, LiveSnapshot* snapshot) {
+  const FrameStats& last = summary.frames.back();
+  snapshot->frame = processed;
+  snapshot->fps = fps;
+  snapshot->tracking = frame_result_name(last.result);
+  snapshot->map_bytes_used = last.memory.bytes_used;
+  snapshot->map_bytes_reserved = last.memory.bytes_reserved;
+  snapshot->blocks_used = last.memory.blocks_used;
+  snapshot->block_capacity = last.memory.block_capacity;
+  snapshot->stage_ms.clear();
+  const std::size_t frames = summary.frames.size();
+  const std::size_t first = frames > kLiveHistoryFrames ? frames - kLiveHistoryFrames : 0;
+  for (std::size_t i = first; i < frames; ++i) {
+    const StageTimes& t = summary.frames[i].times;
+    snapshot->stage_ms.push_back(static_cast<float>(t.validate_ms + t.preprocess_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.track_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.integrate_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.raycast_ms));
+  }
+  snapshot->trajectory_p_W.clear();
+  const std::size_t poses = summary.trajectory.size();
+  const std::size_t stride = (poses + kLiveTrajectoryPoints - 1) / kLiveTrajectoryPoints;
+  for (std::size_t i = 0; i < poses; i += std::max<std::size_t>(stride, 1)) {
+    const Eigen::Vector3d p_W = summary.trajectory[i].T_W_C.translation();
+    for (int k = 0; k < 3; ++k) snapshot->trajectory_p_W.push_back(static_cast<float>(p_W[k]));
+  }
+  const PinholeCamera& camera = pipeline.working_camera();
+  rgb->resize(static_cast<std::size_t>(camera.width) * camera.height);
+  ImageView<Rgb8> view(rgb->data(), camera.width, camera.height);
+  const Eigen::Vector3f light_W = pipeline.reference_T_W_C().translation().template cast<float>();
+  snapshot->width = 0;
+  snapshot->height = 0;
+  snapshot->rgb.clear();
+  if (shade_by_scale(pipeline.surface_W(), pipeline.scale_image(), light_W, view).ok()) {
+    snapshot->width = camera.width;
+    snapshot->height = camera.height;
+    const auto* bytes = reinterpret_cast<const std::uint8_t*>(rgb->data());
+    snapshot->rgb.assign(bytes, bytes + rgb->size() * sizeof(Rgb8));
+  }
+}
+
 template <typename VoxelT>
 int run_typed(const RunOptions& options, RunSummary* summary) {
   std::string error;
@@ -215,6 +260,17 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     trajectory_file = std::make_unique<host::TumTrajectoryWriter>();
     const std::string path = join(options.out_dir, "trajectory.txt");
     if (!trajectory_file->open(path.c_str()).ok()) return error_exit(trajectory_file->last_error());
+  }
+
+  std::unique_ptr<LiveServer> server;
+  LiveSnapshot snapshot;
+  std::vector<Rgb8> snapshot_rgb;
+  auto last_publish = std::chrono::steady_clock::now();
+  long frames_since_publish = 0;
+  if (!options.serve.empty()) {
+    server = LiveServer::start(options.serve, LiveServerLimits(), &error);
+    if (server == nullptr) return error_exit(error);
+    std::fprintf(stderr, "live view at %s\n", server->url().c_str());
   }
 
   Pipeline<VoxelT> pipeline;
@@ -309,6 +365,20 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       if ((processed == 1 && !make_dir(join(options.out_dir, "frames"))) ||
           !write_render(pipeline, join(options.out_dir, name), &png_error)) {
         return error_exit("cannot write " + join(options.out_dir, name));
+      }
+    }
+    if (server != nullptr) {
+      // At most 10 snapshots a second: shading and copying cost the loop about a millisecond.
+      ++frames_since_publish;
+      const auto now = std::chrono::steady_clock::now();
+      const double since_s = std::chrono::duration<double>(now - last_publish).count();
+      if (since_s >= 0.1) {
+        fill_snapshot(pipeline, *summary, processed,
+                      static_cast<double>(frames_since_publish) / since_s, &snapshot_rgb,
+                      &snapshot);
+        server->publish(snapshot);
+        frames_since_publish = 0;
+        last_publish = now;
       }
     }
     if (options.live_status) {

@@ -25,7 +25,8 @@ img { image-rendering: pixelated; min-width: 320px; min-height: 240px; backgroun
 <body>
 <h1>octofuse live</h1>
 <div id="status">tracking <span id="state">(waiting)</span> · frame <span id="frame">-</span> ·
-<span id="fps">-</span> fps · map <span id="memory">-</span></div>
+<span id="fps">-</span> fps · map <span id="memory">-</span>
+<button id="mesh" onclick="getMesh()">Mesh (PLY)</button></div>
 <div class="row">
 <div class="panel"><h2>Ray-cast, coloured by scale</h2><img id="render" alt="ray-cast">
 <div class="key"><span style="background:#d33"></span>0<span style="background:#3a3"></span>1
@@ -105,6 +106,28 @@ async function tick() {
     document.getElementById("state").textContent = "(no answer from the run)";
   }
   setTimeout(tick, 500);
+}
+async function getMesh() {
+  // The first request asks the run to mesh the map (202); the PLY comes with a later one.
+  const button = document.getElementById("mesh");
+  button.disabled = true;
+  button.textContent = "meshing...";
+  for (let i = 0; i < 600; i++) {
+    const r = await fetch("/mesh.ply", {cache: "no-store"});
+    if (r.status === 200) {
+      const blob = await r.blob();
+      const link = document.createElement("a");
+      link.href = URL.createObjectURL(blob);
+      link.download = "mesh.ply";
+      link.click();
+      button.textContent = "Mesh (PLY, last " + (blob.size / 1048576).toFixed(1) + " MB)";
+      button.disabled = false;
+      return;
+    }
+    await new Promise(done => setTimeout(done, 500));
+  }
+  button.textContent = "Mesh (PLY): no answer";
+  button.disabled = false;
 }
 document.getElementById("render").onload = function () {
   document.body.dataset.renderWidth = this.naturalWidth;

@@ -150,6 +150,35 @@ bool LiveServer::publish(const LiveSnapshot& snapshot) {
   return true;
 }
 
+void LiveServer::publish_mesh(std::string ply) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  mesh_ply_ = std::move(ply);
+  mesh_requested_.store(false);
+}
+
+std::string mesh_ply_bytes(const float* xyz, const std::uint8_t* scale, std::size_t vertex_count,
+                           const std::uint32_t* indices, std::size_t triangle_count) {
+  std::string out =
+      "ply\nformat binary_little_endian 1.0\nelement vertex " + std::to_string(vertex_count) +
+      "\nproperty float x\nproperty float y\nproperty float z\n"
+      "property uchar scale\nelement face " +
+      std::to_string(triangle_count) + "\nproperty list uchar uint vertex_indices\nend_header\n";
+  out.reserve(out.size() + vertex_count * 13 + triangle_count * 13);
+  auto put = [&out](const void* data, std::size_t bytes) {
+    out.append(static_cast<const char*>(data), bytes);  // hosts are little-endian (x86, ARM)
+  };
+  for (std::size_t v = 0; v < vertex_count; ++v) {
+    put(xyz + 3 * v, 3 * sizeof(float));
+    put(scale + v, 1);
+  }
+  const std::uint8_t three = 3;
+  for (std::size_t t = 0; t < triangle_count; ++t) {
+    put(&three, 1);
+    put(indices + 3 * t, 3 * sizeof(std::uint32_t));
+  }
+  return out;
+}
+
 void LiveServer::serve() {
   std::vector<Connection> connections;
   connections.reserve(static_cast<std::size_t>(limits_.max_connections));
@@ -266,6 +295,19 @@ std::string LiveServer::respond(const std::string& request) {
   if (method != "GET") return error_response("405 Method Not Allowed");
   if (path == "/") return http_response("200 OK", "text/html; charset=utf-8", live_page_html());
   if (path == "/state.json") return http_response("200 OK", "application/json", state_json());
+  if (path == "/mesh.ply") {
+    std::string ply;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      ply.swap(mesh_ply_);
+    }
+    if (ply.empty()) {
+      mesh_requested_.store(true);
+      return http_response("202 Accepted", "text/plain; charset=utf-8",
+                           "meshing the map: ask again\n");
+    }
+    return http_response("200 OK", "application/octet-stream", ply);
+  }
   if (path == "/render.bmp") {
     const std::string bmp = render_bmp();
     if (bmp.empty()) return error_response("404 Not Found");

@@ -58,6 +58,12 @@ class LiveServer {
   // false). Never blocks.
   bool publish(const LiveSnapshot& snapshot);
 
+  // The mesh on demand: a GET /mesh.ply sets the request (answer 202, ask again); the loop sees
+  // it after a frame, meshes the map (that frame takes longer, at the operator's request) and
+  // hands over the PLY bytes, which the next GET /mesh.ply takes.
+  bool mesh_requested() const { return mesh_requested_.load(); }
+  void publish_mesh(std::string ply);
+
   int open_connections() const { return open_connections_.load(); }
   std::uint64_t responses() const { return responses_.load(); }
   std::uint64_t refused() const { return refused_.load(); }  // over the connection cap
@@ -84,6 +90,9 @@ class LiveServer {
   LiveSnapshot serving_;  // the server thread's copy
   std::uint64_t serving_generation_ = 0;
 
+  std::atomic<bool> mesh_requested_{false};
+  std::string mesh_ply_;  // guarded by mutex_; empty: none ready
+
   std::atomic<int> open_connections_{0};
   std::atomic<std::uint64_t> responses_{0};
   std::atomic<std::uint64_t> refused_{0};
@@ -92,5 +101,10 @@ class LiveServer {
 
 // The page served at "/" (exposed for tests).
 const char* live_page_html();
+
+// A mesh as binary little-endian PLY (the layout of mesh.ply): vertex x, y, z (float) and scale
+// (uchar), faces as uchar count + uint32 indices.
+std::string mesh_ply_bytes(const float* xyz, const std::uint8_t* scale, std::size_t vertex_count,
+                           const std::uint32_t* indices, std::size_t triangle_count);
 
 }  // namespace octofuse::examples

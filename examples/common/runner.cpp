@@ -190,6 +190,28 @@ bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, Err
       .ok();
 }
 
+// Meshes the map into `sink`; false when the mesher cannot reserve its memory.
+template <typename VoxelT>
+bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,
+                  VectorMeshSink* sink) {
+  MeshConfig mesh_config;
+  mesh_config.read_scale = options.mesh_read_scale;
+  // Dual marching cubes yields a few dozen vertices per surface block: size the
+  // de-duplication table (48-96 bytes per vertex) from the map, capped at 8 M vertices.
+  mesh_config.vertex_capacity = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(
+      std::uint64_t{96} * pipeline.map().memory().blocks_used, 1u << 16, 1u << 23));
+  const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
+  AlignedBuffer mesh_buffer(bytes);
+  LinearArena arena(mesh_buffer.data, bytes);
+  Mesher<VoxelT> mesher;
+  if (!mesher.reserve(arena, mesh_config).ok()) return false;
+  const Result<MeshStats> meshed = mesher.extract(pipeline.map(), *sink);
+  if (!meshed.ok()) {
+    std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
+  }
+  return true;
+}
+
 // Fills the live view's snapshot from the run so far; `rgb` is the reused shading buffer.
 template <typename VoxelT>
 void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, long processed,
@@ -367,6 +389,13 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
         return error_exit("cannot write " + join(options.out_dir, name));
       }
     }
+    if (server != nullptr && server->mesh_requested()) {
+      VectorMeshSink sink;
+      if (!extract_mesh(pipeline, options, &sink)) return error_exit("cannot reserve the mesher");
+      server->publish_mesh(mesh_ply_bytes(
+          sink.positions.empty() ? nullptr : sink.positions[0].data(), sink.scales.data(),
+          sink.positions.size(), sink.indices.data(), sink.indices.size() / 3));
+    }
     if (server != nullptr) {
       // At most 10 snapshots a second: shading and copying cost the loop about a millisecond.
       ++frames_since_publish;
@@ -427,22 +456,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   // mesh.ply
   const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
   if (write_mesh_file || options.keep_mesh) {
-    MeshConfig mesh_config;
-    mesh_config.read_scale = options.mesh_read_scale;
-    // Dual marching cubes yields a few dozen vertices per surface block: size the
-    // de-duplication table (48-96 bytes per vertex) from the map, capped at 8 M vertices.
-    mesh_config.vertex_capacity = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(
-        std::uint64_t{96} * pipeline.map().memory().blocks_used, 1u << 16, 1u << 23));
-    const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
-    AlignedBuffer mesh_buffer(bytes);
-    LinearArena arena(mesh_buffer.data, bytes);
-    Mesher<VoxelT> mesher;
     VectorMeshSink sink;
-    if (!mesher.reserve(arena, mesh_config).ok()) return error_exit("cannot reserve the mesher");
-    const Result<MeshStats> meshed = mesher.extract(pipeline.map(), sink);
-    if (!meshed.ok()) {
-      std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
-    }
+    if (!extract_mesh(pipeline, options, &sink)) return error_exit("cannot reserve the mesher");
     host::MeshView mesh;
     mesh.vertices = sink.positions.data();
     mesh.vertex_count = sink.positions.size();

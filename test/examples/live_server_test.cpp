@@ -124,6 +124,33 @@ TEST_CASE("The live server serves the page, the state and the ray-cast", "[examp
   CHECK(bmp.substr(66, 12) == top_row);
 }
 
+TEST_CASE("The mesh on demand: asked for, made by the loop, taken once", "[examples][live]") {
+  auto server = start();
+  CHECK_FALSE(server->mesh_requested());
+  CHECK(http_exchange(server->port(), "GET /mesh.ply HTTP/1.0\r\n\r\n").rfind("HTTP/1.0 202", 0) ==
+        0);
+  CHECK(server->mesh_requested());
+  // The loop's part: one triangle.
+  const float xyz[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+  const std::uint8_t scale[3] = {0, 1, 2};
+  const std::uint32_t indices[3] = {0, 1, 2};
+  const std::string ply = mesh_ply_bytes(xyz, scale, 3, indices, 1);
+  const std::string header =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+      "property float y\nproperty float z\nproperty uchar scale\nelement face 1\n"
+      "property list uchar uint vertex_indices\nend_header\n";
+  REQUIRE(ply.size() == header.size() + 3 * 13 + 13);
+  CHECK(ply.compare(0, header.size(), header) == 0);
+  CHECK(ply[header.size() + 12] == 0);      // scale of vertex 0
+  CHECK(ply[header.size() + 3 * 13] == 3);  // the face's vertex count
+  server->publish_mesh(ply);
+  CHECK_FALSE(server->mesh_requested());
+  CHECK(body_of(http_exchange(server->port(), "GET /mesh.ply HTTP/1.0\r\n\r\n")) == ply);
+  // Taken: the next request asks for a new one.
+  CHECK(http_exchange(server->port(), "GET /mesh.ply HTTP/1.0\r\n\r\n").rfind("HTTP/1.0 202", 0) ==
+        0);
+}
+
 TEST_CASE("The live server answers garbage with an error and keeps serving", "[examples][live]") {
   auto server = start();
   const int port = server->port();

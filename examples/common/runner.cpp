@@ -431,6 +431,14 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
   }
   if (show_progress) std::fprintf(stderr, "\n");
+  if (server != nullptr) {
+    std::fprintf(stderr,
+                 "live view: %llu answers, %llu connections refused over the cap, %llu timed "
+                 "out\n",
+                 static_cast<unsigned long long>(server->responses()),
+                 static_cast<unsigned long long>(server->refused()),
+                 static_cast<unsigned long long>(server->timed_out()));
+  }
   if (trajectory_file != nullptr && !trajectory_file->close().ok()) {
     return error_exit(trajectory_file->last_error());
   }

@@ -1,5 +1,5 @@
 #pragma once
-// Runs the pipeline over a source and writes what DESIGN.md section 6 promises into a folder:
+// Runs the pipeline over a source and writes the main program's outputs into a folder:
 // trajectory.txt (TUM), mesh.ply, render.png, stats.json, stage_times.svg. Shared by
 // octofuse-replay, octofuse-live and octofuse-bench.
 

@@ -184,6 +184,9 @@ void LiveServer::serve() {
   connections.reserve(static_cast<std::size_t>(limits_.max_connections));
   std::vector<pollfd> fds;
   fds.reserve(connections.capacity() + 1);
+  // Out of file descriptors, a pending connection keeps the listening socket readable: stop
+  // listening for a moment instead of spinning on it.
+  SteadyClock::time_point accept_paused_until;
   auto close_connection = [&](std::size_t i) {
     ::close(connections[i].fd);
     connections[i] = std::move(connections.back());
@@ -191,7 +194,8 @@ void LiveServer::serve() {
   };
   while (!stop_.load()) {
     fds.clear();
-    fds.push_back(pollfd{listen_fd_, POLLIN, 0});
+    const bool listening = SteadyClock::now() >= accept_paused_until;
+    fds.push_back(pollfd{listening ? listen_fd_ : -1, POLLIN, 0});
     for (const Connection& c : connections) {
       fds.push_back(pollfd{c.fd, static_cast<short>(c.responding ? POLLOUT : POLLIN), 0});
     }
@@ -256,7 +260,12 @@ void LiveServer::serve() {
     if ((fds[0].revents & POLLIN) != 0) {
       for (int n = 0; n < kAcceptsPerPoll; ++n) {
         const int fd = ::accept4(listen_fd_, nullptr, nullptr, SOCK_NONBLOCK | SOCK_CLOEXEC);
-        if (fd < 0) break;
+        if (fd < 0) {
+          if (errno == EMFILE || errno == ENFILE || errno == ENOBUFS || errno == ENOMEM) {
+            accept_paused_until = now + std::chrono::milliseconds(kPollIntervalMs);
+          }
+          break;
+        }
         if (connections.size() >= static_cast<std::size_t>(limits_.max_connections)) {
           ::close(fd);
           refused_.fetch_add(1);

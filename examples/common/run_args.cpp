@@ -1,5 +1,6 @@
 #include "run_args.hpp"
 
+#include <charconv>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -7,35 +8,11 @@
 #include <vector>
 
 #include "cli.hpp"
+#include "config_file.hpp"
 
 namespace octofuse::examples {
 
 using cli::fail;
-
-namespace {
-
-// "tx,ty,tz,qx,qy,qz,qw": finite, |t| <= 1e6 m, a quaternion of norm within 1% of 1 (normalised).
-bool parse_pose(const std::string& text, Se3d* T_W_C) {
-  double v[7];
-  std::size_t start = 0;
-  for (int i = 0; i < 7; ++i) {
-    const std::size_t comma = text.find(',', start);
-    const bool last = i == 6;
-    if (last != (comma == std::string::npos)) return false;
-    const std::string token = text.substr(start, last ? std::string::npos : comma - start);
-    if (!cli::parse_double(token, -1e6, 1e6, v[i])) return false;
-    start = comma + 1;
-  }
-  Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
-  if (std::abs(q.norm() - 1.0) > 0.01) return false;
-  q.normalize();
-  *T_W_C = Se3d::Identity();
-  T_W_C->linear() = q.toRotationMatrix();
-  T_W_C->translation() = Eigen::Vector3d(v[0], v[1], v[2]);
-  return true;
-}
-
-}  // namespace
 
 void print_run_usage(const char* program, const char* default_source) {
   std::printf(
@@ -90,199 +67,609 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --query-points FILE  answer FILE's points (one 'x y z' per line, metres, world frame)\n"
       "                       against the final map into DIR/queries.txt:\n"
       "                       'x y z STATE DISTANCE', STATE outside|unknown|free|near|inside\n"
-      "  --quiet              no progress line\n",
+      "  --quiet              no progress line\n"
+      "  --serve ADDR:PORT    live view in a browser at http://ADDR:PORT/ (PORT alone: 127.0.0.1;\n"
+      "                       another address, such as 0.0.0.0, opens it to the network)\n"
+      "  --config FILE        read options from FILE: one 'key = value' a line, the key an option\n"
+      "                       without '--', flags true or false, '#' starts a comment line;\n"
+      "                       options on the command line override the file\n"
+      "  --print-config       print the effective options in that format and exit\n",
       program, default_source, supported_sources().c_str());
 }
 
-int parse_run_args(int argc, char** argv, RunOptions* options_out, bool* help) {
-  RunOptions& options = *options_out;
-  *help = false;
-  bool odometry_mode_given = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    auto need_value = [&](std::string* value) {
-      if (i + 1 >= argc) return false;
-      *value = argv[++i];
-      return true;
-    };
-    std::string value;
-    double number = 0.0;
-    std::int64_t integer = 0;
-    if (arg == "-h" || arg == "--help") {
-      *help = true;
-      return 0;
-    } else if (arg == "--source") {
-      if (!need_value(&options.source_spec)) return fail("--source needs a value");
-    } else if (arg == "--out") {
-      if (!need_value(&options.out_dir) || options.out_dir.empty()) {
-        return fail("--out needs a folder name");
-      }
-    } else if (arg == "--map") {
-      if (!need_value(&value)) return fail("--map needs multires or single");
-      if (value == "multires") {
-        options.map_kind = MapKind::multires;
-      } else if (value == "single") {
-        options.map_kind = MapKind::single_res;
-      } else {
-        return fail("--map must be multires or single, not '" + value + "'");
-      }
-    } else if (arg == "--voxel-size") {
-      if (!need_value(&value) || !cli::parse_double(value, 1e-4, 1.0, number)) {
-        return fail("--voxel-size needs metres in [0.0001, 1]");
-      }
-      options.voxel_size_m = static_cast<float>(number);
-    } else if (arg == "--mu") {
-      if (!need_value(&value) || !cli::parse_double(value, 1e-4, 10.0, number)) {
-        return fail("--mu needs metres in [0.0001, 10]");
-      }
-      options.mu_m = static_cast<float>(number);
-    } else if (arg == "--map-size") {
-      if (!need_value(&value) || !cli::parse_double(value, 0.1, 10000.0, number)) {
-        return fail("--map-size needs metres in [0.1, 10000]");
-      }
-      options.map_size_m = static_cast<float>(number);
-    } else if (arg == "--map-memory") {
-      if (!need_value(&value) || !cli::parse_double(value, 1.0, 1e6, number)) {
-        return fail("--map-memory needs megabytes in [1, 1e6]");
-      }
-      options.map_memory_mb = static_cast<float>(number);
-    } else if (arg == "--max-blocks") {
-      if (!need_value(&value) || !cli::parse_int(value, 1, 1 << 30, integer)) {
-        return fail("--max-blocks needs a count in [1, 2^30]");
-      }
-      options.max_blocks = static_cast<std::uint32_t>(integer);
-    } else if (arg == "--frames") {
-      if (!need_value(&value) || !cli::parse_int(value, 1, 100000000, integer)) {
-        return fail("--frames needs a positive count");
-      }
-      options.max_frames = static_cast<long>(integer);
-      options.source.frames = static_cast<long>(integer);
-    } else if (arg == "--threads") {
-      if (!need_value(&value) || !cli::parse_int(value, 1, 64, integer)) {
-        return fail("--threads needs a count in [1, 64]");
-      }
-      options.threads = static_cast<int>(integer);
-    } else if (arg == "--intrinsics") {
-      if (!need_value(&value) || !cli::parse_intrinsics(value, options.source.intrinsics)) {
-        return fail("--intrinsics needs fx,fy,cx,cy with fx, fy > 0");
-      }
-      options.source.have_intrinsics = true;
-    } else if (arg == "--depth-scale") {
-      if (!need_value(&value) || !cli::parse_double(value, 1e-3, 1e7, number)) {
-        return fail("--depth-scale needs raw units per metre in [0.001, 1e7]");
-      }
-      options.source.depth_scale = number;
-    } else if (arg == "--seed") {
-      if (!need_value(&value) || !cli::parse_int(value, 0, INT64_MAX, integer)) {
-        return fail("--seed needs a non-negative integer");
-      }
-      options.source.seed = static_cast<unsigned long long>(integer);
-    } else if (arg == "--budget-new-blocks" || arg == "--budget-blocks") {
-      if (!need_value(&value) || !cli::parse_int(value, 0, UINT32_MAX, integer)) {
-        return fail(arg + " needs a count");
-      }
-      (arg == "--budget-blocks" ? options.budget.max_integrated_blocks
-                                : options.budget.max_new_blocks) =
-          static_cast<std::uint32_t>(integer);
-    } else if (arg == "--budget-raycast-steps") {
-      if (!need_value(&value) || !cli::parse_int(value, 1, INT64_MAX, integer)) {
-        return fail("--budget-raycast-steps needs a positive count");
-      }
-      options.budget.raycast_steps = static_cast<std::uint64_t>(integer);
-    } else if (arg == "--budget-icp") {
-      int levels[3];
-      int consumed = 0;
-      if (!need_value(&value) ||
-          std::sscanf(value.c_str(), "%d,%d,%d%n", &levels[0], &levels[1], &levels[2], &consumed) !=
-              3 ||
-          static_cast<std::size_t>(consumed) != value.size() || levels[0] < 0 || levels[1] < 0 ||
-          levels[2] < 0 || levels[0] > 100 || levels[1] > 100 || levels[2] > 100) {
-        return fail("--budget-icp needs three iteration counts A,B,C in [0, 100]");
-      }
-      if (levels[0] + levels[1] + levels[2] == 0) {
-        return fail("--budget-icp 0,0,0 would track nothing: give at least one iteration");
-      }
-      for (int l = 0; l < 3; ++l) options.budget.icp_iterations[l] = levels[l];
-    } else if (arg == "--gt-poses") {
-      options.pose_source = PoseSource::ground_truth;
-    } else if (arg == "--odometry") {
-      if (!need_value(&options.odometry) || options.odometry.empty()) {
-        return fail("--odometry needs a TUM trajectory file or sim[:options]");
-      }
-    } else if (arg == "--odometry-mode") {
-      if (!need_value(&value) || (value != "prior" && value != "only")) {
-        return fail("--odometry-mode must be prior or only");
-      }
-      odometry_mode_given = true;
-      options.odometry_only = value == "only";
-    } else if (arg == "--odometry-weight") {
-      double t = 0.0, r = 0.0;
-      char tail = 0;
-      if (!need_value(&value) || std::sscanf(value.c_str(), "%lf,%lf%c", &t, &r, &tail) != 2 ||
-          !std::isfinite(t) || !std::isfinite(r) || t < 0.0 || r < 0.0) {
-        return fail(
-            "--odometry-weight needs T,R >= 0 (pull towards the odometry, per m^2 and rad^2)");
-      }
-      options.odometry_information[0] = t;
-      options.odometry_information[1] = r;
-    } else if (arg == "--icp-depth-knee") {
-      if (!need_value(&value) || !cli::parse_double(value, 0.0, 100.0, number)) {
-        return fail("--icp-depth-knee needs metres in [0, 100]");
-      }
-      options.icp_depth_knee_m = static_cast<float>(number);
-    } else if (arg == "--bilateral") {
-      options.bilateral = true;
-    } else if (arg == "--no-noise") {
-      options.source.sim_noise = false;
-    } else if (arg == "--real-time") {
-      options.source.real_time = true;
-    } else if (arg == "--write-frames") {
-      options.write_frames = true;
-    } else if (arg == "--no-mesh") {
-      options.write_mesh = false;
-    } else if (arg == "--mesh-scale") {
-      if (!need_value(&value) || !parse_mesh_read_scale(value, &options.mesh_read_scale)) {
-        return fail("--mesh-scale must be current or finest");
-      }
-    } else if (arg == "--save-map") {
-      if (!need_value(&options.save_map_path) || options.save_map_path.empty()) {
-        return fail("--save-map needs a file name");
-      }
-    } else if (arg == "--save-every") {
-      if (!need_value(&value) || !cli::parse_int(value, 1, 100000000, integer)) {
-        return fail("--save-every needs a positive frame count");
-      }
-      options.save_every = static_cast<long>(integer);
-    } else if (arg == "--load-map") {
-      if (!need_value(&options.load_map_path) || options.load_map_path.empty()) {
-        return fail("--load-map needs a file name");
-      }
-    } else if (arg == "--initial-pose") {
-      if (!need_value(&value) || !parse_pose(value, &options.initial_T_W_C)) {
-        return fail("--initial-pose needs tx,ty,tz,qx,qy,qz,qw (metres, a unit quaternion)");
-      }
-      options.have_initial_pose = true;
-    } else if (arg == "--no-free-space") {
-      options.free_space = false;
-    } else if (arg == "--query-points") {
-      if (!need_value(&options.query_points_path) || options.query_points_path.empty()) {
-        return fail("--query-points needs a file");
-      }
-    } else if (arg == "--quiet") {
-      options.progress = false;
-    } else {
-      return fail("unknown option '" + arg + "' (see --help)");
+namespace {
+
+// One command-line option. The command line and configuration files go through this one table, so
+// an option added here is configurable from a file and printed by --print-config with no more code.
+struct RunOption {
+  const char* name;  // without "--"; also the config-file key
+  bool takes_value;  // false: a flag (in a file: true or false)
+  // Applies `value` (a flag's setter gets ""); returns "" or what follows the name in the error.
+  std::string (*set)(RunOptions& options, const std::string& value);
+  // The effective value as the option's argument (flags: "true"/"false"); false when it is the
+  // program's built-in default that no argument spells (printed as a comment).
+  bool (*get)(const RunOptions& options, std::string* value);
+};
+
+// "tx,ty,tz,qx,qy,qz,qw": finite, |t| <= 1e6 m, a quaternion of norm within 1% of 1 (normalised).
+bool parse_pose(const std::string& text, Se3d* T_W_C) {
+  double v[7];
+  std::size_t start = 0;
+  for (int i = 0; i < 7; ++i) {
+    const std::size_t comma = text.find(',', start);
+    const bool last = i == 6;
+    if (last != (comma == std::string::npos)) return false;
+    const std::string token = text.substr(start, last ? std::string::npos : comma - start);
+    if (!cli::parse_double(token, -1e6, 1e6, v[i])) return false;
+    start = comma + 1;
+  }
+  Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+  if (std::abs(q.norm() - 1.0) > 0.01) return false;
+  q.normalize();
+  *T_W_C = Se3d::Identity();
+  T_W_C->linear() = q.toRotationMatrix();
+  T_W_C->translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+  return true;
+}
+
+std::string text_of(double number) {
+  char text[32];
+  const auto result = std::to_chars(text, text + sizeof(text), number);
+  return std::string(text, result.ptr);
+}
+
+std::string text_of(float number) {
+  char text[32];
+  const auto result = std::to_chars(text, text + sizeof(text), number);
+  return std::string(text, result.ptr);
+}
+
+std::string set_float(const std::string& value, double min, double max, float* out,
+                      const char* error) {
+  double number = 0.0;
+  if (!cli::parse_double(value, min, max, number)) return error;
+  *out = static_cast<float>(number);
+  return std::string();
+}
+
+bool flag(bool on, std::string* value) {
+  *value = on ? "true" : "false";
+  return true;
+}
+
+const RunOption kRunOptions[] = {
+    {"source", true,
+     [](RunOptions& o, const std::string& v) {
+       o.source_spec = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.source_spec;
+       return true;
+     }},
+    {"out", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a folder name");
+       o.out_dir = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.out_dir;
+       return true;
+     }},
+    {"map", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v == "multires") {
+         o.map_kind = MapKind::multires;
+       } else if (v == "single") {
+         o.map_kind = MapKind::single_res;
+       } else {
+         return " must be multires or single, not '" + v + "'";
+       }
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.map_kind == MapKind::single_res ? "single" : "multires";
+       return true;
+     }},
+    {"voxel-size", true,
+     [](RunOptions& o, const std::string& v) {
+       return set_float(v, 1e-4, 1.0, &o.voxel_size_m, " needs metres in [0.0001, 1]");
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.voxel_size_m);
+       return true;
+     }},
+    {"mu", true,
+     [](RunOptions& o, const std::string& v) {
+       return set_float(v, 1e-4, 10.0, &o.mu_m, " needs metres in [0.0001, 10]");
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.mu_m);
+       return o.mu_m > 0.0f;
+     }},
+    {"map-size", true,
+     [](RunOptions& o, const std::string& v) {
+       return set_float(v, 0.1, 10000.0, &o.map_size_m, " needs metres in [0.1, 10000]");
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.map_size_m);
+       return true;
+     }},
+    {"map-memory", true,
+     [](RunOptions& o, const std::string& v) {
+       return set_float(v, 1.0, 1e6, &o.map_memory_mb, " needs megabytes in [1, 1e6]");
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.map_memory_mb);
+       return true;
+     }},
+    {"max-blocks", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 1, 1 << 30, integer))
+         return std::string(" needs a count in [1, 2^30]");
+       o.max_blocks = static_cast<std::uint32_t>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.max_blocks);
+       return o.max_blocks > 0;
+     }},
+    {"frames", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 1, 100000000, integer)) return std::string(" needs a positive count");
+       o.max_frames = static_cast<long>(integer);
+       o.source.frames = static_cast<long>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.max_frames);
+       return o.max_frames > 0;
+     }},
+    {"threads", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 1, 64, integer)) return std::string(" needs a count in [1, 64]");
+       o.threads = static_cast<int>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.threads);
+       return true;
+     }},
+    {"intrinsics", true,
+     [](RunOptions& o, const std::string& v) {
+       if (!cli::parse_intrinsics(v, o.source.intrinsics)) {
+         return std::string(" needs fx,fy,cx,cy with fx, fy > 0");
+       }
+       o.source.have_intrinsics = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       const double* k = o.source.intrinsics;
+       *v = text_of(k[0]) + "," + text_of(k[1]) + "," + text_of(k[2]) + "," + text_of(k[3]);
+       return o.source.have_intrinsics;
+     }},
+    {"depth-scale", true,
+     [](RunOptions& o, const std::string& v) {
+       if (!cli::parse_double(v, 1e-3, 1e7, o.source.depth_scale)) {
+         return std::string(" needs raw units per metre in [0.001, 1e7]");
+       }
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.source.depth_scale);
+       return o.source.depth_scale > 0.0;
+     }},
+    {"seed", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 0, INT64_MAX, integer)) {
+         return std::string(" needs a non-negative integer");
+       }
+       o.source.seed = static_cast<unsigned long long>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.source.seed);
+       return o.source.seed <= static_cast<unsigned long long>(INT64_MAX);
+     }},
+    {"budget-new-blocks", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 0, UINT32_MAX, integer)) return std::string(" needs a count");
+       o.budget.max_new_blocks = static_cast<std::uint32_t>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.budget.max_new_blocks);
+       return true;
+     }},
+    {"budget-blocks", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 0, UINT32_MAX, integer)) return std::string(" needs a count");
+       o.budget.max_integrated_blocks = static_cast<std::uint32_t>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.budget.max_integrated_blocks);
+       return true;
+     }},
+    {"budget-raycast-steps", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 1, INT64_MAX, integer)) {
+         return std::string(" needs a positive count");
+       }
+       o.budget.raycast_steps = static_cast<std::uint64_t>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.budget.raycast_steps);
+       return o.budget.raycast_steps > 0 &&
+              o.budget.raycast_steps <= static_cast<std::uint64_t>(INT64_MAX);
+     }},
+    {"budget-icp", true,
+     [](RunOptions& o, const std::string& v) {
+       int levels[3];
+       char tail = 0;
+       if (std::sscanf(v.c_str(), "%d,%d,%d%c", &levels[0], &levels[1], &levels[2], &tail) != 3 ||
+           levels[0] < 0 || levels[1] < 0 || levels[2] < 0 || levels[0] > 100 || levels[1] > 100 ||
+           levels[2] > 100) {
+         return std::string(" needs three iteration counts A,B,C in [0, 100]");
+       }
+       if (levels[0] + levels[1] + levels[2] == 0) {
+         return std::string(" 0,0,0 would track nothing: give at least one iteration");
+       }
+       for (int l = 0; l < 3; ++l) o.budget.icp_iterations[l] = levels[l];
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       const int* it = o.budget.icp_iterations;
+       *v = std::to_string(it[0]) + "," + std::to_string(it[1]) + "," + std::to_string(it[2]);
+       return true;
+     }},
+    {"gt-poses", false,
+     [](RunOptions& o, const std::string&) {
+       o.pose_source = PoseSource::ground_truth;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       return flag(o.pose_source == PoseSource::ground_truth, v);
+     }},
+    {"icp-depth-knee", true,
+     [](RunOptions& o, const std::string& v) {
+       return set_float(v, 0.0, 100.0, &o.icp_depth_knee_m, " needs metres in [0, 100]");
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.icp_depth_knee_m);
+       return o.icp_depth_knee_m >= 0.0f;
+     }},
+    {"bilateral", false,
+     [](RunOptions& o, const std::string&) {
+       o.bilateral = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(o.bilateral, v); }},
+    {"no-noise", false,
+     [](RunOptions& o, const std::string&) {
+       o.source.sim_noise = false;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(!o.source.sim_noise, v); }},
+    {"real-time", false,
+     [](RunOptions& o, const std::string&) {
+       o.source.real_time = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(o.source.real_time, v); }},
+    {"write-frames", false,
+     [](RunOptions& o, const std::string&) {
+       o.write_frames = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(o.write_frames, v); }},
+    {"no-mesh", false,
+     [](RunOptions& o, const std::string&) {
+       o.write_mesh = false;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(!o.write_mesh, v); }},
+    {"mesh-scale", true,
+     [](RunOptions& o, const std::string& v) {
+       if (!parse_mesh_read_scale(v, &o.mesh_read_scale)) {
+         return std::string(" must be current or finest");
+       }
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.mesh_read_scale == MeshReadScale::finest_fused ? "finest" : "current";
+       return true;
+     }},
+    {"odometry", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a TUM trajectory file or sim[:options]");
+       o.odometry = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.odometry;
+       return !o.odometry.empty();
+     }},
+    {"odometry-mode", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v != "prior" && v != "only") return std::string(" must be prior or only");
+       o.odometry_only = v == "only";
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.odometry_only ? "only" : "prior";
+       return !o.odometry.empty();
+     }},
+    {"odometry-weight", true,
+     [](RunOptions& o, const std::string& v) {
+       double t = 0.0, r = 0.0;
+       char tail = 0;
+       if (std::sscanf(v.c_str(), "%lf,%lf%c", &t, &r, &tail) != 2 || !std::isfinite(t) ||
+           !std::isfinite(r) || t < 0.0 || r < 0.0) {
+         return std::string(" needs T,R >= 0 (pull towards the odometry, per m^2 and rad^2)");
+       }
+       o.odometry_information[0] = t;
+       o.odometry_information[1] = r;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.odometry_information[0]) + "," + text_of(o.odometry_information[1]);
+       return o.odometry_information[0] >= 0.0;
+     }},
+    {"initial-pose", true,
+     [](RunOptions& o, const std::string& v) {
+       if (!parse_pose(v, &o.initial_T_W_C)) {
+         return std::string(" needs tx,ty,tz,qx,qy,qz,qw (metres, a unit quaternion)");
+       }
+       o.have_initial_pose = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       const Eigen::Vector3d t = o.initial_T_W_C.translation();
+       const Eigen::Quaterniond q(o.initial_T_W_C.linear());
+       *v = text_of(t.x()) + "," + text_of(t.y()) + "," + text_of(t.z()) + "," + text_of(q.x()) +
+            "," + text_of(q.y()) + "," + text_of(q.z()) + "," + text_of(q.w());
+       return o.have_initial_pose;
+     }},
+    {"save-map", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a file name");
+       o.save_map_path = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.save_map_path;
+       return !o.save_map_path.empty();
+     }},
+    {"save-every", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 1, 100000000, integer)) {
+         return std::string(" needs a positive frame count");
+       }
+       o.save_every = static_cast<long>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.save_every);
+       return o.save_every > 0;
+     }},
+    {"load-map", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a file name");
+       o.load_map_path = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.load_map_path;
+       return !o.load_map_path.empty();
+     }},
+    {"no-free-space", false,
+     [](RunOptions& o, const std::string&) {
+       o.free_space = false;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(!o.free_space, v); }},
+    {"query-points", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a file");
+       o.query_points_path = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.query_points_path;
+       return !o.query_points_path.empty();
+     }},
+    {"quiet", false,
+     [](RunOptions& o, const std::string&) {
+       o.progress = false;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(!o.progress, v); }},
+    {"serve", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs PORT or ADDR:PORT");
+       o.serve = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.serve;
+       return !o.serve.empty();
+     }},
+};
+
+const RunOption* find_run_option(const std::string& name) {
+  for (const RunOption& option : kRunOptions) {
+    if (name == option.name) return &option;
+  }
+  return nullptr;
+}
+
+// Applies one config-file line: a flag takes true (apply it) or false (leave the default).
+bool apply_config_entry(const ConfigEntry& entry, const std::string& file_name, RunOptions* options,
+                        std::string* error) {
+  const std::string where = file_name + ":" + std::to_string(entry.line) + ": ";
+  if (entry.key == "config" || entry.key == "print-config" || entry.key == "help") {
+    *error = where + "'" + entry.key + "' can only be given on the command line";
+    return false;
+  }
+  const RunOption* option = find_run_option(entry.key);
+  if (option == nullptr) {
+    *error = where + "unknown key '" + entry.key + "'";
+    return false;
+  }
+  if (!option->takes_value) {
+    if (entry.value == "false") return true;
+    if (entry.value != "true") {
+      *error = where + entry.key + " takes true or false, not '" + entry.value + "'";
+      return false;
     }
   }
-  if (odometry_mode_given && options.odometry.empty()) {
-    return fail("--odometry-mode needs --odometry");
+  const std::string message = option->set(*options, entry.value);
+  if (!message.empty()) {
+    *error = where + entry.key + message;
+    return false;
   }
-  if (!options.odometry.empty() && options.pose_source == PoseSource::ground_truth) {
-    return fail("--odometry and --gt-poses exclude each other");
-  }
+  return true;
+}
 
-  if (options.save_every > 0 && options.save_map_path.empty()) {
-    return fail("--save-every needs --save-map FILE");
+}  // namespace
+
+bool apply_run_config(const std::string& text, const std::string& file_name, RunOptions* options,
+                      std::string* error) {
+  std::vector<ConfigEntry> entries;
+  if (!parse_config_text(text, file_name, &entries, error)) return false;
+  for (const ConfigEntry& entry : entries) {
+    if (!apply_config_entry(entry, file_name, options, error)) return false;
+  }
+  return true;
+}
+
+bool format_run_config(const RunOptions& options, std::string* text, std::string* error) {
+  text->clear();
+  for (const RunOption& option : kRunOptions) {
+    std::string value;
+    const bool set = option.get(options, &value);
+    if (!set) {
+      *text += std::string("# ") + option.name + " = (default)\n";
+      continue;
+    }
+    if (!config_value_writable(value)) {
+      *error = std::string("--") + option.name + " value '" + value +
+               "' cannot be written to a config file (newline or surrounding blanks)";
+      return false;
+    }
+    *text += std::string(option.name) + " = " + value + "\n";
+  }
+  return true;
+}
+
+bool parse_run_args(int argc, char** argv, RunOptions* options, RunArgsRequest* request,
+                    std::string* error) {
+  *request = RunArgsRequest();
+  // The file first, whatever its place on the line, so that the command line overrides it.
+  std::string config_path;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "-h" || arg == "--help") {
+      request->help = true;
+      return true;
+    }
+    if (arg == "--config") {
+      if (i + 1 >= argc) {
+        *error = "--config needs a file";
+        return false;
+      }
+      if (!config_path.empty()) {
+        *error = "--config given twice";
+        return false;
+      }
+      config_path = argv[++i];
+      if (config_path.empty()) {
+        *error = "--config needs a file";
+        return false;
+      }
+    } else if (arg == "--print-config") {
+      request->print_config = true;
+    } else if (const RunOption* option = arg.size() > 2 && arg[0] == '-' && arg[1] == '-'
+                                             ? find_run_option(arg.substr(2))
+                                             : nullptr) {
+      if (option->takes_value) ++i;
+    }
+  }
+  if (!config_path.empty()) {
+    std::vector<ConfigEntry> entries;
+    if (!read_config_file(config_path, &entries, error)) return false;
+    for (const ConfigEntry& entry : entries) {
+      if (!apply_config_entry(entry, config_path, options, error)) return false;
+    }
+  }
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--config") {
+      ++i;
+      continue;
+    }
+    if (arg == "--print-config") continue;
+    const RunOption* option =
+        arg.size() > 2 && arg[0] == '-' && arg[1] == '-' ? find_run_option(arg.substr(2)) : nullptr;
+    if (option == nullptr) {
+      *error = "unknown option '" + arg + "' (see --help)";
+      return false;
+    }
+    std::string value;
+    if (option->takes_value) {
+      if (i + 1 >= argc) {
+        RunOptions scratch;
+        const std::string message = option->set(scratch, std::string());
+        *error = arg + (message.empty() ? std::string(" needs a value") : message);
+        return false;
+      }
+      value = argv[++i];
+    }
+    const std::string message = option->set(*options, value);
+    if (!message.empty()) {
+      *error = arg + message;
+      return false;
+    }
+  }
+  // Options that need one another, whether they came from the file or the command line.
+  if (options->odometry_only && options->odometry.empty()) {
+    *error = "--odometry-mode only needs --odometry";
+    return false;
+  }
+  if (!options->odometry.empty() && options->pose_source == PoseSource::ground_truth) {
+    *error = "--odometry and --gt-poses exclude each other";
+    return false;
+  }
+  if (options->save_every > 0 && options->save_map_path.empty()) {
+    *error = "--save-every needs --save-map FILE";
+    return false;
+  }
+  return true;
+}
+
+int parse_run_args(int argc, char** argv, RunOptions* options, bool* help, bool* printed_config) {
+  RunArgsRequest request;
+  std::string error;
+  *help = false;
+  if (printed_config != nullptr) *printed_config = false;
+  if (!parse_run_args(argc, argv, options, &request, &error)) return fail(error);
+  *help = request.help;
+  if (request.print_config && !request.help) {
+    std::string text;
+    if (!format_run_config(*options, &text, &error)) return fail(error);
+    std::fputs(text.c_str(), stdout);
+    if (printed_config != nullptr) *printed_config = true;
   }
   return 0;
 }

@@ -11,6 +11,7 @@
 #include <memory>
 #include <utility>
 
+#include "live_server.hpp"
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/json_writer.hpp"
 #include "octofuse/ports/host/map_file.hpp"
@@ -324,6 +325,72 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
   return true;
 }
 
+// Meshes the map into `sink`; false when the mesher cannot reserve its memory.
+template <typename VoxelT>
+bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,
+                  VectorMeshSink* sink) {
+  MeshConfig mesh_config;
+  mesh_config.read_scale = options.mesh_read_scale;
+  // Dual marching cubes yields a few dozen vertices per surface block: size the
+  // de-duplication table (48-96 bytes per vertex) from the map, capped at 8 M vertices.
+  mesh_config.vertex_capacity = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(
+      std::uint64_t{96} * pipeline.map().memory().blocks_used, 1u << 16, 1u << 23));
+  const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
+  AlignedBuffer mesh_buffer(bytes);
+  LinearArena arena(mesh_buffer.data, bytes);
+  Mesher<VoxelT> mesher;
+  if (!mesher.reserve(arena, mesh_config).ok()) return false;
+  const Result<MeshStats> meshed = mesher.extract(pipeline.map(), *sink);
+  if (!meshed.ok()) {
+    std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
+  }
+  return true;
+}
+
+// Fills the live view's snapshot from the run so far; `rgb` is the reused shading buffer.
+template <typename VoxelT>
+void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, long processed,
+                   double fps, std::vector<Rgb8>* rgb, LiveSnapshot* snapshot) {
+  const FrameStats& last = summary.frames.back();
+  snapshot->frame = processed;
+  snapshot->fps = fps;
+  snapshot->tracking = frame_result_name(last.result);
+  snapshot->map_bytes_used = last.memory.bytes_used;
+  snapshot->map_bytes_reserved = last.memory.bytes_reserved;
+  snapshot->blocks_used = last.memory.blocks_used;
+  snapshot->block_capacity = last.memory.block_capacity;
+  snapshot->stage_ms.clear();
+  const std::size_t frames = summary.frames.size();
+  const std::size_t first = frames > kLiveHistoryFrames ? frames - kLiveHistoryFrames : 0;
+  for (std::size_t i = first; i < frames; ++i) {
+    const StageTimes& t = summary.frames[i].times;
+    snapshot->stage_ms.push_back(static_cast<float>(t.validate_ms + t.preprocess_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.track_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.integrate_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.raycast_ms));
+  }
+  snapshot->trajectory_p_W.clear();
+  const std::size_t poses = summary.trajectory.size();
+  const std::size_t stride = (poses + kLiveTrajectoryPoints - 1) / kLiveTrajectoryPoints;
+  for (std::size_t i = 0; i < poses; i += std::max<std::size_t>(stride, 1)) {
+    const Eigen::Vector3d p_W = summary.trajectory[i].T_W_C.translation();
+    for (int k = 0; k < 3; ++k) snapshot->trajectory_p_W.push_back(static_cast<float>(p_W[k]));
+  }
+  const PinholeCamera& camera = pipeline.working_camera();
+  rgb->resize(static_cast<std::size_t>(camera.width) * camera.height);
+  ImageView<Rgb8> view(rgb->data(), camera.width, camera.height);
+  const Eigen::Vector3f light_W = pipeline.reference_T_W_C().translation().template cast<float>();
+  snapshot->width = 0;
+  snapshot->height = 0;
+  snapshot->rgb.clear();
+  if (shade_by_scale(pipeline.surface_W(), pipeline.scale_image(), light_W, view).ok()) {
+    snapshot->width = camera.width;
+    snapshot->height = camera.height;
+    const auto* bytes = reinterpret_cast<const std::uint8_t*>(rgb->data());
+    snapshot->rgb.assign(bytes, bytes + rgb->size() * sizeof(Rgb8));
+  }
+}
+
 template <typename VoxelT>
 int run_typed(const RunOptions& options, RunSummary* summary) {
   std::string error;
@@ -478,6 +545,18 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     const std::string path = join(options.out_dir, "trajectory.txt");
     if (!trajectory_file->open(path.c_str()).ok()) return error_exit(trajectory_file->last_error());
   }
+
+  std::unique_ptr<LiveServer> server;
+  LiveSnapshot snapshot;
+  std::vector<Rgb8> snapshot_rgb;
+  auto last_publish = std::chrono::steady_clock::now();
+  long frames_since_publish = 0;
+  if (!options.serve.empty()) {
+    server = LiveServer::start(options.serve, LiveServerLimits(), &error);
+    if (server == nullptr) return error_exit(error);
+    std::fprintf(stderr, "live view at %s\n", server->url().c_str());
+  }
+
   const bool show_progress = options.progress && ::isatty(STDERR_FILENO);
   DepthFrame frame;
   FrameWarnings warnings;
@@ -616,6 +695,27 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
         return error_exit("cannot write " + join(options.out_dir, name));
       }
     }
+    if (server != nullptr && server->mesh_requested()) {
+      VectorMeshSink sink;
+      if (!extract_mesh(pipeline, options, &sink)) return error_exit("cannot reserve the mesher");
+      server->publish_mesh(mesh_ply_bytes(
+          sink.positions.empty() ? nullptr : sink.positions[0].data(), sink.scales.data(),
+          sink.positions.size(), sink.indices.data(), sink.indices.size() / 3));
+    }
+    if (server != nullptr) {
+      // At most 10 snapshots a second: shading and copying cost the loop about a millisecond.
+      ++frames_since_publish;
+      const auto now = std::chrono::steady_clock::now();
+      const double since_s = std::chrono::duration<double>(now - last_publish).count();
+      if (since_s >= 0.1) {
+        fill_snapshot(pipeline, *summary, processed,
+                      static_cast<double>(frames_since_publish) / since_s, &snapshot_rgb,
+                      &snapshot);
+        server->publish(snapshot);
+        frames_since_publish = 0;
+        last_publish = now;
+      }
+    }
     if (options.live_status) {
       ++frames_since_status;
       const auto now = std::chrono::steady_clock::now();
@@ -637,6 +737,14 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
   }
   if (show_progress) std::fprintf(stderr, "\n");
+  if (server != nullptr) {
+    std::fprintf(stderr,
+                 "live view: %llu answers, %llu connections refused over the cap, %llu timed "
+                 "out\n",
+                 static_cast<unsigned long long>(server->responses()),
+                 static_cast<unsigned long long>(server->refused()),
+                 static_cast<unsigned long long>(server->timed_out()));
+  }
   if (trajectory_file != nullptr) {
     if (!trajectory_file->close().ok()) return error_exit(trajectory_file->last_error());
     summary->files_written.push_back("trajectory.txt");
@@ -696,22 +804,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   // mesh.ply
   const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
   if (write_mesh_file || options.keep_mesh) {
-    MeshConfig mesh_config;
-    mesh_config.read_scale = options.mesh_read_scale;
-    // Dual marching cubes yields a few dozen vertices per surface block: size the
-    // de-duplication table (48-96 bytes per vertex) from the map, capped at 8 M vertices.
-    mesh_config.vertex_capacity = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(
-        std::uint64_t{96} * pipeline.map().memory().blocks_used, 1u << 16, 1u << 23));
-    const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
-    AlignedBuffer mesh_buffer(bytes);
-    LinearArena arena(mesh_buffer.data, bytes);
-    Mesher<VoxelT> mesher;
     VectorMeshSink sink;
-    if (!mesher.reserve(arena, mesh_config).ok()) return error_exit("cannot reserve the mesher");
-    const Result<MeshStats> meshed = mesher.extract(pipeline.map(), sink);
-    if (!meshed.ok()) {
-      std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
-    }
+    if (!extract_mesh(pipeline, options, &sink)) return error_exit("cannot reserve the mesher");
     host::MeshView mesh;
     mesh.vertices = sink.positions.data();
     mesh.vertex_count = sink.positions.size();

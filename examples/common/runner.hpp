@@ -50,6 +50,7 @@ struct RunOptions {
   bool keep_mesh = false;    // keep the mesh in RunSummary (for evaluation)
   bool progress = true;      // a progress line on stderr when it is a terminal
   bool live_status = false;  // once a second on stdout: frame rate and tracking state
+  std::string serve;         // "ADDR:PORT": live view in a browser (live_server.hpp); empty: off
   const std::atomic<bool>* stop = nullptr;  // set from a signal handler to end early
   // Maps: --save-map writes the map at the end (also when stopped) and, with --save-every N,
   // after every N processed frames; --load-map starts from a saved map (its voxel type, voxel

@@ -10,8 +10,11 @@ int main(int argc, char** argv) {
   octofuse::examples::RunOptions options;
   options.out_dir = "octofuse-out";
   bool help = false;
-  const int parse_rc = octofuse::examples::parse_run_args(argc, argv, &options, &help);
+  bool printed_config = false;
+  const int parse_rc =
+      octofuse::examples::parse_run_args(argc, argv, &options, &help, &printed_config);
   if (parse_rc != 0) return parse_rc;
+  if (printed_config) return 0;
   if (help) {
     octofuse::examples::print_run_usage("octofuse-replay", "sim:desk");
     return 0;

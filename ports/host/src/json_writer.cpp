@@ -3,6 +3,7 @@
 #include "octofuse/ports/host/atomic_file.hpp"
 
 #include <cerrno>
+#include <charconv>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
@@ -82,9 +83,11 @@ JsonWriter& JsonWriter::key(const char* name) {
 JsonWriter& JsonWriter::value(double number) {
   if (!std::isfinite(number)) return null();
   before_value();
+  // The shortest text that reads back as the same double ("7.527", not "7.5270000000000001"),
+  // integers without a fraction, and a '.' whatever the C locale of the moment says.
   char text[32];
-  // %.17g round-trips every double; integers print without a fraction.
-  std::snprintf(text, sizeof(text), "%.17g", number);
+  const std::to_chars_result result = std::to_chars(text, text + sizeof(text) - 1, number);
+  *result.ptr = '\0';
   append(text);
   return *this;
 }

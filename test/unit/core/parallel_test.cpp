@@ -2,10 +2,13 @@
 
 #include <atomic>
 #include <catch2/catch.hpp>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <ctime>
 #include <random>
+#include <thread>
 #include <vector>
 
 #include "death.hpp"
@@ -102,6 +105,68 @@ TEST_CASE("WorkerTeam gives bit-identical results for 1 and 2 workers") {
     team.for_each_task(16, fn);
   }
   REQUIRE(std::memcmp(out1.data(), out2.data(), out1.size() * sizeof(float)) == 0);
+}
+
+TEST_CASE("WorkerTeam runs thousands of back-to-back jobs of every size exactly once") {
+  // Teams of different sizes share the helper threads; each job must see only its own tasks.
+  const WorkerTeam teams[] = {WorkerTeam(2), WorkerTeam(3), WorkerTeam(4)};
+  std::atomic<int> runs[40];
+  for (int job = 0; job < 3000; ++job) {
+    const WorkerTeam& team = teams[job % 3];
+    const std::size_t tasks = 1 + static_cast<std::size_t>(job % 40);
+    for (auto& r : runs) r = 0;
+    auto fn = [&runs, job](std::size_t task) { runs[task].fetch_add(1 + job % 5); };
+    team.for_each_task(tasks, fn);
+    for (std::size_t t = 0; t < 40; ++t) {
+      REQUIRE(runs[t].load() == (t < tasks ? 1 + job % 5 : 0));
+    }
+  }
+}
+
+TEST_CASE("WorkerTeam runs a job started inside a task, and jobs from two threads at once") {
+  const WorkerTeam team(2);
+  std::atomic<int> inner_runs{0};
+  auto outer = [&](std::size_t) {
+    auto inner = [&](std::size_t) { inner_runs.fetch_add(1); };
+    team.for_each_task(5, inner);  // the pool is busy: runs inline
+  };
+  team.for_each_task(4, outer);
+  REQUIRE(inner_runs.load() == 20);
+
+  // Two threads with their own teams: one gets the helpers, the other runs inline; both finish
+  // with every task done once.
+  std::atomic<int> counts[2] = {{0}, {0}};
+  auto worker = [&counts](int which) {
+    const WorkerTeam own(2);
+    for (int job = 0; job < 500; ++job) {
+      auto fn = [&counts, which](std::size_t) { counts[which].fetch_add(1); };
+      own.for_each_task(8, fn);
+    }
+  };
+  std::thread a(worker, 0);
+  std::thread b(worker, 1);
+  a.join();
+  b.join();
+  REQUIRE(counts[0].load() == 4000);
+  REQUIRE(counts[1].load() == 4000);
+}
+
+TEST_CASE("WorkerTeam threads that wait for work or for a slow task take no CPU") {
+  // A task that sleeps 300 ms leaves the other worker with nothing to do: a waiter that spun
+  // through it would burn a core that another program on the board needs; one that blocks does
+  // not.
+  const WorkerTeam team(2);
+  auto warm = [](std::size_t) {};
+  team.for_each_task(2, warm);
+  const std::clock_t cpu_before = std::clock();
+  auto fn = [](std::size_t task) {
+    if (task == 0) std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  };
+  team.for_each_task(2, fn);
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // idle between jobs
+  const double cpu_s = static_cast<double>(std::clock() - cpu_before) / CLOCKS_PER_SEC;
+  CAPTURE(cpu_s);
+  REQUIRE(cpu_s < 0.1);  // a waiter spinning through the sleeps would use 0.3 s or more
 }
 
 TEST_CASE("WorkerTeam needs at least one worker") {

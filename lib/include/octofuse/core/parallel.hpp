@@ -2,7 +2,7 @@
 // A fixed worker team chosen at init. Work is split into a fixed number of tasks that does not
 // depend on the worker count, and each task writes only its own outputs, so results are
 // bit-identical for 1 or N workers. Reductions go through per-task partials summed in task order.
-// Backed by OpenMP when built with it; otherwise (or with 1 worker) tasks run inline in order.
+// Helper threads block between jobs (no spinning on shared cores); 1 worker runs tasks inline.
 
 #include <cstddef>
 

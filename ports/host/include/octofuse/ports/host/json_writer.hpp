@@ -28,6 +28,8 @@ class JsonWriter {
   JsonWriter& key(const char* name);
 
   // Non-finite numbers are written as null (JSON has no NaN or infinity).
+  // Non-finite -> null; otherwise the shortest text that reads back as the same double, with a
+  // '.' in any locale.
   JsonWriter& value(double number);
   JsonWriter& value(std::int64_t number);
   JsonWriter& value(std::uint64_t number);

@@ -46,6 +46,14 @@ grep -q "^loaded " "${work}/b.out" || fail "load run: no 'loaded' line"
 "${replay}" "${common[@]}" --frames 2 --out "${work}/p" --load-map "${work}/a.ofmap" \
   --initial-pose 0,0,0,0,0,0,1 >"${work}/p.out" 2>&1 || fail "--initial-pose run: $(cat "${work}/p.out")"
 
+# A single-resolution map: --load-map takes the voxel type from the file, whatever --map says.
+"${replay}" "${common[@]}" --map single --frames 2 --out "${work}/s" --save-map "${work}/s.ofmap" \
+  >"${work}/s.out" 2>&1 || fail "single-res save run: $(cat "${work}/s.out")"
+"${map}" info "${work}/s.ofmap" | grep -q "^voxel type      single-res$" || fail "single-res info"
+"${replay}" "${common[@]}" --map multires --frames 2 --out "${work}/s2" --load-map "${work}/s.ofmap" \
+  --save-map "${work}/s2.ofmap" >"${work}/s2.out" 2>&1 || fail "single-res load run: $(cat "${work}/s2.out")"
+"${map}" info "${work}/s2.ofmap" | grep -q "^voxel type      single-res$" || fail "single-res reloaded"
+
 head -c 700 "${work}/a.ofmap" >"${work}/cut.ofmap"
 expect_error cut "cut.ofmap: truncated" "${replay}" "${common[@]}" --out "${work}/c" \
   --load-map "${work}/cut.ofmap"

@@ -2,11 +2,14 @@
 # The map commands as a user runs them: octofuse-replay --save-map / --save-every / --load-map
 # and octofuse-map info / mesh on the sim, then damaged, foreign and newer map files, which must
 # end the run before any frame with one "error: FILE: ..." line and a non-zero exit.
-# Usage: map_cli.sh OCTOFUSE-REPLAY OCTOFUSE-MAP WORK-DIR
+# With OCTOFUSE-LIVE it also stops octofuse-live with SIGTERM once it reports a frame and checks
+# that the map it wrote on the way out loads.
+# Usage: map_cli.sh OCTOFUSE-REPLAY OCTOFUSE-MAP WORK-DIR [OCTOFUSE-LIVE]
 set -uo pipefail
 replay=$1
 map=$2
 work=$3
+live=${4:-}
 rm -rf "${work}"
 mkdir -p "${work}"
 export OMP_WAIT_POLICY=passive
@@ -46,6 +49,14 @@ grep -q "^loaded " "${work}/b.out" || fail "load run: no 'loaded' line"
 "${replay}" "${common[@]}" --frames 2 --out "${work}/p" --load-map "${work}/a.ofmap" \
   --initial-pose 0,0,0,0,0,0,1 >"${work}/p.out" 2>&1 || fail "--initial-pose run: $(cat "${work}/p.out")"
 
+# A single-resolution map: --load-map takes the voxel type from the file, whatever --map says.
+"${replay}" "${common[@]}" --map single --frames 2 --out "${work}/s" --save-map "${work}/s.ofmap" \
+  >"${work}/s.out" 2>&1 || fail "single-res save run: $(cat "${work}/s.out")"
+"${map}" info "${work}/s.ofmap" | grep -q "^voxel type      single-res$" || fail "single-res info"
+"${replay}" "${common[@]}" --map multires --frames 2 --out "${work}/s2" --load-map "${work}/s.ofmap" \
+  --save-map "${work}/s2.ofmap" >"${work}/s2.out" 2>&1 || fail "single-res load run: $(cat "${work}/s2.out")"
+"${map}" info "${work}/s2.ofmap" | grep -q "^voxel type      single-res$" || fail "single-res reloaded"
+
 head -c 700 "${work}/a.ofmap" >"${work}/cut.ofmap"
 expect_error cut "cut.ofmap: truncated" "${replay}" "${common[@]}" --out "${work}/c" \
   --load-map "${work}/cut.ofmap"
@@ -65,6 +76,21 @@ expect_error small "needs .* blocks" "${replay}" "${common[@]}" --out "${work}/c
 expect_error every "--save-every needs --save-map" "${replay}" --save-every 3
 expect_error pose "--initial-pose needs" "${replay}" --initial-pose 1,2,3,0,0,0,5
 expect_error command "unknown command" "${map}" show "${work}/a.ofmap"
+
+if [[ -n "${live}" ]]; then
+  "${live}" "${common[@]}" --frames 100000 --out "${work}/l" --save-map "${work}/live.ofmap" \
+    >"${work}/live.out" 2>&1 &
+  pid=$!
+  # Its status line comes once a second; wait for one (at most 120 s), then stop it.
+  for _ in $(seq 1200); do
+    grep -q " fps " "${work}/live.out" 2>/dev/null && break
+    sleep 0.1
+  done
+  kill -TERM "${pid}"
+  wait "${pid}" || fail "live: non-zero exit after SIGTERM: $(cat "${work}/live.out")"
+  "${map}" info "${work}/live.ofmap" >"${work}/live_info.out" 2>&1 ||
+    fail "live: map written on SIGTERM does not load: $(cat "${work}/live_info.out")"
+fi
 
 if [[ ${failures} -ne 0 ]]; then
   echo "map_cli: ${failures} failure(s)"

@@ -155,7 +155,7 @@ const RunOption kRunOptions[] = {
      },
      [](const RunOptions& o, std::string* v) {
        *v = o.out_dir;
-       return true;
+       return !o.out_dir.empty();
      }},
     {"map", true,
      [](RunOptions& o, const std::string& v) {
@@ -403,6 +403,7 @@ const RunOption kRunOptions[] = {
      [](RunOptions& o, const std::string& v) {
        if (v != "prior" && v != "only") return std::string(" must be prior or only");
        o.odometry_only = v == "only";
+       o.odometry_mode_given = true;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) {
@@ -643,8 +644,8 @@ bool parse_run_args(int argc, char** argv, RunOptions* options, RunArgsRequest* 
     }
   }
   // Options that need one another, whether they came from the file or the command line.
-  if (options->odometry_only && options->odometry.empty()) {
-    *error = "--odometry-mode only needs --odometry";
+  if (options->odometry_mode_given && options->odometry.empty()) {
+    *error = "--odometry-mode needs --odometry";
     return false;
   }
   if (!options->odometry.empty() && options->pose_source == PoseSource::ground_truth) {

@@ -31,6 +31,7 @@ struct RunOptions {
   // odometry of the source's ground truth; empty: none. Used as the pose prior.
   std::string odometry;
   bool odometry_only = false;  // --odometry-mode only: fuse at the odometry, no ICP
+  bool odometry_mode_given = false;  // --odometry-mode was given (it needs --odometry)
   double odometry_information[2] = {-1.0, -1.0};  // --odometry-weight T,R; < 0: the defaults
   std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
   float map_memory_mb = 1024.0f;  // used when max_blocks is 0

@@ -14,18 +14,24 @@ AtomicFile::~AtomicFile() {
 
 Status AtomicFile::open(const char* path) {
   if (file_ != nullptr) {
-    error_.set("%s: already open", path_.c_str());
+    error_.set("%s: already open", path_);
     return StatusCode::failed_precondition;
   }
   if (path == nullptr || path[0] == '\0') {
     error_.set("empty file name");
     return StatusCode::invalid_argument;
   }
-  path_ = path;
-  temporary_ = path_ + ".tmp";
-  file_ = std::fopen(temporary_.c_str(), "wb");
+  const std::size_t length = std::strlen(path);
+  if (length >= kMaxPath) {
+    error_.set("file name of %zu bytes is too long", length);
+    return StatusCode::invalid_argument;
+  }
+  std::memcpy(path_, path, length + 1);
+  std::memcpy(temporary_, path, length);
+  std::memcpy(temporary_ + length, ".tmp", 5);
+  file_ = std::fopen(temporary_, "wb");
   if (file_ == nullptr) {
-    error_.set("%s: cannot create (%s)", temporary_.c_str(), std::strerror(errno));
+    error_.set("%s: cannot create (%s)", temporary_, std::strerror(errno));
     return StatusCode::unavailable;
   }
   return ok_status();
@@ -37,7 +43,7 @@ Status AtomicFile::write(const void* data, std::size_t bytes) {
     return StatusCode::failed_precondition;
   }
   if (bytes != 0 && std::fwrite(data, 1, bytes, file_) != bytes) {
-    error_.set("%s: write failed (%s)", temporary_.c_str(), std::strerror(errno));
+    error_.set("%s: write failed (%s)", temporary_, std::strerror(errno));
     return StatusCode::data_loss;
   }
   return ok_status();
@@ -60,17 +66,17 @@ Status AtomicFile::commit() {
                       : !flushed    ? std::strerror(flush_errno)
                       : !synced     ? std::strerror(sync_errno)
                                     : "close failed";
-    error_.set("%s: not written (%s)", path_.c_str(), why);
-    std::remove(temporary_.c_str());
+    error_.set("%s: not written (%s)", path_, why);
+    std::remove(temporary_);
     return StatusCode::data_loss;
   }
-  if (std::rename(temporary_.c_str(), path_.c_str()) != 0) {
-    error_.set("%s: cannot replace (%s)", path_.c_str(), std::strerror(errno));
-    std::remove(temporary_.c_str());
+  if (std::rename(temporary_, path_) != 0) {
+    error_.set("%s: cannot replace (%s)", path_, std::strerror(errno));
+    std::remove(temporary_);
     return StatusCode::data_loss;
   }
-  if (!sync_parent_folder(path_.c_str()).ok()) {
-    error_.set("%s: written, but its folder could not be synced", path_.c_str());
+  if (!sync_parent_folder(path_).ok()) {
+    error_.set("%s: written, but its folder could not be synced", path_);
     return StatusCode::data_loss;
   }
   return ok_status();
@@ -80,20 +86,23 @@ void AtomicFile::abandon() {
   if (file_ == nullptr) return;
   std::fclose(file_);
   file_ = nullptr;
-  std::remove(temporary_.c_str());
+  std::remove(temporary_);
 }
 
 Status sync_parent_folder(const char* path) {
-  std::string folder(path);
-  const std::size_t slash = folder.rfind('/');
-  if (slash == std::string::npos) {
-    folder = ".";
-  } else if (slash == 0) {
-    folder = "/";
+  char folder[4096];
+  const char* slash = std::strrchr(path, '/');
+  if (slash == nullptr) {
+    std::memcpy(folder, ".", 2);
+  } else if (slash == path) {
+    std::memcpy(folder, "/", 2);
   } else {
-    folder.resize(slash);
+    const std::size_t length = static_cast<std::size_t>(slash - path);
+    if (length >= sizeof(folder)) return StatusCode::unavailable;
+    std::memcpy(folder, path, length);
+    folder[length] = '\0';
   }
-  const int fd = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  const int fd = ::open(folder, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (fd < 0) return StatusCode::unavailable;
   const bool synced = ::fsync(fd) == 0;
   ::close(fd);

@@ -11,7 +11,6 @@
 
 #include <cstddef>
 #include <cstdio>
-#include <string>
 
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/core/status.hpp"
@@ -26,7 +25,8 @@ class AtomicFile {
   // Abandons an uncommitted file: the temporary is removed, the destination untouched.
   ~AtomicFile();
 
-  // Creates the temporary. invalid_argument: empty path; unavailable: it cannot be created
+  // Creates the temporary. invalid_argument: empty path or one of kMaxPath bytes or more;
+  // unavailable: it cannot be created
   // (missing folder, no permission); failed_precondition: already open.
   Status open(const char* path);
   // The temporary's stream, for fprintf/fwrite; nullptr when not open.
@@ -40,13 +40,15 @@ class AtomicFile {
   // Closes and removes the temporary; the destination stays as it was.
   void abandon();
 
-  const std::string& path() const { return path_; }
+  const char* path() const { return path_; }
   const char* last_error() const { return error_.c_str(); }
 
  private:
   std::FILE* file_ = nullptr;
-  std::string path_;
-  std::string temporary_;
+  // Fixed buffers: std::string would pull exception machinery into this port.
+  static constexpr std::size_t kMaxPath = 4096;
+  char path_[kMaxPath] = {};
+  char temporary_[kMaxPath + 4] = {};
   ErrorText error_;
 };
 

@@ -29,7 +29,8 @@
 // Work per call: a point query walks at most voxel_depth free-octree levels and reads the 8
 // voxels of one trilinear cell (and their blocks). A region query visits free octants, blocks and
 // voxels, counting each as one unit; at QueryLimits::max_visits it stops and answers `unknown`
-// with budget_hit set, so that limit is the worst case (default 2^16 units: about 1 ms here).
+// with budget_hit set, so that limit is the worst case (default 2^16 units; a 0.5 m box in the sim
+// scenes took up to 50 000).
 // Nothing allocates. With a MapGuard every call holds it shared for its duration.
 
 #include <cstdint>

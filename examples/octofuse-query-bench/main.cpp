@@ -151,7 +151,20 @@ int run_scene(const std::string& name, long frames, long sample_points, float vo
       ++f->points;
       if (a.state == PointState::free) {
         ++f->reported_free;
-        if (sdf <= voxel) ++f->unsafe_points;
+        if (sdf <= voxel) {
+          ++f->unsafe_points;
+          const octofuse::FreeOctant o =
+              query.free_space() != nullptr
+                  ? query.free_space()->find(map.point_to_voxel(p_W.cast<float>()))
+                  : octofuse::FreeOctant();
+          const auto* block = map.find_block_at_voxel(map.point_to_voxel(p_W.cast<float>()));
+          std::fprintf(stderr,
+                       "unsafe: %.4f %.4f %.4f exact distance %.4f m, free octant %d (level %d, "
+                       "frame %u), block %d (frame %u), bound %.4f m\n",
+                       p_W.x(), p_W.y(), p_W.z(), sdf, o.free, o.level, o.free_frame,
+                       block != nullptr, block != nullptr ? block->last_updated_frame : 0u,
+                       static_cast<double>(a.distance_m));
+        }
       }
       if (a.state == PointState::near && std::abs(sdf) < mu) {
         ++f->near_points;

@@ -176,6 +176,9 @@ TEST_CASE("300 frames after init allocate nothing, tracked or lost") {
   REQUIRE(frames == 300);
   REQUIRE(scope.allocations() == 0);
   REQUIRE(pipeline.map().memory().blocks_used > 0);
+  // Free space was carved in those frames too (it is on by default).
+  REQUIRE(pipeline.config().free_space.enabled);
+  REQUIRE(pipeline.free_space().node_count() > 1);
 }
 
 TEST_CASE("same input gives a byte-identical trajectory, twice and with 1 or 2 workers") {

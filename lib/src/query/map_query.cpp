@@ -135,7 +135,14 @@ PointAnswer MapQuery<VoxelT>::point_unguarded(const Eigen::Vector3f& p_W) const 
         out.gradient = Eigen::Vector3f::Zero();
         out.has_gradient = false;
       }
-      if (out.state != PointState::free || !octant.free) return out;
+      if (out.state != PointState::free) return out;
+      // Truncated positive: at least mu from a surface along the camera rays that saw it, which
+      // on slanted surfaces says little about the Euclidean distance. Free only where carving
+      // saw it free.
+      if (!octant.free) {
+        out.state = PointState::unknown;
+        return out;
+      }
     }
   }
   if (octant.free) {
@@ -209,12 +216,12 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
           if (!shape.touches(lo, hi)) continue;
           if (!spend()) return true;
           const VoxelT& v = level[x + y * side + z * side * side];
-          if (!voxel_observed(v)) {
-            if (!region_free) unknown = true;
-            continue;
+          if (voxel_observed(v)) {
+            const float t = voxel_tsdf(v);
+            if (t < 1.0f && t * mu_voxels <= blocked_below) return false;
           }
-          const float t = voxel_tsdf(v);
-          if (t < 1.0f && t * mu_voxels <= blocked_below) return false;
+          // Free only where carving saw free space (the TSDF's distances are along camera rays).
+          if (!region_free) unknown = true;
         }
       }
     }

@@ -99,6 +99,8 @@ struct PipelineConfig {
   TrackConfig track;
   PipelineBudget budget;
   // Free space carved after integration (query/free_space.hpp); its budgets are step (6).
+  // node_capacity 0 takes max(map node capacity, block capacity) nodes (40 bytes each);
+  // clearance_m 0 takes mu / 2 and occlusion_clear_m 0 takes 4 mu.
   FreeSpaceConfig free_space;
   int workers = 1;
   PoseSource pose_source = PoseSource::track;

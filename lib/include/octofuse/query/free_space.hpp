@@ -4,10 +4,12 @@
 //
 // Architecture. The TSDF octree (map/octree.hpp) only holds the band of +-mu around surfaces; the
 // space the camera looked through is recorded here, in a second, sparse octree over the same
-// cube whose nodes come from a fixed pool carved from the arena at reserve(). It is kept apart
-// from the TSDF octree so that ray-casting's empty-space skipping, the block pool and the TSDF
-// octree's node layout stay as they are. Its leaves are at the TSDF octree's block level: below
-// that the blocks' TSDF already says what is where.
+// cube whose nodes (FreeNode, 40 bytes) come from a fixed pool carved from the arena at reserve().
+// It is kept apart from the TSDF octree so that ray-casting's empty-space skipping, the block pool
+// and the TSDF octree's node layout stay as they are. Its leaves are at the TSDF octree's block
+// level by default (finest_octant_voxels 8): below that the blocks' TSDF says what is where. Node
+// 0 is the root; a node's children are node indices (kNoNode where absent), so the pool's first
+// node_count() nodes are the whole state (what a saved map needs to keep).
 //
 // A node holds a capped count of frames that saw its whole octant free and the index of the last
 // such frame. Reading: a point is free when some node on its root-to-leaf path has
@@ -41,6 +43,12 @@
 // nodes per frame; past them it stops descending (octants not reached keep their state) and the
 // report says so. This is step (6) of the pipeline's degradation order. The walk is serial and
 // in a fixed order, so the result does not depend on the worker count.
+//
+// Cost: one visit tests an octant's 8 corners against at most 2 x 2 pyramid tiles. Octants along
+// every surface in view are split down to the leaves, so a frame visits roughly (surface seen /
+// leaf area) x 8 octants: at 1 cm, sim:desk, 3-40 thousand per frame (0.5-10 ms on one core).
+// What it misses: air within about one leaf plus clearance_m of a surface, and octants at the
+// image border that do not fit in the view; those read unknown unless the TSDF band covers them.
 //
 // Threading: carve() and clear() must not overlap reads (the pipeline's MapGuard orders them).
 

@@ -99,9 +99,13 @@ struct PipelineConfig {
   double prior_gate_m = 0.03;
   double prior_gate_rad = 0.035;
   // external_prior: how strongly ICP is pulled towards the prediction (IcpPrior; 0 = not at all,
-  // the prediction is then only ICP's starting point and the gate's reference).
-  double prior_information_t = 0.0;  // per m^2
-  double prior_information_r = 0.0;  // per rad^2
+  // the prediction is then only ICP's starting point and the gate's reference). ICP's own
+  // information grows with the pixels paired: at QVGA a textured view gives it 10^4 per m^2 and
+  // more, so 1000 leaves it in charge where it sees structure and lets the prior hold the
+  // directions it does not (sim:room, 1 %/m odometry, 120 frames: 0.74 cm ATE at 1000, 1.22 cm
+  // at 0, 2.11 cm at 10^4). Scale it with the working resolution's pixel count.
+  double prior_information_t = 1000.0;  // per m^2
+  double prior_information_r = 1000.0;  // per rad^2
 };
 
 // The reference defaults for a camera: QVGA working resolution from VGA, mu = 8

@@ -43,6 +43,8 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --odometry-mode M    prior (default): ICP from the odometry's motion, the odometry wins\n"
       "                       when ICP is lost or off by more than 3 cm / 2 deg;\n"
       "                       only: fuse at the odometry without ICP\n"
+      "  --odometry-weight T,R   prior mode: how strongly ICP is pulled towards the odometry\n"
+      "                       (per m^2 and rad^2; default 300,300; 0,0: not at all)\n"
       "  --bilateral          bilateral-filter the depth before tracking\n"
       "  --icp-depth-knee M   ICP weighs pairs by 1/(1+(z/M)^4) (default 1; 0: all alike)\n"
       "  --no-noise           sim: noiseless depth\n"

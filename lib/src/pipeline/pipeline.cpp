@@ -410,6 +410,8 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     icp_prior.T_W_C = prediction;
     icp_prior.information_t = config_.prior_information_t;
     icp_prior.information_r = config_.prior_information_r;
+    icp_prior.gate_m = config_.prior_gate_m;
+    icp_prior.gate_rad = config_.prior_gate_rad;
     const bool pull = predict && (icp_prior.information_t > 0.0 || icp_prior.information_r > 0.0);
     stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
                                  T_W_Cref_, estimate, team_, pull ? &icp_prior : nullptr);

@@ -179,7 +179,8 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   if (prior != nullptr) {
     args_ok = args_ok && is_rigid(prior->T_W_C.matrix()) && std::isfinite(prior->information_t) &&
               prior->information_t >= 0.0 && std::isfinite(prior->information_r) &&
-              prior->information_r >= 0.0;
+              prior->information_r >= 0.0 && std::isfinite(prior->gate_m) && prior->gate_m >= 0.0 &&
+              std::isfinite(prior->gate_rad) && prior->gate_rad >= 0.0;
   }
   for (int level = 0; level < kPyramidLevels && args_ok; ++level) {
     const int w = width_ >> level;
@@ -225,11 +226,18 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   // the finest level took no step.
   Partial final_total;
   bool have_final = false;
+  const IcpPrior* pull = nullptr;
   for (int level = kPyramidLevels - 1; level >= 0; --level) {
+    if (level == 0 && prior != nullptr) {
+      const Se3d gap = prior->T_W_C.inverse() * estimate;
+      const bool agrees = gap.translation().norm() <= prior->gate_m &&
+                          Eigen::AngleAxisd(gap.linear()).angle() <= prior->gate_rad;
+      pull = agrees ? prior : nullptr;
+    }
     for (int it = 0; it < config_.iterations[level]; ++it) {
       const Partial total = run_pass(level, estimate);
       Vector6d twist;
-      if (!solve_step(total, prior, estimate, twist)) {
+      if (!solve_step(total, level == 0 ? pull : nullptr, estimate, twist)) {
         singular = level == 0;
         break;
       }

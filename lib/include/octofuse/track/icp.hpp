@@ -84,10 +84,15 @@ struct TrackReport {
 // first, as the steps) and L = diag(information_t x3, information_r x3), in the units of the
 // weighted point-to-plane normal equations A (each pair adds up to n n^T to the translation
 // block). Directions the view constrains poorly (a wall, a floor) follow the prior; others ICP.
+// Applied at the finest level only, and only when the coarser levels, which find the basin from
+// the data alone, land within the gate of the prior: a prior that disagrees more is not pulled
+// towards (the caller decides which to trust).
 struct IcpPrior {
   Se3d T_W_C = Se3d::Identity();
   double information_t = 0.0;  // per m^2
   double information_r = 0.0;  // per rad^2
+  double gate_m = 0.03;
+  double gate_rad = 0.035;
 };
 
 class IcpTracker {

@@ -120,6 +120,21 @@ TEST_CASE("octofuse-replay killed at random moments leaves only complete files",
   // The kills must have hit runs in progress, or the test proves nothing.
   CHECK(before_end >= kKills / 2);
   CHECK(seen.trajectory);
+
+  // One more as the last trajectory line appears: the mesh, stats and images are being written.
+  const std::string out = dir + "/kill-at-end";
+  const test::Child child = test::start_replay(replay_args(out), out + ".log");
+  REQUIRE(child.pid > 0);
+  const std::string whole = test::read_file(reference + "/trajectory.txt");
+  for (int i = 0; i < 20000; ++i) {
+    if (test::read_file(out + "/trajectory.txt").size() == whole.size()) break;
+    std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  ::kill(child.pid, SIGKILL);
+  const int status = test::wait_for(child);
+  CHECK((status == 128 + SIGKILL || status == 0));
+  check_outputs(out, reference, &seen);
+  CHECK(test::read_file(out + "/trajectory.txt") == whole);
 }
 
 TEST_CASE("octofuse-replay on SIGTERM finishes the frame and writes everything", "[programs]") {

@@ -29,7 +29,7 @@ constexpr int kKills = 6;
 constexpr unsigned kSeed = 17;
 
 std::vector<std::string> replay_args(const std::string& out) {
-  // 20 frames of a 300-frame path, 2 cm voxels: short, and every output has content.
+  // The desk path in 20 frames at 2 cm: a few seconds, and every output has content.
   return {"--source", "sim:desk", "--frames", "20",     "--voxel-size",
           "0.02",     "--out",    out,        "--quiet"};
 }

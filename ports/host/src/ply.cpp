@@ -186,6 +186,32 @@ Status read_ply_into(const char* path, const PlyMeshTarget& target, ErrorText* e
   }
 
   const std::size_t vertex_bytes = scale_position >= 0 ? 13 : 12;
+  // The body must be exactly what the header promises (13 bytes per triangle): checked before
+  // anything is reserved, so a header claiming billions of elements costs nothing, and a file
+  // with bytes after its last face is refused as not ours.
+  const long body_start = std::ftell(file);
+  if (body_start < 0 || std::fseek(file, 0, SEEK_END) != 0) {
+    err.set("%s: cannot seek", path);
+    return StatusCode::data_loss;
+  }
+  const long file_end = std::ftell(file);
+  if (file_end < body_start || std::fseek(file, body_start, SEEK_SET) != 0) {
+    err.set("%s: cannot seek", path);
+    return StatusCode::data_loss;
+  }
+  const unsigned long long body_bytes = static_cast<unsigned long long>(file_end - body_start);
+  const unsigned long long expected_bytes = vertex_count * vertex_bytes + face_count * 13ull;
+  if (body_bytes < expected_bytes) {
+    err.set(
+        "%s: truncated: the header promises %llu vertices and %llu faces (%llu bytes), the "
+        "body holds %llu bytes",
+        path, vertex_count, face_count, expected_bytes, body_bytes);
+    return StatusCode::data_loss;
+  }
+  if (body_bytes > expected_bytes) {
+    err.set("%s: %llu bytes after the last face", path, body_bytes - expected_bytes);
+    return StatusCode::data_loss;
+  }
   HostBuffer<std::uint8_t> buffer;
   buffer.resize(static_cast<std::size_t>(vertex_count) * vertex_bytes);
   if (std::fread(buffer.data(), 1, buffer.size(), file) != buffer.size()) {

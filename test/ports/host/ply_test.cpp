@@ -75,6 +75,25 @@ TEST_CASE("PLY reader reports truncated and malformed files", "[host][ply]") {
     CHECK(std::string(error.c_str()).find("short.ply: truncated") != std::string::npos);
     CHECK(read.vertices.empty());
   }
+  SECTION("a header promising more than the body holds, or bytes after it") {
+    std::ifstream in(good, std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::string huge = dir + "/huge.ply";
+    std::string promised = bytes;
+    const std::size_t at = promised.find("element vertex 4");
+    REQUIRE(at != std::string::npos);
+    promised.replace(at, 16, "element vertex 2000000000");
+    std::ofstream(huge, std::ios::binary) << promised;
+    CHECK(octofuse::host::read_ply(huge.c_str(), &read, &error) == StatusCode::data_loss);
+    CHECK(std::string(error.c_str()).find("huge.ply: truncated: the header promises 2000000000") !=
+          std::string::npos);
+    const std::string longer = dir + "/longer.ply";
+    std::ofstream(longer, std::ios::binary) << bytes << "xyz";
+    CHECK(octofuse::host::read_ply(longer.c_str(), &read, &error) == StatusCode::data_loss);
+    CHECK(std::string(error.c_str()).find("longer.ply: 3 bytes after the last face") !=
+          std::string::npos);
+    CHECK(read.vertices.empty());
+  }
   SECTION("ascii format") {
     const std::string path = dir + "/ascii.ply";
     std::ofstream(path) << "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\n"

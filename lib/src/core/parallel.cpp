@@ -170,7 +170,7 @@ WorkerTeam::WorkerTeam(int workers) : workers_(workers) {
 }
 
 void WorkerTeam::run(std::size_t task_count, void (*fn)(std::size_t, void*), void* context) const {
-  OCTOFUSE_CHECK(task_count < (std::size_t{1} << 32));
+  OCTOFUSE_CHECK(static_cast<std::uint64_t>(task_count) < (std::uint64_t{1} << 32));
   if (workers_ > 1 && task_count > 1 &&
       Pool::instance().try_run(workers_ - 1, task_count, fn, context)) {
     return;

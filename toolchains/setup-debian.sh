@@ -7,15 +7,17 @@ packages=(
   # host toolchain and build tools
   build-essential cmake ninja-build pkg-config ccache git
   # library and test dependencies
-  libeigen3-dev catch2 libgomp1
+  libeigen3-dev catch2
   # port dependencies (replay: libpng; live cameras: OpenNI2, libcamera, V4L2)
   libpng-dev libopenni2-dev libcamera-dev libv4l-dev
-  # cross compilers for ARM boards, their OpenMP runtimes, and qemu-user to run the tests
+  # cross compilers for ARM boards and qemu-user to run the tests
   g++-aarch64-linux-gnu g++-arm-linux-gnueabihf
-  libgomp1-arm64-cross libgomp1-armhf-cross libgcc-12-dev-arm64-cross libgcc-12-dev-armhf-cross
+  libgcc-12-dev-arm64-cross libgcc-12-dev-armhf-cross
   qemu-user
-  # fuzzing (libFuzzer from clang 14, OpenMP for clang) and memory checks
-  clang lld libclang-rt-14-dev libomp-dev valgrind
+  # fuzzing (libFuzzer from clang 14) and memory checks
+  clang lld libclang-rt-14-dev valgrind
+  # the live view's check in a real headless browser (test/checks/live_view_browser.sh)
+  chromium
 )
 
 missing=()

@@ -8,19 +8,19 @@
 #include <octofuse/mesh/mesher.hpp>
 #include <octofuse/pipeline/pipeline.hpp>
 #include <octofuse/ports/sim/sim_source.hpp>
-#include <octofuse/render/interpolation.hpp>
+#include <octofuse/query/map_query.hpp>
 
 using namespace octofuse;
 
 namespace {
 
-// The one place this program asks the map about a point: the signed distance in metres, or false
-// where the map does not know (outside the truncation band, unobserved).
+// The one place this program asks the map about a point: the signed distance in metres near a
+// surface, or false where the map says something else (free, unknown, inside, outside the cube).
 bool signed_distance_m(const Pipeline<MultiresVoxel>& pipeline, const Eigen::Vector3f& p_W,
                        float* distance_m) {
-  TsdfSample sample;
-  if (!sample_tsdf(pipeline.map(), p_W, sample)) return false;
-  *distance_m = sample.tsdf * pipeline.config().fusion.mu_m;
+  const Result<PointAnswer> answer = pipeline.query().point(p_W);
+  if (!answer.ok() || answer.value().state != PointState::near) return false;
+  *distance_m = answer.value().distance_m;
   return true;
 }
 
@@ -76,7 +76,8 @@ int main() {
     if (stats.result == FrameResult::tracked || stats.result == FrameResult::first) ++tracked;
   }
 
-  // 4. Query: walk from the last camera along its view until the signed distance changes sign.
+  // 4. Query: walk from the last camera along its view until the signed distance changes sign,
+  // and ask whether a 10 cm sphere just in front of the camera is free.
   const Se3d T_W_C = pipeline.T_W_C();
   const Eigen::Vector3f origin_W = T_W_C.translation().cast<float>();
   const Eigen::Vector3f ray_W = T_W_C.linear().col(2).cast<float>();
@@ -91,6 +92,9 @@ int main() {
     previous = d;
   }
 
+  const Result<RegionAnswer> body = pipeline.query().sphere(origin_W + 0.6f * ray_W, 0.1f);
+  if (!body.ok()) return fail("query", body.status().name());
+
   // 5. Mesh the map.
   MeshConfig mesh_config;
   mesh_config.vertex_capacity = 1u << 18;
@@ -104,10 +108,10 @@ int main() {
   }
 
   std::printf(
-      "%d of 60 frames tracked, %u blocks; surface %.2f m ahead of the camera; mesh %zu "
-      "vertices, %zu triangles\n",
-      tracked, pipeline.map().memory().blocks_used, static_cast<double>(hit_m), mesh.vertices,
-      mesh.triangles);
+      "%d of 60 frames tracked, %u blocks; surface %.2f m ahead of the camera; a 10 cm sphere "
+      "0.6 m ahead is %s; mesh %zu vertices, %zu triangles\n",
+      tracked, pipeline.map().memory().blocks_used, static_cast<double>(hit_m),
+      region_state_name(body.value().state), mesh.vertices, mesh.triangles);
   std::free(mesh_buffer);
   std::free(buffer);
   return tracked == 60 && hit_m > 0.0f && mesh.triangles > 0 ? 0 : 2;

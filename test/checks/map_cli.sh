@@ -12,7 +12,6 @@ work=$3
 live=${4:-}
 rm -rf "${work}"
 mkdir -p "${work}"
-export OMP_WAIT_POLICY=passive
 failures=0
 fail() {
   echo "FAIL: $*"

@@ -40,7 +40,6 @@ inline Child start_replay(const std::vector<std::string>& args, const std::strin
       ::dup2(fd, 2);
       ::close(fd);
     }
-    ::setenv("OMP_WAIT_POLICY", "passive", 1);
     ::execv(argv[0], argv.data());
     ::_exit(127);
   }

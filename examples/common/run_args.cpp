@@ -694,8 +694,9 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
                 summary.ate_max_m * 100.0);
   }
   if (summary.map_loaded) {
-    std::printf("loaded %s: %u blocks in %.3f s\n", options.load_map_path.c_str(),
-                summary.map_loaded_blocks, summary.map_load_s);
+    std::printf("loaded %s: %u blocks, %u free-space nodes in %.3f s\n",
+                options.load_map_path.c_str(), summary.map_loaded_blocks,
+                summary.map_loaded_free_nodes, summary.map_load_s);
   }
   if (!summary.files_written.empty()) {
     std::string names;

@@ -48,14 +48,14 @@ grep -q "^loaded .*: [0-9]* blocks, [1-9][0-9]* free-space nodes" "${work}/b.out
 
 # Without free space: saved without it, loaded into a run that records it (which starts knowing
 # nothing free), and a file with free space loaded into a run without it.
-"${replay}" "${common[@]}" --frames 2 --no-free-space --out "${work}/n" \
+"${replay}" "${common[@]}" --gt-poses --frames 2 --no-free-space --out "${work}/n" \
   --save-map "${work}/n.ofmap" >"${work}/n.out" 2>&1 || fail "--no-free-space save: $(cat "${work}/n.out")"
 "${map}" info "${work}/n.ofmap" >"${work}/ninfo.out" 2>&1 || fail "info n: $(cat "${work}/ninfo.out")"
 grep -q "^free space      not saved$" "${work}/ninfo.out" || fail "info n: free space not reported absent"
-"${replay}" "${common[@]}" --frames 2 --out "${work}/nl" --load-map "${work}/n.ofmap" \
+"${replay}" "${common[@]}" --gt-poses --frames 2 --out "${work}/nl" --load-map "${work}/n.ofmap" \
   >"${work}/nl.out" 2>&1 || fail "load without free space: $(cat "${work}/nl.out")"
 grep -q "^loaded .* 0 free-space nodes" "${work}/nl.out" || fail "load n: $(cat "${work}/nl.out")"
-"${replay}" "${common[@]}" --frames 2 --no-free-space --out "${work}/nf" \
+"${replay}" "${common[@]}" --gt-poses --frames 2 --no-free-space --out "${work}/nf" \
   --load-map "${work}/a.ofmap" >"${work}/nf.out" 2>&1 || fail "--no-free-space load: $(cat "${work}/nf.out")"
 
 # A damaged free-space record (the last one, just before the 17-byte end record).

@@ -137,9 +137,10 @@ int run(const std::string& command, const char* path, const MapFileHeader& heade
       std::printf("finest levels   %u\n", memory.finest_used);
     }
     if (free_space.reserved()) {
-      std::printf("free space      %u nodes, %.2f MB (octants of %d voxels and up, margin %g m)\n",
-                  free_space.node_count(), static_cast<double>(free_space.bytes_used()) / 1048576.0,
-                  header.free_octant_voxels, static_cast<double>(header.free_margin_m));
+      std::printf(
+          "free space      %u nodes, %zu bytes (octants of %d voxels and up, margin %g m)\n",
+          free_space.node_count(), free_space.bytes_used(), header.free_octant_voxels,
+          static_cast<double>(header.free_margin_m));
     } else {
       std::printf("free space      not saved\n");
     }

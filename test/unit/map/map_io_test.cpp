@@ -370,7 +370,8 @@ TEMPLATE_TEST_CASE("a loaded map is the saved one: same bytes, mesh and ray-cast
 TEMPLATE_TEST_CASE("fusing on in a loaded map gives the map of an uninterrupted run", "", TsdfVoxel,
                    MultiresVoxel) {
   // Ground-truth poses: the loaded run's first frame takes the same pose the uninterrupted run
-  // had, so every later integration is the same and so must be the maps.
+  // had, so every later integration and carving is the same and so must be the maps and their
+  // free space.
   const PipelineConfig config = config_for<TestType>();
   const Frames frames(10);
   Mapper<TestType> whole(config);
@@ -379,16 +380,20 @@ TEMPLATE_TEST_CASE("fusing on in a loaded map gives the map of an uninterrupted 
   Mapper<TestType> first_half(config);
   first_half.run(frames, 0, 5);
   const std::vector<std::uint8_t> saved =
-      save(first_half.pipeline.map(), first_half.pipeline.frame_count());
+      save(first_half.pipeline.map(), first_half.pipeline.free_space(),
+           first_half.pipeline.frame_count());
 
   Mapper<TestType> resumed(config);
   MapFileHeader header;
-  REQUIRE(load_bytes(saved, resumed.pipeline.map(), nullptr, &header).ok());
+  REQUIRE(load_all(saved, resumed.pipeline.map(), resumed.pipeline.free_space(), nullptr, &header)
+              .ok());
   REQUIRE(resumed.pipeline.resume_frame_count(header.frames).ok());
   CHECK(resumed.pipeline.resume_frame_count(1).code() == StatusCode::failed_precondition);
   resumed.run(frames, 5, 10);
   CHECK(resumed.pipeline.frame_count() == 10);
-  CHECK(save(resumed.pipeline.map(), 10) == save(whole.pipeline.map(), 10));
+  CHECK(save(resumed.pipeline.map(), resumed.pipeline.free_space(), 10) ==
+        save(whole.pipeline.map(), whole.pipeline.free_space(), 10));
+  CHECK(resumed.pipeline.free_space().node_count() > first_half.pipeline.free_space().node_count());
 }
 
 // A dozen blocks, with and without finest levels: small enough to load thousands of times.

@@ -19,8 +19,8 @@
 //           tsdf_max, tsdf_mean, weight_mean), voxels, crc   -- one per block
 //           voxels: the finest level (512) when held (always for single-res), then scales 1-3
 //           (73); single-res: tsdf, weight; multires: x, x_last, y, delta_y
-//   free    u8 'F' u8 level, u8 free_count, u32 free_frame, 8 x u32 children (pool indices,
-//           0xFFFFFFFF for none), crc                    -- one per free-space node, root first
+//   free    u8 'F' u8 free_count, u32 free_frame, 8 x u32 children (pool indices, 0xFFFFFFFF
+//           for none), crc                               -- one per free-space node, root first
 //   end     u8 'E' u32 nodes u32 blocks u32 free nodes, crc; nothing may follow
 //
 // Nodes and blocks are written in pool index order. A node is allocated after its parent and a
@@ -36,10 +36,10 @@
 // against the map it is loaded into, counts against its pools, record tags and checksums, each
 // node's and block's key (canonical, inside the cube, parent present, not a duplicate), block
 // states and every float (finite; TSDF values in [-1, 1], weights in [0, kMaxSavedWeight]).
-// Free-space records: the settings (margin finite and positive, octant 2, 4 or 8 voxels, cap >=
-// 1), each node's level (its parent's + 1, never below the finest octant level), count (at most
-// the cap), frame (before the header's frame count) and children (higher indices than their
-// parent, below the count, each node the child of exactly one earlier node, none under a leaf).
+// Free space: the settings (margin finite and positive, octants of 2, 4 or 8 voxels, cap >= 1),
+// each node's count (at most the cap), frame (before the header's frame count, or 0) and
+// children (after their parent, below the count); loaded into a FreeSpace, also the tree: each
+// node but the root the child of exactly one earlier node, none below the finest octant level.
 //
 // Adding a field means: bump kMapFormatVersion (once a version has been released), extend the
 // record's write_*_record() / read_*_record() in map_io.cpp, and keep reading older versions.

@@ -56,11 +56,12 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --mesh-scale S       multires mesh.ply from each block's current scale (default) or\n"
       "                       finest: the finest scale it was fused at (static scenes)\n"
       "  --write-frames       also write DIR/frames/render_NNNNNN.png for every frame\n"
-      "  --save-map FILE      write the map to FILE at the end (also when stopped)\n"
+      "  --save-map FILE      write the map and its free space to FILE at the end (also when\n"
+      "                       stopped)\n"
       "  --save-every N       and after every N frames (needs --save-map)\n"
       "  --load-map FILE      start from a saved map (its voxel type, size, mu and cube win over\n"
-      "                       --map, --voxel-size, --mu, --map-size); the first frame's pose "
-      "comes\n"
+      "                       --map, --voxel-size, --mu, --map-size; its free space comes back\n"
+      "                       unless --no-free-space); the first frame's pose comes\n"
       "                       from the source's ground truth or --initial-pose\n"
       "  --initial-pose tx,ty,tz,qx,qy,qz,qw   first camera pose in the world (metres, unit\n"
       "                       quaternion), instead of the source's ground truth (default:\n"
@@ -697,8 +698,9 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
                 summary.ate_max_m * 100.0);
   }
   if (summary.map_loaded) {
-    std::printf("loaded %s: %u blocks in %.3f s\n", options.load_map_path.c_str(),
-                summary.map_loaded_blocks, summary.map_load_s);
+    std::printf("loaded %s: %u blocks, %u free-space nodes in %.3f s\n",
+                options.load_map_path.c_str(), summary.map_loaded_blocks,
+                summary.map_loaded_free_nodes, summary.map_load_s);
   }
   if (!summary.files_written.empty()) {
     std::string names;

@@ -314,7 +314,10 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
   MapSaveInfo info;
   info.frames = pipeline.frame_count();
   info.mu_m = pipeline.config().fusion.mu_m;
-  if (!host::save_map_file(options.save_map_path.c_str(), pipeline.map(), info, &text).ok()) {
+  const FreeSpace* free_space =
+      pipeline.config().free_space.enabled ? &pipeline.free_space() : nullptr;
+  if (!host::save_map_file(options.save_map_path.c_str(), pipeline.map(), free_space, info, &text)
+           .ok()) {
     *error = text.c_str();
     return false;
   }
@@ -471,6 +474,18 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
     config.budget = options.budget;
     config.free_space.enabled = options.free_space;
+    if (load_map && loaded.free_node_count > 0) {
+      // The saved free space is read with the settings it was carved with (its distance bounds
+      // depend on the margin), in a pool that holds it.
+      config.free_space.margin_m = loaded.free_margin_m;
+      config.free_space.finest_octant_voxels = loaded.free_octant_voxels;
+      config.free_space.max_free_count = static_cast<std::uint8_t>(loaded.free_max_count);
+      const std::uint32_t pool =
+          config.free_space.node_capacity != 0
+              ? config.free_space.node_capacity
+              : std::max(config.map.node_capacity, config.map.block_capacity);
+      config.free_space.node_capacity = std::max(pool, loaded.free_node_count);
+    }
     config.preprocess.bilateral = options.bilateral;
     if (options.icp_depth_knee_m >= 0.0f)
       config.track.depth_weight_knee_m = options.icp_depth_knee_m;
@@ -497,7 +512,9 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     const auto start = std::chrono::steady_clock::now();
     ErrorText load_error;
     MapFileHeader header;
-    if (!host::load_map_file(options.load_map_path.c_str(), pipeline.map(), &header, &load_error)
+    FreeSpace* free_space = pipeline.config().free_space.enabled ? &pipeline.free_space() : nullptr;
+    if (!host::load_map_file(options.load_map_path.c_str(), pipeline.map(), free_space, &header,
+                             &load_error)
              .ok()) {
       return error_exit(load_error.c_str());
     }
@@ -506,6 +523,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
     summary->map_loaded = true;
     summary->map_loaded_blocks = header.block_count;
+    summary->map_loaded_free_nodes = free_space != nullptr ? header.free_node_count : 0;
     summary->map_load_s =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }

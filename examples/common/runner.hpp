@@ -96,6 +96,7 @@ struct RunSummary {
   std::string failure;
   bool map_loaded = false;  // with --load-map: its blocks and save time
   std::uint32_t map_loaded_blocks = 0;
+  std::uint32_t map_loaded_free_nodes = 0;  // 0: none in the file, or free space off
   double map_load_s = 0.0;
   std::uint32_t map_saves = 0;  // files written by --save-map (periodic and final)
   double map_last_save_s = 0.0;

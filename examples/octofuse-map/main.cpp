@@ -1,18 +1,20 @@
 // octofuse-map: looks into a saved map (octofuse-replay --save-map). `info FILE` checks the whole
-// file and prints its format version, voxel type and size, blocks per scale and memory;
-// `mesh FILE OUT.ply` meshes it as octofuse-replay's mesh.ply.
+// file and prints its format version, voxel type and size, blocks per scale, free-space nodes and
+// memory; `mesh FILE OUT.ply` meshes it as octofuse-replay's mesh.ply.
 
 #include <sys/stat.h>
 
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/ply.hpp"
+#include "octofuse/query/free_space.hpp"
 
 namespace octofuse {
 namespace {
@@ -23,7 +25,7 @@ void print_usage() {
       "       octofuse-map mesh FILE OUT.ply [--mesh-scale current|finest]\n"
       "\n"
       "  info   check FILE whole and print its format version, voxel type and size, cube,\n"
-      "         blocks per scale and the memory it takes\n"
+      "         blocks per scale, free-space nodes and the memory they take\n"
       "  mesh   write FILE's surface as a binary PLY (as octofuse-replay's mesh.ply)\n");
 }
 
@@ -75,8 +77,30 @@ int run(const std::string& command, const char* path, const MapFileHeader& heade
   LinearArena arena(buffer.data, bytes);
   Octree<VoxelT> map;
   if (!map.reserve(arena, config).ok()) return error_exit("cannot reserve the map");
+  // info checks the free space as a tree too (it needs a pool for that); mesh only skips it.
+  FreeSpace free_space;
+  std::unique_ptr<MapBuffer> free_buffer;
+  if (command == "info" && header.free_node_count > 0) {
+    FreeSpaceConfig free_config;
+    free_config.node_capacity = header.free_node_count;
+    free_config.margin_m = header.free_margin_m;
+    free_config.finest_octant_voxels = header.free_octant_voxels;
+    free_config.max_free_count = static_cast<std::uint8_t>(header.free_max_count);
+    const std::size_t free_bytes = FreeSpace::bytes_required(free_config, config, 1, 1);
+    if (free_bytes == 0) return error_exit(std::string(path) + ": cannot size its free space");
+    free_buffer = std::make_unique<MapBuffer>(free_bytes);
+    if (free_buffer->data == nullptr) return error_exit("cannot reserve the free-space memory");
+    LinearArena free_arena(free_buffer->data, free_bytes);
+    if (!free_space.reserve(free_arena, free_config, config, 1, 1).ok()) {
+      return error_exit("cannot reserve the free space");
+    }
+  }
   ErrorText error;
-  if (!host::load_map_file(path, map, nullptr, &error).ok()) return error_exit(error.c_str());
+  if (!host::load_map_file(path, map, free_space.reserved() ? &free_space : nullptr, nullptr,
+                           &error)
+           .ok()) {
+    return error_exit(error.c_str());
+  }
 
   if (command == "info") {
     std::uint32_t per_scale[kMaxBlockScale + 1] = {};
@@ -111,6 +135,14 @@ int run(const std::string& command, const char* path, const MapFileHeader& heade
     std::printf("  never fused   %u\n", never);
     if (Octree<VoxelT>::kSplitFinest) {
       std::printf("finest levels   %u\n", memory.finest_used);
+    }
+    if (free_space.reserved()) {
+      std::printf(
+          "free space      %u nodes, %zu bytes (octants of %d voxels and up, margin %g m)\n",
+          free_space.node_count(), free_space.bytes_used(), header.free_octant_voxels,
+          static_cast<double>(header.free_margin_m));
+    } else {
+      std::printf("free space      not saved\n");
     }
     std::printf("memory          %.2f MB (blocks, finest levels and nodes)\n",
                 static_cast<double>(memory.bytes_used) / 1048576.0);

@@ -42,12 +42,35 @@ grep -q "3 saves" "${work}/a.out" || fail "save run: expected 3 saves (2 periodi
 grep -q "^format version  1$" "${work}/info.out" || fail "info: no format version"
 grep -q "^voxel size      0.04 m$" "${work}/info.out" || fail "info: no voxel size"
 grep -q "^frames          4$" "${work}/info.out" || fail "info: no frame count"
+grep -q "^free space      [1-9][0-9]* nodes, " "${work}/info.out" || fail "info: no free-space nodes"
 "${map}" mesh "${work}/a.ofmap" "${work}/a_mesh.ply" >/dev/null 2>&1 || fail "mesh failed"
 cmp -s "${work}/a_mesh.ply" "${work}/a/mesh.ply" || fail "octofuse-map mesh differs from the run's mesh.ply"
 
 "${replay}" "${common[@]}" --frames 2 --out "${work}/b" --load-map "${work}/a.ofmap" \
   >"${work}/b.out" 2>&1 || fail "load run: $(cat "${work}/b.out")"
-grep -q "^loaded " "${work}/b.out" || fail "load run: no 'loaded' line"
+grep -q "^loaded .*: [0-9]* blocks, [1-9][0-9]* free-space nodes" "${work}/b.out" ||
+  fail "load run: no 'loaded' line with free-space nodes: $(cat "${work}/b.out")"
+
+# Without free space: saved without it, loaded into a run that records it (which starts knowing
+# nothing free), and a file with free space loaded into a run without it.
+"${replay}" "${common[@]}" --gt-poses --frames 2 --no-free-space --out "${work}/n" \
+  --save-map "${work}/n.ofmap" >"${work}/n.out" 2>&1 || fail "--no-free-space save: $(cat "${work}/n.out")"
+"${map}" info "${work}/n.ofmap" >"${work}/ninfo.out" 2>&1 || fail "info n: $(cat "${work}/ninfo.out")"
+grep -q "^free space      not saved$" "${work}/ninfo.out" || fail "info n: free space not reported absent"
+"${replay}" "${common[@]}" --gt-poses --frames 2 --out "${work}/nl" --load-map "${work}/n.ofmap" \
+  >"${work}/nl.out" 2>&1 || fail "load without free space: $(cat "${work}/nl.out")"
+grep -q "^loaded .* 0 free-space nodes" "${work}/nl.out" || fail "load n: $(cat "${work}/nl.out")"
+"${replay}" "${common[@]}" --gt-poses --frames 2 --no-free-space --out "${work}/nf" \
+  --load-map "${work}/a.ofmap" >"${work}/nf.out" 2>&1 || fail "--no-free-space load: $(cat "${work}/nf.out")"
+
+# A damaged free-space record (the last one, just before the 17-byte end record).
+cp "${work}/a.ofmap" "${work}/freebad.ofmap"
+size=$(stat -c %s "${work}/freebad.ofmap")
+printf '\x5a' | dd of="${work}/freebad.ofmap" bs=1 seek=$((size - 17 - 20)) conv=notrunc status=none
+expect_error freebad "freebad.ofmap: checksum mismatch in free-space record" "${map}" info \
+  "${work}/freebad.ofmap"
+expect_error freebad_load "freebad.ofmap: checksum mismatch in free-space record" "${replay}" \
+  "${common[@]}" --out "${work}/c" --load-map "${work}/freebad.ofmap"
 "${replay}" "${common[@]}" --frames 2 --out "${work}/p" --load-map "${work}/a.ofmap" \
   --initial-pose 0,0,0,0,0,0,1 >"${work}/p.out" 2>&1 || fail "--initial-pose run: $(cat "${work}/p.out")"
 

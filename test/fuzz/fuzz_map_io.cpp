@@ -1,7 +1,8 @@
-// The map loader: arbitrary bytes as a map file, loaded into a small map of each voxel type with
-// the geometry of the seed (test/unit/map/data/small_multires_v1.ofmap), so mutated seeds get past
-// the header. Every input is loaded or refused with a Status; a refused load leaves the map
-// empty, and a loaded one saves back to exactly the input.
+// The map loader: arbitrary bytes as a map file, loaded into a small map and free space of each
+// voxel type with the geometry and free-space settings of the seed
+// (test/unit/map/data/small_multires_v1.ofmap), so mutated seeds get past the header. Every input
+// is loaded or refused with a Status; a refused load leaves the map and the free space empty, and
+// a loaded one saves back to exactly the input.
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
@@ -9,6 +10,7 @@
 #include <vector>
 
 #include "octofuse/map/map_io.hpp"
+#include "octofuse/query/free_space.hpp"
 
 namespace {
 
@@ -17,14 +19,20 @@ struct FuzzMap {
   FuzzMap() {
     const octofuse::MapConfig config = octofuse::MapConfig::centred(
         Eigen::Vector3f(0.0f, 0.0f, 1.0f), 0.005f, 7, 4096, 4096 / 2 + 1024);
-    const std::size_t bytes = octofuse::Octree<VoxelT>::bytes_required(config);
+    octofuse::FreeSpaceConfig free_config;  // the defaults the seed was carved with
+    free_config.node_capacity = 4096;
+    const std::size_t map_bytes = octofuse::Octree<VoxelT>::bytes_required(config);
+    const std::size_t bytes = map_bytes + octofuse::kArenaAlignment +
+                              octofuse::FreeSpace::bytes_required(free_config, config, 1, 1);
     buffer = std::aligned_alloc(octofuse::kArenaAlignment,
                                 octofuse::align_up(bytes, octofuse::kArenaAlignment));
     octofuse::LinearArena arena(buffer, bytes);
     if (!map.reserve(arena, config).ok()) std::abort();
+    if (!free_space.reserve(arena, free_config, config, 1, 1).ok()) std::abort();
   }
   void* buffer = nullptr;
   octofuse::Octree<VoxelT> map;
+  octofuse::FreeSpace free_space;
 };
 
 class VectorSink final : public octofuse::ByteSink {
@@ -41,9 +49,13 @@ void load(FuzzMap<VoxelT>& target, const std::uint8_t* data, std::size_t size) {
   octofuse::MemorySource source(data, size);
   octofuse::ErrorText error;
   octofuse::MapFileHeader header;
-  const octofuse::Status status = octofuse::load_map(source, target.map, &header, &error);
+  const octofuse::Status status =
+      octofuse::load_map(source, target.map, &target.free_space, &header, &error);
+  const bool free_space_empty =
+      target.free_space.node_count() == 1 && target.free_space.node(0).free_count == 0;
   if (!status.ok()) {
-    if (target.map.block_count() != 0 || target.map.node_count() != 1 || error.empty()) {
+    if (target.map.block_count() != 0 || target.map.node_count() != 1 || !free_space_empty ||
+        error.empty()) {
       std::abort();
     }
     return;
@@ -52,7 +64,8 @@ void load(FuzzMap<VoxelT>& target, const std::uint8_t* data, std::size_t size) {
   octofuse::MapSaveInfo info;
   info.frames = header.frames;
   info.mu_m = header.mu_m;
-  if (!octofuse::save_map(target.map, info, again).ok()) std::abort();
+  const octofuse::FreeSpace* saved_free = header.free_node_count > 0 ? &target.free_space : nullptr;
+  if (!octofuse::save_map(target.map, saved_free, info, again).ok()) std::abort();
   if (again.data.size() != size || std::memcmp(again.data.data(), data, size) != 0) std::abort();
 }
 

@@ -5,6 +5,8 @@
 #include <cstdio>
 #include <cstring>
 
+#include "octofuse/query/free_space.hpp"
+
 namespace octofuse {
 
 namespace {
@@ -12,6 +14,7 @@ namespace {
 constexpr std::uint8_t kMagic[8] = {'O', 'C', 'T', 'O', 'F', 'M', 'A', 'P'};
 constexpr std::uint8_t kNodeTag = 'N';
 constexpr std::uint8_t kBlockTag = 'B';
+constexpr std::uint8_t kFreeTag = 'F';
 constexpr std::uint8_t kEndTag = 'E';
 constexpr std::uint8_t kHasFinestFlag = 1;
 // Voxels are moved in chunks of this many through a stack buffer (1 KiB for multires).
@@ -357,6 +360,10 @@ void write_header_record(RecordWriter& w, const MapFileHeader& h) {
   w.u32(h.block_count);
   w.u32(h.finest_count);
   w.u64(h.frames);
+  w.u32(h.free_node_count);
+  w.f32(h.free_margin_m);
+  w.u8(static_cast<std::uint8_t>(h.free_octant_voxels));
+  w.u8(static_cast<std::uint8_t>(h.free_max_count));
   w.end_record();
 }
 
@@ -385,12 +392,17 @@ Result<MapFileHeader> read_header_record(RecordReader& r) {
   }
   std::uint8_t type = 0;
   std::uint8_t depth = 0;
+  std::uint8_t free_octant = 0;
+  std::uint8_t free_cap = 0;
   if (!r.u8(type) || !r.f32(h.voxel_size_m) || !r.f32(h.mu_m) || !r.u8(depth) ||
       !r.f32(h.origin_W.x()) || !r.f32(h.origin_W.y()) || !r.f32(h.origin_W.z()) ||
       !r.u32(h.node_count) || !r.u32(h.block_count) || !r.u32(h.finest_count) || !r.u64(h.frames) ||
-      !r.end_record()) {
+      !r.u32(h.free_node_count) || !r.f32(h.free_margin_m) || !r.u8(free_octant) ||
+      !r.u8(free_cap) || !r.end_record()) {
     return r.status();
   }
+  h.free_octant_voxels = free_octant;
+  h.free_max_count = free_cap;
   if (type != static_cast<std::uint8_t>(MapVoxelType::single_res) &&
       type != static_cast<std::uint8_t>(MapVoxelType::multires)) {
     r.fail(StatusCode::data_loss, "unknown voxel type %u", static_cast<unsigned>(type));
@@ -411,7 +423,90 @@ Result<MapFileHeader> read_header_record(RecordReader& r) {
     r.fail(StatusCode::data_loss, "inconsistent node, block or finest-level counts");
     return r.status();
   }
+  const bool no_free_space = h.free_node_count == 0 && float_bits(h.free_margin_m) == 0 &&
+                             free_octant == 0 && free_cap == 0;
+  const bool free_space_ok = h.free_node_count >= 1 && h.free_node_count <= (1u << 31) &&
+                             h.free_margin_m > 0.0f && h.free_margin_m <= 1e3f &&
+                             (free_octant == 2 || free_octant == 4 || free_octant == 8) &&
+                             free_cap >= 1;
+  if (!no_free_space && !free_space_ok) {
+    r.fail(StatusCode::data_loss, "free-space count or settings out of range");
+    return r.status();
+  }
   return h;
+}
+
+void write_free_record(RecordWriter& w, const FreeNode& n) {
+  w.u8(kFreeTag);
+  w.u8(n.free_count);
+  w.u32(n.free_frame);
+  for (std::uint32_t child : n.children) w.u32(child);
+  w.end_record();
+}
+
+// Reads free-space record `index` of the header's count and checks it alone: count, frame,
+// children in range and after `index`.
+bool read_free_record(RecordReader& r, const MapFileHeader& h, std::uint32_t index, FreeNode& out) {
+  std::uint8_t tag = 0;
+  if (!r.u8(tag)) return false;
+  if (tag != kFreeTag) return r.fail(StatusCode::data_loss, "wrong record tag");
+  if (!r.u8(out.free_count) || !r.u32(out.free_frame)) return false;
+  for (std::uint32_t& child : out.children) {
+    if (!r.u32(child)) return false;
+  }
+  if (!r.end_record()) return false;
+  if (out.free_count > h.free_max_count) {
+    return r.fail(StatusCode::data_loss, "free count above the file's cap");
+  }
+  // Frame 0 is also what a node that was never free holds.
+  if (out.free_frame != 0 && out.free_frame >= h.frames) {
+    return r.fail(StatusCode::data_loss, "free frame not before the map's frame count");
+  }
+  for (std::uint32_t child : out.children) {
+    if (child != FreeSpace::kNoNode && (child <= index || child >= h.free_node_count)) {
+      return r.fail(StatusCode::data_loss, "free-space child index out of range");
+    }
+  }
+  return true;
+}
+
+// Reads the free-space records. With `free_space` (restored to the header's count beforehand)
+// they also must form one tree: each node after the root is the child of exactly one earlier
+// node, and no node below the finest octant level. Until its own record is read, a node's slot
+// holds its parent in children[0] and its level in free_frame.
+bool read_free_space(RecordReader& r, const MapFileHeader& h, int block_level,
+                     FreeSpace* free_space) {
+  const int leaf_level = block_level + (h.free_octant_voxels == 8   ? 0
+                                        : h.free_octant_voxels == 4 ? 1
+                                                                    : 2);
+  for (std::uint32_t i = 0; i < h.free_node_count; ++i) {
+    r.begin_record("free-space record", i);
+    FreeNode node;
+    if (!read_free_record(r, h, i, node)) return false;
+    if (free_space == nullptr) continue;
+    FreeNode& slot = free_space->restore_node(i);
+    std::uint32_t level = 0;
+    if (i > 0) {
+      if (slot.children[0] == FreeSpace::kNoNode) {
+        return r.fail(StatusCode::data_loss, "free-space node without a parent");
+      }
+      level = slot.free_frame;
+    }
+    for (std::uint32_t child : node.children) {
+      if (child == FreeSpace::kNoNode) continue;
+      if (static_cast<int>(level) >= leaf_level) {
+        return r.fail(StatusCode::data_loss, "free-space node below the finest octant level");
+      }
+      FreeNode& below = free_space->restore_node(child);
+      if (below.children[0] != FreeSpace::kNoNode) {
+        return r.fail(StatusCode::data_loss, "free-space node with two parents");
+      }
+      below.children[0] = i;
+      below.free_frame = level + 1;
+    }
+    slot = node;
+  }
+  return true;
 }
 
 bool same_bits(float a, float b) {
@@ -529,10 +624,30 @@ MapConfig map_config_for(const MapFileHeader& header) {
   return config;
 }
 
+namespace {
+bool same_geometry(const MapConfig& a, const MapConfig& b) {
+  return same_bits(a.voxel_size_m, b.voxel_size_m) && a.voxel_depth == b.voxel_depth &&
+         same_bits(a.origin_W.x(), b.origin_W.x()) && same_bits(a.origin_W.y(), b.origin_W.y()) &&
+         same_bits(a.origin_W.z(), b.origin_W.z());
+}
+}  // namespace
+
 template <typename VoxelT>
-Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink) {
+Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const MapSaveInfo& info,
+                ByteSink& sink) {
   if (!map.reserved()) return StatusCode::failed_precondition;
   if (!(info.mu_m > 0.0f) || !(info.mu_m <= 1e3f)) return StatusCode::invalid_argument;
+  if (free_space != nullptr) {
+    if (!free_space->reserved()) return StatusCode::failed_precondition;
+    if (!same_geometry(free_space->map_config(), map.config())) {
+      return StatusCode::invalid_argument;
+    }
+    // What the loader checks: a file this writes always loads.
+    for (std::uint32_t i = 0; i < free_space->node_count(); ++i) {
+      const std::uint32_t frame = free_space->node(i).free_frame;
+      if (frame != 0 && frame >= info.frames) return StatusCode::invalid_argument;
+    }
+  }
   const MapMemory memory = map.memory();
   MapFileHeader h;
   h.voxel_type = map_voxel_type<VoxelT>();
@@ -544,13 +659,21 @@ Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& si
   h.finest_count = memory.finest_used;
   h.mu_m = info.mu_m;
   h.frames = info.frames;
+  if (free_space != nullptr) {
+    h.free_node_count = free_space->node_count();
+    h.free_margin_m = free_space->margin_m();
+    h.free_octant_voxels = free_space->config().finest_octant_voxels;
+    h.free_max_count = free_space->config().max_free_count;
+  }
   RecordWriter w(sink);
   write_header_record(w, h);
   for (std::uint32_t i = 0; i < map.node_count(); ++i) write_node_record(w, map.node(i));
   for (std::uint32_t i = 0; i < map.block_count(); ++i) write_block_record(w, map.block(i));
+  for (std::uint32_t i = 0; i < h.free_node_count; ++i) write_free_record(w, free_space->node(i));
   w.u8(kEndTag);
   w.u32(h.node_count);
   w.u32(h.block_count);
+  w.u32(h.free_node_count);
   w.end_record();
   return w.finish();
 }
@@ -563,11 +686,20 @@ Result<MapFileHeader> read_map_header(ByteSource& source, ErrorText* error) {
 template <typename VoxelT>
 Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_out,
                 ErrorText* error) {
+  return load_map(source, map, nullptr, header_out, error);
+}
+
+template <typename VoxelT>
+Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeSpace* free_space,
+                MapFileHeader* header_out, ErrorText* error) {
   if (!map.reserved()) return StatusCode::failed_precondition;
+  if (free_space != nullptr && !free_space->reserved()) return StatusCode::failed_precondition;
   map.clear();
+  if (free_space != nullptr) free_space->clear();
   RecordReader r(source, error);
   auto failed = [&]() {
     map.clear();
+    if (free_space != nullptr) free_space->clear();
     return r.status();
   };
   const Result<MapFileHeader> header = read_header_record(r);
@@ -579,10 +711,7 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_o
     return r.status();
   }
   const MapConfig& config = map.config();
-  if (!same_bits(h.voxel_size_m, config.voxel_size_m) || h.voxel_depth != config.voxel_depth ||
-      !same_bits(h.origin_W.x(), config.origin_W.x()) ||
-      !same_bits(h.origin_W.y(), config.origin_W.y()) ||
-      !same_bits(h.origin_W.z(), config.origin_W.z())) {
+  if (!same_geometry(map_config_for(h), config)) {
     r.fail(StatusCode::invalid_argument,
            "voxel size, depth or origin differ from the map it is loaded into");
     return r.status();
@@ -597,6 +726,29 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_o
            static_cast<unsigned>(memory.block_capacity),
            static_cast<unsigned>(memory.finest_capacity));
     return r.status();
+  }
+  if (free_space != nullptr && !same_geometry(free_space->map_config(), config)) {
+    r.fail(StatusCode::invalid_argument, "the free space's geometry differs from the map's");
+    return r.status();
+  }
+  if (free_space != nullptr && h.free_node_count > 0) {
+    const FreeSpaceConfig& fs = free_space->config();
+    if (!same_bits(h.free_margin_m, free_space->margin_m()) ||
+        h.free_octant_voxels != fs.finest_octant_voxels || h.free_max_count != fs.max_free_count) {
+      r.fail(StatusCode::invalid_argument,
+             "free space carved with margin %g m, %d-voxel octants, count cap %d; this one has "
+             "%g m, %d, %d",
+             static_cast<double>(h.free_margin_m), h.free_octant_voxels, h.free_max_count,
+             static_cast<double>(free_space->margin_m()), fs.finest_octant_voxels,
+             static_cast<int>(fs.max_free_count));
+      return r.status();
+    }
+    if (!free_space->begin_restore(h.free_node_count).ok()) {
+      r.fail(StatusCode::resource_exhausted, "needs %u free-space nodes; the pool holds %u",
+             static_cast<unsigned>(h.free_node_count),
+             static_cast<unsigned>(free_space->node_capacity()));
+      return failed();
+    }
   }
 
   const int block_level = map.block_level();
@@ -632,12 +784,17 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_o
     r.begin_record("block record", i);
     if (!read_block_record(r, map, i, finest_loaded, h.finest_count)) return failed();
   }
+  if (!read_free_space(r, h, block_level, free_space)) return failed();
   r.begin_record("end record", -1);
   std::uint8_t tag = 0;
   std::uint32_t nodes = 0;
   std::uint32_t blocks = 0;
-  if (!r.u8(tag) || !r.u32(nodes) || !r.u32(blocks) || !r.end_record()) return failed();
-  if (tag != kEndTag || nodes != h.node_count || blocks != h.block_count) {
+  std::uint32_t free_nodes = 0;
+  if (!r.u8(tag) || !r.u32(nodes) || !r.u32(blocks) || !r.u32(free_nodes) || !r.end_record()) {
+    return failed();
+  }
+  if (tag != kEndTag || nodes != h.node_count || blocks != h.block_count ||
+      free_nodes != h.free_node_count) {
     r.fail(StatusCode::data_loss, "end record does not match the header");
     return failed();
   }
@@ -653,9 +810,13 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_o
   return ok_status();
 }
 
-template Status save_map(const Octree<TsdfVoxel>&, const MapSaveInfo&, ByteSink&);
-template Status save_map(const Octree<MultiresVoxel>&, const MapSaveInfo&, ByteSink&);
+template Status save_map(const Octree<TsdfVoxel>&, const FreeSpace*, const MapSaveInfo&, ByteSink&);
+template Status save_map(const Octree<MultiresVoxel>&, const FreeSpace*, const MapSaveInfo&,
+                         ByteSink&);
 template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
+template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*, ErrorText*);
+template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
+                         ErrorText*);
 
 }  // namespace octofuse

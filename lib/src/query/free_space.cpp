@@ -29,6 +29,17 @@ void FreeSpace::clear() {
   OCTOFUSE_CHECK(root.ok() && root.value() == 0);
 }
 
+Status FreeSpace::begin_restore(std::uint32_t count) {
+  if (!reserved_) return StatusCode::failed_precondition;
+  clear();
+  if (count == 0 || count > nodes_.capacity()) return StatusCode::resource_exhausted;
+  for (std::uint32_t i = 1; i < count; ++i) {
+    const Result<std::uint32_t> fresh = nodes_.allocate();
+    OCTOFUSE_CHECK(fresh.ok() && fresh.value() == i);
+  }
+  return ok_status();
+}
+
 void FreeSpace::build_pyramid(ImageView<const float> depth_m) {
   float* lo = depth_min_;
   float* hi = depth_max_;

@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include "octofuse/ports/host/atomic_file.hpp"
+#include "octofuse/query/free_space.hpp"
 
 namespace octofuse::host {
 namespace {
@@ -57,8 +58,8 @@ void prefix_path(const char* path, const ErrorText& reason, ErrorText* error) {
 }  // namespace
 
 template <typename VoxelT>
-Status save_map_file(const char* path, const Octree<VoxelT>& map, const MapSaveInfo& info,
-                     ErrorText* error) {
+Status save_map_file(const char* path, const Octree<VoxelT>& map, const FreeSpace* free_space,
+                     const MapSaveInfo& info, ErrorText* error) {
   AtomicFile file;
   const Status opened = file.open(path);
   if (!opened.ok()) {
@@ -66,7 +67,7 @@ Status save_map_file(const char* path, const Octree<VoxelT>& map, const MapSaveI
     return opened;
   }
   FileSink sink(file);
-  const Status saved = save_map(map, info, sink);
+  const Status saved = save_map(map, free_space, info, sink);
   if (!saved.ok()) {
     if (error != nullptr) {
       if (file.last_error()[0] != '\0') {
@@ -93,25 +94,28 @@ Result<MapFileHeader> read_map_file_header(const char* path, ErrorText* error) {
 }
 
 template <typename VoxelT>
-Status load_map_file(const char* path, Octree<VoxelT>& map, MapFileHeader* header,
-                     ErrorText* error) {
+Status load_map_file(const char* path, Octree<VoxelT>& map, FreeSpace* free_space,
+                     MapFileHeader* header, ErrorText* error) {
   OpenFile in(path);
   if (in.file == nullptr) {
     if (map.reserved()) map.clear();
+    if (free_space != nullptr && free_space->reserved()) free_space->clear();
     return cannot_open(path, error);
   }
   FileSource source(in.file);
   ErrorText reason;
-  const Status loaded = load_map(source, map, header, &reason);
+  const Status loaded = load_map(source, map, free_space, header, &reason);
   if (!loaded.ok()) prefix_path(path, reason, error);
   return loaded;
 }
 
-template Status save_map_file(const char*, const Octree<TsdfVoxel>&, const MapSaveInfo&,
+template Status save_map_file(const char*, const Octree<TsdfVoxel>&, const FreeSpace*,
+                              const MapSaveInfo&, ErrorText*);
+template Status save_map_file(const char*, const Octree<MultiresVoxel>&, const FreeSpace*,
+                              const MapSaveInfo&, ErrorText*);
+template Status load_map_file(const char*, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*,
                               ErrorText*);
-template Status save_map_file(const char*, const Octree<MultiresVoxel>&, const MapSaveInfo&,
+template Status load_map_file(const char*, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
                               ErrorText*);
-template Status load_map_file(const char*, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
-template Status load_map_file(const char*, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
 
 }  // namespace octofuse::host

@@ -9,7 +9,9 @@
 //   header  "OCTOFMAP" u32 version, u8 voxel type (1 single-res, 2 multires), f32 voxel_size_m,
 //           f32 mu_m (the truncation distance the TSDF is normalised by), u8 voxel_depth,
 //           3 x f32 origin_W, u32 nodes, u32 blocks, u32 finest levels, u64 frames (frames the
-//           map's pipeline had processed), crc
+//           map's pipeline had processed), u32 free nodes (0: saved without free space),
+//           f32 free margin_m, u8 free finest_octant_voxels, u8 free max_free_count (the free
+//           space's settings; all 0 without free space), crc
 //   node    u8 'N' u8 level u64 morton, 4 x f32 summary (tsdf_mean, weight_mean, tsdf_min,
 //           tsdf_max), crc                                  -- one per inner node, root first
 //   block   u8 'B' u64 morton, u32 last_updated_frame, i8 current_scale, i8 min_scale,
@@ -17,22 +19,30 @@
 //           tsdf_max, tsdf_mean, weight_mean), voxels, crc   -- one per block
 //           voxels: the finest level (512) when held (always for single-res), then scales 1-3
 //           (73); single-res: tsdf, weight; multires: x, x_last, y, delta_y
-//   end     u8 'E' u32 nodes u32 blocks, crc; nothing may follow
+//   free    u8 'F' u8 free_count, u32 free_frame, 8 x u32 children (pool indices, 0xFFFFFFFF
+//           for none), crc                               -- one per free-space node, root first
+//   end     u8 'E' u32 nodes u32 blocks u32 free nodes, crc; nothing may follow
 //
 // Nodes and blocks are written in pool index order. A node is allocated after its parent and a
 // block after its parent node, so a loader that allocates them in file order rebuilds the same
 // pool indices, hash and tree: the loaded map meshes, ray-casts and keeps fusing exactly as the
 // saved one would (not only the same surface: the same bytes). The same map always gives the
-// same file. Not saved: the finest-level pool's slot numbers (a block's data does not depend on
-// them), refusal counters and summary-pass scratch, which start afresh.
+// same file. The free-space octree (query/free_space.hpp) is saved the same way: its nodes in
+// pool order with their child indices, so a loaded one is the same bytes and answers every query
+// as the saved one did. Not saved: the finest-level pool's slot numbers (a block's data does not
+// depend on them), refusal counters and summary-pass scratch, which start afresh.
 //
 // Loading validates every field before it is used: magic, version, voxel type, the geometry
 // against the map it is loaded into, counts against its pools, record tags and checksums, each
 // node's and block's key (canonical, inside the cube, parent present, not a duplicate), block
 // states and every float (finite; TSDF values in [-1, 1], weights in [0, kMaxSavedWeight]).
+// Free space: the settings (margin finite and positive, octants of 2, 4 or 8 voxels, cap >= 1),
+// each node's count (at most the cap), frame (before the header's frame count, or 0) and
+// children (after their parent, below the count); loaded into a FreeSpace, also the tree: each
+// node but the root the child of exactly one earlier node, none below the finest octant level.
 //
-// Adding a node field (e.g. free-space state) means: bump kMapFormatVersion, extend
-// write_node_record() / read_node_record() in map_io.cpp, and keep reading older versions there.
+// Adding a field means: bump kMapFormatVersion (once a version has been released), extend the
+// record's write_*_record() / read_*_record() in map_io.cpp, and keep reading older versions.
 
 #include <cstddef>
 #include <cstdint>
@@ -45,6 +55,8 @@
 #include "octofuse/map/octree.hpp"
 
 namespace octofuse {
+
+class FreeSpace;  // query/free_space.hpp
 
 inline constexpr std::uint32_t kMapFormatVersion = 1;
 // Largest weight a saved voxel or summary may hold (2^24: integers stay exact in a float).
@@ -129,6 +141,11 @@ struct MapFileHeader {
   std::uint32_t block_count = 0;
   std::uint32_t finest_count = 0;  // multires blocks holding a finest level
   std::uint64_t frames = 0;        // frames processed when saved (the next frame's index)
+  // Free space (0 nodes: saved without). Loading it needs a FreeSpace with the same settings.
+  std::uint32_t free_node_count = 0;
+  float free_margin_m = 0.0f;  // FreeSpace::margin_m(): the distance bound depends on it
+  int free_octant_voxels = 0;  // FreeSpaceConfig::finest_octant_voxels
+  int free_max_count = 0;      // FreeSpaceConfig::max_free_count
 };
 
 // CRC-32 (IEEE 802.3, reflected, as zlib's crc32()) of `count` bytes, continuing from `crc`.
@@ -140,12 +157,19 @@ struct MapSaveInfo {
   float mu_m = 0.0f;
 };
 
-// Writes `map` (reserved) to `sink`. ok; invalid_argument when info.mu_m is not finite and
-// positive; failed_precondition when the map is not reserved; or the sink's error (what was
-// written before it is incomplete: the host port writes a temporary and renames it only on
-// success).
+// Writes `map` (reserved) and, when `free_space` is not null, its free space to `sink`. ok;
+// invalid_argument when info.mu_m is not finite and positive, the free space's geometry is not
+// the map's or a free node's frame is not before info.frames; failed_precondition when the map
+// or the free space is not reserved; or the sink's error (what was written before it is
+// incomplete: the host port writes a temporary and renames it only on success).
 template <typename VoxelT>
-Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink);
+Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const MapSaveInfo& info,
+                ByteSink& sink);
+// The map alone (a file without free space).
+template <typename VoxelT>
+Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink) {
+  return save_map(map, static_cast<const FreeSpace*>(nullptr), info, sink);
+}
 
 // Reads and checks the header record only. ok; invalid_argument: not a map file (magic);
 // out_of_range: a newer format version; data_loss: truncated, checksum mismatch or a field out
@@ -163,13 +187,29 @@ MapConfig map_config_for(const MapFileHeader& header);
 // small for it; data_loss when it is truncated, corrupt (a checksum, a tag, a key, a state or a
 // value out of range) or followed by extra bytes; or the source's error. On any error the map is
 // left empty (cleared), never half-loaded. `header_out` (optional) gets the header on success.
+// The file's free space, if any, is checked record by record and skipped.
 template <typename VoxelT>
 Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_out = nullptr,
                 ErrorText* error = nullptr);
+// The same, and the file's free space into `free_space` (not null, reserved over the map's
+// geometry), which is cleared (nothing known free) when the file has none. Further errors:
+// failed_precondition when it is not reserved; invalid_argument when its geometry is not the
+// map's or the file's free space was carved with other settings (margin, octant size, count
+// cap); resource_exhausted when its pool is too small; data_loss for a free-space record that
+// is damaged or does not fit in the tree. On any error both are left cleared.
+template <typename VoxelT>
+Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeSpace* free_space,
+                MapFileHeader* header_out, ErrorText* error);
 
-extern template Status save_map(const Octree<TsdfVoxel>&, const MapSaveInfo&, ByteSink&);
-extern template Status save_map(const Octree<MultiresVoxel>&, const MapSaveInfo&, ByteSink&);
+extern template Status save_map(const Octree<TsdfVoxel>&, const FreeSpace*, const MapSaveInfo&,
+                                ByteSink&);
+extern template Status save_map(const Octree<MultiresVoxel>&, const FreeSpace*, const MapSaveInfo&,
+                                ByteSink&);
 extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
+extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*,
+                                ErrorText*);
+extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
+                                ErrorText*);
 
 }  // namespace octofuse

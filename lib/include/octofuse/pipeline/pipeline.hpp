@@ -234,6 +234,8 @@ class Pipeline {
   Map& map() { return map_; }
   // The free space carved so far (reserved only when config.free_space.enabled).
   const FreeSpace& free_space() const { return free_space_; }
+  // For loading a saved map's free space before the first frame (map/map_io.hpp).
+  FreeSpace& free_space() { return free_space_; }
   // Point and region queries over the map and its free space, safe to call from other threads
   // while process() runs (see the top of this file). Valid while the pipeline lives.
   MapQuery<VoxelT> query() const {

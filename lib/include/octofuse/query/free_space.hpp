@@ -168,6 +168,13 @@ class FreeSpace {
   std::size_t bytes_used() const { return sizeof(FreeNode) * nodes_.used(); }
   std::size_t bytes_reserved() const { return bytes_reserved_; }
 
+  // For the map loader (map/map_io.hpp), which rebuilds a saved free space in pool order:
+  // clear(), then `count` empty nodes (the root included) for restore_node() to fill. Children
+  // must get higher indices than their parents, as carve() allocates them. failed_precondition
+  // when not reserved; resource_exhausted when the pool holds fewer (it is left cleared).
+  Status begin_restore(std::uint32_t count);
+  FreeNode& restore_node(std::uint32_t index) { return nodes_[index]; }
+
  private:
   enum class Seen : std::uint8_t { free, not_seen, partial, occluded };
   Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels) const;

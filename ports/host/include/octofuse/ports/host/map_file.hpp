@@ -14,26 +14,38 @@
 namespace octofuse::host {
 
 // ok; unavailable: the file cannot be created; data_loss: a write or the sync failed (the
-// destination is untouched); invalid_argument: see save_map.
+// destination is untouched); invalid_argument, failed_precondition: see save_map. With
+// `free_space` (may be null) the file holds the free space too.
+template <typename VoxelT>
+Status save_map_file(const char* path, const Octree<VoxelT>& map, const FreeSpace* free_space,
+                     const MapSaveInfo& info, ErrorText* error);
 template <typename VoxelT>
 Status save_map_file(const char* path, const Octree<VoxelT>& map, const MapSaveInfo& info,
-                     ErrorText* error);
+                     ErrorText* error) {
+  return save_map_file(path, map, static_cast<const FreeSpace*>(nullptr), info, error);
+}
 
 // The header of a map file (see read_map_header): unavailable when the file cannot be opened.
 Result<MapFileHeader> read_map_file_header(const char* path, ErrorText* error);
 
-// Loads a map file into `map` (see load_map for the codes; unavailable when the file cannot be
-// opened). On error the map is empty.
+// Loads a map file into `map` and, when `free_space` is not null, its free space (see load_map
+// for the codes; unavailable when the file cannot be opened). On error both are empty.
+template <typename VoxelT>
+Status load_map_file(const char* path, Octree<VoxelT>& map, FreeSpace* free_space,
+                     MapFileHeader* header, ErrorText* error);
 template <typename VoxelT>
 Status load_map_file(const char* path, Octree<VoxelT>& map, MapFileHeader* header,
-                     ErrorText* error);
+                     ErrorText* error) {
+  return load_map_file(path, map, static_cast<FreeSpace*>(nullptr), header, error);
+}
 
-extern template Status save_map_file(const char*, const Octree<TsdfVoxel>&, const MapSaveInfo&,
+extern template Status save_map_file(const char*, const Octree<TsdfVoxel>&, const FreeSpace*,
+                                     const MapSaveInfo&, ErrorText*);
+extern template Status save_map_file(const char*, const Octree<MultiresVoxel>&, const FreeSpace*,
+                                     const MapSaveInfo&, ErrorText*);
+extern template Status load_map_file(const char*, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*,
                                      ErrorText*);
-extern template Status save_map_file(const char*, const Octree<MultiresVoxel>&, const MapSaveInfo&,
-                                     ErrorText*);
-extern template Status load_map_file(const char*, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
-extern template Status load_map_file(const char*, Octree<MultiresVoxel>&, MapFileHeader*,
-                                     ErrorText*);
+extern template Status load_map_file(const char*, Octree<MultiresVoxel>&, FreeSpace*,
+                                     MapFileHeader*, ErrorText*);
 
 }  // namespace octofuse::host

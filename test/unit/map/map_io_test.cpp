@@ -672,7 +672,8 @@ TEMPLATE_TEST_CASE("free space is saved and loaded: same nodes, same query answe
   const float mu_m = config.fusion.mu_m;
   const QueryAnswers before = answers_of(mapper.pipeline.map(), &original, mu_m);
   const QueryAnswers after = answers_of(loaded.pipeline.map(), &loaded.pipeline.free_space(), mu_m);
-  CHECK(before.free > 1000);
+  // Only carved free octants answer free (the TSDF's +1 alone is unknown), about 100 of the grid.
+  CHECK(before.free > 100);
   CHECK(before.near > 100);
   CHECK(before.free == after.free);
   CHECK(before.bytes == after.bytes);

@@ -134,6 +134,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   }
   json.end_array();
   json.key("voxels_updated").value(s.integration.voxels_updated);
+  json.key("blocks_evicted").value(static_cast<std::uint64_t>(s.eviction.evicted));
   json.key("pool_refusals").value(static_cast<std::uint64_t>(s.integration.pool_refusals));
   json.key("keys_dropped").value(static_cast<std::uint64_t>(s.integration.keys_dropped));
   json.key("raycast_steps").value(s.raycast.steps);
@@ -143,6 +144,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
       .value(static_cast<std::uint64_t>(s.raycast.guide_fallback_pixels));
   json.key("budget_hits").begin_object();
   json.key("icp").value(s.budget_icp_hit);
+  json.key("evict").value(s.eviction.budget_hit);
   json.key("fusion").value(s.integration.budget_hit);
   json.key("raycast").value(s.raycast.budget_hit());
   json.key("free_space").value(s.free_space.budget_hit);
@@ -196,6 +198,7 @@ struct FrameWarnings {
   bool pool_full = false;
   bool fusion_budget = false;
   bool raycast_budget = false;
+  bool evict_budget = false;
   bool unfused = false;
   bool icp_budget_set = false;  // --budget-icp given: the default iterations are no budget
 
@@ -214,6 +217,13 @@ struct FrameWarnings {
                    "warning: frame %lu: an integration budget bound (blocks coarsened, skipped or "
                    "not allocated; see budget_hits in stats.json)\n",
                    index);
+    }
+    if (s.eviction.budget_hit && !evict_budget) {
+      evict_budget = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the eviction budget bound (%u blocks evicted, a pool is "
+                   "still above its low-water mark)\n",
+                   index, s.eviction.evicted);
     }
     if (s.raycast.budget_hit() && !raycast_budget) {
       raycast_budget = true;
@@ -470,6 +480,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
           options.odometry_only ? PoseSource::external : PoseSource::external_prior;
     }
     config.budget = options.budget;
+    config.eviction = options.eviction;
     config.free_space.enabled = options.free_space;
     config.preprocess.bilateral = options.bilateral;
     if (options.icp_depth_knee_m >= 0.0f)
@@ -912,6 +923,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("pool_blocks_used").value(static_cast<std::uint64_t>(summary->map_memory.blocks_used));
     json.key("pool_block_capacity")
         .value(static_cast<std::uint64_t>(summary->map_memory.block_capacity));
+    json.key("blocks_evicted").value(summary->map_memory.evicted);
     json.key("pool_refusals").value(summary->map_memory.refusals);
     json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
     json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));

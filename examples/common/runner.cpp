@@ -135,6 +135,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.end_array();
   json.key("voxels_updated").value(s.integration.voxels_updated);
   json.key("blocks_evicted").value(static_cast<std::uint64_t>(s.eviction.evicted));
+  json.key("blocks_demoted").value(static_cast<std::uint64_t>(s.eviction.demoted));
   json.key("pool_refusals").value(static_cast<std::uint64_t>(s.integration.pool_refusals));
   json.key("keys_dropped").value(static_cast<std::uint64_t>(s.integration.keys_dropped));
   json.key("raycast_steps").value(s.raycast.steps);
@@ -281,7 +282,11 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
   const double working_fx = input_camera.fx / defaults.preprocess.downsample_factor;
   const double scale0_max_depth_m = kScale0MaxRatio * working_fx * options.voxel_size_m;
   using Map = Octree<VoxelT>;
-  if (!Map::kSplitFinest || scale0_max_depth_m >= 0.5 * defaults.fusion.far_m) {
+  // With eviction a small cap must still hold a whole view: blocks are cheap and a finest level
+  // costs 7x one, so the split below applies at any voxel size (blocks past the finest pool
+  // integrate at scale 1, the farthest give theirs back).
+  if (!Map::kSplitFinest ||
+      (!options.eviction.enabled && scale0_max_depth_m >= 0.5 * defaults.fusion.far_m)) {
     sizes.blocks = static_cast<std::uint32_t>(
         std::min(kMaxBlocks, bytes / static_cast<double>(Map::kBytesPerBlockWorstCase)));
     return sizes;

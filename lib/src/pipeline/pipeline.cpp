@@ -386,24 +386,30 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
               if (a.rank != b.rank) return a.rank > b.rank;
               return a.morton < b.morton;
             });
+  // Evicted blocks fill eviction_indices_ from the front, demoted ones from the back.
   const std::uint32_t budget = config_.budget.max_evictions;
-  std::uint32_t chosen = 0;
+  std::uint32_t evicted = 0;
+  std::uint32_t demoted = 0;
   for (std::uint32_t i = 0; i < count && (over_blocks > 0 || over_finest > 0); ++i) {
     const EvictionCandidate& c = eviction_candidates_[i];
     if (over_blocks == 0 && !c.has_finest) continue;
-    if (chosen == budget) {
+    if (evicted + demoted == budget) {
       report.budget_hit = true;
       break;
     }
-    eviction_indices_[chosen++] = c.index;
-    if (over_blocks > 0) --over_blocks;
-    if (c.has_finest) {
-      ++report.finest_released;
-      if (over_finest > 0) --over_finest;
+    if (over_blocks > 0) {
+      eviction_indices_[evicted++] = c.index;
+      --over_blocks;
+    } else {
+      eviction_indices_[count - 1 - demoted++] = c.index;
     }
+    if (c.has_finest && over_finest > 0) --over_finest;
   }
-  map_.evict_blocks(eviction_indices_, chosen);
-  report.evicted = chosen;
+  // Demote first: eviction moves blocks to other pool indices.
+  map_.release_finest(eviction_indices_ + (count - demoted), demoted);
+  map_.evict_blocks(eviction_indices_, evicted);
+  report.evicted = evicted;
+  report.demoted = demoted;
   return report;
 }
 

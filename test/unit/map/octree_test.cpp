@@ -699,5 +699,53 @@ TEST_CASE("the pool's layout after eviction depends on the evicted set, not the 
   REQUIRE_FALSE(a.map.node(0).summary.observed());
 }
 
+TEST_CASE("release_finest keeps a block at scale 1 with the means of its finest voxels",
+          "[map][octree][evict]") {
+  MapFixture<MultiresVoxel> a(small_config(256, 256));
+  fill_evict_grid(a.map, [](const Eigen::Vector3i&) { return true; });
+  std::vector<std::uint32_t> all;
+  for (std::uint32_t i = 0; i < a.map.block_count(); ++i) all.push_back(i);
+  const std::uint32_t blocks = a.map.block_count();
+  {
+    test::AllocationScope scope;
+    a.map.release_finest(all.data(), all.size());
+    REQUIRE(scope.allocations() == 0);
+  }
+  REQUIRE(a.map.memory().finest_used == 0u);
+  REQUIRE(a.map.block_count() == blocks);  // every block stays
+  for (std::uint32_t i = 0; i < blocks; ++i) {
+    const VoxelBlock<MultiresVoxel>& block = a.map.block(i);
+    const Eigen::Vector3i c = block.coords;
+    CAPTURE(c.x(), c.y(), c.z());
+    REQUIRE_FALSE(block.has_finest());
+    REQUIRE(block.current_scale == 1);
+    if (!evict_test_has_finest(c)) {
+      // Never at scale 0: untouched.
+      REQUIRE(block.at(1, 2, 3, 1).x == evict_test_tsdf(c, block_voxel_index(1, 2, 3, 1)));
+      continue;
+    }
+    // Scale 1 is now the mean of the 8 scale-0 voxels it covers (all observed, weights 1-3).
+    for (int z = 0; z < 4; ++z) {
+      for (int y = 0; y < 4; ++y) {
+        for (int x = 0; x < 4; ++x) {
+          float sum = 0.0f;
+          for (int k = 0; k < 8; ++k) {
+            sum += evict_test_tsdf(c, block_voxel_index(2 * x + (k & 1), 2 * y + ((k >> 1) & 1),
+                                                        2 * z + ((k >> 2) & 1), 0));
+          }
+          REQUIRE(block.at(x, y, z, 1).x == sum / 8.0f);
+        }
+      }
+    }
+    // The block summary describes scale 1 now.
+    float lo = 1.0f;
+    for (int k = 0; k < block_scale_count(1); ++k) lo = std::min(lo, block.scale_begin(1)[k].x);
+    REQUIRE(block.tsdf_min == lo);
+  }
+  // The pool lends the levels again.
+  REQUIRE(a.map.acquire_finest(a.map.block(0)).ok());
+  REQUIRE(a.map.memory().finest_used == 1u);
+}
+
 }  // namespace
 }  // namespace octofuse

@@ -4,7 +4,8 @@
 // a block without walking the tree. Multires blocks take their finest level (8^3 voxels) from a
 // third pool only when first written at scale 0 (see voxel_block.hpp). All are carved from an
 // arena at reserve() and never grow: when a pool is full, allocation is refused, counted and
-// reported, and the map stays valid.
+// reported, and the map stays valid. evict_blocks() and release_finest() give memory back for
+// bounded maps over unbounded areas (the pipeline decides which blocks).
 //
 // Inner nodes carry a summary of what is below them (mean, min and max normalised TSDF over
 // observed children, mean weight), kept up to date by propagate_summaries() after integration,
@@ -29,6 +30,7 @@
 #include "octofuse/map/block_hash.hpp"
 #include "octofuse/map/keys.hpp"
 #include "octofuse/map/map_config.hpp"
+#include "octofuse/map/mip.hpp"
 #include "octofuse/map/voxel.hpp"
 #include "octofuse/map/voxel_block.hpp"
 
@@ -387,8 +389,9 @@ class Octree {
     nodes_[index].summary = summary;
   }
 
-  // --- Iteration. Blocks are numbered 0..block_count()-1 in allocation order, which is
-  // deterministic for a deterministic sequence of allocate() calls.
+  // --- Iteration. Blocks are numbered 0..block_count()-1 in allocation order (evict_blocks()
+  // moves the last blocks into the holes), which is deterministic for a deterministic sequence of
+  // allocate() and evict_blocks() calls.
   std::uint32_t block_count() const { return blocks_.used(); }
   Block& block(std::uint32_t index) { return blocks_[index]; }
   const Block& block(std::uint32_t index) const { return blocks_[index]; }
@@ -512,6 +515,38 @@ class Octree {
     propagate_node_summaries(parents, nullptr, /*reset_unobserved=*/true);
     evicted_ += count;
   }
+  // Multires: gives the finest levels of the blocks at the given pool indices back to the finest
+  // pool, keeping the blocks at scale 1 (scale 1 is brought up to date from scale 0 first, the
+  // block summaries and the node summaries above are recomputed). A block refines again, by
+  // down-propagation, when it next integrates at scale 0 and the pool lends it a level. Blocks
+  // without a finest level are left alone; single-res maps: nothing happens. Not thread-safe.
+  void release_finest(const std::uint32_t* indices, std::size_t count) {
+    OCTOFUSE_CHECK(reserved_);
+    if constexpr (kSplitFinest) {
+      ++stamp_;
+      std::size_t parents = 0;
+      for (std::size_t i = 0; i < count; ++i) {
+        Block& block = blocks_[indices[i]];
+        if (block.finest == nullptr) continue;
+        if (block.integrated() && block.current_scale == 0) {
+          if (block.mip_scale < 1) {
+            propagate_block_up(block, 0, 1);
+            block.mip_scale = 1;
+          }
+          block.current_scale = 1;
+          update_block_summary(block);
+          add_summary_node(block.parent_node, parents);
+        }
+        finest_.release(finest_.index_of(block.finest));
+        block.finest = nullptr;
+      }
+      propagate_node_summaries(parents, nullptr, /*reset_unobserved=*/true);
+    } else {
+      (void)indices;
+      (void)count;
+    }
+  }
+
   // Blocks removed by evict_blocks() since reserve()/clear().
   std::uint64_t evicted() const { return evicted_; }
 

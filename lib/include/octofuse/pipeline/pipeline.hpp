@@ -40,9 +40,11 @@
 // budgets (FreeSpaceConfig), leaving octants it did not reach as they were. Each hit is reported
 // in FrameStats.
 //
-// Bounded memory (EvictionConfig): before a tracked frame is integrated, when the block pool or
-// the finest pool holds more than high_water of its capacity, blocks are evicted until both hold
-// at most low_water (their space becomes unknown). Policy: blocks the previous frame did not
+// Bounded memory (EvictionConfig): before a frame is integrated, when the block pool holds more
+// than high_water of its capacity, blocks are evicted until it holds at most low_water (their
+// space becomes unknown); when the finest-level pool does, blocks give their finest level back
+// and stay at scale 1 (demoted) until it holds at most low_water. Both share max_evictions and
+// the same ranking. Policy: blocks the previous frame did not
 // update go first, farthest from the camera first; then, only if that is not enough, the
 // updated ones, farthest first; ties by Morton code. Distance rather than age: a hovering or
 // turning robot sees the room around it again within seconds, and least-recently-updated would
@@ -113,10 +115,10 @@ struct EvictionConfig {
 
 // What eviction did in one frame.
 struct EvictionReport {
-  std::uint32_t evicted = 0;          // blocks removed before this frame's integration
-  std::uint32_t finest_released = 0;  // of those, blocks that held a finest level
-  bool triggered = false;             // a pool was above its high-water mark
-  bool budget_hit = false;            // max_evictions stopped it above the low-water mark
+  std::uint32_t evicted = 0;  // blocks removed before this frame's integration
+  std::uint32_t demoted = 0;  // blocks kept at scale 1 that gave their finest level back
+  bool triggered = false;     // a pool was above its high-water mark
+  bool budget_hit = false;    // max_evictions stopped it above the low-water mark
 };
 
 struct PipelineConfig {

@@ -197,6 +197,7 @@ struct FrameWarnings {
   static constexpr int kLostReports = 5;
   int lost_reported = 0;
   bool pool_full = false;
+  bool finest_full = false;
   bool fusion_budget = false;
   bool raycast_budget = false;
   bool evict_budget = false;
@@ -205,7 +206,15 @@ struct FrameWarnings {
 
   void after(const FrameStats& s) {
     const unsigned long index = static_cast<unsigned long>(s.frame_index);
-    if (s.integration.pool_refusals > 0 && !pool_full) {
+    const bool finest_only = s.integration.pool_refusals == s.integration.finest_refusals;
+    if (s.integration.pool_refusals > 0 && finest_only && !finest_full) {
+      finest_full = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the finest-level pool is full (%u levels): blocks beyond "
+                   "it integrate at scale 1 (raise --map-memory for finer detail)\n",
+                   index, s.memory.finest_capacity);
+    }
+    if (s.integration.pool_refusals > 0 && !finest_only && !pool_full) {
       pool_full = true;
       std::fprintf(stderr,
                    "warning: frame %lu: the block pool is full (%u blocks): surface it has no room "

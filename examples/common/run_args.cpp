@@ -66,6 +66,10 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --initial-pose tx,ty,tz,qx,qy,qz,qw   first camera pose in the world (metres, unit\n"
       "                       quaternion), instead of the source's ground truth (default:\n"
       "                       the ground truth, else identity)\n"
+      "  --evict HIGH,LOW     when the block or finest-level pool is over HIGH %% full, evict the\n"
+      "                       blocks farthest from the camera until it is at LOW %% (default\n"
+      "                       90,80; off: a full pool refuses new blocks instead)\n"
+      "  --budget-evict N     evict at most N blocks per frame\n"
       "  --no-free-space      do not record free space (queries then know only the TSDF band)\n"
       "  --query-points FILE  answer FILE's points (one 'x y z' per line, metres, world frame)\n"
       "                       against the final map into DIR/queries.txt:\n"
@@ -476,6 +480,46 @@ const RunOption kRunOptions[] = {
      [](const RunOptions& o, std::string* v) {
        *v = o.load_map_path;
        return !o.load_map_path.empty();
+     }},
+    {"evict", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v == "off") {
+         o.eviction.enabled = false;
+         return std::string();
+       }
+       double high = 0.0;
+       double low = 0.0;
+       char tail = 0;
+       if (std::sscanf(v.c_str(), "%lf,%lf%c", &high, &low, &tail) != 2 || !(low > 0.0) ||
+           !(low < high) || !(high <= 100.0)) {
+         return std::string(" needs HIGH,LOW percentages with 0 < LOW < HIGH <= 100, or off");
+       }
+       o.eviction.enabled = true;
+       o.eviction.high_water = static_cast<float>(high / 100.0);
+       o.eviction.low_water = static_cast<float>(low / 100.0);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       if (!o.eviction.enabled) {
+         *v = "off";
+       } else {
+         *v =
+             text_of(o.eviction.high_water * 100.0f) + "," + text_of(o.eviction.low_water * 100.0f);
+       }
+       return true;
+     }},
+    {"budget-evict", true,
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 1, UINT32_MAX, integer)) {
+         return std::string(" needs a positive count");
+       }
+       o.budget.max_evictions = static_cast<std::uint32_t>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.budget.max_evictions);
+       return o.budget.max_evictions > 0;
      }},
     {"no-free-space", false,
      [](RunOptions& o, const std::string&) {

@@ -134,6 +134,8 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   }
   json.end_array();
   json.key("voxels_updated").value(s.integration.voxels_updated);
+  json.key("blocks_evicted").value(static_cast<std::uint64_t>(s.eviction.evicted));
+  json.key("blocks_demoted").value(static_cast<std::uint64_t>(s.eviction.demoted));
   json.key("pool_refusals").value(static_cast<std::uint64_t>(s.integration.pool_refusals));
   json.key("keys_dropped").value(static_cast<std::uint64_t>(s.integration.keys_dropped));
   json.key("raycast_steps").value(s.raycast.steps);
@@ -143,6 +145,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
       .value(static_cast<std::uint64_t>(s.raycast.guide_fallback_pixels));
   json.key("budget_hits").begin_object();
   json.key("icp").value(s.budget_icp_hit);
+  json.key("evict").value(s.eviction.budget_hit);
   json.key("fusion").value(s.integration.budget_hit);
   json.key("raycast").value(s.raycast.budget_hit());
   json.key("free_space").value(s.free_space.budget_hit);
@@ -194,14 +197,24 @@ struct FrameWarnings {
   static constexpr int kLostReports = 5;
   int lost_reported = 0;
   bool pool_full = false;
+  bool finest_full = false;
   bool fusion_budget = false;
   bool raycast_budget = false;
+  bool evict_budget = false;
   bool unfused = false;
   bool icp_budget_set = false;  // --budget-icp given: the default iterations are no budget
 
   void after(const FrameStats& s) {
     const unsigned long index = static_cast<unsigned long>(s.frame_index);
-    if (s.integration.pool_refusals > 0 && !pool_full) {
+    const bool finest_only = s.integration.pool_refusals == s.integration.finest_refusals;
+    if (s.integration.pool_refusals > 0 && finest_only && !finest_full) {
+      finest_full = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the finest-level pool is full (%u levels): blocks beyond "
+                   "it integrate at scale 1 (raise --map-memory for finer detail)\n",
+                   index, s.memory.finest_capacity);
+    }
+    if (s.integration.pool_refusals > 0 && !finest_only && !pool_full) {
       pool_full = true;
       std::fprintf(stderr,
                    "warning: frame %lu: the block pool is full (%u blocks): surface it has no room "
@@ -214,6 +227,13 @@ struct FrameWarnings {
                    "warning: frame %lu: an integration budget bound (blocks coarsened, skipped or "
                    "not allocated; see budget_hits in stats.json)\n",
                    index);
+    }
+    if (s.eviction.budget_hit && !evict_budget) {
+      evict_budget = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the eviction budget bound (%u blocks evicted, a pool is "
+                   "still above its low-water mark)\n",
+                   index, s.eviction.evicted);
     }
     if (s.raycast.budget_hit() && !raycast_budget) {
       raycast_budget = true;
@@ -271,7 +291,11 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
   const double working_fx = input_camera.fx / defaults.preprocess.downsample_factor;
   const double scale0_max_depth_m = kScale0MaxRatio * working_fx * options.voxel_size_m;
   using Map = Octree<VoxelT>;
-  if (!Map::kSplitFinest || scale0_max_depth_m >= 0.5 * defaults.fusion.far_m) {
+  // With eviction a small cap must still hold a whole view: blocks are cheap and a finest level
+  // costs 7x one, so the split below applies at any voxel size (blocks past the finest pool
+  // integrate at scale 1, the farthest give theirs back).
+  if (!Map::kSplitFinest ||
+      (!options.eviction.enabled && scale0_max_depth_m >= 0.5 * defaults.fusion.far_m)) {
     sizes.blocks = static_cast<std::uint32_t>(
         std::min(kMaxBlocks, bytes / static_cast<double>(Map::kBytesPerBlockWorstCase)));
     return sizes;
@@ -473,6 +497,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
           options.odometry_only ? PoseSource::external : PoseSource::external_prior;
     }
     config.budget = options.budget;
+    config.eviction = options.eviction;
     config.free_space.enabled = options.free_space;
     if (load_map && loaded.free_node_count > 0) {
       // The saved free space is read with the settings it was carved with (its distance bounds
@@ -930,6 +955,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("pool_blocks_used").value(static_cast<std::uint64_t>(summary->map_memory.blocks_used));
     json.key("pool_block_capacity")
         .value(static_cast<std::uint64_t>(summary->map_memory.block_capacity));
+    json.key("blocks_evicted").value(summary->map_memory.evicted);
     json.key("pool_refusals").value(summary->map_memory.refusals);
     json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
     json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));

@@ -36,6 +36,8 @@ struct RunOptions {
   std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
   float map_memory_mb = 1024.0f;  // used when max_blocks is 0
   PipelineBudget budget;
+  // --evict: on by default in the programs, so a memory cap bounds the map instead of tracking.
+  EvictionConfig eviction = {true, 0.9f, 0.8f};
   bool bilateral = false;
   float icp_depth_knee_m = -1.0f;  // < 0: the library's default
   bool write_mesh = true;

@@ -92,6 +92,10 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "123456789",
                  "--budget-icp",
                  "1,2,3",
+                 "--evict",
+                 "85,70",
+                 "--budget-evict",
+                 "50",
                  "--gt-poses",
                  "--icp-depth-knee",
                  "0.1",
@@ -152,6 +156,10 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
   CHECK(reread.budget.max_integrated_blocks == 0u);
   CHECK(reread.budget.raycast_steps == 123456789u);
   CHECK(reread.budget.icp_iterations[2] == 3);
+  CHECK(reread.eviction.enabled);
+  CHECK(reread.eviction.high_water == 0.85f);
+  CHECK(reread.eviction.low_water == 0.7f);
+  CHECK(reread.budget.max_evictions == 50u);
   CHECK(reread.pose_source == PoseSource::ground_truth);
   CHECK(reread.icp_depth_knee_m == options.icp_depth_knee_m);
   CHECK(reread.bilateral);

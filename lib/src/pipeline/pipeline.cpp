@@ -122,6 +122,13 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
   if (!validate(config.free_space).ok()) {
     return bad("free_space (finite margins >= 0, max_free_count >= 1, visit budget > 0)");
   }
+  const EvictionConfig& e = config.eviction;
+  if (e.enabled && !(e.low_water > 0.0f && e.low_water < e.high_water && e.high_water <= 1.0f)) {
+    return bad("eviction marks must satisfy 0 < low_water < high_water <= 1");
+  }
+  if (e.enabled && config.budget.max_evictions == 0) {
+    return bad("budget.max_evictions must be >= 1 when eviction is enabled");
+  }
   if (!config.preprocess.valid()) return bad("preprocess");
   if (!config.track.valid()) return bad("track");
   if (config.workers < 1 || config.workers > 64) return bad("workers must be in [1, 64]");
@@ -203,6 +210,16 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
     }
     OCTOFUSE_TRY(free_space_.reserve(arena, free_space, config.map, working_width, working_height));
   }
+  if (config.eviction.enabled) {
+    const std::uint32_t blocks = config.map.block_capacity;
+    Result<EvictionCandidate*> candidates =
+        arena.template allocate_array<EvictionCandidate>(blocks, kArenaAlignment);
+    OCTOFUSE_TRY(candidates);
+    Result<std::uint32_t*> indices = arena.template allocate_array<std::uint32_t>(blocks);
+    OCTOFUSE_TRY(indices);
+    eviction_candidates_ = candidates.value();
+    eviction_indices_ = indices.value();
+  }
   OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
   return ok_status();
 }
@@ -254,6 +271,18 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   own_error_ = false;
   config_ = config;
   clock_ = clock;
+  {
+    // floor, so a mark never exceeds the pool; the low mark is at least one below the high one.
+    auto mark = [](std::uint32_t capacity, float fraction) {
+      return static_cast<std::uint32_t>(static_cast<double>(capacity) *
+                                        static_cast<double>(fraction));
+    };
+    const MapMemory memory = map_.memory();
+    evict_high_blocks_ = mark(memory.block_capacity, config.eviction.high_water);
+    evict_low_blocks_ = mark(memory.block_capacity, config.eviction.low_water);
+    evict_high_finest_ = mark(memory.finest_capacity, config.eviction.high_water);
+    evict_low_finest_ = mark(memory.finest_capacity, config.eviction.low_water);
+  }
   team_ = WorkerTeam(config.workers);
   working_camera_ = config.input_camera.downsampled(config.preprocess.downsample_factor);
   T_W_C_ = rigid_from(config.initial_T_W_C.matrix());
@@ -312,6 +341,76 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
   if (!raycast.ok()) return raycast.status();
   T_W_Cref_ = T_W_C_;
   return ok_status();
+}
+
+template <typename VoxelT>
+EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
+  EvictionReport report;
+  if (!config_.eviction.enabled) return report;
+  const MapMemory memory = map_.memory();
+  const bool finest_pool = Map::kSplitFinest && memory.finest_capacity > 0;
+  std::uint32_t over_blocks = 0;
+  std::uint32_t over_finest = 0;
+  if (memory.blocks_used > evict_high_blocks_) {
+    over_blocks = memory.blocks_used - evict_low_blocks_;
+  }
+  if (finest_pool && memory.finest_used > evict_high_finest_) {
+    over_finest = memory.finest_used - evict_low_finest_;
+  }
+  if (over_blocks == 0 && over_finest == 0) return report;
+  report.triggered = true;
+  // Rank every block: not updated by the previous frame first, then farthest first
+  // (squared distance in voxels from the camera's voxel to the block's centre, exact in
+  // integers), then by Morton code, a total order.
+  const Eigen::Vector3i camera_voxel =
+      map_.point_to_voxel(T_W_C_.translation().template cast<float>());
+  const std::uint32_t count = map_.block_count();
+  const std::uint32_t recent_frame = frame_index > 0 ? frame_index - 1 : 0;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    const typename Map::Block& block = map_.block(i);
+    const Eigen::Vector3i centre =
+        block.coords * kBlockSide + Eigen::Vector3i::Constant(kBlockSide / 2) - camera_voxel;
+    const std::uint64_t d2 =
+        static_cast<std::uint64_t>(static_cast<std::int64_t>(centre.x()) * centre.x() +
+                                   static_cast<std::int64_t>(centre.y()) * centre.y() +
+                                   static_cast<std::int64_t>(centre.z()) * centre.z());
+    const bool recent = block.last_updated_frame >= recent_frame && block.integrated();
+    EvictionCandidate& c = eviction_candidates_[i];
+    c.rank = (recent ? 0 : std::uint64_t{1} << 62) | d2;
+    c.morton = block.morton;
+    c.index = i;
+    c.has_finest = block.has_finest() && Map::kSplitFinest;
+  }
+  std::sort(eviction_candidates_, eviction_candidates_ + count,
+            [](const EvictionCandidate& a, const EvictionCandidate& b) {
+              if (a.rank != b.rank) return a.rank > b.rank;
+              return a.morton < b.morton;
+            });
+  // Evicted blocks fill eviction_indices_ from the front, demoted ones from the back.
+  const std::uint32_t budget = config_.budget.max_evictions;
+  std::uint32_t evicted = 0;
+  std::uint32_t demoted = 0;
+  for (std::uint32_t i = 0; i < count && (over_blocks > 0 || over_finest > 0); ++i) {
+    const EvictionCandidate& c = eviction_candidates_[i];
+    if (over_blocks == 0 && !c.has_finest) continue;
+    if (evicted + demoted == budget) {
+      report.budget_hit = true;
+      break;
+    }
+    if (over_blocks > 0) {
+      eviction_indices_[evicted++] = c.index;
+      --over_blocks;
+    } else {
+      eviction_indices_[count - 1 - demoted++] = c.index;
+    }
+    if (c.has_finest && over_finest > 0) --over_finest;
+  }
+  // Demote first: eviction moves blocks to other pool indices.
+  map_.release_finest(eviction_indices_ + (count - demoted), demoted);
+  map_.evict_blocks(eviction_indices_, evicted);
+  report.evicted = evicted;
+  report.demoted = demoted;
+  return report;
 }
 
 template <typename VoxelT>
@@ -461,6 +560,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   {
     // Queries from other threads wait here, and see the map before or after this frame.
     ExclusiveHold hold(guard_);
+    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index));
     stats.integration =
         integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
                               static_cast<std::uint32_t>(stats.frame_index), budget, team_);

@@ -367,6 +367,37 @@ TEMPLATE_TEST_CASE("a loaded map is the saved one: same bytes, mesh and ray-cast
   }
 }
 
+TEST_CASE("a map that evicted blocks saves and loads whole: same bytes, mesh and ray-cast") {
+  const PipelineConfig config = config_for<MultiresVoxel>();
+  const Frames frames(6);
+  Mapper<MultiresVoxel> mapper(config);
+  mapper.run(frames, 0, frames.count());
+  Octree<MultiresVoxel>& original = mapper.pipeline.map();
+  // Every third block, finest levels among them: holes the compaction fills, nodes left empty.
+  std::vector<std::uint32_t> evict;
+  for (std::uint32_t i = 0; i < original.block_count(); i += 3) evict.push_back(i);
+  const std::uint32_t before = original.block_count();
+  const std::uint32_t finest_before = original.memory().finest_used;
+  original.evict_blocks(evict.data(), evict.size());
+  REQUIRE(original.block_count() == before - evict.size());
+  REQUIRE(original.memory().finest_used < finest_before);
+  const std::vector<std::uint8_t> file = save(original, 6);
+
+  BareMap<MultiresVoxel> loaded(config.map);
+  ErrorText error;
+  TrickleSource source(file, std::size_t{1} << 20);
+  const Status s = load_map(source, loaded.map, nullptr, &error);
+  INFO(error.c_str());
+  REQUIRE(s.ok());
+  CHECK(save(loaded.map, 6) == file);
+  const ByteMeshSink mesh_a = mesh_of(original);
+  CHECK(mesh_a.vertices > 100);
+  CHECK(mesh_a.bytes == mesh_of(loaded.map).bytes);
+  for (const Se3d& T : {pose(5), pose(0)}) {
+    CHECK(raycast_of(original, config, T) == raycast_of(loaded.map, config, T));
+  }
+}
+
 TEMPLATE_TEST_CASE("fusing on in a loaded map gives the map of an uninterrupted run", "", TsdfVoxel,
                    MultiresVoxel) {
   // Ground-truth poses: the loaded run's first frame takes the same pose the uninterrupted run

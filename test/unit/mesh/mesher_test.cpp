@@ -1,5 +1,7 @@
 #include "octofuse/mesh/mesher.hpp"
 
+#include <algorithm>
+#include <array>
 #include <catch2/catch.hpp>
 #include <cmath>
 #include <cstdint>
@@ -347,6 +349,65 @@ TEST_CASE("meshing streams in small batches to a caller's sink") {
   REQUIRE(sink.triangles == stats->triangles);
   REQUIRE(sink.dangling == 0u);
   REQUIRE(sink.calls > 2 * stats->triangles / 64);
+}
+
+// Triangles as sorted position triples (pool order, and so vertex numbering, differs between
+// maps holding the same blocks).
+std::vector<std::array<float, 9>> triangle_set(const MeshBuffer& mesh) {
+  std::vector<std::array<float, 9>> out;
+  for (const MeshTriangle& t : mesh.triangles()) {
+    std::array<float, 9> tri;
+    for (int k = 0; k < 3; ++k) {
+      for (int a = 0; a < 3; ++a) tri[3 * k + a] = mesh.vertices()[t.v[k]].p_W[a];
+    }
+    out.push_back(tri);
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+TEST_CASE("after evicting one of two spheres the mesh is that of the other alone") {
+  // Sphere A at x < 0 (finest scale), sphere B at x > 0.3 m (scale 1): their bands share no
+  // block, so the blocks kept after evicting x > 0 are exactly those of a map of A alone.
+  const Eigen::Vector3f centre_a(-0.33f, 0.01f, -0.02f);
+  const Eigen::Vector3f centre_b(0.35f, -0.03f, 0.02f);
+  constexpr float kRadiusA_m = 0.2f;
+  constexpr float kRadiusB_m = 0.15f;
+  auto sdf_a = [&](const Eigen::Vector3f& p_W) { return (p_W - centre_a).norm() - kRadiusA_m; };
+  auto sdf_both = [&](const Eigen::Vector3f& p_W) {
+    return std::min(sdf_a(p_W), (p_W - centre_b).norm() - kRadiusB_m);
+  };
+  auto scale_of = [](const Eigen::Vector3i& c) { return c.x() < 8 ? 0 : 1; };
+  test::OwnedMap<MultiresVoxel> both(test_map_config());
+  test::fill_band(both.map, kMu_m, sdf_both, scale_of);
+  std::vector<std::uint32_t> evict;
+  for (std::uint32_t i = 0; i < both.map.block_count(); ++i) {
+    if (both.map.block_centre_W(both.map.block(i).coords).x() > 0.0f) evict.push_back(i);
+  }
+  both.map.evict_blocks(evict.data(), evict.size());
+  // A alone, its blocks allocated in the evicted map's pool order: the mesher then meets them in
+  // the same order (a vertex on a block face is computed by the first block that reaches it).
+  test::OwnedMap<MultiresVoxel> alone(test_map_config());
+  for (std::uint32_t i = 0; i < both.map.block_count(); ++i) {
+    const Eigen::Vector3i c = both.map.block(i).coords;
+    Result<std::uint32_t> index = alone.map.allocate_block(c);
+    REQUIRE(index.ok());
+    REQUIRE(index.value() == i);
+    test::fill_block(alone.map, alone.map.block(i), scale_of(c), kMu_m, sdf_a);
+  }
+  // Every block of A's band is there, and no other.
+  test::OwnedMap<MultiresVoxel> banded(test_map_config());
+  REQUIRE(static_cast<int>(alone.map.block_count()) ==
+          test::fill_band(banded.map, kMu_m, sdf_a, scale_of));
+
+  Meshing<MultiresVoxel> after;
+  Meshing<MultiresVoxel> expected;
+  REQUIRE(after.mesher.extract(both.map, after.buffer).ok());
+  REQUIRE(expected.mesher.extract(alone.map, expected.buffer).ok());
+  REQUIRE(expected.buffer.triangles().size() > 1000u);
+  REQUIRE(triangle_set(after.buffer) == triangle_set(expected.buffer));
+  REQUIRE(after.buffer.vertices().size() == expected.buffer.vertices().size());
+  REQUIRE(check_edges(after.buffer).boundary_edges == 0u);
 }
 
 }  // namespace

@@ -66,6 +66,20 @@ class IndexPool {
     --used_;
   }
 
+  // Frees the last slot of a pool that was never released into (so slots [0, used()) are all
+  // allocated): callers that keep their slots dense move the last one into a hole, then pop it.
+  void pop_back() {
+    OCTOFUSE_CHECK(free_head_ == kInvalidIndex && used_ == fresh_ && used_ > 0);
+    --used_;
+    --fresh_;
+  }
+  // Index of a slot from its address (which must be one of this pool's slots).
+  std::uint32_t index_of(const T* slot) const {
+    const std::ptrdiff_t index = slot - slots_;
+    OCTOFUSE_CHECK(index >= 0 && static_cast<std::uint64_t>(index) < fresh_);
+    return static_cast<std::uint32_t>(index);
+  }
+
   T& operator[](std::uint32_t index) {
     OCTOFUSE_CHECK(index < fresh_);
     return slots_[index];

@@ -1,8 +1,9 @@
 #pragma once
 // Fixed-capacity open-addressing hash from a block's Morton code to its pool index, so the
 // integrator and the ray-caster find a block in O(1) without walking the tree. Linear probing,
-// power-of-two table at most half full (capacity >= 2 x block capacity); entries are never
-// removed one by one (blocks live until the map is cleared).
+// power-of-two table at most half full (capacity >= 2 x block capacity). erase() removes an
+// entry by shifting the probe run behind it back (no tombstones), so a map that evicts blocks for
+// ever keeps probe runs as short as a map that never did.
 
 #include <cstddef>
 #include <cstdint>
@@ -71,6 +72,43 @@ class BlockHash {
     entries_[slot].index = index;
     ++size_;
     return ok_status();
+  }
+
+  // Removes `morton`: true, or false when absent (nothing changes).
+  bool erase(std::uint64_t morton) {
+    std::size_t hole = hash(morton) & mask_;
+    while (entries_[hole].morton != morton) {
+      if (entries_[hole].morton == kEmpty) return false;
+      hole = (hole + 1) & mask_;
+    }
+    // Backward shift: an entry after the hole moves into it unless its home slot lies cyclically
+    // in (hole, slot], where a lookup would then stop at the hole before reaching it.
+    std::size_t slot = hole;
+    while (true) {
+      slot = (slot + 1) & mask_;
+      if (entries_[slot].morton == kEmpty) break;
+      const std::size_t home = hash(entries_[slot].morton) & mask_;
+      const bool stays =
+          hole <= slot ? (hole < home && home <= slot) : (hole < home || home <= slot);
+      if (stays) continue;
+      entries_[hole] = entries_[slot];
+      hole = slot;
+    }
+    entries_[hole] = Entry();
+    --size_;
+    return true;
+  }
+
+  // Points an existing key at a new pool index (a block moved by compaction): true, or false
+  // when absent.
+  bool set_index(std::uint64_t morton, std::uint32_t index) {
+    std::size_t slot = hash(morton) & mask_;
+    while (entries_[slot].morton != morton) {
+      if (entries_[slot].morton == kEmpty) return false;
+      slot = (slot + 1) & mask_;
+    }
+    entries_[slot].index = index;
+    return true;
   }
 
   std::uint32_t size() const { return size_; }

@@ -4,7 +4,8 @@
 // a block without walking the tree. Multires blocks take their finest level (8^3 voxels) from a
 // third pool only when first written at scale 0 (see voxel_block.hpp). All are carved from an
 // arena at reserve() and never grow: when a pool is full, allocation is refused, counted and
-// reported, and the map stays valid.
+// reported, and the map stays valid. evict_blocks() and release_finest() give memory back for
+// bounded maps over unbounded areas (the pipeline decides which blocks).
 //
 // Inner nodes carry a summary of what is below them (mean, min and max normalised TSDF over
 // observed children, mean weight), kept up to date by propagate_summaries() after integration,
@@ -29,6 +30,7 @@
 #include "octofuse/map/block_hash.hpp"
 #include "octofuse/map/keys.hpp"
 #include "octofuse/map/map_config.hpp"
+#include "octofuse/map/mip.hpp"
 #include "octofuse/map/voxel.hpp"
 #include "octofuse/map/voxel_block.hpp"
 
@@ -83,6 +85,7 @@ struct MapMemory {
   // Allocation requests (blocks, nodes, finest levels) refused since reserve()/clear().
   std::uint64_t refusals = 0;
   std::uint64_t finest_refusals = 0;  // of those, finest levels
+  std::uint64_t evicted = 0;          // blocks evicted since reserve()/clear()
 };
 
 // Where a voxel falls in the tree: the deepest allocated octant containing it. `level` is -1
@@ -386,8 +389,9 @@ class Octree {
     nodes_[index].summary = summary;
   }
 
-  // --- Iteration. Blocks are numbered 0..block_count()-1 in allocation order, which is
-  // deterministic for a deterministic sequence of allocate() calls.
+  // --- Iteration. Blocks are numbered 0..block_count()-1 in allocation order (evict_blocks()
+  // moves the last blocks into the holes), which is deterministic for a deterministic sequence of
+  // allocate() and evict_blocks() calls.
   std::uint32_t block_count() const { return blocks_.used(); }
   Block& block(std::uint32_t index) { return blocks_[index]; }
   const Block& block(std::uint32_t index) const { return blocks_[index]; }
@@ -463,6 +467,89 @@ class Octree {
     propagate_node_summaries(current_count, &team);
   }
 
+  // --- Eviction (bounded memory over unbounded areas). Removes the blocks at the given pool
+  // indices (distinct, each < block_count(); the array is sorted in place): their space reads as
+  // unallocated (unknown) again, their finest levels return to the finest pool, and the summaries
+  // of the nodes above them are recomputed from what remains (a node left with nothing observed
+  // below it reads unobserved). The block pool stays dense: each hole takes the last block
+  // (indices are processed from the highest down, so the result depends only on the set, not on
+  // the order given). Inner nodes stay, empty, for the blocks that come back; they are small
+  // beside blocks and the node pool is sized for the blocks the cube can hold at once.
+  // Not thread-safe, like allocate().
+  void evict_blocks(std::uint32_t* indices, std::size_t count) {
+    OCTOFUSE_CHECK(reserved_);
+    if (count == 0) return;
+    std::sort(indices, indices + count, [](std::uint32_t a, std::uint32_t b) { return a > b; });
+    ++stamp_;
+    std::size_t parents = 0;
+    const int depth = voxel_depth();
+    const int leaf = block_level();
+    for (std::size_t i = 0; i < count; ++i) {
+      const std::uint32_t index = indices[i];
+      OCTOFUSE_CHECK(index < blocks_.used() && (i == 0 || index < indices[i - 1]));
+      Block& block = blocks_[index];
+      if constexpr (kSplitFinest) {
+        if (block.finest != nullptr) finest_.release(finest_.index_of(block.finest));
+      }
+      const bool erased = hash_.erase(morton_encode(block.coords));
+      OCTOFUSE_CHECK(erased);
+      OctreeNode& parent = nodes_[block.parent_node];
+      const int child = child_index(Key{block.morton, static_cast<std::uint8_t>(leaf)}, depth);
+      OCTOFUSE_CHECK(parent.children[child] == index);
+      parent.children[child] = kNoIndex;
+      add_summary_node(block.parent_node, parents);
+      const std::uint32_t last = blocks_.used() - 1;
+      if (index != last) {
+        Block& moved = blocks_[last];
+        OctreeNode& moved_parent = nodes_[moved.parent_node];
+        const int moved_child =
+            child_index(Key{moved.morton, static_cast<std::uint8_t>(leaf)}, depth);
+        OCTOFUSE_CHECK(moved_parent.children[moved_child] == last);
+        moved_parent.children[moved_child] = index;
+        const bool moved_ok = hash_.set_index(morton_encode(moved.coords), index);
+        OCTOFUSE_CHECK(moved_ok);
+        block = moved;
+      }
+      blocks_.pop_back();
+    }
+    propagate_node_summaries(parents, nullptr, /*reset_unobserved=*/true);
+    evicted_ += count;
+  }
+  // Multires: gives the finest levels of the blocks at the given pool indices back to the finest
+  // pool, keeping the blocks at scale 1 (scale 1 is brought up to date from scale 0 first, the
+  // block summaries and the node summaries above are recomputed). A block refines again, by
+  // down-propagation, when it next integrates at scale 0 and the pool lends it a level. Blocks
+  // without a finest level are left alone; single-res maps: nothing happens. Not thread-safe.
+  void release_finest(const std::uint32_t* indices, std::size_t count) {
+    OCTOFUSE_CHECK(reserved_);
+    if constexpr (kSplitFinest) {
+      ++stamp_;
+      std::size_t parents = 0;
+      for (std::size_t i = 0; i < count; ++i) {
+        Block& block = blocks_[indices[i]];
+        if (block.finest == nullptr) continue;
+        if (block.integrated() && block.current_scale == 0) {
+          if (block.mip_scale < 1) {
+            propagate_block_up(block, 0, 1);
+            block.mip_scale = 1;
+          }
+          block.current_scale = 1;
+          update_block_summary(block);
+          add_summary_node(block.parent_node, parents);
+        }
+        finest_.release(finest_.index_of(block.finest));
+        block.finest = nullptr;
+      }
+      propagate_node_summaries(parents, nullptr, /*reset_unobserved=*/true);
+    } else {
+      (void)indices;
+      (void)count;
+    }
+  }
+
+  // Blocks removed by evict_blocks() since reserve()/clear().
+  std::uint64_t evicted() const { return evicted_; }
+
   // --- Memory.
   MapMemory memory() const {
     MapMemory m;
@@ -481,6 +568,7 @@ class Octree {
     }
     m.refusals = refusals_;
     m.finest_refusals = finest_refusals_;
+    m.evicted = evicted_;
     return m;
   }
   std::uint64_t refusals() const { return refusals_; }
@@ -493,6 +581,7 @@ class Octree {
     if (clear_hash) hash_.clear();
     refusals_ = 0;
     finest_refusals_ = 0;
+    evicted_ = 0;
     stamp_ = 0;
     Result<std::uint32_t> root = nodes_.allocate();
     OCTOFUSE_CHECK(root.ok() && root.value() == 0);
@@ -589,7 +678,10 @@ class Octree {
     scratch_a_[current_count++] = p;
   }
   // Summarises the nodes in scratch_a_ (parents of blocks), then their parents, up to the root.
-  void propagate_node_summaries(std::size_t current_count, const WorkerTeam* team = nullptr) {
+  // reset_unobserved: a node with nothing observed below reads unobserved (after eviction)
+  // instead of keeping its summary.
+  void propagate_node_summaries(std::size_t current_count, const WorkerTeam* team = nullptr,
+                                bool reset_unobserved = false) {
     constexpr std::size_t d = kSummaryPrefetchDistance;
     std::uint32_t* current = scratch_a_;
     std::uint32_t* next = scratch_b_;
@@ -605,7 +697,7 @@ class Octree {
           for (std::size_t i = r.begin; i < r.end; ++i) {
             if (i + 2 * d < r.end) __builtin_prefetch(&nodes_[level[i + 2 * d]]);
             if (i + d < r.end) prefetch_children(nodes_[level[i + d]], blocks);
-            summarise_node(nodes_[level[i]], blocks);
+            summarise_node(nodes_[level[i]], blocks, reset_unobserved);
           }
         };
         team->for_each_task(kSummaryTasks, summarise_task);
@@ -618,7 +710,7 @@ class Octree {
           // Same for the nodes of this level and, d ahead, the children they summarise.
           if (i + 2 * d < current_count) __builtin_prefetch(&nodes_[current[i + 2 * d]]);
           if (i + d < current_count) prefetch_children(nodes_[current[i + d]], children_are_blocks);
-          summarise_node(n, children_are_blocks);
+          summarise_node(n, children_are_blocks, reset_unobserved);
         } else if (i + d < current_count) {
           __builtin_prefetch(&nodes_[current[i + d]].parent);
         }
@@ -648,7 +740,7 @@ class Octree {
     }
   }
 
-  void summarise_node(OctreeNode& n, bool children_are_blocks) {
+  void summarise_node(OctreeNode& n, bool children_are_blocks, bool reset_unobserved) {
     float sum_tsdf = 0.0f;
     float sum_weight = 0.0f;
     float lo = 1.0f;
@@ -681,7 +773,10 @@ class Octree {
       lo = child_lo < lo ? child_lo : lo;
       hi = child_hi > hi ? child_hi : hi;
     }
-    if (observed == 0) return;
+    if (observed == 0) {
+      if (reset_unobserved) n.summary = NodeSummary();
+      return;
+    }
     n.summary.tsdf_mean = sum_tsdf / static_cast<float>(observed);
     n.summary.weight_mean = std::ceil(sum_weight / static_cast<float>(observed));
     n.summary.tsdf_min = lo;
@@ -698,6 +793,7 @@ class Octree {
   std::size_t bytes_reserved_ = 0;
   std::uint64_t refusals_ = 0;
   std::uint64_t finest_refusals_ = 0;
+  std::uint64_t evicted_ = 0;
   std::uint32_t stamp_ = 0;
   bool reserved_ = false;
 };

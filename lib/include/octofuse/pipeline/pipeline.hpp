@@ -31,12 +31,27 @@
 //                   as in `track`. FrameStats::pose_origin says which pose the frame got.
 //
 // Degradation when a budget binds, in this fixed order: (1) ICP does at most the budgeted
-// iterations per level; (2) fusion stops allocating new blocks beyond max_new_blocks (farthest
-// first); (3) over max_voxel_updates, far blocks integrate one scale coarser, then are skipped;
-// (4) beyond max_integrated_blocks the farthest blocks are skipped; (5) ray-casting leaves
-// pixels invalid when its step budget runs out; (6) free-space carving stops at its node visit
-// and allocation budgets (FreeSpaceConfig), leaving octants it did not reach as they were. Each
-// hit is reported in FrameStats.
+// iterations per level; (2) eviction (EvictionConfig) removes at most max_evictions blocks, so a
+// pool still above its low-water mark may then refuse new blocks in (3); (3) fusion stops
+// allocating new blocks beyond max_new_blocks or a full pool (farthest first); (4) over
+// max_voxel_updates, far blocks integrate one scale coarser, then are skipped; (5) beyond
+// max_integrated_blocks the farthest blocks are skipped; (6) ray-casting leaves pixels invalid
+// when its step budget runs out; (7) free-space carving stops at its node visit and allocation
+// budgets (FreeSpaceConfig), leaving octants it did not reach as they were. Each hit is reported
+// in FrameStats.
+//
+// Bounded memory (EvictionConfig): before a frame is integrated, when the block pool holds more
+// than high_water of its capacity, blocks are evicted until it holds at most low_water (their
+// space becomes unknown); when the finest-level pool does, blocks give their finest level back
+// and stay at scale 1 (demoted) until it holds at most low_water. Both share max_evictions and
+// the same ranking. Policy: blocks the previous frame did not
+// update go first, farthest from the camera first; then, only if that is not enough, the
+// updated ones, farthest first; ties by Morton code. Distance rather than age: a hovering or
+// turning robot sees the room around it again within seconds, and least-recently-updated would
+// evict the wall just behind it first, while the far end of a corridor it left is what it is
+// least likely to need; sparing the previous frame's blocks keeps the view ICP tracks against. The
+// ranking uses integer distances in voxels and runs on one thread, so the evicted set and the
+// pool's new layout are the same for any worker count and on any CPU.
 //
 // Queries while mapping: query() answers from any thread while process() runs on another.
 // process() holds the map's guard (query/map_guard.hpp) exclusively over integration and carving
@@ -83,10 +98,27 @@ struct PipelineBudget {
   std::uint32_t max_new_blocks = 0xFFFFFFFFu;         // per frame
   std::uint32_t max_integrated_blocks = 0xFFFFFFFFu;  // per frame
   std::uint64_t max_voxel_updates = ~std::uint64_t{0};
-  std::uint64_t raycast_steps = 0;  // 0 = unbounded
+  std::uint64_t raycast_steps = 0;            // 0 = unbounded
+  std::uint32_t max_evictions = 0xFFFFFFFFu;  // blocks evicted per frame (EvictionConfig)
   // Index 0 = finest level. When tracking, at least one level must iterate (init() returns
   // invalid_argument otherwise): no iteration would report every frame tracked, unchecked.
   int icp_iterations[kPyramidLevels] = {4, 5, 10};
+};
+
+// When to evict blocks (see the top of this file). Marks are fractions of each pool's capacity,
+// 0 < low_water < high_water <= 1.
+struct EvictionConfig {
+  bool enabled = false;
+  float high_water = 0.9f;
+  float low_water = 0.8f;
+};
+
+// What eviction did in one frame.
+struct EvictionReport {
+  std::uint32_t evicted = 0;  // blocks removed before this frame's integration
+  std::uint32_t demoted = 0;  // blocks kept at scale 1 that gave their finest level back
+  bool triggered = false;     // a pool was above its high-water mark
+  bool budget_hit = false;    // max_evictions stopped it above the low-water mark
 };
 
 struct PipelineConfig {
@@ -98,10 +130,11 @@ struct PipelineConfig {
   FusionConfig fusion;
   TrackConfig track;
   PipelineBudget budget;
-  // Free space carved after integration (query/free_space.hpp); its budgets are step (6).
+  // Free space carved after integration (query/free_space.hpp); its budgets are step (7).
   // node_capacity 0 takes max(map node capacity, block capacity) nodes (40 bytes each);
   // clearance_m 0 takes mu / 2 and occlusion_clear_m 0 takes 4 mu.
   FreeSpaceConfig free_space;
+  EvictionConfig eviction;
   int workers = 1;
   PoseSource pose_source = PoseSource::track;
   bool initial_pose_from_ground_truth = true;
@@ -180,6 +213,7 @@ struct FrameStats {
   FrameReport input;  // validator's pixel counts
   TrackReport track;  // meaningful when a track was attempted
   bool track_attempted = false;
+  EvictionReport eviction;        // before integration
   IntegrationReport integration;  // meaningful when integrated
   FreeSpaceReport free_space;     // meaningful when integrated with free space enabled
   RaycastStats raycast;
@@ -192,8 +226,8 @@ struct FrameStats {
   double prior_gap_m = 0.0;     // |ICP - prediction| translation, when both exist
   double prior_gap_rad = 0.0;   // and rotation angle
   bool any_budget_hit() const {
-    return budget_icp_hit || integration.budget_hit || raycast.budget_hit() ||
-           free_space.budget_hit;
+    return budget_icp_hit || eviction.budget_hit || integration.budget_hit ||
+           raycast.budget_hit() || free_space.budget_hit;
   }
 };
 
@@ -264,6 +298,8 @@ class Pipeline {
  private:
   template <typename Arena>
   Status reserve(Arena& arena, const PipelineConfig& config);
+  // Step (2): evicts blocks when a pool is above its high-water mark (see EvictionConfig).
+  EvictionReport evict(std::uint32_t frame_index);
   friend std::size_t bytes_required(const PipelineConfig& config);
 
   PipelineConfig config_;
@@ -278,6 +314,19 @@ class Pipeline {
   Integrator<VoxelT> integrator_;
   Raycaster<VoxelT> raycaster_;
   FreeSpace free_space_;
+  // Eviction ranking scratch, one entry per block slot (only when eviction is enabled).
+  struct EvictionCandidate {
+    std::uint64_t rank = 0;  // higher goes first: not recently updated, then squared distance
+    std::uint64_t morton = 0;
+    std::uint32_t index = 0;
+    bool has_finest = false;
+  };
+  EvictionCandidate* eviction_candidates_ = nullptr;
+  std::uint32_t* eviction_indices_ = nullptr;
+  std::uint32_t evict_high_blocks_ = 0;  // marks as block / finest-level counts
+  std::uint32_t evict_low_blocks_ = 0;
+  std::uint32_t evict_high_finest_ = 0;
+  std::uint32_t evict_low_finest_ = 0;
   MapGuard guard_;
   std::uint64_t map_version_ = 0;  // frames fused; written under guard_
   PinholeCamera working_camera_;

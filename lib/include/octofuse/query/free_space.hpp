@@ -41,7 +41,7 @@
 //
 // Budgets: the walk visits at most max_node_visits octants and allocates at most max_new_nodes
 // nodes per frame; past them it stops descending (octants not reached keep their state) and the
-// report says so. This is step (6) of the pipeline's degradation order. The walk is serial and
+// report says so. This is step (7) of the pipeline's degradation order. The walk is serial and
 // in a fixed order, so the result does not depend on the worker count.
 //
 // Cost: one visit tests an octant's 8 corners against at most 2 x 2 pyramid tiles. Octants along

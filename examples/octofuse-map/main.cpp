@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "host_memory.hpp"
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/ply.hpp"
@@ -34,37 +35,9 @@ int error_exit(const std::string& message) {
   return 1;
 }
 
+using examples::VectorMeshSink;
 // Heap memory for a map exactly as large as the file needs.
-struct MapBuffer {
-  void* data = nullptr;
-  explicit MapBuffer(std::size_t bytes) {
-    data = std::aligned_alloc(kArenaAlignment,
-                              align_up(std::max<std::size_t>(bytes, 1), kArenaAlignment));
-  }
-  ~MapBuffer() { std::free(data); }
-  MapBuffer(const MapBuffer&) = delete;
-  MapBuffer& operator=(const MapBuffer&) = delete;
-};
-
-class VectorMeshSink final : public MeshSink {
- public:
-  Status add_vertices(const MeshVertex* vertices, std::size_t count) override {
-    for (std::size_t i = 0; i < count; ++i) {
-      positions.push_back(vertices[i].p_W);
-      scales.push_back(vertices[i].scale);
-    }
-    return ok_status();
-  }
-  Status add_triangles(const MeshTriangle* triangles, std::size_t count) override {
-    for (std::size_t i = 0; i < count; ++i) {
-      for (int k = 0; k < 3; ++k) indices.push_back(triangles[i].v[k]);
-    }
-    return ok_status();
-  }
-  std::vector<Eigen::Vector3f> positions;
-  std::vector<std::uint8_t> scales;
-  std::vector<std::uint32_t> indices;
-};
+using MapBuffer = examples::AlignedBuffer;
 
 template <typename VoxelT>
 int run(const std::string& command, const char* path, const MapFileHeader& header,

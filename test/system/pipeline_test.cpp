@@ -445,8 +445,8 @@ double rms_error_m(const std::vector<Se3d>& poses, const sim::SimSource& truth) 
   return std::sqrt(sum / static_cast<double>(poses.size()));
 }
 
-// [long]: three 400-frame runs; the cross presets skip it under qemu (see test/CMakeLists.txt),
-// where the eviction unit tests (test/unit/map) still run.
+// [long]: three 400-frame runs; the cross and sanitizer presets skip it (see
+// test/CMakeLists.txt), where the eviction unit tests (test/unit/map) still run.
 TEST_CASE("a pool far smaller than the scene evicts instead of losing tracking, allocation-free",
           "[long]") {
   constexpr int kFrames = 400;

@@ -12,6 +12,7 @@
 
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
+#include "support/aligned_buffer.hpp"
 
 namespace octofuse {
 namespace {
@@ -31,13 +32,7 @@ sim::SimConfig small_sim() {
   return config;
 }
 
-struct Buffer {
-  void* data = nullptr;
-  explicit Buffer(std::size_t bytes) {
-    data = std::aligned_alloc(kArenaAlignment, align_up(bytes + 1, kArenaAlignment));
-  }
-  ~Buffer() { std::free(data); }
-};
+using octofuse::test::Buffer;
 
 PipelineConfig config_for(const sim::SimSource& source) {
   const Se3d T_W_C0 = source.ground_truth_T_W_C(0);

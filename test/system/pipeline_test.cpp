@@ -19,6 +19,7 @@
 
 #include "octofuse/ports/host/trajectory_io.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
 #include "support/test_dir.hpp"
 
@@ -41,13 +42,7 @@ sim::SimConfig small_sim(int frames, bool noise = true) {
   return config;
 }
 
-struct Buffer {
-  void* data = nullptr;
-  explicit Buffer(std::size_t bytes) {
-    data = std::aligned_alloc(kArenaAlignment, align_up(bytes + 1, kArenaAlignment));
-  }
-  ~Buffer() { std::free(data); }
-};
+using octofuse::test::Buffer;
 
 PipelineConfig small_config(const sim::SimSource& source, float voxel_m, int workers,
                             std::uint32_t blocks = 20000) {

@@ -12,6 +12,7 @@
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/ports/sim/odometry.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
 
 namespace octofuse {
@@ -32,13 +33,7 @@ sim::SimConfig small_sim(int frames) {
   return config;
 }
 
-struct Buffer {
-  void* data = nullptr;
-  explicit Buffer(std::size_t bytes) {
-    data = std::aligned_alloc(kArenaAlignment, align_up(bytes + 1, kArenaAlignment));
-  }
-  ~Buffer() { std::free(data); }
-};
+using octofuse::test::Buffer;
 
 PipelineConfig small_config(const sim::SimSource& source, PoseSource pose_source) {
   const Se3d T_W_C0 = source.ground_truth_T_W_C(0);

@@ -45,6 +45,9 @@ struct Figures {
   long close_points = 0;  // reported near, within 3 finest voxels of the surface
   double close_sq_error = 0.0;
   long missed[5] = {0, 0, 0, 0, 0};  // truly free in view, by reported state
+  // Truly free in view and reported unknown, by exact distance to the nearest surface (m):
+  // < 0.1, < 0.2, < 0.4, < 0.8, beyond.
+  long unknown_by_distance[5] = {0, 0, 0, 0, 0};
   long regions = 0;
   long regions_free = 0;
   long unsafe_regions = 0;
@@ -179,6 +182,10 @@ int run_scene(const std::string& name, long frames, long sample_points, float vo
         ++f->truly_free_in_view;
         if (a.state == PointState::free) ++f->truly_free_in_view_reported_free;
         ++f->missed[static_cast<int>(a.state)];
+        if (a.state == PointState::unknown) {
+          const int bucket = sdf < 0.1 ? 0 : sdf < 0.2 ? 1 : sdf < 0.4 ? 2 : sdf < 0.8 ? 3 : 4;
+          ++f->unknown_by_distance[bucket];
+        }
 
         if (a.state == PointState::free || (a.state == PointState::near && a.distance_m > 0.0f)) {
           ++f->truly_free_in_view_free_or_near;
@@ -366,6 +373,11 @@ int main(int argc, char** argv) {
         "  sim:%s truly free in view, as reported: outside %ld, unknown %ld, free %ld, near %ld, "
         "inside %ld\n",
         name.c_str(), f.missed[0], f.missed[1], f.missed[2], f.missed[3], f.missed[4]);
+    std::printf(
+        "  sim:%s of them unknown, by distance to the nearest surface: < 0.1 m %ld, 0.1-0.2 m %ld, "
+        "0.2-0.4 m %ld, 0.4-0.8 m %ld, beyond %ld\n",
+        name.c_str(), f.unknown_by_distance[0], f.unknown_by_distance[1], f.unknown_by_distance[2],
+        f.unknown_by_distance[3], f.unknown_by_distance[4]);
     std::fflush(stdout);
   }
   return 0;

@@ -39,7 +39,7 @@ grep -q "3 saves" "${work}/a.out" || fail "save run: expected 3 saves (2 periodi
 [[ ! -e "${work}/a.ofmap.tmp" ]] || fail "temporary left behind"
 
 "${map}" info "${work}/a.ofmap" >"${work}/info.out" 2>&1 || fail "info: $(cat "${work}/info.out")"
-grep -q "^format version  1$" "${work}/info.out" || fail "info: no format version"
+grep -q "^format version  2$" "${work}/info.out" || fail "info: no format version"
 grep -q "^voxel size      0.04 m$" "${work}/info.out" || fail "info: no voxel size"
 grep -q "^frames          4$" "${work}/info.out" || fail "info: no frame count"
 grep -q "^free space      [1-9][0-9]* nodes, " "${work}/info.out" || fail "info: no free-space nodes"

@@ -1,6 +1,6 @@
 // The map loader: arbitrary bytes as a map file, loaded into a small map and free space of each
 // voxel type with the geometry and free-space settings of the seed
-// (test/unit/map/data/small_multires_v1.ofmap), so mutated seeds get past the header. Every input
+// (test/unit/map/data/small_multires_v2.ofmap), so mutated seeds get past the header. Every input
 // is loaded or refused with a Status; a refused load leaves the map and the free space empty, and
 // a loaded one saves back to exactly the input.
 #include <cstddef>

@@ -314,6 +314,8 @@ TEST_CASE("reset() forgets the map and starts over: the same frames give the sam
   const std::uint32_t blocks = pipeline.map().memory().blocks_used;
   REQUIRE(blocks > 0);
   const std::size_t bytes_used = pipeline.bytes_used();
+  // Some air in front of the first camera was carved free; the reset forgets it too.
+  REQUIRE(pipeline.free_space().node_count() > 1);
 
   test::AllocationScope scope;
   REQUIRE(pipeline.reset().ok());
@@ -321,6 +323,7 @@ TEST_CASE("reset() forgets the map and starts over: the same frames give the sam
   REQUIRE(pipeline.reset().ok());
   REQUIRE(scope.allocations() == 0);
   REQUIRE(pipeline.map().memory().blocks_used == 0);
+  REQUIRE(pipeline.free_space().node_count() == 1);  // the root alone
   REQUIRE(pipeline.bytes_used() == bytes_used);
   REQUIRE(pipeline.T_W_C().matrix().isApprox(config.initial_T_W_C.matrix(), 1e-12));
 

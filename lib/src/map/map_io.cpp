@@ -441,6 +441,7 @@ void write_free_record(RecordWriter& w, const FreeNode& n) {
   w.u8(n.free_count);
   w.u32(n.free_frame);
   for (std::uint32_t child : n.children) w.u32(child);
+  w.u8(n.sub_free);
   w.end_record();
 }
 
@@ -454,6 +455,8 @@ bool read_free_record(RecordReader& r, const MapFileHeader& h, std::uint32_t ind
   for (std::uint32_t& child : out.children) {
     if (!r.u32(child)) return false;
   }
+  out.sub_free = 0;
+  if (h.version >= 2 && !r.u8(out.sub_free)) return false;
   if (!r.end_record()) return false;
   if (out.free_count > h.free_max_count) {
     return r.fail(StatusCode::data_loss, "free count above the file's cap");
@@ -491,6 +494,9 @@ bool read_free_space(RecordReader& r, const MapFileHeader& h, int block_level,
         return r.fail(StatusCode::data_loss, "free-space node without a parent");
       }
       level = slot.free_frame;
+    }
+    if (node.sub_free != 0 && static_cast<int>(level) != leaf_level) {
+      return r.fail(StatusCode::data_loss, "free sub-cells on a node above the finest octants");
     }
     for (std::uint32_t child : node.children) {
       if (child == FreeSpace::kNoNode) continue;

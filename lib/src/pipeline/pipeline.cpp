@@ -310,7 +310,13 @@ Status Pipeline<VoxelT>::resume_frame_count(std::uint64_t frames) {
 template <typename VoxelT>
 Status Pipeline<VoxelT>::reset() {
   if (!initialised_) return StatusCode::failed_precondition;
-  map_.clear();
+  {
+    // Readers see the map before the reset or after it, never half cleared.
+    ExclusiveHold hold(guard_);
+    map_.clear();
+    if (free_space_.reserved()) free_space_.clear();
+    ++map_version_;
+  }
   validator_.restart_stream();
   T_W_C_ = rigid_from(config_.initial_T_W_C.matrix());
   T_W_Cref_ = T_W_C_;

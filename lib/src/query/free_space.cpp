@@ -43,14 +43,16 @@ Status FreeSpace::begin_restore(std::uint32_t count) {
 void FreeSpace::build_pyramid(ImageView<const float> depth_m) {
   float* lo = depth_min_;
   float* hi = depth_max_;
+  std::uint8_t* invalid = depth_invalid_;
   for (int y = 0; y < height_; ++y) {
     const float* row = depth_m.row(y);
     for (int x = 0; x < width_; ++x) {
       const float d = row[x];
-      // NaN and infinities fail the test: invalid pixels are 0 in both images.
-      const float v = (d > 0.0f && d < 1e30f) ? d : 0.0f;
-      lo[y * width_ + x] = v;
-      hi[y * width_ + x] = v;
+      // NaN and infinities fail the test too.
+      const bool valid = d > 0.0f && d < kNoDepth;
+      lo[y * width_ + x] = valid ? d : kNoDepth;
+      hi[y * width_ + x] = valid ? d : 0.0f;
+      invalid[y * width_ + x] = valid ? 0 : 1;
     }
   }
   for (int level = 1; level < level_count_; ++level) {
@@ -60,12 +62,15 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m) {
     const int ph = level_height_[level - 1];
     const float* plo = depth_min_ + level_offset_[level - 1];
     const float* phi = depth_max_ + level_offset_[level - 1];
+    const std::uint8_t* pin = depth_invalid_ + level_offset_[level - 1];
     float* clo = depth_min_ + level_offset_[level];
     float* chi = depth_max_ + level_offset_[level];
+    std::uint8_t* cin = depth_invalid_ + level_offset_[level];
     for (int y = 0; y < h; ++y) {
       for (int x = 0; x < w; ++x) {
-        float a = 1e30f;
+        float a = kNoDepth;
         float b = 0.0f;
+        std::uint8_t c = 0;
         for (int dy = 0; dy < 2; ++dy) {
           const int py = 2 * y + dy;
           if (py >= ph) break;
@@ -74,27 +79,33 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m) {
             if (px >= pw) break;
             a = std::min(a, plo[py * pw + px]);
             b = std::max(b, phi[py * pw + px]);
+            c = static_cast<std::uint8_t>(c | pin[py * pw + px]);
           }
         }
         clo[y * w + x] = a;
         chi[y * w + x] = b;
+        cin[y * w + x] = c;
       }
     }
   }
 }
 
-void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, float& lo, float& hi) const {
+void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const {
   const int w = level_width_[level];
   const float* plo = depth_min_ + level_offset_[level];
   const float* phi = depth_max_ + level_offset_[level];
-  lo = 1e30f;
-  hi = 0.0f;
+  const std::uint8_t* pin = depth_invalid_ + level_offset_[level];
+  range.lo = kNoDepth;
+  range.hi = 0.0f;
+  std::uint8_t invalid = 0;
   for (int y = v0 >> level; y <= (v1 >> level); ++y) {
     for (int x = u0 >> level; x <= (u1 >> level); ++x) {
-      lo = std::min(lo, plo[y * w + x]);
-      hi = std::max(hi, phi[y * w + x]);
+      range.lo = std::min(range.lo, plo[y * w + x]);
+      range.hi = std::max(range.hi, phi[y * w + x]);
+      invalid = static_cast<std::uint8_t>(invalid | pin[y * w + x]);
     }
   }
+  range.any_invalid = invalid != 0;
 }
 
 namespace {
@@ -106,7 +117,8 @@ int clamped_floor(float f) {
 }
 }  // namespace
 
-FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels) const {
+FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels,
+                                    bool precise) const {
   const float voxel = map_.voxel_size_m;
   const Eigen::Vector3f lo_W =
       map_.origin_W + min_voxel.cast<float>() * voxel - Eigen::Vector3f::Constant(margin_m_);
@@ -148,7 +160,7 @@ FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_v
   }
   if (out_left == 8 || out_right == 8 || out_top == 8 || out_bottom == 8) return Seen::not_seen;
   // Straddles the camera plane: its projection is unbounded.
-  if (z_min <= config_.near_m) return Seen::partial;
+  if (z_min <= config_.near_m) return Seen::straddle;
   float u_min = 1e30f;
   float u_max = -1e30f;
   float v_min = 1e30f;
@@ -161,6 +173,11 @@ FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_v
     v_max = std::max(v_max, px.y());
   }
   // The projection of a convex body in front of the camera lies in the hull of its corners'.
+  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, precise);
+}
+
+FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_min, float u_max,
+                                              float v_min, float v_max, bool precise) const {
   const float w = static_cast<float>(width_);
   const float h = static_cast<float>(height_);
   if (u_max < -0.5f || v_max < -0.5f || u_min >= w - 0.5f || v_min >= h - 0.5f) {
@@ -177,19 +194,118 @@ FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_v
   v0 = std::max(v0, 0);
   u1 = std::min(u1, width_ - 1);
   v1 = std::min(v1, height_ - 1);
-  // The finest level where the range spans at most 2 x 2 tiles.
-  int level = 0;
-  while (level + 1 < level_count_ &&
-         (((u1 >> level) - (u0 >> level)) > 1 || ((v1 >> level) - (v0 >> level)) > 1)) {
-    ++level;
+  // The tiles covering the footprint, at the finest pyramid level where they span at most
+  // `tiles` x `tiles`: the window exceeds the footprint by up to one tile on each side, so a
+  // depth just beside the octant can make it look partial. Octants that descend anyway take 3 x 3
+  // (at most 9 reads); the leaves, whose answer is final (a partial leaf loses its free state),
+  // and octants that would otherwise not be free, look again at up to 8 x 8.
+  auto classify_window = [&](int tiles) {
+    int level = 0;
+    while (level + 1 < level_count_ &&
+           (((u1 >> level) - (u0 >> level)) >= tiles || ((v1 >> level) - (v0 >> level)) >= tiles)) {
+      ++level;
+    }
+    TileRange range;
+    tile_range(level, u0, v0, u1, v1, range);
+    // No valid depth in the footprint: this frame says nothing about the octant.
+    if (range.hi <= 0.0f || z_min > range.hi + occlusion_clear_m_) return Seen::not_seen;
+    if (z_max < range.lo - clearance_m_) {
+      // Every depth measured in the footprint lies beyond the octant: free when the footprint
+      // is wholly measured, else nothing contradicts it but parts were not seen.
+      return inside && !range.any_invalid ? Seen::free : Seen::clear;
+    }
+    if (z_min > range.hi) return Seen::occluded;
+    return Seen::partial;
+  };
+  const Seen coarse = classify_window(3);
+  if (coarse == Seen::free || coarse == Seen::not_seen || !precise) return coarse;
+  return classify_window(8);
+}
+
+FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
+    const Eigen::Vector3i& leaf_min_voxel) const {
+  SubCellUpdate update;
+  constexpr int n = 2;
+  const float voxel = map_.voxel_size_m;
+  const float sub_side = static_cast<float>(sub_cell_voxels_) * voxel;
+  // The sub-cells' corners on an (n + 1)^3 grid, each with the bounds of the projection of a
+  // camera-axis-aligned box of half-side r around it. The grown sub-cell (margin_m on each side)
+  // lies within r = margin * sqrt(3) of the sub-cell, and x/z is quasi-convex, so the bounds over
+  // its 8 corners' boxes bound the grown sub-cell's projection.
+  constexpr int kGrid = n + 1;
+  struct GridPoint {
+    float z_lo, z_hi, u_lo, u_hi, v_lo, v_hi;
+    bool ok;
+  };
+  GridPoint grid[kGrid * kGrid * kGrid];
+  const float r = margin_m_ * 1.7320508f;
+  const Eigen::Vector3f lo_W = map_.origin_W + leaf_min_voxel.cast<float>() * voxel;
+  const Eigen::Vector3f base_C = R_C_W_ * lo_W + t_C_W_;
+  const Eigen::Vector3f sx = R_C_W_.col(0) * sub_side;
+  const Eigen::Vector3f sy = R_C_W_.col(1) * sub_side;
+  const Eigen::Vector3f sz = R_C_W_.col(2) * sub_side;
+  for (int k = 0; k <= n; ++k) {
+    for (int j = 0; j <= n; ++j) {
+      for (int i = 0; i <= n; ++i) {
+        const Eigen::Vector3f p = base_C + static_cast<float>(i) * sx + static_cast<float>(j) * sy +
+                                  static_cast<float>(k) * sz;
+        GridPoint& g = grid[(k * kGrid + j) * kGrid + i];
+        g.z_lo = p.z() - r;
+        g.z_hi = p.z() + r;
+        g.ok = g.z_lo > config_.near_m;
+        if (!g.ok) continue;
+        const float near_inv = 1.0f / g.z_lo;
+        const float far_inv = 1.0f / g.z_hi;
+        const float x_hi = p.x() + r;
+        const float x_lo = p.x() - r;
+        const float y_hi = p.y() + r;
+        const float y_lo = p.y() - r;
+        g.u_hi = camera_.fx * x_hi * (x_hi >= 0.0f ? near_inv : far_inv) + camera_.cx;
+        g.u_lo = camera_.fx * x_lo * (x_lo >= 0.0f ? far_inv : near_inv) + camera_.cx;
+        g.v_hi = camera_.fy * y_hi * (y_hi >= 0.0f ? near_inv : far_inv) + camera_.cy;
+        g.v_lo = camera_.fy * y_lo * (y_lo >= 0.0f ? far_inv : near_inv) + camera_.cy;
+      }
+    }
   }
-  float depth_lo = 0.0f;
-  float depth_hi = 0.0f;
-  tile_range(level, u0, v0, u1, v1, depth_lo, depth_hi);
-  if (inside && depth_lo > 0.0f && z_max < depth_lo - clearance_m_) return Seen::free;
-  if (depth_hi <= 0.0f || z_min > depth_hi + occlusion_clear_m_) return Seen::not_seen;
-  if (z_min > depth_hi) return Seen::occluded;
-  return Seen::partial;
+  for (int k = 0; k < n; ++k) {
+    for (int j = 0; j < n; ++j) {
+      for (int i = 0; i < n; ++i) {
+        float z_min = 1e30f;
+        float z_max = -1e30f;
+        float u_min = 1e30f;
+        float u_max = -1e30f;
+        float v_min = 1e30f;
+        float v_max = -1e30f;
+        bool ok = true;
+        for (int c = 0; c < 8; ++c) {
+          const GridPoint& g =
+              grid[((k + ((c >> 2) & 1)) * kGrid + j + ((c >> 1) & 1)) * kGrid + i + (c & 1)];
+          ok = ok && g.ok;
+          z_min = std::min(z_min, g.z_lo);
+          z_max = std::max(z_max, g.z_hi);
+          u_min = std::min(u_min, g.u_lo);
+          u_max = std::max(u_max, g.u_hi);
+          v_min = std::min(v_min, g.v_lo);
+          v_max = std::max(v_max, g.v_hi);
+        }
+        // At the camera: nothing measurable is that close; the sub-cell keeps its state.
+        if (!ok) continue;
+        const auto bit = static_cast<std::uint8_t>(1u << ((k * n + j) * n + i));
+        switch (classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, false)) {
+          case Seen::free:
+            update.set = static_cast<std::uint8_t>(update.set | bit);
+            break;
+          case Seen::partial:
+          case Seen::occluded:
+            update.clear = static_cast<std::uint8_t>(update.clear | bit);
+            break;
+          default:
+            break;
+        }
+      }
+    }
+  }
+  return update;
 }
 
 FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCamera& camera,
@@ -239,9 +355,14 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     }
     ++report.node_visits;
     const int size = 1 << (depth - e.level);
-    const Seen seen = classify(e.min_voxel, size);
+    const Seen seen = classify(e.min_voxel, size, e.level == leaf);
     if (seen == Seen::not_seen) continue;
     std::uint32_t index = e.node;
+    if (seen == Seen::clear) {
+      // Nothing seen in it, only parts unmeasured (invalid pixels, the image border): a free
+      // octant stays free; elsewhere the parts wholly in view may be free.
+      if (index != kNoNode && nodes_[index].free_count > 0) continue;
+    }
     if (seen == Seen::free) {
       if (index == kNoNode) index = allocate_child(e.parent, e.slot);
       if (index == kNoNode) continue;
@@ -254,9 +375,33 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     }
     // Partly seen: what this frame shows inside decides each part.
     if (e.level == leaf) {
-      if (index != kNoNode && nodes_[index].free_count > 0) {
-        nodes_[index].free_count = 0;
-        ++report.cleared;
+      // A leaf at the camera: nothing measurable is that close, so nothing clears it.
+      if (seen == Seen::straddle) continue;
+      const std::uint8_t before = index == kNoNode               ? 0
+                                  : nodes_[index].free_count > 0 ? kAllSubCells
+                                                                 : nodes_[index].sub_free;
+      // Occluded wholly: cleared without a closer look (as an inner octant would be).
+      SubCellUpdate update;
+      if (seen == Seen::occluded) {
+        update.clear = kAllSubCells;
+      } else {
+        update = classify_sub_cells(e.min_voxel);
+      }
+      const auto after = static_cast<std::uint8_t>((before & ~update.clear) | update.set);
+      if (index == kNoNode && after != 0) index = allocate_child(e.parent, e.slot);
+      if (index == kNoNode) continue;
+      FreeNode& n = nodes_[index];
+      if ((before & ~after) != 0) ++report.cleared;
+      if (update.set != 0) {
+        n.free_frame = frame;
+        ++report.marked_free;
+      }
+      if (after == kAllSubCells) {
+        n.free_count = static_cast<std::uint8_t>(std::max<int>(n.free_count, 1));
+        n.sub_free = 0;
+      } else {
+        n.free_count = 0;
+        n.sub_free = after;
       }
       continue;
     }
@@ -317,7 +462,20 @@ FreeOctant FreeSpace::find(const Eigen::Vector3i& voxel) const {
                                       voxel.z() & ~(size - 1));
       return out;
     }
-    if (level == leaf) return out;
+    if (level == leaf) {
+      if (node.sub_free == 0) return out;
+      const int leaf_size = 1 << (depth - level);
+      const Eigen::Vector3i in_leaf(voxel.x() & (leaf_size - 1), voxel.y() & (leaf_size - 1),
+                                    voxel.z() & (leaf_size - 1));
+      const Eigen::Vector3i cell = in_leaf / sub_cell_voxels_;
+      if (((node.sub_free >> (cell.x() + 2 * cell.y() + 4 * cell.z())) & 1u) == 0) return out;
+      out.free = true;
+      out.free_frame = node.free_frame;
+      out.level = level + 1;
+      out.size_voxels = sub_cell_voxels_;
+      out.min_voxel = (voxel - in_leaf) + cell * sub_cell_voxels_;
+      return out;
+    }
     const int bit = depth - level - 1;
     const int child = ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
                       (((voxel.z() >> bit) & 1) << 2);

@@ -287,7 +287,22 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
     const int size = 1 << (depth - e.level);
     const FreeNode& node = free_->node(e.node);
     if (node.free_count > 0 || e.level == leaf) {
-      const bool region_free = node.free_count > 0;
+      bool region_free = node.free_count > 0;
+      if (!region_free && node.sub_free != 0) {
+        // A leaf with free sub-cells: free where the shape touches only those.
+        const int half = size / 2;
+        region_free = true;
+        for (int c = 0; c < 8 && region_free; ++c) {
+          if ((node.sub_free >> c) & 1u) continue;
+          const Eigen::Vector3i sub_lo =
+              e.min_voxel +
+              Eigen::Vector3i((c & 1) ? half : 0, (c & 2) ? half : 0, (c & 4) ? half : 0);
+          const Eigen::Vector3f lo = sub_lo.cast<float>();
+          if (shape.touches(lo, lo + Eigen::Vector3f::Constant(static_cast<float>(half)))) {
+            region_free = false;
+          }
+        }
+      }
       if (!check_blocks(e.min_voxel, size, region_free, node.free_frame)) {
         out.state = RegionState::blocked;
         return out;

@@ -18,7 +18,7 @@ namespace octofuse {
 namespace {
 
 const std::string kFixture =
-    std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v1.ofmap";
+    std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v2.ofmap";
 
 std::vector<char> read_all(const std::string& path) {
   std::ifstream in(path, std::ios::binary);

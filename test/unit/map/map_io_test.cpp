@@ -281,7 +281,7 @@ constexpr std::size_t kFreeMarginAt = 58;
 constexpr std::size_t kFreeOctantAt = 62;
 constexpr std::size_t kFreeCapAt = 63;
 constexpr std::size_t kHeaderBytes = 8 + 4 + 1 + 4 + 4 + 1 + 12 + 4 + 4 + 4 + 8 + 4 + 4 + 1 + 1 + 4;
-constexpr std::size_t kFreeRecordBytes = 1 + 1 + 4 + 8 * 4 + 4;
+constexpr std::size_t kFreeRecordBytes = 1 + 1 + 4 + 8 * 4 + 1 + 4;
 
 // Offsets where records start (and the file's size last), walking the layout of map_io.hpp.
 std::vector<std::size_t> record_offsets(const std::vector<std::uint8_t>& f, bool multires) {
@@ -844,6 +844,10 @@ TEST_CASE("damaged free-space records are data_loss and leave map and free space
     put_u32(bad, child_at(count - 1, 0), last_parent);  // a child before its parent: a cycle
     reseal_free(bad, count - 1);
     expect_refused(bad, StatusCode::data_loss, "child index out of range");
+    bad = file;
+    bad[free_at(0) + 6 + 4 * 8] = 0x01;  // free sub-cells on the root
+    reseal_free(bad, 0);
+    expect_refused(bad, StatusCode::data_loss, "sub-cells");
   }
   SECTION("records that do not form one tree") {
     // Parents and levels, from the root.
@@ -975,7 +979,8 @@ TEST_CASE("damaged free-space records are data_loss and leave map and free space
 // byte for byte and load to the same mesh and free space. To regenerate it after a deliberate
 // format or fusion change, run
 //   OCTOFUSE_WRITE_MAP_FIXTURE=1 build/host-release/test/unit_map "[fixture]"
-// and commit test/unit/map/data/small_multires_v1.ofmap.
+// and commit test/unit/map/data/small_multires_v2.ofmap. small_multires_v1.ofmap, the same map
+// saved in format version 1 by an earlier build, stays: every build must still load it.
 TEST_CASE("the committed small map is what every build writes and loads", "[fixture]") {
   // 5 mm voxels seen from 0.7 m and further integrate at scales 1-2 (no 8 KiB finest levels),
   // and a few blocks and free-space nodes per frame keep the file small.
@@ -987,7 +992,7 @@ TEST_CASE("the committed small map is what every build writes and loads", "[fixt
   const std::vector<std::uint8_t> written =
       save(mapper.pipeline.map(), mapper.pipeline.free_space(), 1, config.fusion.mu_m);
   const std::string path =
-      std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v1.ofmap";
+      std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v2.ofmap";
   const char* regenerate = std::getenv("OCTOFUSE_WRITE_MAP_FIXTURE");
   if (regenerate != nullptr && regenerate[0] == '1') {
     std::ofstream out(path, std::ios::binary);
@@ -1015,6 +1020,35 @@ TEST_CASE("the committed small map is what every build writes and loads", "[fixt
   const ByteMeshSink mesh = mesh_of(loaded.pipeline.map());
   CHECK(mesh.vertices > 0);
   CHECK(mesh.bytes == mesh_of(mapper.pipeline.map()).bytes);
+}
+
+TEST_CASE("a version 1 map file still loads: the same TSDF, free space without sub-cells",
+          "[fixture]") {
+  PipelineConfig config = config_for<MultiresVoxel>(0.005f);
+  config.budget.max_new_blocks = 12;
+  config.free_space.max_new_nodes = 100;
+  Mapper<MultiresVoxel> mapper(config);
+  mapper.run(Frames(1), 0, 1);
+  std::ifstream in(std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v1.ofmap",
+                   std::ios::binary);
+  REQUIRE(in.good());
+  const std::vector<std::uint8_t> v1((std::istreambuf_iterator<char>(in)),
+                                     std::istreambuf_iterator<char>());
+  REQUIRE(v1.size() > 12);
+  REQUIRE(v1[8] == 1);  // the version's low byte
+  Mapper<MultiresVoxel> loaded(config);
+  ErrorText error;
+  REQUIRE(load_all(v1, loaded.pipeline.map(), loaded.pipeline.free_space(), &error).ok());
+  const FreeSpace& free_space = loaded.pipeline.free_space();
+  int free_octants = 0;
+  for (std::uint32_t i = 0; i < free_space.node_count(); ++i) {
+    REQUIRE(free_space.node(i).sub_free == 0);
+    free_octants += free_space.node(i).free_count > 0 ? 1 : 0;
+  }
+  CHECK(free_octants > 10);
+  // Fusion did not change between the versions: the same blocks, the same mesh.
+  CHECK(loaded.pipeline.map().block_count() == mapper.pipeline.map().block_count());
+  CHECK(mesh_of(loaded.pipeline.map()).bytes == mesh_of(mapper.pipeline.map()).bytes);
 }
 
 }  // namespace

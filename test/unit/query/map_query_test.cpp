@@ -3,6 +3,7 @@
 // geometry.
 #include "octofuse/query/map_query.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -287,6 +288,87 @@ TEST_CASE("octants down to 2 voxels carve closer to the view's edges, and no clo
   FreeSpaceConfig bad;
   bad.finest_octant_voxels = 3;
   REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
+}
+
+// Exact distance to the wall and the spheres of `scene` (planes z = offset, as wall_at makes).
+double exact_distance(const AnalyticScene& scene, const Eigen::Vector3d& p) {
+  double best = std::numeric_limits<double>::infinity();
+  for (const AnalyticScene::Plane& plane : scene.planes) {
+    best = std::min(best, std::abs(plane.normal.dot(p) - plane.offset));
+  }
+  for (const AnalyticScene::Sphere& sphere : scene.spheres) {
+    best = std::min(best, (p - sphere.centre).norm() - sphere.radius);
+  }
+  return best;
+}
+
+TEST_CASE("pixels without depth neither carve nor clear; the rest of the view still carves") {
+  Mapper m;
+  const AnalyticScene scene = wall_at(kWall_m);
+  for (int i = 0; i < 2; ++i) m.fuse(scene);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.5f).state == PointState::free);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.8f).state == PointState::free);
+  // A frame with a hole in the middle (no depth there, as on a black or shiny patch).
+  scene.render(m.camera, Se3d::Identity(), m.depth);
+  for (int v = 50; v < 70; ++v) {
+    for (int u = 70; u < 90; ++u) m.depth[static_cast<std::size_t>(v * m.camera.width + u)] = 0.0f;
+  }
+  ImageView<const float> holed(m.depth.data(), m.camera.width, m.camera.height);
+  const FreeSpaceReport report = m.free_space.carve(holed, m.camera, Se3d::Identity(), m.frame++);
+  REQUIRE(!report.budget_hit);
+  // What was seen free in front of the hole stays free.
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.5f).state == PointState::free);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.8f).state == PointState::free);
+
+  // A map that only ever saw the holed frame: free around the hole, never in front of it.
+  Mapper fresh;
+  fresh.free_space.carve(holed, fresh.camera, Se3d::Identity(), fresh.frame++);
+  REQUIRE(ask(fresh, 0.0f, 0.0f, 1.5f).state == PointState::unknown);
+  // 30 pixels off the hole's edge at 1.5 m (about 0.35 m beside the axis).
+  REQUIRE(ask(fresh, 0.55f, 0.0f, 1.5f).state == PointState::free);
+  REQUIRE(ask(fresh, 0.0f, 0.45f, 1.5f).state == PointState::free);
+}
+
+TEST_CASE(
+    "leaves carve by halves: air beside a surface in a leaf's view is free, the surface not") {
+  AnalyticScene scene = wall_at(kWall_m);
+  scene.spheres.push_back({Eigen::Vector3d(0.1, 0.05, 1.3), 0.12});
+  Mapper m;
+  for (int i = 0; i < 3; ++i) {
+    Se3d T_W_C = Se3d::Identity();
+    T_W_C.translation() = Eigen::Vector3d(0.03 * i, -0.02 * i, 0.0);
+    m.fuse(scene, T_W_C);
+  }
+  const int leaf = m.free_space.leaf_level();
+  REQUIRE(m.free_space.sub_cell_voxels() == 4);
+  int half_leaf_free = 0;
+  int free_points = 0;
+  for (float z = 0.4f; z < 2.2f; z += 0.01f) {
+    for (float x = -0.4f; x <= 0.4f; x += 0.02f) {
+      const Eigen::Vector3f p_W(x, 0.05f, z);
+      const PointAnswer a = ask(m, p_W.x(), p_W.y(), p_W.z());
+      if (a.state != PointState::free) continue;
+      ++free_points;
+      // Nothing within a voxel of the wall or the ball reads free.
+      REQUIRE(exact_distance(scene, p_W.cast<double>()) > kVoxel_m);
+      const FreeOctant o = m.free_space.find(m.map.point_to_voxel(p_W));
+      if (o.free && o.level == leaf + 1) {
+        ++half_leaf_free;
+        REQUIRE(o.size_voxels == 4);
+        // The octant holds the point.
+        const Eigen::Vector3i v = m.map.point_to_voxel(p_W);
+        REQUIRE(((v - o.min_voxel).array() >= 0).all());
+        REQUIRE(((v - o.min_voxel).array() < 4).all());
+      }
+    }
+  }
+  REQUIRE(free_points > 1000);
+  REQUIRE(half_leaf_free > 0);
+  // A box over the ball's near side is blocked; one in the air beside the ball is free.
+  REQUIRE(box_state(m, Eigen::Vector3f(0.05f, 0.0f, 1.1f), Eigen::Vector3f(0.15f, 0.1f, 1.2f)) ==
+          RegionState::blocked);
+  REQUIRE(box_state(m, Eigen::Vector3f(-0.35f, -0.05f, 0.8f), Eigen::Vector3f(-0.2f, 0.1f, 1.0f)) ==
+          RegionState::free);
 }
 
 TEST_CASE("bad arguments get invalid_argument") {

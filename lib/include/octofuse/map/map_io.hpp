@@ -2,9 +2,10 @@
 // Saving and loading a whole map through byte sinks and sources (no file access here: the host
 // port's map_file.hpp puts them on files; a board may use flash or a socket).
 //
-// Format (version 1). All integers and floats little-endian, written byte by byte, so the bytes
-// do not depend on the machine; floats are their IEEE-754 bit patterns. The file is a sequence of
-// records, each ending with the CRC-32 (IEEE 802.3) of its own bytes:
+// Format (version 2; version 1 files, without the sub-cell byte, still load). All integers and
+// floats little-endian, written byte by byte, so the bytes do not depend on the machine; floats are
+// their IEEE-754 bit patterns. The file is a sequence of records, each ending with the CRC-32 (IEEE
+// 802.3) of its own bytes:
 //
 //   header  "OCTOFMAP" u32 version, u8 voxel type (1 single-res, 2 multires), f32 voxel_size_m,
 //           f32 mu_m (the truncation distance the TSDF is normalised by), u8 voxel_depth,
@@ -20,7 +21,8 @@
 //           voxels: the finest level (512) when held (always for single-res), then scales 1-3
 //           (73); single-res: tsdf, weight; multires: x, x_last, y, delta_y
 //   free    u8 'F' u8 free_count, u32 free_frame, 8 x u32 children (pool indices, 0xFFFFFFFF
-//           for none), crc                               -- one per free-space node, root first
+//           for none), u8 sub_free (version 2 on; only leaves may set it), crc
+//                                                         -- one per free-space node, root first
 //   end     u8 'E' u32 nodes u32 blocks u32 free nodes, crc; nothing may follow
 //
 // Nodes and blocks are written in pool index order. A node is allocated after its parent and a
@@ -58,7 +60,7 @@ namespace octofuse {
 
 class FreeSpace;  // query/free_space.hpp
 
-inline constexpr std::uint32_t kMapFormatVersion = 1;
+inline constexpr std::uint32_t kMapFormatVersion = 2;
 // Largest weight a saved voxel or summary may hold (2^24: integers stay exact in a float).
 inline constexpr float kMaxSavedWeight = 16777216.0f;
 

@@ -12,24 +12,32 @@
 // node_count() nodes are the whole state (what a saved map needs to keep).
 //
 // A node holds a capped count of frames that saw its whole octant free and the index of the last
-// such frame. Reading: a point is free when some node on its root-to-leaf path has
-// free_count >= 1 (the first such node from the root is the free octant). Carving, once per
-// integrated frame (carve()):
-//   1. a min/max pyramid of the working-resolution depth (tiles of 2^l x 2^l pixels, invalid
-//      pixels 0 in both: a min of 0 forbids "free", a max of 0 says nothing is there);
+// such frame; a leaf that is not wholly free may hold free halves (sub_free: its 2 x 2 x 2
+// sub-cells). Reading: a point is free when some node on its root-to-leaf path has
+// free_count >= 1 (the first such node from the root is the free octant), or its leaf's sub-cell
+// bit is set. Carving, once per integrated frame (carve()):
+//   1. a min/max pyramid of the working-resolution depth over the measured pixels (tiles of
+//      2^l x 2^l pixels), with a flag for tiles holding a pixel without depth;
 //   2. a depth-first walk from the root in child order. Each octant, grown by `margin_m` on every
-//      side, is projected (8 corners, + 1 pixel) and compared with the pyramid tiles covering it:
-//      - in the image, every corner in front of the camera and its far corner nearer than
-//        (min observed depth in the tiles - clearance_m): observed free. The count goes up
-//        (capped at max_free_count) and the walk does not descend;
-//      - outside the image, behind the camera, or its near corner beyond the farthest observed
-//        depth in the tiles: not seen; unchanged;
-//      - entirely behind the observed depth but by less than occlusion_clear_m: occluded. Free
-//        nodes there are handed down and cleared like below, without allocating new ones;
-//      - otherwise (a surface, an invalid pixel or the image border inside it) the walk descends.
-//        A free node first hands its count and frame down to its 8 children (allocating them)
-//        and becomes 0, so what this frame saw inside it decides each child; a leaf that is not
-//        entirely free becomes 0 (a surface appearing in free space clears it).
+//      side, is projected (8 corners, + 1 pixel) and compared with the pyramid tiles covering it
+//      (3 x 3 tiles at most; a leaf looks again at up to 8 x 8 before its answer is final):
+//      - free: in the image, every corner in front of the camera, every pixel measured and its
+//        far corner nearer than (least depth - clearance_m). The count goes up (capped at
+//        max_free_count) and the walk does not descend;
+//      - clear: every measured depth lies beyond it likewise, but some pixels have no depth or
+//        lie outside the image. No depth is no evidence: a free node stays free; elsewhere the
+//        walk descends to the parts wholly in view;
+//      - not seen: outside the image, behind the camera, no measured pixel, or its near corner
+//        beyond the farthest measured depth by more than occlusion_clear_m: unchanged;
+//      - occluded: behind every measured depth by less than occlusion_clear_m. Free nodes there
+//        are handed down and cleared like below, without allocating new ones;
+//      - partial: a measured depth within it or just in front. A free node hands its count and
+//        frame down to its 8 children (allocating them) and becomes 0, so what this frame saw
+//        inside it decides each child;
+//      - at a leaf, each sub-cell is tested the same way (from a 3 x 3 x 3 grid of projected
+//        corners with the margin's bounds): free halves are set, halves with a depth within or
+//        just in front are cleared (a surface appearing in free space clears it), the others
+//        keep their state. A leaf with all 8 halves free becomes a free leaf.
 //   Because the octant is grown by margin_m before the test, every observed surface lies at least
 //   margin_m outside any octant marked free in that frame: the distance bound of a free point is
 //   margin_m + its distance to the free octant's faces.
@@ -44,11 +52,12 @@
 // report says so. This is step (7) of the pipeline's degradation order. The walk is serial and
 // in a fixed order, so the result does not depend on the worker count.
 //
-// Cost: one visit tests an octant's 8 corners against at most 2 x 2 pyramid tiles. Octants along
-// every surface in view are split down to the leaves, so a frame visits roughly (surface seen /
-// leaf area) x 8 octants: at 1 cm, sim:desk, 3-40 thousand per frame (0.5-10 ms on one core).
-// What it misses: air within about one leaf plus clearance_m of a surface, and octants at the
-// image border that do not fit in the view; those read unknown unless the TSDF band covers them.
+// Cost: one visit tests an octant's 8 corners against at most 3 x 3 pyramid tiles; a leaf that is
+// not wholly free or unseen adds 27 projections and 8 sub-cell tests. Octants along every surface
+// and depth edge in view are split down to the leaves, so a frame visits roughly
+// (surface seen / leaf area) x 8 octants: at 1 cm, 30-50 thousand per frame in the sim scenes.
+// What it misses: air within about half a leaf plus clearance_m of a surface, and at the image
+// border; those read unknown unless the TSDF band covers them.
 //
 // Threading: carve() and clear() must not overlap reads (the pipeline's MapGuard orders them).
 
@@ -102,7 +111,10 @@ struct FreeNode {
                                0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu};
   std::uint32_t free_frame = 0;  // frame index of the last frame that saw the octant free
   std::uint8_t free_count = 0;   // frames that saw it free, capped; 0 = not known free
-  std::uint8_t padding_[3] = {};
+  // Leaves with free_count 0 only: bit x + 2 y + 4 z says the leaf's half-size sub-cell (x, y, z)
+  // is wholly free, as of free_frame.
+  std::uint8_t sub_free = 0;
+  std::uint8_t padding_[2] = {};
 };
 
 struct FreeSpaceReport {
@@ -162,6 +174,8 @@ class FreeSpace {
   float margin_m() const { return margin_m_; }
   // Level of the smallest octants (the blocks' level for finest_octant_voxels 8).
   int leaf_level() const { return leaf_level_; }
+  // A leaf's 2 x 2 x 2 sub-cells, each of sub_cell_voxels() finest voxels on a side.
+  int sub_cell_voxels() const { return sub_cell_voxels_; }
   std::uint32_t node_count() const { return nodes_.used(); }
   std::uint32_t node_capacity() const { return nodes_.capacity(); }
   const FreeNode& node(std::uint32_t index) const { return nodes_[index]; }
@@ -176,10 +190,27 @@ class FreeSpace {
   FreeNode& restore_node(std::uint32_t index) { return nodes_[index]; }
 
  private:
-  enum class Seen : std::uint8_t { free, not_seen, partial, occluded };
-  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels) const;
+  // free: wholly in view, every pixel measured beyond it; clear: every measured pixel beyond it
+  // but some not measured or outside the image; not_seen; partial: a measured depth within it;
+  // occluded: behind every measured depth; straddle: across the camera plane (no footprint).
+  enum class Seen : std::uint8_t { free, clear, not_seen, partial, occluded, straddle };
+  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels, bool precise) const;
+  Seen classify_footprint(float z_min, float z_max, float u_min, float u_max, float v_min,
+                          float v_max, bool precise) const;
+  struct SubCellUpdate {
+    std::uint8_t set = 0;    // sub-cells this frame saw wholly free
+    std::uint8_t clear = 0;  // sub-cells with a measured depth within or just before them
+  };
+  SubCellUpdate classify_sub_cells(const Eigen::Vector3i& leaf_min_voxel) const;
   void build_pyramid(ImageView<const float> depth_m);
-  void tile_range(int level, int u0, int v0, int u1, int v1, float& lo, float& hi) const;
+  struct TileRange {
+    float lo = 0.0f;  // least measured depth (kNoDepth: none)
+    float hi = 0.0f;  // greatest measured depth (0: none)
+    bool any_invalid = false;
+  };
+  void tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const;
+  static constexpr float kNoDepth = 1e30f;
+  static constexpr std::uint8_t kAllSubCells = 0xFF;
 
   FreeSpaceConfig config_;
   MapConfig map_;
@@ -188,6 +219,7 @@ class FreeSpace {
   static constexpr int kMaxPyramidLevels = 16;
   float* depth_min_ = nullptr;
   float* depth_max_ = nullptr;
+  std::uint8_t* depth_invalid_ = nullptr;  // 1: some pixel of the tile has no depth
   int level_count_ = 0;
   int level_width_[kMaxPyramidLevels] = {};
   int level_height_[kMaxPyramidLevels] = {};
@@ -198,6 +230,7 @@ class FreeSpace {
   float clearance_m_ = 0.0f;
   float occlusion_clear_m_ = 0.0f;
   int leaf_level_ = 0;
+  int sub_cell_voxels_ = 4;
   // Per-frame projection (set by carve()).
   Eigen::Matrix3f R_C_W_ = Eigen::Matrix3f::Identity();
   Eigen::Vector3f t_C_W_ = Eigen::Vector3f::Zero();
@@ -236,9 +269,13 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   OCTOFUSE_TRY(lo);
   Result<float*> hi = arena.template allocate_array<float>(total, kArenaAlignment);
   OCTOFUSE_TRY(hi);
+  Result<std::uint8_t*> invalid =
+      arena.template allocate_array<std::uint8_t>(total, kArenaAlignment);
+  OCTOFUSE_TRY(invalid);
   OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
   depth_min_ = lo.value();
   depth_max_ = hi.value();
+  depth_invalid_ = invalid.value();
   level_count_ = levels;
   width_ = width;
   height_ = height;
@@ -250,6 +287,7 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   leaf_level_ = map.block_level() + (config.finest_octant_voxels == 8   ? 0
                                      : config.finest_octant_voxels == 4 ? 1
                                                                         : 2);
+  sub_cell_voxels_ = config.finest_octant_voxels / 2;
   bytes_reserved_ = arena.bytes_used() - start;
   if constexpr (!std::is_same_v<Arena, ArenaSizer>) {
     reserved_ = true;

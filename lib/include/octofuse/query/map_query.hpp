@@ -20,7 +20,8 @@
 // free: the projective TSDF bounds no Euclidean distance).
 //
 // Regions (box, sphere, swept sphere) are `free` only when every part is: a walk over the free
-// octree visits the octants the shape touches; free octants are free unless a block inside was
+// octree visits the octants the shape touches (a leaf's free halves count where the shape touches
+// no other half); free octants are free unless a block inside was
 // integrated after them, whose voxels are then read. A voxel the shape touches is `blocked` when
 // it is observed and its signed distance is within its half-diagonal plus one finest voxel (a
 // surface may lie in it), or it is behind a surface; otherwise it is free inside a free octant

@@ -77,7 +77,7 @@ int main() {
   }
 
   // 4. Query: walk from the last camera along its view until the signed distance changes sign,
-  // and ask whether a 10 cm sphere just in front of the camera is free.
+  // and ask whether a 10 cm sphere halfway to that surface is free (the robot's body there).
   const Se3d T_W_C = pipeline.T_W_C();
   const Eigen::Vector3f origin_W = T_W_C.translation().cast<float>();
   const Eigen::Vector3f ray_W = T_W_C.linear().col(2).cast<float>();
@@ -92,7 +92,8 @@ int main() {
     previous = d;
   }
 
-  const Result<RegionAnswer> body = pipeline.query().sphere(origin_W + 0.6f * ray_W, 0.1f);
+  const float body_m = hit_m > 0.0f ? 0.5f * hit_m : 1.0f;
+  const Result<RegionAnswer> body = pipeline.query().sphere(origin_W + body_m * ray_W, 0.1f);
   if (!body.ok()) return fail("query", body.status().name());
 
   // 5. Mesh the map.
@@ -109,9 +110,10 @@ int main() {
 
   std::printf(
       "%d of 60 frames tracked, %u blocks; surface %.2f m ahead of the camera; a 10 cm sphere "
-      "0.6 m ahead is %s; mesh %zu vertices, %zu triangles\n",
+      "%.2f m ahead is %s; mesh %zu vertices, %zu triangles\n",
       tracked, pipeline.map().memory().blocks_used, static_cast<double>(hit_m),
-      region_state_name(body.value().state), mesh.vertices, mesh.triangles);
+      static_cast<double>(body_m), region_state_name(body.value().state), mesh.vertices,
+      mesh.triangles);
   std::free(mesh_buffer);
   std::free(buffer);
   return tracked == 60 && hit_m > 0.0f && mesh.triangles > 0 ? 0 : 2;

@@ -117,8 +117,8 @@ int clamped_floor(float f) {
 }
 }  // namespace
 
-FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels,
-                                    bool precise) const {
+FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels, bool precise,
+                                    float* room_m) const {
   const float voxel = map_.voxel_size_m;
   const Eigen::Vector3f lo_W =
       map_.origin_W + min_voxel.cast<float>() * voxel - Eigen::Vector3f::Constant(margin_m_);
@@ -173,11 +173,12 @@ FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_v
     v_max = std::max(v_max, px.y());
   }
   // The projection of a convex body in front of the camera lies in the hull of its corners'.
-  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, precise);
+  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, precise, room_m);
 }
 
 FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_min, float u_max,
-                                              float v_min, float v_max, bool precise) const {
+                                              float v_min, float v_max, bool precise,
+                                              float* room_m) const {
   const float w = static_cast<float>(width_);
   const float h = static_cast<float>(height_);
   if (u_max < -0.5f || v_max < -0.5f || u_min >= w - 0.5f || v_min >= h - 0.5f) {
@@ -207,6 +208,7 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     }
     TileRange range;
     tile_range(level, u0, v0, u1, v1, range);
+    if (room_m != nullptr) *room_m = range.hi - z_min;
     // No valid depth in the footprint: this frame says nothing about the octant.
     if (range.hi <= 0.0f || z_min > range.hi + occlusion_clear_m_) return Seen::not_seen;
     if (z_max < range.lo - clearance_m_) {
@@ -291,7 +293,7 @@ FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
         // At the camera: nothing measurable is that close; the sub-cell keeps its state.
         if (!ok) continue;
         const auto bit = static_cast<std::uint8_t>(1u << ((k * n + j) * n + i));
-        switch (classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, false)) {
+        switch (classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, false, nullptr)) {
           case Seen::free:
             update.set = static_cast<std::uint8_t>(update.set | bit);
             break;
@@ -355,7 +357,8 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     }
     ++report.node_visits;
     const int size = 1 << (depth - e.level);
-    const Seen seen = classify(e.min_voxel, size, e.level == leaf);
+    float room_m = 0.0f;
+    const Seen seen = classify(e.min_voxel, size, e.level == leaf, &room_m);
     if (seen == Seen::not_seen) continue;
     std::uint32_t index = e.node;
     if (seen == Seen::clear) {
@@ -380,9 +383,10 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
       const std::uint8_t before = index == kNoNode               ? 0
                                   : nodes_[index].free_count > 0 ? kAllSubCells
                                                                  : nodes_[index].sub_free;
-      // Occluded wholly: cleared without a closer look (as an inner octant would be).
+      // Occluded wholly, or no measured depth lies beyond its nearest point by more than the
+      // clearance (so no half of it can be free): cleared without a closer look.
       SubCellUpdate update;
-      if (seen == Seen::occluded) {
+      if (seen == Seen::occluded || (seen == Seen::partial && room_m <= clearance_m_)) {
         update.clear = kAllSubCells;
       } else {
         update = classify_sub_cells(e.min_voxel);

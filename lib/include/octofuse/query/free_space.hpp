@@ -194,9 +194,12 @@ class FreeSpace {
   // but some not measured or outside the image; not_seen; partial: a measured depth within it;
   // occluded: behind every measured depth; straddle: across the camera plane (no footprint).
   enum class Seen : std::uint8_t { free, clear, not_seen, partial, occluded, straddle };
-  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels, bool precise) const;
+  // room_m (optional): how far the farthest measured depth in the footprint lies beyond the
+  // octant's nearest point.
+  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels, bool precise,
+                float* room_m) const;
   Seen classify_footprint(float z_min, float z_max, float u_min, float u_max, float v_min,
-                          float v_max, bool precise) const;
+                          float v_max, bool precise, float* room_m) const;
   struct SubCellUpdate {
     std::uint8_t set = 0;    // sub-cells this frame saw wholly free
     std::uint8_t clear = 0;  // sub-cells with a measured depth within or just before them

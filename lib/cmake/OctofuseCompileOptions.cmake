@@ -15,6 +15,8 @@ if(OCTOFUSE_WERROR)
 endif()
 
 # Bit-identical results across x86 and ARM need the same rounding: no FMA contraction, no fast-math.
+# lib/CMakeLists.txt hands them on (PUBLIC) with EIGEN_DONT_VECTORIZE, so every target that links
+# the library gets them too; the helpers below also give them to targets that do not link it.
 set(OCTOFUSE_FP_FLAGS -ffp-contract=off -fno-fast-math)
 
 if(OCTOFUSE_SANITIZE)

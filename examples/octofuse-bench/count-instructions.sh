@@ -30,7 +30,8 @@ echo "frames: ${frames}"
 printf '%-34s %16s %14s\n' "function (inclusive)" "instructions" "per frame"
 printf '%-34s %16s %14d\n' "whole program" "${total}" $(( total / frames ))
 for symbol in "Pipeline<.*>::process" "DepthPreprocessor::process" "IcpTracker::track" \
-              "Integrator<.*>::integrate" "Raycaster<.*>::raycast" "SimSource::next" \
+              "Integrator<.*>::integrate" "FreeSpace::carve" "Raycaster<.*>::raycast" \
+              "SimSource::next" \
               "ReplaySource::next"; do
   count=$(grep -E "octofuse::${symbol}\(" "${work}/annotated" | head -1 | awk '{gsub(",","",$1); print $1}')
   [[ -n "${count}" ]] || continue

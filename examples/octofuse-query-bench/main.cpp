@@ -42,7 +42,8 @@ struct Figures {
   long truly_free_in_view_free_or_near = 0;  // free, or near with a positive distance
   long near_points = 0;
   double near_sq_error = 0.0;
-  long close_points = 0;  // reported near, within 3 finest voxels of the surface
+  std::vector<double> near_abs_error;  // |reported - exact| of the near points within mu
+  long close_points = 0;               // reported near, within 3 finest voxels of the surface
   double close_sq_error = 0.0;
   long missed[5] = {0, 0, 0, 0, 0};  // truly free in view, by reported state
   // Truly free in view and reported unknown, by exact distance to the nearest surface (m):
@@ -173,6 +174,7 @@ int run_scene(const std::string& name, long frames, long sample_points, float vo
         ++f->near_points;
         const double e = static_cast<double>(a.distance_m) - sdf;
         f->near_sq_error += e * e;
+        f->near_abs_error.push_back(std::abs(e));
         if (std::abs(sdf) < 3.0 * voxel) {
           ++f->close_points;
           f->close_sq_error += e * e;
@@ -369,6 +371,11 @@ int main(int argc, char** argv) {
         close_rmse * 1000.0, f.close_points, f.point_us[0], f.point_us[1], f.box_us[0], f.box_us[1],
         f.box_max_visits, f.swept_us[0], f.swept_us[1], f.swept_max_visits, f.ms_total_on,
         f.ms_total_off, f.ms_free_space, f.map_mb_off, f.map_mb_on, f.free_mb);
+    const octofuse::examples::Percentiles near_error = percentiles(f.near_abs_error);
+    std::printf(
+        "  sim:%s near points within mu, |signed-distance error| median / p90 / p99: %.1f / "
+        "%.1f / %.1f mm\n",
+        name.c_str(), near_error.median * 1000.0, near_error.p90 * 1000.0, near_error.p99 * 1000.0);
     std::printf(
         "  sim:%s truly free in view, as reported: outside %ld, unknown %ld, free %ld, near %ld, "
         "inside %ld\n",

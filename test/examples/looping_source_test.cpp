@@ -235,7 +235,8 @@ TEST_CASE("the looped source's open and next errors pass through") {
   }
 }
 
-TEST_CASE("a looped run relocalises to the first frame's pose at the start of each pass") {
+TEST_CASE("a looped run relocalises to the first frame's pose at the start of each pass",
+          "[long]") {
   // sim:desk in kPass frames: the camera jumps from the end of the desk's path back to its start
   // at each pass. The first frame of a pass is the first frame again (same depth, noise seeded by
   // frame index), so relocalised there it tracks to the first pose; without the relocalisation

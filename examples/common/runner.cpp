@@ -13,6 +13,7 @@
 
 #include "host_memory.hpp"
 #include "live_server.hpp"
+#include "looping_source.hpp"
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/json_writer.hpp"
 #include "octofuse/ports/host/map_file.hpp"
@@ -394,6 +395,12 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   }
   std::unique_ptr<DepthSource> source = make_source(options.source_spec, options.source, &error);
   if (source == nullptr) return error_exit(error);
+  LoopingSource* looping = nullptr;
+  if (options.loop_source) {
+    auto wrapper = std::make_unique<LoopingSource>(std::move(source));
+    looping = wrapper.get();
+    source = std::move(wrapper);
+  }
   if (!source->open().ok()) {
     return error_exit(options.source_spec + ": " + source->last_error());
   }
@@ -576,6 +583,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   }
   std::uint64_t fused_after_first = 0;
   long processed = 0;
+  bool have_first_pose = false;
+  Se3d first_T_W_C = Se3d::Identity();  // the pose the first frame was given (loop_source)
   int consecutive_failures = 0;
   long frames_since_status = 0;
   auto last_status = std::chrono::steady_clock::now();
@@ -635,6 +644,15 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
         ++summary->frames_without_odometry;
       }
     }
+    if (looping != nullptr && looping->loop_started()) {
+      if (options.on_loop_start) options.on_loop_start(looping->loop());
+      // The camera is back where the first frame was: without this, tracking would have to
+      // bridge the jump from the end of the recording to its start.
+      if (have_first_pose && !pipeline.set_pose(first_T_W_C).ok()) {
+        return error_exit("cannot relocalise at the start of pass " +
+                          std::to_string(looping->loop()) + ": " + pipeline.last_error());
+      }
+    }
     if (buffer == nullptr) {
       Se3d T_W_C0 = options.initial_T_W_C;
       if (!options.have_initial_pose && frame.has_ground_truth) {
@@ -652,6 +670,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     FrameStats stats;
     const Status status = pipeline.process(frame, prior, &stats);
     ++processed;
+    if (options.on_frame) options.on_frame(stats);
     if (stats.result == FrameResult::rejected) {
       ++summary->frames_rejected;
       std::fprintf(stderr, "warning: frame %lu rejected: %s\n",
@@ -674,11 +693,16 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       ++summary->frames_unfused;
     }
     if (stats.result == FrameResult::tracked && fused) ++fused_after_first;
-    summary->frames.push_back(stats);
+    if (stats.result == FrameResult::first && !have_first_pose) {
+      have_first_pose = true;
+      first_T_W_C = pipeline.T_W_C();
+    }
+    ++summary->frames_processed;
+    if (options.keep_frame_records) summary->frames.push_back(stats);
     host::TimedPose pose;
     pose.timestamp_s = static_cast<double>(frame.timestamp_us) * 1e-6;
     pose.T_W_C = pipeline.T_W_C();
-    summary->trajectory.push_back(pose);
+    if (options.keep_frame_records) summary->trajectory.push_back(pose);
     if (trajectory_file != nullptr && !trajectory_file->append(pose).ok()) {
       return error_exit(trajectory_file->last_error());
     }
@@ -689,7 +713,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
         std::fprintf(stderr, "warning: map not saved: %s\n", save_error.c_str());
       }
     }
-    if (frame.has_ground_truth) {
+    if (frame.has_ground_truth && options.keep_frame_records) {
       host::TimedPose truth;
       truth.timestamp_s = pose.timestamp_s;
       truth.T_W_C.matrix() = frame.T_W_C_ground_truth;
@@ -839,7 +863,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
 
   // What the run claims: most frames gave a pose from tracking, and tracking fused new views.
   const std::uint64_t frames_read =
-      summary->frames.size() + summary->frames_rejected + summary->frames_skipped_by_source;
+      summary->frames_processed + summary->frames_rejected + summary->frames_skipped_by_source;
   const std::uint64_t frames_failed =
       summary->frames_lost + summary->frames_rejected + summary->frames_skipped_by_source;
   if (frames_read >= 2 && 2 * frames_failed > frames_read) {
@@ -848,9 +872,9 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
                        std::to_string(summary->frames_lost) + " lost, " +
                        std::to_string(summary->frames_rejected) + " rejected, " +
                        std::to_string(summary->frames_skipped_by_source) + " unreadable)";
-  } else if (summary->frames.size() >= 2 && fused_after_first == 0) {
+  } else if (summary->frames_processed >= 2 && fused_after_first == 0) {
     summary->failure = "nothing was fused after the first frame (" +
-                       std::to_string(summary->frames.size()) + " frames)";
+                       std::to_string(summary->frames_processed) + " frames)";
   }
 
   if (options.out_dir.empty()) return 0;
@@ -989,6 +1013,9 @@ bool parse_mesh_read_scale(const std::string& text, MeshReadScale* scale) {
 int run_pipeline(const RunOptions& options_in, RunSummary* summary) {
   *summary = RunSummary();
   RunOptions options = options_in;
+  if (!options.keep_frame_records && (!options.out_dir.empty() || !options.serve.empty())) {
+    return error_exit("a run that keeps no per-frame record writes no files and serves no view");
+  }
   if (!options.load_map_path.empty()) {
     // The saved map decides the voxel type and size (its header is checked again, with the rest
     // of the file, before the first frame).

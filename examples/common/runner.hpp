@@ -30,7 +30,7 @@ struct RunOptions {
   // --odometry: a TUM trajectory file, or "sim[:drift=..,noise=..,seed=..]" for a drifting noisy
   // odometry of the source's ground truth; empty: none. Used as the pose prior.
   std::string odometry;
-  bool odometry_only = false;  // --odometry-mode only: fuse at the odometry, no ICP
+  bool odometry_only = false;        // --odometry-mode only: fuse at the odometry, no ICP
   bool odometry_mode_given = false;  // --odometry-mode was given (it needs --odometry)
   double odometry_information[2] = {-1.0, -1.0};  // --odometry-weight T,R; < 0: the defaults
   std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
@@ -50,6 +50,18 @@ struct RunOptions {
   std::function<void(const MapQuery<MultiresVoxel>&)> inspect_final_map;
   // Called with the pipeline's config before init (benchmarks that vary a setting).
   std::function<void(PipelineConfig*)> adjust_config;
+  // Replays the source pass after pass (LoopingSource) until max_frames. Each pass after the first
+  // starts where the first did, so the pipeline is relocalised (Pipeline::set_pose) to the pose
+  // it gave the first frame before that pass's first frame: the camera is back on its dock.
+  bool loop_source = false;
+  // Called after every frame given to the pipeline (rejected ones too: see stats.result), and,
+  // with loop_source, before the first frame of each pass after the first (benchmarks: soak).
+  std::function<void(const FrameStats&)> on_frame;
+  std::function<void(int loop)> on_loop_start;
+  // false: RunSummary keeps no per-frame record (frames, trajectory, ground truth, so no ATE), and
+  // a long run's memory does not grow with its length. Needs out_dir empty (stats.json is made
+  // from those records).
+  bool keep_frame_records = true;
   bool keep_mesh = false;    // keep the mesh in RunSummary (for evaluation)
   bool progress = true;      // a progress line on stderr when it is a terminal
   bool live_status = false;  // once a second on stdout: frame rate and tracking state
@@ -67,6 +79,7 @@ struct RunOptions {
 };
 
 struct RunSummary {
+  std::uint64_t frames_processed = 0;  // processed, not rejected (frames.size() when kept)
   std::vector<FrameStats> frames;
   std::vector<host::TimedPose> trajectory;     // one per processed frame
   std::vector<host::TimedPose> ground_truth;   // where the source had it

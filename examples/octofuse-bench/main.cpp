@@ -19,6 +19,7 @@
 #include "octofuse/ports/host/mesh_eval.hpp"
 #include "octofuse/ports/sim/scenes.hpp"
 #include "runner.hpp"
+#include "soak.hpp"
 
 namespace {
 
@@ -232,7 +233,16 @@ void usage() {
       "  --threads LIST worker counts, comma separated (default 1,2)\n"
       "  --poses MODE   icp, gt or both (default both)\n"
       "  --mesh-scale S multires meshes (mesh RMSE, thin recall) at each block's current scale\n"
-      "                 (default) or finest: the finest scale it was fused at\n");
+      "                 (default) or finest: the finest scale it was fused at\n"
+      "  --soak         instead of the matrix: replay a source in a loop under a memory cap and\n"
+      "                 again with a large one; fails (exit 1) when the capped run lost a frame\n"
+      "                 the other did not or its RSS grew after the first pass (soak.md,\n"
+      "                 soak.json in --out). Uses the first of --voxels and of --threads.\n"
+      "  --soak-frames N     frames per run (default 10000)\n"
+      "  --soak-source SPEC  source to loop, as octofuse-replay's --source (default sim:room)\n"
+      "  --map-memory MB     the capped run's map memory (default 16)\n"
+      "  --reference-memory MB  the reference run's (default 1024)\n"
+      "  --rss-tolerance MB  allowed RSS growth after the first pass (default 1)\n");
 }
 
 }  // namespace
@@ -254,11 +264,39 @@ int main(int argc, char** argv) {
     while (std::getline(list, item, ',')) items.push_back(item);
     return items;
   };
+  bool soak = false;
+  octofuse::bench::SoakOptions soak_options;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     std::int64_t n = 0;
+    double mb = 0.0;
     if (arg == "--quick") {
       quick = true;
+    } else if (arg == "--soak") {
+      soak = true;
+    } else if (arg == "--soak-frames" && i + 1 < argc) {
+      if (!octofuse::cli::parse_int(argv[++i], 2, 10000000, n)) {
+        return octofuse::cli::fail("--soak-frames needs a count in [2, 10000000]");
+      }
+      soak_options.frames = static_cast<long>(n);
+    } else if (arg == "--soak-source" && i + 1 < argc) {
+      soak_options.source_spec = argv[++i];
+      if (soak_options.source_spec.empty()) return octofuse::cli::fail("--soak-source is empty");
+    } else if (arg == "--map-memory" && i + 1 < argc) {
+      if (!octofuse::cli::parse_double(argv[++i], 1.0, 65536.0, mb)) {
+        return octofuse::cli::fail("--map-memory needs megabytes in [1, 65536]");
+      }
+      soak_options.map_memory_mb = static_cast<float>(mb);
+    } else if (arg == "--reference-memory" && i + 1 < argc) {
+      if (!octofuse::cli::parse_double(argv[++i], 1.0, 65536.0, mb)) {
+        return octofuse::cli::fail("--reference-memory needs megabytes in [1, 65536]");
+      }
+      soak_options.reference_memory_mb = static_cast<float>(mb);
+    } else if (arg == "--rss-tolerance" && i + 1 < argc) {
+      if (!octofuse::cli::parse_double(argv[++i], 0.0, 65536.0, mb)) {
+        return octofuse::cli::fail("--rss-tolerance needs megabytes in [0, 65536]");
+      }
+      soak_options.rss_tolerance_mb = mb;
     } else if (arg == "--data" && i + 1 < argc) {
       data_dir = argv[++i];
     } else if (arg == "--out" && i + 1 < argc) {
@@ -319,6 +357,16 @@ int main(int argc, char** argv) {
     } else {
       return octofuse::cli::fail("unknown or incomplete option '" + arg + "' (see --help)");
     }
+  }
+  if (voxels.empty() || thread_counts.empty()) {
+    return octofuse::cli::fail("--voxels and --threads need at least one value");
+  }
+  if (soak) {
+    if (quick) return octofuse::cli::fail("--soak and --quick exclude each other");
+    soak_options.voxel_size_m = voxels.front();
+    soak_options.threads = thread_counts.front();
+    soak_options.out_dir = out_dir;
+    return octofuse::bench::run_soak(soak_options);
   }
   if (repeats < 0) repeats = quick ? 1 : 3;
   if (frames < 0) frames = quick ? 40 : 120;

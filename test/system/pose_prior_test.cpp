@@ -393,6 +393,45 @@ TEST_CASE("set_pose() relocalises: before the first frame, and after a jump in t
   REQUIRE((pipeline.T_W_C().translation() - truth.translation()).norm() < 0.02);  // a voxel
 }
 
+TEST_CASE("a full free-space pool forgets the far free space and keeps carving near the camera") {
+  constexpr int kFrames = 40;
+  constexpr std::uint32_t kCapacity = 1500;
+  sim::SimSource source(small_sim(kFrames));
+  REQUIRE(source.open().ok());
+  // Fused at the true poses: this coarse 40-frame path moves too fast to track throughout.
+  PipelineConfig config = small_config(source, PoseSource::ground_truth);
+  config.free_space.node_capacity = kCapacity;
+  Buffer buffer(bytes_required(config));
+  Pipeline<MultiresVoxel> pipeline;
+  REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+  DepthFrame frame;
+  FrameStats stats;
+  std::uint64_t pruned = 0;
+  test::AllocationScope scope;
+  for (int i = 0; i < kFrames; ++i) {
+    REQUIRE(source.next(frame).outcome == FrameOutcome::frame);
+    REQUIRE(pipeline.process(frame, &stats).ok());
+    REQUIRE((stats.result == FrameResult::first || stats.result == FrameResult::tracked));
+    REQUIRE(pipeline.free_space().node_count() <= kCapacity);
+    if (stats.free_space.pruned > 0) {
+      REQUIRE(stats.free_space.nodes_used == pipeline.free_space().node_count());
+    }
+    pruned += stats.free_space.pruned;
+  }
+  REQUIRE(scope.allocations() == 0);
+  REQUIRE(pruned > 0);
+  // The air just in front of the last camera was carved after the pruning.
+  const Se3d T_W_C = pipeline.T_W_C();
+  int free_points = 0;
+  for (double t = 0.5; t <= 1.0; t += 0.05) {
+    const Eigen::Vector3d p_W = T_W_C * Eigen::Vector3d(0.0, 0.0, t);
+    const Result<PointAnswer> a = pipeline.query().point(p_W.cast<float>());
+    REQUIRE(a.ok());
+    free_points += a.value().state == PointState::free ? 1 : 0;
+  }
+  REQUIRE(free_points > 0);
+}
+
 TEST_CASE("init names the setting that is wrong") {
   sim::SimSource source(small_sim(1));
   REQUIRE(source.open().ok());

@@ -7,9 +7,10 @@ namespace octofuse {
 
 Status validate(const FreeSpaceConfig& config) {
   const bool finite = std::isfinite(config.margin_m) && std::isfinite(config.clearance_m) &&
-                      std::isfinite(config.occlusion_clear_m) && std::isfinite(config.near_m);
+                      std::isfinite(config.occlusion_clear_m) && std::isfinite(config.near_m) &&
+                      std::isfinite(config.prune_radius_m);
   if (!finite || config.margin_m < 0.0f || config.clearance_m < 0.0f ||
-      config.occlusion_clear_m < 0.0f || config.near_m < 0.0f) {
+      config.occlusion_clear_m < 0.0f || config.near_m < 0.0f || config.prune_radius_m < 0.0f) {
     return StatusCode::invalid_argument;
   }
   if (config.finest_octant_voxels != 2 && config.finest_octant_voxels != 4 &&
@@ -441,6 +442,55 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
   report.nodes_used = nodes_.used();
   report.bytes_used = bytes_used();
   return report;
+}
+
+std::uint32_t FreeSpace::prune(const Eigen::Vector3f& centre_W, float keep_radius_m) {
+  if (!reserved_) return 0;
+  const std::uint32_t count = nodes_.used();
+  for (std::uint32_t i = 0; i < count; ++i) remap_[i] = 0;
+  remap_[0] = 1;
+  // Mark what stays: a depth-first walk that does not enter octants wholly beyond the radius.
+  struct Entry {
+    std::uint32_t node;
+    int level;
+    Eigen::Vector3i min_voxel;
+  };
+  Entry stack[kStackCapacity];
+  int top = 0;
+  stack[top++] = Entry{0, 0, Eigen::Vector3i::Zero()};
+  const int depth = map_.voxel_depth;
+  const float voxel = map_.voxel_size_m;
+  const float radius_sq = keep_radius_m * keep_radius_m;
+  while (top > 0) {
+    const Entry e = stack[--top];
+    const int half = 1 << (depth - e.level - 1);
+    for (int c = 0; c < 8; ++c) {
+      const std::uint32_t child = nodes_[e.node].children[c];
+      if (child == kNoNode) continue;
+      const Eigen::Vector3i child_min =
+          e.min_voxel + Eigen::Vector3i((c & 1) ? half : 0, (c & 2) ? half : 0, (c & 4) ? half : 0);
+      const Eigen::Vector3f lo_W = map_.origin_W + child_min.cast<float>() * voxel;
+      const Eigen::Vector3f hi_W =
+          lo_W + Eigen::Vector3f::Constant(static_cast<float>(half) * voxel);
+      const Eigen::Vector3f nearest = centre_W.cwiseMax(lo_W).cwiseMin(hi_W);
+      if (!((nearest - centre_W).squaredNorm() <= radius_sq)) continue;
+      remap_[child] = 1;
+      if (e.level + 1 < leaf_level_) stack[top++] = Entry{child, e.level + 1, child_min};
+    }
+  }
+  // New indices in the old order, then move each kept node down (never up: new <= old).
+  std::uint32_t kept = 0;
+  for (std::uint32_t i = 0; i < count; ++i) remap_[i] = remap_[i] != 0 ? kept++ : kNoNode;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    if (remap_[i] == kNoNode) continue;
+    FreeNode node = nodes_[i];
+    for (std::uint32_t& child : node.children) {
+      if (child != kNoNode) child = remap_[child];
+    }
+    nodes_[remap_[i]] = node;
+  }
+  for (std::uint32_t i = kept; i < count; ++i) nodes_.pop_back();
+  return count - kept;
 }
 
 FreeOctant FreeSpace::find(const Eigen::Vector3i& voxel) const {

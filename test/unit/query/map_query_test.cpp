@@ -371,6 +371,44 @@ TEST_CASE(
           RegionState::free);
 }
 
+TEST_CASE("prune() forgets the free space far from a point and keeps the tree whole") {
+  Mapper m;
+  // Two views: one from the origin, one from 1.5 m to the side, each carving its own air.
+  m.fuse(wall_at(kWall_m));
+  Se3d side = Se3d::Identity();
+  side.translation() = Eigen::Vector3d(1.5, 0.0, 0.0);
+  m.fuse(wall_at(kWall_m), side);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.2f).state == PointState::free);
+  REQUIRE(ask(m, 1.5f, 0.0f, 1.2f).state == PointState::free);
+  const std::uint32_t before = m.free_space.node_count();
+
+  const std::uint32_t dropped = m.free_space.prune(Eigen::Vector3f(1.5f, 0.0f, 0.0f), 1.4f);
+  REQUIRE(dropped > 0);
+  REQUIRE(m.free_space.node_count() == before - dropped);
+  // Far from the centre: unknown again; near it: still free, and the same answers as before.
+  REQUIRE(ask(m, -0.3f, 0.0f, 1.2f).state == PointState::unknown);
+  REQUIRE(ask(m, 1.5f, 0.0f, 1.2f).state == PointState::free);
+  // Children still come after their parents and inside the pool, each with one parent.
+  const std::uint32_t count = m.free_space.node_count();
+  std::vector<int> parents(count, 0);
+  for (std::uint32_t i = 0; i < count; ++i) {
+    for (std::uint32_t child : m.free_space.node(i).children) {
+      if (child == FreeSpace::kNoNode) continue;
+      REQUIRE(child > i);
+      REQUIRE(child < count);
+      ++parents[child];
+    }
+  }
+  for (std::uint32_t i = 1; i < count; ++i) REQUIRE(parents[i] == 1);
+  // Carving goes on in the compacted pool.
+  m.fuse(wall_at(kWall_m));
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.2f).state == PointState::free);
+  // A radius of 0 around a point outside the cube leaves the root alone.
+  m.free_space.prune(Eigen::Vector3f(100.0f, 0.0f, 0.0f), 0.0f);
+  REQUIRE(m.free_space.node_count() == 1);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.2f).state == PointState::unknown);
+}
+
 TEST_CASE("bad arguments get invalid_argument") {
   Mapper m;
   m.fuse(wall_at(kWall_m));
@@ -397,6 +435,9 @@ TEST_CASE("bad arguments get invalid_argument") {
   REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
   bad = FreeSpaceConfig();
   bad.clearance_m = nan;
+  REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
+  bad = FreeSpaceConfig();
+  bad.prune_radius_m = -1.0f;
   REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
   bad = FreeSpaceConfig();
   bad.max_free_count = 0;

@@ -99,11 +99,15 @@ struct FreeSpaceConfig {
   int finest_octant_voxels = 8;
   // Octants nearer than this to the camera plane are not tested (projection degenerates).
   float near_m = 0.05f;
+  // When a frame leaves the pool more than 15/16 full, the pipeline forgets the free space
+  // farther than this from the camera (prune()), halving the distance (twice at most) until the
+  // pool is at most half full, so that a long mission keeps carving where the robot is (0 = the
+  // fusion's far_m). A pool too small for one frame's carving still refuses nodes every frame.
+  float prune_radius_m = 0.0f;
 };
 
-// ok, or invalid_argument for a negative or non-finite margin/clearance/occlusion/near,
-// max_free_count 0, finest_octant_voxels not 2, 4 or 8,
-// or a zero visit budget.
+// ok, or invalid_argument for a negative or non-finite margin/clearance/occlusion/near/prune
+// radius, max_free_count 0, finest_octant_voxels not 2, 4 or 8, or a zero visit budget.
 Status validate(const FreeSpaceConfig& config);
 
 struct FreeNode {
@@ -123,6 +127,7 @@ struct FreeSpaceReport {
   std::uint32_t marked_free = 0;  // octants marked free this frame
   std::uint32_t cleared = 0;      // free octants handed down or cleared
   std::uint32_t refused = 0;      // node allocations refused (pool full or budget)
+  std::uint32_t pruned = 0;       // nodes forgotten after this frame to make room (prune())
   bool budget_hit = false;        // visits or allocations ran out
   std::uint32_t nodes_used = 0;   // after this frame
   std::size_t bytes_used = 0;     // nodes_used * sizeof(FreeNode)
@@ -165,6 +170,12 @@ class FreeSpace {
   // `camera` shows free. `frame` is the pipeline's frame index. Never allocates.
   FreeSpaceReport carve(ImageView<const float> depth_m, const PinholeCamera& camera,
                         const Se3d& T_W_C, std::uint32_t frame);
+
+  // Forgets every octant lying wholly farther than `keep_radius_m` from `centre_W` (its subtree
+  // with it: what was free there reads unknown again) and compacts the pool in place, keeping
+  // the order of the nodes that stay (children after their parents). Returns the nodes dropped.
+  // O(node_count()), no allocation; the root always stays.
+  std::uint32_t prune(const Eigen::Vector3f& centre_W, float keep_radius_m);
 
   // The free octant containing finest voxel `voxel` (inside the cube), or free = false.
   FreeOctant find(const Eigen::Vector3i& voxel) const;
@@ -223,6 +234,7 @@ class FreeSpace {
   float* depth_min_ = nullptr;
   float* depth_max_ = nullptr;
   std::uint8_t* depth_invalid_ = nullptr;  // 1: some pixel of the tile has no depth
+  std::uint32_t* remap_ = nullptr;         // prune(): old node index -> new one
   int level_count_ = 0;
   int level_width_[kMaxPyramidLevels] = {};
   int level_height_[kMaxPyramidLevels] = {};
@@ -275,10 +287,13 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   Result<std::uint8_t*> invalid =
       arena.template allocate_array<std::uint8_t>(total, kArenaAlignment);
   OCTOFUSE_TRY(invalid);
+  Result<std::uint32_t*> remap = arena.template allocate_array<std::uint32_t>(capacity);
+  OCTOFUSE_TRY(remap);
   OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
   depth_min_ = lo.value();
   depth_max_ = hi.value();
   depth_invalid_ = invalid.value();
+  remap_ = remap.value();
   level_count_ = levels;
   width_ = width;
   height_ = height;

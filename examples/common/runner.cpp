@@ -119,6 +119,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.end_object();
   json.key("free_space_visits").value(static_cast<std::uint64_t>(s.free_space.node_visits));
   json.key("free_space_nodes").value(static_cast<std::uint64_t>(s.free_space.nodes_used));
+  json.key("free_space_pruned").value(static_cast<std::uint64_t>(s.free_space.pruned));
   json.key("blocks_used").value(static_cast<std::uint64_t>(s.memory.blocks_used));
   json.end_object();
 }

@@ -577,18 +577,14 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
         (fused.ok() || fused.code() == StatusCode::resource_exhausted)) {
       stats.free_space = free_space_.carve(preprocessor_.pyramid().depth_m[0], working_camera_,
                                            T_W_C_, static_cast<std::uint32_t>(stats.frame_index));
-      // Room for the next frames: forget the free space far from the camera first.
+      // Room for the next frames: forget the free space farthest from the camera.
       const std::uint32_t capacity = free_space_.node_capacity();
       if (free_space_.node_count() > capacity - capacity / 16) {
-        float radius_m = config_.free_space.prune_radius_m > 0.0f
-                             ? config_.free_space.prune_radius_m
-                             : config_.fusion.far_m;
-        const Eigen::Vector3f camera_W = T_W_C_.translation().cast<float>();
-        // Down to a quarter of the radius at most: the air just carved in view stays.
-        for (int round = 0; round < 3 && free_space_.node_count() > capacity / 2; ++round) {
-          stats.free_space.pruned += free_space_.prune(camera_W, radius_m);
-          radius_m *= 0.5f;
-        }
+        const float min_radius_m = config_.free_space.prune_radius_m > 0.0f
+                                       ? config_.free_space.prune_radius_m
+                                       : 0.25f * config_.fusion.far_m;
+        stats.free_space.pruned = free_space_.prune_to(T_W_C_.translation().cast<float>(),
+                                                       capacity - capacity / 4, min_radius_m);
         stats.free_space.nodes_used = free_space_.node_count();
         stats.free_space.bytes_used = free_space_.bytes_used();
       }

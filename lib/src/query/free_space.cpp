@@ -451,12 +451,14 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
   return report;
 }
 
-std::uint32_t FreeSpace::prune(const Eigen::Vector3f& centre_W, float keep_radius_m) {
-  if (!reserved_) return 0;
-  const std::uint32_t count = nodes_.used();
-  for (std::uint32_t i = 0; i < count; ++i) remap_[i] = 0;
-  remap_[0] = 1;
-  // Mark what stays: a depth-first walk that does not enter octants wholly beyond the radius.
+std::uint32_t FreeSpace::walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m,
+                                     bool mark) {
+  if (mark) {
+    for (std::uint32_t i = 0; i < nodes_.used(); ++i) remap_[i] = 0;
+    remap_[0] = 1;
+  }
+  // A depth-first walk that does not enter octants wholly beyond the radius; every node has one
+  // parent, so the nodes entered (and the root) are the ones that stay.
   struct Entry {
     std::uint32_t node;
     int level;
@@ -468,6 +470,7 @@ std::uint32_t FreeSpace::prune(const Eigen::Vector3f& centre_W, float keep_radiu
   const int depth = map_.voxel_depth;
   const float voxel = map_.voxel_size_m;
   const float radius_sq = keep_radius_m * keep_radius_m;
+  std::uint32_t kept = 1;
   while (top > 0) {
     const Entry e = stack[--top];
     const int half = 1 << (depth - e.level - 1);
@@ -481,10 +484,36 @@ std::uint32_t FreeSpace::prune(const Eigen::Vector3f& centre_W, float keep_radiu
           lo_W + Eigen::Vector3f::Constant(static_cast<float>(half) * voxel);
       const Eigen::Vector3f nearest = centre_W.cwiseMax(lo_W).cwiseMin(hi_W);
       if (!((nearest - centre_W).squaredNorm() <= radius_sq)) continue;
-      remap_[child] = 1;
+      ++kept;
+      if (mark) remap_[child] = 1;
       if (e.level + 1 < leaf_level_) stack[top++] = Entry{child, e.level + 1, child_min};
     }
   }
+  return kept;
+}
+
+std::uint32_t FreeSpace::prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
+                                  float min_radius_m) {
+  if (!reserved_ || nodes_.used() <= max_nodes) return 0;
+  // The largest radius (to 1 %) that keeps at most max_nodes, but not below min_radius_m.
+  float lo = min_radius_m;
+  float hi = 2.0f * map_.size_m();
+  if (walk_within(centre_W, lo, false) > max_nodes) return prune(centre_W, lo);
+  for (int step = 0; step < 24 && hi - lo > 0.01f * hi; ++step) {
+    const float mid = 0.5f * (lo + hi);
+    if (walk_within(centre_W, mid, false) <= max_nodes) {
+      lo = mid;
+    } else {
+      hi = mid;
+    }
+  }
+  return prune(centre_W, lo);
+}
+
+std::uint32_t FreeSpace::prune(const Eigen::Vector3f& centre_W, float keep_radius_m) {
+  if (!reserved_) return 0;
+  const std::uint32_t count = nodes_.used();
+  walk_within(centre_W, keep_radius_m, true);
   // New indices in the old order, then move each kept node down (never up: new <= old).
   std::uint32_t kept = 0;
   for (std::uint32_t i = 0; i < count; ++i) remap_[i] = remap_[i] != 0 ? kept++ : kNoNode;

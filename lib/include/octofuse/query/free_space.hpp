@@ -100,9 +100,10 @@ struct FreeSpaceConfig {
   // Octants nearer than this to the camera plane are not tested (projection degenerates).
   float near_m = 0.05f;
   // When a frame leaves the pool more than 15/16 full, the pipeline forgets the free space
-  // farther than this from the camera (prune()), halving the distance (twice at most) until the
-  // pool is at most half full, so that a long mission keeps carving where the robot is (0 = the
-  // fusion's far_m). A pool too small for one frame's carving still refuses nodes every frame.
+  // farthest from the camera (prune_to()) until the pool is at most 3/4 full, so that a long
+  // mission keeps carving where the robot is; never within this distance of the camera (0 = a
+  // quarter of the fusion's far_m). A pool too small for the air around the camera still refuses
+  // nodes.
   float prune_radius_m = 0.0f;
 };
 
@@ -176,6 +177,11 @@ class FreeSpace {
   // the order of the nodes that stay (children after their parents). Returns the nodes dropped.
   // O(node_count()), no allocation; the root always stays.
   std::uint32_t prune(const Eigen::Vector3f& centre_W, float keep_radius_m);
+  // prune() with the largest radius, to 1 %, that leaves at most `max_nodes`, but no less than
+  // `min_radius_m` (then more may stay). Nothing when at most `max_nodes` are used. Up to 25
+  // walks over the pool.
+  std::uint32_t prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
+                         float min_radius_m);
 
   // The free octant containing finest voxel `voxel` (inside the cube), or free = false.
   FreeOctant find(const Eigen::Vector3i& voxel) const;
@@ -223,6 +229,9 @@ class FreeSpace {
     bool any_invalid = false;
   };
   void tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const;
+  // Nodes within keep_radius_m of centre_W (the root and every node whose octant comes that close
+  // and whose parent stays); with `mark`, remap_[i] = 1 for those, 0 for the others.
+  std::uint32_t walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m, bool mark);
   static constexpr float kNoDepth = 1e30f;
   static constexpr std::uint8_t kAllSubCells = 0xFF;
 

@@ -384,14 +384,14 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
       const std::uint8_t before = index == kNoNode               ? 0
                                   : nodes_[index].free_count > 0 ? kAllSubCells
                                                                  : nodes_[index].sub_free;
-      // Occluded wholly, or no measured depth lies beyond its nearest point by more than the
-      // clearance (so no half of it can be free): cleared without a closer look.
       // A leaf with no free half only gains from the closer look, so it takes it every other
       // frame, leaves alternating like a checkerboard (half the cost; marking free waits a
       // frame, clearing never does).
       const int leaf_index = (e.min_voxel.x() + e.min_voxel.y() + e.min_voxel.z()) / size;
       const bool gain_only = before == 0 && seen != Seen::occluded;
       SubCellUpdate update;
+      // Occluded wholly, or no measured depth lies beyond its nearest point by more than the
+      // clearance (so no half of it can be free): cleared without a closer look.
       if (seen == Seen::occluded || (seen == Seen::partial && room_m <= clearance_m_)) {
         update.clear = kAllSubCells;
       } else if (gain_only && ((static_cast<std::uint32_t>(leaf_index) + frame) & 1u) != 0) {
@@ -441,9 +441,9 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     const int half = size / 2;
     for (int c = 7; c >= 0; --c) {
       if (seen == Seen::occluded && nodes_[index].children[c] == kNoNode) continue;
-      const Eigen::Vector3i offset((c & 1) ? half : 0, (c & 2) ? half : 0, (c & 4) ? half : 0);
-      stack[top++] = Entry{nodes_[index].children[c], index, static_cast<std::uint8_t>(c),
-                           static_cast<std::uint8_t>(e.level + 1), e.min_voxel + offset};
+      stack[top++] =
+          Entry{nodes_[index].children[c], index, static_cast<std::uint8_t>(c),
+                static_cast<std::uint8_t>(e.level + 1), child_min_voxel(e.min_voxel, c, half)};
     }
   }
   report.nodes_used = nodes_.used();
@@ -477,8 +477,7 @@ std::uint32_t FreeSpace::walk_within(const Eigen::Vector3f& centre_W, float keep
     for (int c = 0; c < 8; ++c) {
       const std::uint32_t child = nodes_[e.node].children[c];
       if (child == kNoNode) continue;
-      const Eigen::Vector3i child_min =
-          e.min_voxel + Eigen::Vector3i((c & 1) ? half : 0, (c & 2) ? half : 0, (c & 4) ? half : 0);
+      const Eigen::Vector3i child_min = child_min_voxel(e.min_voxel, c, half);
       const Eigen::Vector3f lo_W = map_.origin_W + child_min.cast<float>() * voxel;
       const Eigen::Vector3f hi_W =
           lo_W + Eigen::Vector3f::Constant(static_cast<float>(half) * voxel);

@@ -294,9 +294,7 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
         region_free = true;
         for (int c = 0; c < 8 && region_free; ++c) {
           if ((node.sub_free >> c) & 1u) continue;
-          const Eigen::Vector3i sub_lo =
-              e.min_voxel +
-              Eigen::Vector3i((c & 1) ? half : 0, (c & 2) ? half : 0, (c & 4) ? half : 0);
+          const Eigen::Vector3i sub_lo = child_min_voxel(e.min_voxel, c, half);
           const Eigen::Vector3f lo = sub_lo.cast<float>();
           if (shape.touches(lo, lo + Eigen::Vector3f::Constant(static_cast<float>(half)))) {
             region_free = false;
@@ -311,8 +309,7 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
     }
     const int half = size / 2;
     for (int c = 7; c >= 0; --c) {
-      const Eigen::Vector3i child_lo =
-          e.min_voxel + Eigen::Vector3i((c & 1) ? half : 0, (c & 2) ? half : 0, (c & 4) ? half : 0);
+      const Eigen::Vector3i child_lo = child_min_voxel(e.min_voxel, c, half);
       const Eigen::Vector3f lo = child_lo.cast<float>();
       if (!shape.touches(lo, lo + Eigen::Vector3f::Constant(static_cast<float>(half)))) continue;
       const std::uint32_t child = node.children[c];

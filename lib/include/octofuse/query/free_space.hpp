@@ -111,6 +111,13 @@ struct FreeSpaceConfig {
 // radius, max_free_count 0, finest_octant_voxels not 2, 4 or 8, or a zero visit budget.
 Status validate(const FreeSpaceConfig& config);
 
+// The finest-voxel corner of child `child` (bit 0: +x, bit 1: +y, bit 2: +z, as FreeNode's
+// children and sub_free bits) of the octant at `min_voxel` whose children have side `half`.
+inline Eigen::Vector3i child_min_voxel(const Eigen::Vector3i& min_voxel, int child, int half) {
+  return min_voxel +
+         Eigen::Vector3i((child & 1) ? half : 0, (child & 2) ? half : 0, (child & 4) ? half : 0);
+}
+
 struct FreeNode {
   std::uint32_t children[8] = {0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu,
                                0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu};

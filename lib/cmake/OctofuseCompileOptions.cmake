@@ -15,9 +15,14 @@ if(OCTOFUSE_WERROR)
 endif()
 
 # Bit-identical results across x86 and ARM need the same rounding: no FMA contraction, no fast-math.
+# -fno-math-errno and -fno-trapping-math change no result (IEEE operations round the same; only
+# errno and floating-point exception flags go unobserved); they let the compiler inline sqrt and
+# vectorise loops with masked lanes, lane by lane the same operations as the scalar code. armv7
+# NEON is not IEEE (it flushes denormals), so GCC keeps float code scalar there.
 # lib/CMakeLists.txt hands them on (PUBLIC) with EIGEN_DONT_VECTORIZE, so every target that links
 # the library gets them too; the helpers below also give them to targets that do not link it.
-set(OCTOFUSE_FP_FLAGS -ffp-contract=off -fno-fast-math)
+set(OCTOFUSE_FP_FLAGS -ffp-contract=off -fno-fast-math -fno-math-errno
+                      -fno-trapping-math)
 
 if(OCTOFUSE_SANITIZE)
   # No vptr check: lib/ and ports/ have no RTTI, so tests calling their virtual functions would

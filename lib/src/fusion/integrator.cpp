@@ -54,28 +54,50 @@ bool pose_ok(const Se3d& T) {
   return T.matrix().allFinite() && is_rigid(T.matrix(), 1e-3);
 }
 
-// The TSDF update of one voxel (eq. 2-3); false when the sample does not apply.
-template <typename VoxelT>
-inline bool update_voxel(VoxelT& v, const Eigen::Vector3f& p_C, const float* depth,
-                         std::ptrdiff_t stride, int width, int height, float fx, float fy, float cx,
-                         float cy, float near_m, float far_m, float mu_m, float inv_mu,
-                         float y_max) {
-  const float z = p_C.z();
-  if (!(z > 0.0f)) return false;
-  const float inv_z = 1.0f / z;
-  const float xn = p_C.x() * inv_z;
-  const float yn = p_C.y() * inv_z;
-  const float u = fx * xn + cx;
-  const float w = fy * yn + cy;
-  if (!(u >= -0.5f && w >= -0.5f && u < static_cast<float>(width) - 0.5f &&
-        w < static_cast<float>(height) - 0.5f)) {
-    return false;
+// One row of at most kBlockSide voxels (x fastest) projected into the depth image. The projection
+// is done for all lanes in straight-line code the compiler vectorises; the depth reads and the
+// updates that depend on them follow lane by lane. Each lane computes exactly what a voxel-by-voxel
+// loop would, so the bits do not depend on the vectorisation.
+struct RowProjection {
+  float z_m[kBlockSide];        // camera-frame depth of the voxel centre
+  float ray_scale[kBlockSide];  // |ray| per unit of z: depth differences to distances along the ray
+  int u[kBlockSide];            // pixel column, -1 when the centre does not project into the image
+  int v[kBlockSide];
+};
+
+inline void project_row(const float (&x_C)[kBlockSide], const float (&y_C)[kBlockSide],
+                        const float (&z_C)[kBlockSide], float fx, float fy, float cx, float cy,
+                        float u_end, float v_end, RowProjection& out) {
+  // Kept a loop (not unrolled first), so the loop vectoriser takes it whole.
+#pragma GCC unroll 1
+  for (int k = 0; k < kBlockSide; ++k) {
+    const float z = z_C[k];
+    const float inv_z = 1.0f / z;  // inf or negative lanes are masked below
+    const float xn = x_C[k] * inv_z;
+    const float yn = y_C[k] * inv_z;
+    const float u = fx * xn + cx;
+    const float w = fy * yn + cy;
+    // Bitwise, not short-circuit: no branch in the loop. Also false for NaN.
+    const bool inside = (z > 0.0f) & (u >= -0.5f) & (w >= -0.5f) & (u < u_end) & (w < v_end);
+    // Round to the nearest pixel; masked lanes convert 0, never an out-of-range float.
+    const float u_round = u + 0.5f;
+    const float v_round = w + 0.5f;
+    const float u_px = inside ? u_round : 0.0f;
+    const float v_px = inside ? v_round : 0.0f;
+    out.u[k] = inside ? static_cast<int>(u_px) : -1;
+    out.v[k] = static_cast<int>(v_px);
+    out.z_m[k] = z;
+    out.ray_scale[k] = std::sqrt(1.0f + xn * xn + yn * yn);
   }
-  const int ui = static_cast<int>(u + 0.5f);
-  const int vi = static_cast<int>(w + 0.5f);
-  const float measured = depth[vi * stride + ui];
-  if (!(measured >= near_m && measured <= far_m)) return false;
-  const float d = (measured - z) * std::sqrt(1.0f + xn * xn + yn * yn);
+}
+
+// The TSDF update of one voxel (eq. 2-3) from the measured depth at its pixel; false when the
+// sample does not apply.
+template <typename VoxelT>
+inline bool update_voxel(VoxelT& v, float measured_m, float z_m, float ray_scale, float near_m,
+                         float far_m, float mu_m, float inv_mu, float y_max) {
+  if (!(measured_m >= near_m && measured_m <= far_m)) return false;
+  const float d = (measured_m - z_m) * ray_scale;
   if (d < -mu_m) return false;
   const float f = std::min(1.0f, d * inv_mu);
   if constexpr (IsMultiresVoxel<VoxelT>::value) {
@@ -184,12 +206,27 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
       }
     }
     int i = 0;
+    const float u_end = static_cast<float>(f.width) - 0.5f;
+    const float v_end = static_cast<float>(f.height) - 0.5f;
     for (int z = 0; z < n; ++z) {
       for (int y = 0; y < n; ++y) {
+        // Voxel centres by repeated addition, as a voxel-by-voxel loop steps them; lanes past n
+        // (coarser scales) are projected and ignored.
+        float x_C[kBlockSide];
+        float y_C[kBlockSide];
+        float z_C[kBlockSide];
         Eigen::Vector3f p_C = base_C + static_cast<float>(y) * dy + static_cast<float>(z) * dz;
-        for (int x = 0; x < n; ++x, ++i, p_C += dx) {
+        for (int x = 0; x < kBlockSide; ++x, p_C += dx) {
+          x_C[x] = p_C.x();
+          y_C[x] = p_C.y();
+          z_C[x] = p_C.z();
+        }
+        RowProjection row;
+        project_row(x_C, y_C, z_C, f.fx, f.fy, f.cx, f.cy, u_end, v_end, row);
+        for (int x = 0; x < n; ++x, ++i) {
           VoxelT& v = voxels[i];
-          if (update_voxel(v, p_C, f.depth, f.stride, f.width, f.height, f.fx, f.fy, f.cx, f.cy,
+          if (row.u[x] >= 0 &&
+              update_voxel(v, f.depth[row.v[x] * f.stride + row.u[x]], row.z_m[x], row.ray_scale[x],
                            f.near_m, f.far_m, f.mu_m, f.inv_mu, f.y_max)) {
             ++updated;
           }

@@ -136,6 +136,21 @@ float octant_exit(const VoxelRay& ray, const Eigen::Vector3i& corner, int size) 
   return t;
 }
 
+// Whether the 8 corners of the trilinear cell around q (continuous finest-voxel coordinates) at
+// `scale` all lie in `block`: the test sample_tsdf_at_voxel_coords makes for its fast path.
+template <typename VoxelT>
+bool cell_inside_block(const VoxelBlock<VoxelT>& block, const Eigen::Vector3f& q, int scale) {
+  const int side = block_scale_side(scale);
+  const Eigen::Vector3f qs =
+      q * (1.0f / static_cast<float>(1 << scale)) - Eigen::Vector3f::Constant(0.5f);
+  const Eigen::Vector3i block_min = block.min_voxel();
+  for (int a = 0; a < 3; ++a) {
+    const int local = detail::floor_to_int(qs[a]) - (block_min[a] >> scale);
+    if (local < 0 || local >= side - 1) return false;
+  }
+  return true;
+}
+
 // What one ray leaves for the next: neighbouring rays descend through the same nodes and sample
 // the same blocks, so a row keeps one cursor and one block neighbourhood for all its rays.
 template <typename VoxelT>
@@ -223,6 +238,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       have_prev_sample = false;
       continue;
     }
+    bool unobserved = false;  // the sample at q is known to fail
     {
       // Far from the surface: step by the nearest voxel's value, less the distance to its
       // centre, so the step cannot pass further than the field says is free.
@@ -248,9 +264,14 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
           t = t_next;
           continue;
         }
+      } else {
+        // The nearest voxel is one of the trilinear cell's corners: when the whole cell lies in
+        // this block the sample fails without a look at the neighbours (exactly what it would
+        // return), and only a cell across blocks may still be completed by a coarser neighbour.
+        unobserved = cell_inside_block(*block, q, read_scale);
       }
     }
-    if (!sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, sample)) {
+    if (unobserved || !sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, sample)) {
       // Past a positive sample the observed band behind a surface can be thinner than a coarse
       // step: back off towards the last good sample before giving up on it.
       if (have_prev && prev_f > 0.0f && t - prev_t > kRetreatMin_voxels * voxel_m) {

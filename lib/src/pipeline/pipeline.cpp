@@ -324,6 +324,7 @@ Status Pipeline<VoxelT>::reset() {
   have_prior_prev_ = false;
   have_reference_ = false;
   pose_set_ = false;
+  raycaster_.forget_previous_cast();
   // frame_index_ keeps counting: the integrator's per-frame stamps must not repeat.
   return ok_status();
 }

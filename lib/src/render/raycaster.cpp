@@ -23,6 +23,9 @@ constexpr float kFarTsdf = 0.25f;
 // the integrator just wrote, close enough to skip most of it, far enough that depth noise rarely
 // puts the fused surface in front of the start (which then costs a full march).
 constexpr float kGuideMargin_mu = 0.5f;
+// In a guided cast, a pixel without a guide whose ray found nothing in the previous cast is marched
+// again only every this many casts (pixels take turns); in between it stays empty, as it was.
+constexpr std::uint32_t kMissRetryPeriod = 4;
 // Distance from a point to the centre of the voxel containing it, at most, in cells.
 constexpr float kNearestOffset_cells = 0.8661f;
 
@@ -473,6 +476,8 @@ struct RowJob {
   ImageView<const TileDepthRange> ranges;
   ImageView<const float> guide_depth_m;  // empty: no guide
   Eigen::Vector3f origin_v;              // the camera centre, where every ray starts, in voxels
+  bool skip_repeated_misses;             // see kMissRetryPeriod
+  std::uint32_t cast_index;
 
   // One task: kRowsPerTask consecutive rows, so a worker's cache keeps the voxels that
   // neighbouring rows share (rows dealt out one by one split them between the cores).
@@ -493,6 +498,8 @@ struct RowJob {
     if (budget != 0) steps_left = budget / rows + (row < budget % rows ? 1u : 0u);
     const float voxel_m = map->voxel_size_m();
     for (int x = 0; x < config->width; ++x) {
+      // Read before it is overwritten: whether this pixel's ray hit in the previous cast.
+      const bool missed_before = scale(x, y) == kNoScale;
       surface_W.vertices(x, y) = Eigen::Vector3f::Zero();
       surface_W.normals(x, y) = Eigen::Vector3f::Zero();
       scale(x, y) = kNoScale;
@@ -526,6 +533,14 @@ struct RowJob {
         }
       }
       const bool guided = t_start > t_near;
+      // Rays without a guide cost several times a guided one and mostly find nothing (regions
+      // the sensor never measures: out of range, dark or shiny surfaces), so one that found
+      // nothing last time waits for its turn.
+      if (!guided && skip_repeated_misses && missed_before &&
+          (static_cast<std::uint32_t>(x + y) + cast_index) % kMissRetryPeriod != 0) {
+        ++stats.miss_skipped_pixels;
+        continue;
+      }
       PixelHit hit;
       MarchResult r = march(*map, *config, ray, t_near, t_far, t_start, guided, cache, ray_v,
                             steps_left, stats.steps, hit);
@@ -590,7 +605,10 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
                      row_stats_,
                      ranges_,
                      guide_depth_m,
-                     map.point_to_voxel_f(T_W_C.translation().cast<float>())};
+                     map.point_to_voxel_f(T_W_C.translation().cast<float>()),
+                     !guide_depth_m.empty() && guided_casts_ > 0,
+                     guided_casts_};
+  if (!guide_depth_m.empty()) ++guided_casts_;
   const std::size_t tasks = (static_cast<std::size_t>(config_.height) + kRowsPerTask - 1) /
                             static_cast<std::size_t>(kRowsPerTask);
   team.for_each_task(tasks, job);
@@ -602,6 +620,7 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
     total.budget_cut_pixels += row.budget_cut_pixels;
     total.guided_pixels += row.guided_pixels;
     total.guide_fallback_pixels += row.guide_fallback_pixels;
+    total.miss_skipped_pixels += row.miss_skipped_pixels;
     for (int s = 0; s < 4; ++s) total.scale_pixels[s] += row.scale_pixels[s];
   }
   return total;

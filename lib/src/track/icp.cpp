@@ -23,6 +23,7 @@ struct Pass {
   float max_distance_sq_m2;
   float min_normal_dot;
   double inv_knee_m;  // 0: equal weights
+  int parity;         // -1: every pixel; 0 / 1: only pixels with (x + y) % 2 == parity
 };
 
 void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
@@ -38,7 +39,9 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
     const int y = static_cast<int>(row);
     const Eigen::Vector3f* v_row = pass.vertices_C.row(y);
     const Eigen::Vector3f* n_row = pass.normals_C.row(y);
-    for (int x = 0; x < width; ++x) {
+    const int x_step = pass.parity < 0 ? 1 : 2;
+    const int x_begin = pass.parity < 0 ? 0 : (y + pass.parity) & 1;
+    for (int x = x_begin; x < width; x += x_step) {
       const Eigen::Vector3f& n_C = n_row[x];
       if (is_invalid_normal(n_C)) continue;
       const Eigen::Vector3f p_W = pass.R_W_C * v_row[x] + pass.t_W_C;
@@ -205,7 +208,8 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   pass.min_normal_dot = config_.min_normal_dot;
 
   Partial* partials = partials_;
-  auto run_pass = [&](int level, const Se3d& T_W_C_estimate) {
+  auto run_pass = [&](int level, const Se3d& T_W_C_estimate, int parity) {
+    pass.parity = parity;
     pass.vertices_C = live.vertices_C[level];
     pass.normals_C = live.normals_C[level];
     pass.inv_knee_m = level == 0 && config_.depth_weight_knee_m > 0.0f
@@ -235,7 +239,9 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       pull = agrees ? prior : nullptr;
     }
     for (int it = 0; it < config_.iterations[level]; ++it) {
-      const Partial total = run_pass(level, estimate);
+      // The finest level's passes take every other pixel, alternating between iterations.
+      const int parity = level == 0 && config_.finest_level_checkerboard ? it & 1 : -1;
+      const Partial total = run_pass(level, estimate, parity);
       Vector6d twist;
       if (!solve_step(total, level == 0 ? pull : nullptr, estimate, twist)) {
         singular = level == 0;
@@ -250,7 +256,11 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       if (twist.norm() < config_.convergence_norm) break;
     }
   }
-  if (!have_final) final_total = run_pass(0, estimate);
+  if (!have_final) final_total = run_pass(0, estimate, config_.finest_level_checkerboard ? 0 : -1);
+  // A checkerboard pass counted half the pixels: its counts stand for twice as many.
+  const std::uint32_t count_scale = config_.finest_level_checkerboard ? 2u : 1u;
+  final_total.count *= count_scale;
+  final_total.residual_sq *= static_cast<double>(count_scale);  // the RMS stays the half's
 
   // Serial integer count: the same for any worker count, and a few tens of microseconds.
   std::uint32_t model_pixels = 0;

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -401,6 +402,79 @@ TEMPLATE_TEST_CASE(
       guided.raycaster
           .raycast(owned.map, camera, Se3d::Identity(), team, ImageView<const float>(small, 2, 2))
           .status() == StatusCode::invalid_argument);
+}
+
+TEST_CASE("in a guided cast, unguided pixels that found nothing wait for their turn") {
+  // A sphere in the middle of the view: the rays around it find nothing.
+  const Eigen::Vector3f centre_W(0.0f, 0.0f, 1.2f);
+  constexpr float kRadius_m = 0.3f;
+  auto sphere = [&](const Eigen::Vector3f& p_W) { return (p_W - centre_W).norm() - kRadius_m; };
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, sphere, [](const Eigen::Vector3i&) { return 0; });
+  const WorkerTeam team(1);
+  const PinholeCamera camera = test_camera();
+  OwnedRaycaster<MultiresVoxel> rc(test_raycast_config());
+  // A guide image without a single usable depth: every ray is unguided.
+  const GuideImage no_data(0.0f);
+  Result<RaycastStats> first =
+      rc.raycaster.raycast(owned.map, camera, Se3d::Identity(), team, no_data.view());
+  REQUIRE(first.ok());
+  REQUIRE(first->miss_skipped_pixels == 0u);  // the first cast marches every pixel
+  REQUIRE(first->valid_pixels > 0u);
+  REQUIRE(first->valid_pixels < 64u * 48u);
+  std::vector<std::uint8_t> hit_first(64 * 48);
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) hit_first[y * 64 + x] = rc.raycaster.surface_W().valid(x, y);
+  }
+  // The second cast (turn 1) marches only the misses with (x + y + 1) % 4 == 0; the hits are
+  // marched again and found again.
+  Result<RaycastStats> second =
+      rc.raycaster.raycast(owned.map, camera, Se3d::Identity(), team, no_data.view());
+  REQUIRE(second.ok());
+  // Rays of tiles with nothing allocated are not marched at all, so they do not count.
+  const ImageView<const TileDepthRange> ranges = rc.raycaster.depth_ranges();
+  std::uint32_t expected_skips = 0;
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      if (!hit_first[y * 64 + x] && (x + y + 1) % 4 != 0 &&
+          !ranges(x / kRangeTile_px, y / kRangeTile_px).empty()) {
+        ++expected_skips;
+      }
+    }
+  }
+  REQUIRE(expected_skips > 100u);
+  REQUIRE(second->miss_skipped_pixels == expected_skips);
+  REQUIRE(second->valid_pixels == first->valid_pixels);
+  REQUIRE(second->steps < first->steps);
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      REQUIRE(rc.raycaster.surface_W().valid(x, y) == static_cast<bool>(hit_first[y * 64 + x]));
+    }
+  }
+  // A wall appears behind the sphere: each pixel that missed finds it on its turn, so after four
+  // casts every pixel has a surface. Pixels with a guide never wait.
+  auto far_wall = [](const Eigen::Vector3f& p_W) { return 1.9f - p_W.z(); };
+  test::fill_band(owned.map, kMu_m, far_wall, [](const Eigen::Vector3i&) { return 0; });
+  std::uint32_t valid = 0;
+  for (int cast = 0; cast < 4; ++cast) {
+    Result<RaycastStats> stats =
+        rc.raycaster.raycast(owned.map, camera, Se3d::Identity(), team, no_data.view());
+    REQUIRE(stats.ok());
+    REQUIRE(stats->valid_pixels >= valid);
+    valid = stats->valid_pixels;
+  }
+  REQUIRE(valid == 64u * 48u);
+  // After forget_previous_cast() the next guided cast marches every pixel again.
+  test::OwnedMap<MultiresVoxel> sphere_only(test_map_config());
+  test::fill_band(sphere_only.map, kMu_m, sphere, [](const Eigen::Vector3i&) { return 0; });
+  REQUIRE(
+      rc.raycaster.raycast(sphere_only.map, camera, Se3d::Identity(), team, no_data.view()).ok());
+  rc.raycaster.forget_previous_cast();
+  Result<RaycastStats> fresh =
+      rc.raycaster.raycast(sphere_only.map, camera, Se3d::Identity(), team, no_data.view());
+  REQUIRE(fresh.ok());
+  REQUIRE(fresh->miss_skipped_pixels == 0u);
+  REQUIRE(fresh->valid_pixels == first->valid_pixels);
 }
 
 TEST_CASE("a guided ray returns the surface nearest its guide, not one further in front") {

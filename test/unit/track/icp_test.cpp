@@ -148,6 +148,37 @@ TEST_CASE("ICP recovers a known small offset on a synthetic pair") {
         static_cast<std::uint32_t>(report.inlier_fraction * report.model_pixels + 0.5f));
 }
 
+TEST_CASE("the finest level's checkerboard lands where every pixel does, at half the pairs") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackConfig every_pixel;
+  every_pixel.finest_level_checkerboard = false;
+  TrackFixture full(every_pixel);
+  TrackFixture half;  // the default: checkerboard
+  const Se3d T_W_Cref = reference_pose();
+  const Se3d T_W_C_true = offset_pose();
+  const test::RenderedModel model = test::render_model(scene, full.camera_level0(), T_W_Cref);
+  full.set_live(scene, T_W_C_true, 1, 0.002f);
+  half.set_live(scene, T_W_C_true, 1, 0.002f);
+  const WorkerTeam team(1);
+  Se3d pose_full = T_W_Cref;
+  Se3d pose_half = T_W_Cref;
+  const TrackReport a = full.tracker.track(full.pre.pyramid(), model.map(), full.camera_level0(),
+                                           T_W_Cref, pose_full, team);
+  const TrackReport b = half.tracker.track(half.pre.pyramid(), model.map(), half.camera_level0(),
+                                           T_W_Cref, pose_half, team);
+  REQUIRE(a.tracked());
+  REQUIRE(b.tracked());
+  CHECK(translation_error_m(pose_half, T_W_C_true) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(pose_half, T_W_C_true) < kRotationTolerance_deg);
+  CHECK(translation_error_m(pose_half, pose_full) < 2e-4);
+  CHECK(rotation_error_deg(pose_half, pose_full) < 0.02);
+  // The half's count, doubled, stands for the whole image; the RMS is the half's own.
+  CHECK(b.inliers % 2 == 0u);
+  CHECK(std::abs(static_cast<double>(b.inliers) - static_cast<double>(a.inliers)) <
+        0.02 * static_cast<double>(a.inliers));
+  CHECK(std::abs(b.rms_residual_m - a.rms_residual_m) < 0.1f * a.rms_residual_m);
+}
+
 TEST_CASE("ICP tracks against a model that covers only part of the view (a full block pool)") {
   // A full pool leaves the map, and so the ray-cast, covering a fraction of what the camera sees:
   // the inliers are counted against the model's valid pixels, not the whole image.

@@ -54,6 +54,7 @@ struct RaycastStats {
   std::uint32_t scale_pixels[4] = {};       // valid pixels per interpolation scale
   std::uint32_t guided_pixels = 0;          // rays started at their guide depth
   std::uint32_t guide_fallback_pixels = 0;  // of those, marched again from the near end
+  std::uint32_t miss_skipped_pixels = 0;    // unguided, missed last cast, not their turn
 
   bool budget_hit() const { return budget_cut_pixels > 0; }
 };
@@ -114,6 +115,7 @@ class Raycaster {
     surface_W_.normals = ImageView<Eigen::Vector3f>(normals.value(), config.width, config.height);
     scale_ = ImageView<std::uint8_t>(scales.value(), config.width, config.height);
     row_stats_ = row_stats.value();
+    guided_casts_ = 0;
     ranges_ = ImageView<TileDepthRange>(ranges.value(), tiles_x, tiles_y);
     return ok_status();
   }
@@ -129,9 +131,17 @@ class Raycaster {
   // reads there is observed and positive; otherwise (or when it reads no voxel at all) it is
   // marched again in full. It returns the surface nearest the guide from the front, or none: a
   // stale surface further in front that the fused view did not see is not reported.
+  // In a guided cast, a pixel without a guide depth whose ray found nothing in the previous cast
+  // (no vertex) stays empty, and is marched only every 4th guided cast, pixels taking turns
+  // ((x + y + cast) mod 4): such rays cost several guided ones and mostly cross what the sensor
+  // never measured. The result so depends on the previous cast; the pipeline's sequence of casts
+  // is the same for the same input, so its results still are.
   Result<RaycastStats> raycast(const Octree<VoxelT>& map, const PinholeCamera& camera,
                                const Se3d& T_W_C, const WorkerTeam& team,
                                ImageView<const float> guide_depth_m = {});
+
+  // The next guided cast marches every pixel, as the first one does (after a reset of the map).
+  void forget_previous_cast() { guided_casts_ = 0; }
 
   const RaycastConfig& config() const { return config_; }
   // Valid until the next raycast().
@@ -147,6 +157,7 @@ class Raycaster {
   ImageView<std::uint8_t> scale_;
   RaycastStats* row_stats_ = nullptr;
   ImageView<TileDepthRange> ranges_;
+  std::uint32_t guided_casts_ = 0;  // guided raycast() calls so far (the turns of the retries)
 };
 
 extern template class Raycaster<TsdfVoxel>;

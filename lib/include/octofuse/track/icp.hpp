@@ -50,6 +50,10 @@ struct TrackConfig {
   // a 1 cm model's few millimetres near 1 m). 0 weighs all pairs alike, as KinectFusion does.
   // Coarser levels stay unweighted: they only find the basin.
   float depth_weight_knee_m = 1.0f;
+  // Level-0 passes take every other pixel in a checkerboard, the two halves alternating between
+  // iterations: half the work of the costliest level; the reported inliers are then the half's
+  // count doubled.
+  bool finest_level_checkerboard = true;
 
   // True when every field is finite and in range (iterations >= 0, gates and knee >= 0, dot in
   // [-1, 1]).

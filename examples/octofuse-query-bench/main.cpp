@@ -283,14 +283,15 @@ int main(int argc, char** argv) {
   long points = 1000000;
   double voxel = 0.01;
   std::int64_t threads = 1;
-  std::int64_t finest_octant = 8;
+  std::int64_t finest_octant = 0;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     std::int64_t n = 0;
     if (arg == "-h" || arg == "--help") {
       std::printf(
           "usage: octofuse-query-bench [--scenes desk,room] [--frames N] [--points N]\n"
-          "                            [--voxel-size M] [--threads N] [--finest-octant 8|4|2]\n"
+          "                            [--voxel-size M] [--threads N] [--finest-octant "
+          "0|2|4|8|16|32|64]\n"
           "  --frames N   frames per run (default: the scene's whole sequence)\n"
           "  --points N   random points for safety and coverage (default 1000000)\n");
       return 0;
@@ -324,9 +325,10 @@ int main(int argc, char** argv) {
         return octofuse::cli::fail("--voxel-size needs metres in [0.001, 0.1]");
       }
     } else if (arg == "--finest-octant" && i + 1 < argc) {
-      if (!octofuse::cli::parse_int(argv[++i], 2, 8, finest_octant) ||
-          (finest_octant != 2 && finest_octant != 4 && finest_octant != 8)) {
-        return octofuse::cli::fail("--finest-octant needs 2, 4 or 8 (voxels)");
+      if (!octofuse::cli::parse_int(argv[++i], 0, 64, finest_octant) ||
+          (finest_octant & (finest_octant - 1)) != 0 || finest_octant == 1) {
+        return octofuse::cli::fail(
+            "--finest-octant needs 0 (automatic), 2, 4, 8, 16, 32 or 64 (voxels)");
       }
     } else if (arg == "--threads" && i + 1 < argc) {
       if (!octofuse::cli::parse_int(argv[++i], 1, 64, threads)) {

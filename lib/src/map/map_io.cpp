@@ -479,9 +479,12 @@ bool read_free_record(RecordReader& r, const MapFileHeader& h, std::uint32_t ind
 // holds its parent in children[0] and its level in free_frame.
 bool read_free_space(RecordReader& r, const MapFileHeader& h, int block_level,
                      FreeSpace* free_space) {
-  const int leaf_level = block_level + (h.free_octant_voxels == 8   ? 0
-                                        : h.free_octant_voxels == 4 ? 1
-                                                                    : 2);
+  const int octant = h.free_octant_voxels;
+  if (h.free_node_count > 0 && octant != 2 && octant != 4 && octant != 8 && octant != 16 &&
+      octant != 32 && octant != 64) {
+    return r.fail(StatusCode::data_loss, "free-space octants of %d voxels", octant);
+  }
+  const int leaf_level = free_leaf_level(block_level, octant);
   for (std::uint32_t i = 0; i < h.free_node_count; ++i) {
     r.begin_record("free-space record", i);
     FreeNode node;

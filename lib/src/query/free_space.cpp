@@ -13,8 +13,9 @@ Status validate(const FreeSpaceConfig& config) {
       config.occlusion_clear_m < 0.0f || config.near_m < 0.0f || config.prune_radius_m < 0.0f) {
     return StatusCode::invalid_argument;
   }
-  if (config.finest_octant_voxels != 2 && config.finest_octant_voxels != 4 &&
-      config.finest_octant_voxels != 8) {
+  const int octant = config.finest_octant_voxels;
+  if (octant != 0 && octant != 2 && octant != 4 && octant != 8 && octant != 16 && octant != 32 &&
+      octant != 64) {
     return StatusCode::invalid_argument;
   }
   if (config.max_free_count == 0 || config.max_node_visits == 0) {

@@ -987,6 +987,7 @@ TEST_CASE("the committed small map is what every build writes and loads", "[fixt
   PipelineConfig config = config_for<MultiresVoxel>(0.005f);
   config.budget.max_new_blocks = 12;
   config.free_space.max_new_nodes = 100;
+  config.free_space.finest_octant_voxels = 8;  // as the fixtures were saved (automatic: 16)
   Mapper<MultiresVoxel> mapper(config);
   mapper.run(Frames(1), 0, 1);
   const std::vector<std::uint8_t> written =
@@ -1027,6 +1028,7 @@ TEST_CASE("a version 1 map file still loads: the same TSDF, free space without s
   PipelineConfig config = config_for<MultiresVoxel>(0.005f);
   config.budget.max_new_blocks = 12;
   config.free_space.max_new_nodes = 100;
+  config.free_space.finest_octant_voxels = 8;  // as the fixtures were saved (automatic: 16)
   Mapper<MultiresVoxel> mapper(config);
   mapper.run(Frames(1), 0, 1);
   std::ifstream in(std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v1.ofmap",

@@ -290,6 +290,54 @@ TEST_CASE("octants down to 2 voxels carve closer to the view's edges, and no clo
   REQUIRE(validate(bad).code() == StatusCode::invalid_argument);
 }
 
+TEST_CASE("octants of several blocks (the automatic choice for fine voxels) stay safe") {
+  // kVoxel_m is 2 cm, so the automatic choice is a block (8 voxels, 16 cm); 16 voxels are the
+  // coarser leaves fine voxels get.
+  FreeSpaceConfig coarse_config;
+  coarse_config.finest_octant_voxels = 16;
+  Mapper coarse(coarse_config);
+  Mapper block;
+  REQUIRE(block.free_space.config().finest_octant_voxels == 8);
+  coarse.fuse(wall_at(kWall_m));
+  block.fuse(wall_at(kWall_m));
+  REQUIRE(coarse.free_space.leaf_level() == block.free_space.leaf_level() - 1);
+  int coarse_free = 0;
+  for (float z = 0.5f; z < 2.3f; z += 0.02f) {
+    for (float y = -0.6f; y <= 0.6f; y += 0.05f) {
+      const PointAnswer c = ask(coarse, 0.03f, y, z);
+      const PointAnswer b = ask(block, 0.03f, y, z);
+      if (c.state == PointState::free) {
+        ++coarse_free;
+        REQUIRE(z < kWall_m - kVoxel_m);
+        REQUIRE(c.distance_m <= kWall_m - z);  // a lower bound on the distance to the wall
+        REQUIRE(b.state == PointState::free);  // what the coarse octants call free, blocks do too
+      }
+    }
+  }
+  REQUIRE(coarse_free > 100);
+  REQUIRE(box_state(coarse, Eigen::Vector3f(-0.1f, -0.1f, 1.9f),
+                    Eigen::Vector3f(0.1f, 0.1f, 2.1f)) == RegionState::blocked);
+  REQUIRE(box_state(coarse, Eigen::Vector3f(-0.2f, -0.2f, 0.9f),
+                    Eigen::Vector3f(0.2f, 0.2f, 1.4f)) == RegionState::free);
+  // The automatic choice from the voxel size, and octant sides refused.
+  MapConfig map;
+  map.voxel_size_m = 0.01f;
+  CHECK(resolve_finest_octant_voxels(0, map) == 8);
+  map.voxel_size_m = 0.002f;
+  CHECK(resolve_finest_octant_voxels(0, map) == 32);
+  map.voxel_size_m = 0.005f;
+  CHECK(resolve_finest_octant_voxels(0, map) == 16);
+  CHECK(resolve_finest_octant_voxels(4, map) == 4);
+  CHECK(free_leaf_level(10, 8) == 10);
+  CHECK(free_leaf_level(10, 2) == 12);
+  CHECK(free_leaf_level(10, 64) == 7);
+  FreeSpaceConfig bad;
+  for (int side : {1, 3, 12, 128, -8}) {
+    bad.finest_octant_voxels = side;
+    CHECK(validate(bad).code() == StatusCode::invalid_argument);
+  }
+}
+
 // Exact distance to the wall and the spheres of `scene` (planes z = offset, as wall_at makes).
 double exact_distance(const AnalyticScene& scene, const Eigen::Vector3d& p) {
   double best = std::numeric_limits<double>::infinity();

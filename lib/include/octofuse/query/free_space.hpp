@@ -6,10 +6,11 @@
 // space the camera looked through is recorded here, in a second, sparse octree over the same
 // cube whose nodes (FreeNode, 40 bytes) come from a fixed pool carved from the arena at reserve().
 // It is kept apart from the TSDF octree so that ray-casting's empty-space skipping, the block pool
-// and the TSDF octree's node layout stay as they are. Its leaves are at the TSDF octree's block
-// level by default (finest_octant_voxels 8): below that the blocks' TSDF says what is where. Node
-// 0 is the root; a node's children are node indices (kNoNode where absent), so the pool's first
-// node_count() nodes are the whole state (what a saved map needs to keep).
+// and the TSDF octree's node layout stay as they are. Its leaves are by default the smallest
+// octants of at least kAutoFreeOctant_m: a TSDF block at 1 cm (below that the blocks' TSDF says
+// what is where), 4^3 blocks at 2 mm (finest_octant_voxels). Node 0 is the root; a node's children
+// are node indices (kNoNode where absent), so the pool's first node_count() nodes are the whole
+// state (what a saved map needs to keep).
 //
 // A node holds a capped count of frames that saw its whole octant free and the index of the last
 // such frame; a leaf that is not wholly free may hold free halves (sub_free: its 2 x 2 x 2
@@ -77,6 +78,9 @@
 
 namespace octofuse {
 
+// The smallest octant the automatic choice of FreeSpaceConfig::finest_octant_voxels takes.
+inline constexpr float kAutoFreeOctant_m = 0.05f;
+
 struct FreeSpaceConfig {
   bool enabled = true;
   // Nodes in the free-space pool (the root included); 0 = the TSDF map's node_capacity.
@@ -94,9 +98,12 @@ struct FreeSpaceConfig {
   // stay free until seen from elsewhere (a known limit).
   float occlusion_clear_m = 0.0f;
   std::uint8_t max_free_count = 8;
-  // Side of the smallest octant carved, in finest voxels: 8 (a block), 4 or 2. Smaller octants
-  // fit more of the view's edges and the air just in front of surfaces, for more node visits.
-  int finest_octant_voxels = 8;
+  // Side of the smallest octant carved, in finest voxels: 8 (a block), 4 or 2; or 16, 32 or 64
+  // (2^3, 4^3, 8^3 blocks). Smaller octants fit more of the view's edges and the air just in front
+  // of surfaces, for more node visits. 0: the smallest of 8, 16, 32 and 64 that spans at least
+  // kAutoFreeOctant_m (8 voxels at 1 cm, 32 at 2 mm, where 8-voxel octants would make carving
+  // cost more than the rest of the frame).
+  int finest_octant_voxels = 0;
   // Octants nearer than this to the camera plane are not tested (projection degenerates).
   float near_m = 0.05f;
   // When a frame leaves the pool more than 15/16 full, the pipeline forgets the free space
@@ -108,8 +115,30 @@ struct FreeSpaceConfig {
 };
 
 // ok, or invalid_argument for a negative or non-finite margin/clearance/occlusion/near/prune
-// radius, max_free_count 0, finest_octant_voxels not 2, 4 or 8, or a zero visit budget.
+// radius, max_free_count 0, finest_octant_voxels not 0, 2, 4, 8, 16, 32 or 64, or a zero visit
+// budget.
 Status validate(const FreeSpaceConfig& config);
+
+// Octree level of the finest free-space octants, of side `octant_voxels` (2 .. 64, a power of
+// two), in a map whose blocks (8 voxels) sit at `block_level`.
+constexpr int free_leaf_level(int block_level, int octant_voxels) {
+  int level = block_level + 3;
+  for (int side = 1; side < octant_voxels; side *= 2) --level;
+  return level;
+}
+
+// FreeSpaceConfig::finest_octant_voxels with 0 resolved for `map`: the smallest of 8, 16, 32 and
+// 64 voxels that spans kAutoFreeOctant_m, and whose octants are below the root's children.
+inline int resolve_finest_octant_voxels(int requested, const MapConfig& map) {
+  if (requested != 0) return requested;
+  const int block_level = map.block_level();
+  int side = 8;
+  while (side < 64 && static_cast<float>(side) * map.voxel_size_m < kAutoFreeOctant_m &&
+         free_leaf_level(block_level, 2 * side) >= 1) {
+    side *= 2;
+  }
+  return side;
+}
 
 // The finest-voxel corner of child `child` (bit 0: +x, bit 1: +y, bit 2: +z, as FreeNode's
 // children and sub_free bits) of the octant at `min_voxel` whose children have side `half`.
@@ -276,6 +305,10 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   OCTOFUSE_TRY(validate(config));
   OCTOFUSE_TRY(validate(map));
   if (width < 1 || height < 1) return StatusCode::invalid_argument;
+  if (free_leaf_level(map.block_level(),
+                      resolve_finest_octant_voxels(config.finest_octant_voxels, map)) < 1) {
+    return StatusCode::invalid_argument;  // octants as large as the root's children or larger
+  }
   const std::size_t start = arena.bytes_used();
   OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
   const std::uint32_t capacity =
@@ -318,10 +351,9 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   margin_m_ = config.margin_m > 0.0f ? config.margin_m : map.voxel_size_m;
   clearance_m_ = config.clearance_m;
   occlusion_clear_m_ = config.occlusion_clear_m;
-  leaf_level_ = map.block_level() + (config.finest_octant_voxels == 8   ? 0
-                                     : config.finest_octant_voxels == 4 ? 1
-                                                                        : 2);
-  sub_cell_voxels_ = config.finest_octant_voxels / 2;
+  config_.finest_octant_voxels = resolve_finest_octant_voxels(config.finest_octant_voxels, map);
+  leaf_level_ = free_leaf_level(map.block_level(), config_.finest_octant_voxels);
+  sub_cell_voxels_ = config_.finest_octant_voxels / 2;
   bytes_reserved_ = arena.bytes_used() - start;
   if constexpr (!std::is_same_v<Arena, ArenaSizer>) {
     reserved_ = true;

@@ -111,6 +111,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("raycast_guide_fallbacks")
       .value(static_cast<std::uint64_t>(s.raycast.guide_fallback_pixels));
   json.key("raycast_miss_skipped").value(static_cast<std::uint64_t>(s.raycast.miss_skipped_pixels));
+  json.key("raycast_guided_misses").value(static_cast<std::uint64_t>(s.raycast.guided_misses));
   json.key("budget_hits").begin_object();
   json.key("icp").value(s.budget_icp_hit);
   json.key("evict").value(s.eviction.budget_hit);

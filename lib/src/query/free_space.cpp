@@ -237,11 +237,11 @@ FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
   // lies within r = margin * sqrt(3) of the sub-cell, and x/z is quasi-convex, so the bounds over
   // its 8 corners' boxes bound the grown sub-cell's projection.
   constexpr int kGrid = n + 1;
-  struct GridPoint {
-    float z_lo, z_hi, u_lo, u_hi, v_lo, v_hi;
-    bool ok;
-  };
-  GridPoint grid[kGrid * kGrid * kGrid];
+  constexpr int kPoints = kGrid * kGrid * kGrid;
+  // Structure of arrays, so the bounds of all 27 points are computed in vector lanes.
+  float px[kPoints];
+  float py[kPoints];
+  float pz[kPoints];
   const float r = margin_m_ * 1.7320508f;
   const Eigen::Vector3f lo_W = map_.origin_W + leaf_min_voxel.cast<float>() * voxel;
   const Eigen::Vector3f base_C = R_C_W_ * lo_W + t_C_W_;
@@ -253,47 +253,89 @@ FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
       for (int i = 0; i <= n; ++i) {
         const Eigen::Vector3f p = base_C + static_cast<float>(i) * sx + static_cast<float>(j) * sy +
                                   static_cast<float>(k) * sz;
-        GridPoint& g = grid[(k * kGrid + j) * kGrid + i];
-        g.z_lo = p.z() - r;
-        g.z_hi = p.z() + r;
-        g.ok = g.z_lo > config_.near_m;
-        if (!g.ok) continue;
-        const float near_inv = 1.0f / g.z_lo;
-        const float far_inv = 1.0f / g.z_hi;
-        const float x_hi = p.x() + r;
-        const float x_lo = p.x() - r;
-        const float y_hi = p.y() + r;
-        const float y_lo = p.y() - r;
-        g.u_hi = camera_.fx * x_hi * (x_hi >= 0.0f ? near_inv : far_inv) + camera_.cx;
-        g.u_lo = camera_.fx * x_lo * (x_lo >= 0.0f ? far_inv : near_inv) + camera_.cx;
-        g.v_hi = camera_.fy * y_hi * (y_hi >= 0.0f ? near_inv : far_inv) + camera_.cy;
-        g.v_lo = camera_.fy * y_lo * (y_lo >= 0.0f ? far_inv : near_inv) + camera_.cy;
+        const int q = (k * kGrid + j) * kGrid + i;
+        px[q] = p.x();
+        py[q] = p.y();
+        pz[q] = p.z();
       }
+    }
+  }
+  // Per point, the bounds of the projection of a camera-axis-aligned box of half-side r around it;
+  // points at the camera (not ok) get bounds too, unused.
+  float z_lo[kPoints];
+  float z_hi[kPoints];
+  float u_lo[kPoints];
+  float u_hi[kPoints];
+  float v_lo[kPoints];
+  float v_hi[kPoints];
+  bool ok[kPoints];
+  const float near_m = config_.near_m;
+  const float fx = camera_.fx;
+  const float fy = camera_.fy;
+  const float cx = camera_.cx;
+  const float cy = camera_.cy;
+#pragma GCC unroll 1
+  for (int q = 0; q < kPoints; ++q) {
+    z_lo[q] = pz[q] - r;
+    z_hi[q] = pz[q] + r;
+    ok[q] = z_lo[q] > near_m;
+    const float near_inv = 1.0f / z_lo[q];
+    const float far_inv = 1.0f / z_hi[q];
+    const float x_hi = px[q] + r;
+    const float x_lo = px[q] - r;
+    const float y_hi = py[q] + r;
+    const float y_lo = py[q] - r;
+    u_hi[q] = fx * x_hi * (x_hi >= 0.0f ? near_inv : far_inv) + cx;
+    u_lo[q] = fx * x_lo * (x_lo >= 0.0f ? far_inv : near_inv) + cx;
+    v_hi[q] = fy * y_hi * (y_hi >= 0.0f ? near_inv : far_inv) + cy;
+    v_lo[q] = fy * y_lo * (y_lo >= 0.0f ? far_inv : near_inv) + cy;
+  }
+  // Each sub-cell's bounds over its 8 corners, reduced one axis at a time (x, then y, then z):
+  // the same minima and maxima as corner by corner, in fewer comparisons.
+  struct Bounds {
+    float z_lo, z_hi, u_lo, u_hi, v_lo, v_hi;
+    bool ok;
+  };
+  auto merge = [](const Bounds& a, const Bounds& b) {
+    return Bounds{std::min(a.z_lo, b.z_lo),
+                  std::max(a.z_hi, b.z_hi),
+                  std::min(a.u_lo, b.u_lo),
+                  std::max(a.u_hi, b.u_hi),
+                  std::min(a.v_lo, b.v_lo),
+                  std::max(a.v_hi, b.v_hi),
+                  a.ok && b.ok};
+  };
+  auto point = [&](int q) {
+    return Bounds{z_lo[q], z_hi[q], u_lo[q], u_hi[q], v_lo[q], v_hi[q], ok[q]};
+  };
+  Bounds along_x[kGrid][kGrid][n];  // [k][j][i]: points i and i + 1
+  for (int k = 0; k <= n; ++k) {
+    for (int j = 0; j <= n; ++j) {
+      for (int i = 0; i < n; ++i) {
+        const int q = (k * kGrid + j) * kGrid + i;
+        along_x[k][j][i] = merge(point(q), point(q + 1));
+      }
+    }
+  }
+  Bounds along_xy[kGrid][n][n];
+  for (int k = 0; k <= n; ++k) {
+    for (int j = 0; j < n; ++j) {
+      for (int i = 0; i < n; ++i) along_xy[k][j][i] = merge(along_x[k][j][i], along_x[k][j + 1][i]);
     }
   }
   for (int k = 0; k < n; ++k) {
     for (int j = 0; j < n; ++j) {
       for (int i = 0; i < n; ++i) {
-        float z_min = 1e30f;
-        float z_max = -1e30f;
-        float u_min = 1e30f;
-        float u_max = -1e30f;
-        float v_min = 1e30f;
-        float v_max = -1e30f;
-        bool ok = true;
-        for (int c = 0; c < 8; ++c) {
-          const GridPoint& g =
-              grid[((k + ((c >> 2) & 1)) * kGrid + j + ((c >> 1) & 1)) * kGrid + i + (c & 1)];
-          ok = ok && g.ok;
-          z_min = std::min(z_min, g.z_lo);
-          z_max = std::max(z_max, g.z_hi);
-          u_min = std::min(u_min, g.u_lo);
-          u_max = std::max(u_max, g.u_hi);
-          v_min = std::min(v_min, g.v_lo);
-          v_max = std::max(v_max, g.v_hi);
-        }
+        const Bounds b = merge(along_xy[k][j][i], along_xy[k + 1][j][i]);
+        const bool cell_ok = b.ok;
+        const float z_min = b.z_lo;
+        const float z_max = b.z_hi;
+        const float u_min = b.u_lo;
+        const float u_max = b.u_hi;
+        const float v_min = b.v_lo;
+        const float v_max = b.v_hi;
         // At the camera: nothing measurable is that close; the sub-cell keeps its state.
-        if (!ok) continue;
+        if (!cell_ok) continue;
         const auto bit = static_cast<std::uint8_t>(1u << ((k * n + j) * n + i));
         switch (classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, false, nullptr)) {
           case Seen::free:

@@ -248,7 +248,15 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       const int read_scale = block_read_scale(*block);
       const VoxelT& nearest = block->at_voxel(voxel, read_scale);
       if (guided) {
-        if (!(voxel_observed(nearest) && voxel_tsdf(nearest) > 0.0f)) return MarchResult::rejected;
+        bool accept = voxel_observed(nearest) && voxel_tsdf(nearest) > 0.0f;
+        if (!accept && read_scale > 0) {
+          // A coarse voxel's centre can lie behind the start by more than the margin: ask the
+          // field at the start itself.
+          TsdfSample at_start;
+          accept = sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, at_start) &&
+                   at_start.tsdf > 0.0f;
+        }
+        if (!accept) return MarchResult::rejected;
         guided = false;
       }
       if (voxel_observed(nearest)) {
@@ -556,7 +564,10 @@ struct RowJob {
         ++stats.budget_cut_pixels;
         continue;
       }
-      if (r != MarchResult::hit) continue;
+      if (r != MarchResult::hit) {
+        if (guided) ++stats.guided_misses;
+        continue;
+      }
       // The hit must be in front of the camera (z > 0), a check a reference omitted.
       const Eigen::Vector3f p_C = R_W_C.transpose() * (hit.p_W - t_W_C);
       if (!(p_C.z() > 0.0f)) continue;
@@ -621,6 +632,7 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
     total.guided_pixels += row.guided_pixels;
     total.guide_fallback_pixels += row.guide_fallback_pixels;
     total.miss_skipped_pixels += row.miss_skipped_pixels;
+    total.guided_misses += row.guided_misses;
     for (int s = 0; s < 4; ++s) total.scale_pixels[s] += row.scale_pixels[s];
   }
   return total;

@@ -55,6 +55,7 @@ struct RaycastStats {
   std::uint32_t guided_pixels = 0;          // rays started at their guide depth
   std::uint32_t guide_fallback_pixels = 0;  // of those, marched again from the near end
   std::uint32_t miss_skipped_pixels = 0;    // unguided, missed last cast, not their turn
+  std::uint32_t guided_misses = 0;          // guided pixels that found no surface at all
 
   bool budget_hit() const { return budget_cut_pixels > 0; }
 };

@@ -97,16 +97,23 @@ void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, TileRange&
   const float* plo = depth_min_ + level_offset_[level];
   const float* phi = depth_max_ + level_offset_[level];
   const std::uint8_t* pin = depth_invalid_ + level_offset_[level];
-  range.lo = kNoDepth;
-  range.hi = 0.0f;
   std::uint8_t invalid = 0;
+  float lo = kNoDepth;
+  float hi = 0.0f;
+  const int x0 = u0 >> level;
+  const int x1 = u1 >> level;
   for (int y = v0 >> level; y <= (v1 >> level); ++y) {
-    for (int x = u0 >> level; x <= (u1 >> level); ++x) {
-      range.lo = std::min(range.lo, plo[y * w + x]);
-      range.hi = std::max(range.hi, phi[y * w + x]);
-      invalid = static_cast<std::uint8_t>(invalid | pin[y * w + x]);
+    const float* row_lo = plo + y * w;
+    const float* row_hi = phi + y * w;
+    const std::uint8_t* row_in = pin + y * w;
+    for (int x = x0; x <= x1; ++x) {
+      lo = std::min(lo, row_lo[x]);
+      hi = std::max(hi, row_hi[x]);
+      invalid = static_cast<std::uint8_t>(invalid | row_in[x]);
     }
   }
+  range.lo = lo;
+  range.hi = hi;
   range.any_invalid = invalid != 0;
 }
 
@@ -115,7 +122,10 @@ int clamped_floor(float f) {
   constexpr float kLimit = 1e6f;
   if (!(f > -kLimit)) return -1000000;
   if (!(f < kLimit)) return 1000000;
-  return static_cast<int>(std::floor(f));
+  // floor by truncation and a correction: exact in this range, without a libm call (the x86-64
+  // baseline has no rounding instruction).
+  const int i = static_cast<int>(f);
+  return i - (f < static_cast<float>(i) ? 1 : 0);
 }
 }  // namespace
 

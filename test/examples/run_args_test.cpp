@@ -268,7 +268,7 @@ TEST_CASE("Config errors name the file and the line", "[examples][config]") {
       {"\n\n\nvoxel-size = 2\n", "f.cfg:4: voxel-size needs metres in [0.0001, 1]"},
       {"voxel-size = 0.01cm\n", "f.cfg:1: voxel-size needs metres in [0.0001, 1]"},
       {"voxel-size =\n", "f.cfg:1: voxel-size needs metres in [0.0001, 1]"},
-      {"map = octree\n", "f.cfg:1: map must be multires or single, not 'octree'"},
+      {"map = octree\n", "f.cfg:1: map must be multires, single or multires16, not 'octree'"},
       {"threads 2\n", "f.cfg:1: expected 'key = value', got 'threads 2'"},
       {"= 2\n", "f.cfg:1: missing key before '='"},
       {"bilateral = yes\n", "f.cfg:1: bilateral takes true or false, not 'yes'"},

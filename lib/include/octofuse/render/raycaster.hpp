@@ -151,5 +151,6 @@ class Raycaster {
 
 extern template class Raycaster<TsdfVoxel>;
 extern template class Raycaster<MultiresVoxel>;
+extern template class Raycaster<Multires16Voxel>;
 
 }  // namespace octofuse

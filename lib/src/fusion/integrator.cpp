@@ -82,9 +82,9 @@ inline bool update_voxel(VoxelT& v, const Eigen::Vector3f& p_C, const float* dep
     const float x = voxel_tsdf(v);
     const float y = voxel_weight(v);
     set_voxel_tsdf(v, std::clamp((y * x + f) / (y + 1.0f), -1.0f, 1.0f));
-    set_voxel_weight(v, std::min(y_max, y + 1.0f));
-    // Only for applied updates (a reference counted rejected ones too).
-    set_voxel_delta_y(v, voxel_delta_y(v) + 1.0f);
+    // y = min(y_max, y + 1), delta_y += 1: only for applied updates (a reference counted
+    // rejected ones too).
+    count_voxel_sample(v, y_max);
   } else {
     v.tsdf = std::clamp((v.weight * v.tsdf + f) / (v.weight + 1.0f), -1.0f, 1.0f);
     v.weight = std::min(y_max, v.weight + 1.0f);

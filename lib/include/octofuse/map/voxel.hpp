@@ -5,6 +5,7 @@
 // switched at run time. Code shared by the types reads and writes the fields as float through
 // the voxel_* / set_voxel_* functions below, never the members.
 
+#include <algorithm>
 #include <cstdint>
 
 namespace octofuse {
@@ -156,6 +157,22 @@ inline void set_voxel_x_last(Multires16Voxel& v, float x_last) {
 }
 inline void set_voxel_delta_y(Multires16Voxel& v, float delta_y) {
   v.delta_y_q = quantise_weight16(delta_y);
+}
+
+// After a sample is fused (eq. 3): y = min(y_max, y + 1) and delta_y += 1, as a store of each
+// through the setters would give. In 16-bit steps both additions are exact, so they are integer
+// additions there (saturating; the cap rounds as a stored y_max would).
+inline void count_voxel_sample(MultiresVoxel& v, float y_max) {
+  v.y = std::min(y_max, v.y + 1.0f);
+  v.delta_y += 1.0f;
+}
+inline void count_voxel_sample(Multires16Voxel& v, float y_max) {
+  constexpr int kOne = static_cast<int>(kMultires16WeightScale);
+  const int cap = quantise_weight16(y_max);
+  const int y = v.y_q + kOne;
+  const int delta_y = v.delta_y_q + kOne;
+  v.y_q = static_cast<std::uint16_t>(y < cap ? y : cap);
+  v.delta_y_q = static_cast<std::uint16_t>(delta_y < 65535 ? delta_y : 65535);
 }
 
 // True for the multi-resolution types (compile time; picks the integrator's code path).

@@ -180,11 +180,6 @@ double stage_stat(const std::vector<Repeat>& reps, int stage, double Percentiles
 std::string comparison_table(const std::vector<Cell>& cells,
                              const std::vector<std::vector<Repeat>>& results) {
   std::ostringstream md;
-  md << "\nIntegration, multires vs single-res (same run; ms as median / mean / p90 / p99 of the "
-        "frames; speed-up = single / multires):\n\n"
-     << "| scene | voxel | threads | poses | multires ms | single-res ms | speed-up | "
-        "map MB used multires/single |\n"
-     << "|---|---|---|---|---|---|---|---|\n";
   constexpr int kIntegrate = 2;
   constexpr double Percentiles::*kStats[4] = {&Percentiles::median, &Percentiles::mean,
                                               &Percentiles::p90, &Percentiles::p99};
@@ -216,7 +211,14 @@ std::string comparison_table(const std::vector<Cell>& cells,
                   ratio(0), ratio(1), ratio(2), ratio(3), used_mb(c), used_mb(c + 1));
     md << row;
   }
-  return md.str();
+  // Nothing to compare when --maps leaves out the multires / single-res pair.
+  if (md.str().empty()) return std::string();
+  return "\nIntegration, multires vs single-res (same run; ms as median / mean / p90 / p99 of the "
+         "frames; speed-up = single / multires):\n\n"
+         "| scene | voxel | threads | poses | multires ms | single-res ms | speed-up | "
+         "map MB used multires/single |\n"
+         "|---|---|---|---|---|---|---|---|\n" +
+         md.str();
 }
 
 void usage() {

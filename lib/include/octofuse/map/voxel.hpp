@@ -36,7 +36,7 @@ struct MultiresVoxel {
 // at most mu / 32768. The running mean (eq. 3) moves a voxel by (f - x) / (y + 1) per sample; a
 // move below half a step rounds away, so the stored value may trail the float mean by up to
 // (y_max + 1) / 2 steps: 0.3% of mu at y_max = 100 (0.25 mm at 1 cm voxels, mu 8 cm). Eight bits
-// would stall at 20% of mu, too coarse for the surface.
+// (steps of mu / 127) could trail by 40% of mu, too coarse for the surface.
 // Weights y, delta_y: uint16 in steps of 2^-6. The integrator's weights are whole sample counts
 // and up-propagation rounds its means up, so they are integers and exact; the six fractional bits
 // keep a fractional y_max (and means not rounded up) within 1/128. The largest weight is

@@ -357,3 +357,23 @@ TEST_CASE("A value no config line can hold is refused by --print-config", "[exam
   options.out_dir = " padded";
   CHECK_FALSE(format_run_config(options, &text, &error));
 }
+
+TEST_CASE("--map takes multires, single and multires16, prints and rereads them",
+          "[examples][config]") {
+  for (const char* kind : {"multires", "single", "multires16"}) {
+    CAPTURE(kind);
+    RunOptions options;
+    std::string error;
+    REQUIRE(parse({"--map", kind}, &options, &error));
+    CHECK(std::string(map_option_name(options.map_kind)) == kind);
+    const std::string printed = print(options);
+    CHECK(printed.find(std::string("map = ") + kind + "\n") != std::string::npos);
+    RunOptions reread;
+    REQUIRE(apply_run_config(printed, "printed", &reread, &error));
+    CHECK(reread.map_kind == options.map_kind);
+  }
+  RunOptions options;
+  std::string error;
+  CHECK_FALSE(parse({"--map", "multires8"}, &options, &error));
+  CHECK(error.find("must be multires, single or multires16, not 'multires8'") != std::string::npos);
+}

@@ -95,5 +95,8 @@ template bool write_query_answers(const MapQuery<TsdfVoxel>&, const std::vector<
 template bool write_query_answers(const MapQuery<MultiresVoxel>&,
                                   const std::vector<Eigen::Vector3f>&, const std::string&,
                                   std::string*);
+template bool write_query_answers(const MapQuery<Multires16Voxel>&,
+                                  const std::vector<Eigen::Vector3f>&, const std::string&,
+                                  std::string*);
 
 }  // namespace octofuse::examples

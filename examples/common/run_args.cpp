@@ -16,13 +16,14 @@ using cli::fail;
 
 void print_run_usage(const char* program, const char* default_source) {
   std::printf(
-      "usage: %s [--source SPEC] [--out DIR] [--map multires|single]\n"
+      "usage: %s [--source SPEC] [--out DIR] [--map multires|single|multires16]\n"
       "         [--voxel-size M] [--mu M] [--frames N] [--threads N]\n"
       "         [--intrinsics fx,fy,cx,cy] [--depth-scale S] [options]\n"
       "\n"
       "  --source SPEC        where depth comes from (default %s):\n%s"
       "  --out DIR            output folder (default octofuse-out)\n"
-      "  --map KIND           multires (default) or single (single-resolution baseline)\n"
+      "  --map KIND           multires (default), single (single-resolution baseline) or\n"
+      "                       multires16 (multires in 16-bit fixed point, half the memory)\n"
       "  --voxel-size M       finest voxel edge in metres (default 0.01)\n"
       "  --mu M               truncation distance in metres (default 8 voxels)\n"
       "  --map-size M         side of the mapped cube in metres (default 8)\n"
@@ -166,17 +167,13 @@ const RunOption kRunOptions[] = {
      }},
     {"map", true,
      [](RunOptions& o, const std::string& v) {
-       if (v == "multires") {
-         o.map_kind = MapKind::multires;
-       } else if (v == "single") {
-         o.map_kind = MapKind::single_res;
-       } else {
-         return " must be multires or single, not '" + v + "'";
+       if (!parse_map_option(v, &o.map_kind)) {
+         return " must be multires, single or multires16, not '" + v + "'";
        }
        return std::string();
      },
      [](const RunOptions& o, std::string* v) {
-       *v = o.map_kind == MapKind::single_res ? "single" : "multires";
+       *v = map_option_name(o.map_kind);
        return true;
      }},
     {"voxel-size", true,

@@ -458,8 +458,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
                           " (raise --map-memory or --max-blocks)");
       }
     }
-    config.map_kind =
-        std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires : MapKind::single_res;
+    config.map_kind = map_kind_of<VoxelT>();
     if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;
     if (load_map) config.fusion.mu_m = loaded.mu_m;  // the TSDF is normalised by it
     config.workers = options.threads;
@@ -910,7 +909,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     const Percentiles total = percentiles(totals);
     json.key("summary").begin_object();
     json.key("source").value(options.source_spec.c_str());
-    json.key("map").value(std::is_same_v<VoxelT, MultiresVoxel> ? "multires" : "single");
+    json.key("map").value(map_option_name(map_kind_of<VoxelT>()));
     json.key("voxel_size_m").value(static_cast<double>(options.voxel_size_m));
     json.key("threads").value(options.threads);
     json.key("frames").value(static_cast<std::uint64_t>(summary->frames.size()));
@@ -1002,6 +1001,22 @@ Percentiles percentiles(std::vector<double> values) {
   return p;
 }
 
+const char* map_option_name(MapKind kind) {
+  return kind == MapKind::single_res   ? "single"
+         : kind == MapKind::multires16 ? "multires16"
+                                       : "multires";
+}
+
+bool parse_map_option(const std::string& text, MapKind* kind) {
+  for (MapKind k : {MapKind::multires, MapKind::single_res, MapKind::multires16}) {
+    if (text == map_option_name(k)) {
+      *kind = k;
+      return true;
+    }
+  }
+  return false;
+}
+
 bool parse_mesh_read_scale(const std::string& text, MeshReadScale* scale) {
   if (text == "current") {
     *scale = MeshReadScale::current;
@@ -1026,11 +1041,14 @@ int run_pipeline(const RunOptions& options_in, RunSummary* summary) {
     const Result<MapFileHeader> header =
         host::read_map_file_header(options.load_map_path.c_str(), &error);
     if (!header.ok()) return error_exit(error.c_str());
-    options.map_kind = header.value().voxel_type == MapVoxelType::multires ? MapKind::multires
-                                                                           : MapKind::single_res;
+    const MapVoxelType type = header.value().voxel_type;
+    options.map_kind = type == MapVoxelType::multires     ? MapKind::multires
+                       : type == MapVoxelType::multires16 ? MapKind::multires16
+                                                          : MapKind::single_res;
     options.voxel_size_m = header.value().voxel_size_m;
   }
   if (options.map_kind == MapKind::multires) return run_typed<MultiresVoxel>(options, summary);
+  if (options.map_kind == MapKind::multires16) return run_typed<Multires16Voxel>(options, summary);
   return run_typed<TsdfVoxel>(options, summary);
 }
 

@@ -136,4 +136,9 @@ inline constexpr double kOdometryEndTolerance_s = 0.02;
 // "current" or "finest" (the --mesh-scale values); false for anything else.
 bool parse_mesh_read_scale(const std::string& text, MeshReadScale* scale);
 
+// --map's values: "multires", "single" and "multires16" (also stats.json's summary "map").
+const char* map_option_name(MapKind kind);
+// False for any other text.
+bool parse_map_option(const std::string& text, MapKind* kind);
+
 }  // namespace octofuse::examples

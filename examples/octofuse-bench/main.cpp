@@ -40,9 +40,8 @@ struct Cell {
   std::string label() const {
     char text[160];
     std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s", scene.c_str(),
-                  map == octofuse::MapKind::multires ? "multires" : "single",
-                  static_cast<double>(voxel_m) * 1000.0, threads,
-                  poses == octofuse::PoseSource::track ? "track" : "gt-poses");
+                  octofuse::examples::map_option_name(map), static_cast<double>(voxel_m) * 1000.0,
+                  threads, poses == octofuse::PoseSource::track ? "track" : "gt-poses");
     return text;
   }
   std::string slug() const {
@@ -181,11 +180,6 @@ double stage_stat(const std::vector<Repeat>& reps, int stage, double Percentiles
 std::string comparison_table(const std::vector<Cell>& cells,
                              const std::vector<std::vector<Repeat>>& results) {
   std::ostringstream md;
-  md << "\nIntegration, multires vs single-res (same run; ms as median / mean / p90 / p99 of the "
-        "frames; speed-up = single / multires):\n\n"
-     << "| scene | voxel | threads | poses | multires ms | single-res ms | speed-up | "
-        "map MB used multires/single |\n"
-     << "|---|---|---|---|---|---|---|---|\n";
   constexpr int kIntegrate = 2;
   constexpr double Percentiles::*kStats[4] = {&Percentiles::median, &Percentiles::mean,
                                               &Percentiles::p90, &Percentiles::p99};
@@ -217,7 +211,14 @@ std::string comparison_table(const std::vector<Cell>& cells,
                   ratio(0), ratio(1), ratio(2), ratio(3), used_mb(c), used_mb(c + 1));
     md << row;
   }
-  return md.str();
+  // Nothing to compare when --maps leaves out the multires / single-res pair.
+  if (md.str().empty()) return std::string();
+  return "\nIntegration, multires vs single-res (same run; ms as median / mean / p90 / p99 of the "
+         "frames; speed-up = single / multires):\n\n"
+         "| scene | voxel | threads | poses | multires ms | single-res ms | speed-up | "
+         "map MB used multires/single |\n"
+         "|---|---|---|---|---|---|---|---|\n" +
+         md.str();
 }
 
 void usage() {
@@ -232,6 +233,8 @@ void usage() {
       "  --scenes LIST  sim scenes, comma separated (default desk,room)\n"
       "  --threads LIST worker counts, comma separated (default 1,2)\n"
       "  --poses MODE   icp, gt or both (default both)\n"
+      "  --maps LIST    maps per setting, compared side by side, comma separated: multires,\n"
+      "                 single, multires16 (default multires,single)\n"
       "  --mesh-scale S multires meshes (mesh RMSE, thin recall) at each block's current scale\n"
       "                 (default) or finest: the finest scale it was fused at\n"
       "  --soak         instead of the matrix: replay a source in a loop under a memory cap and\n"
@@ -254,6 +257,8 @@ int main(int argc, char** argv) {
   std::vector<float> voxels = {0.01f, 0.002f};
   std::vector<std::string> sim_scenes = {"desk", "room"};
   std::vector<int> thread_counts = {1, 2};
+  std::vector<octofuse::MapKind> maps = {octofuse::MapKind::multires,
+                                         octofuse::MapKind::single_res};
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
                                                   octofuse::PoseSource::ground_truth};
@@ -347,6 +352,15 @@ int main(int argc, char** argv) {
       } else {
         return octofuse::cli::fail("--poses must be icp, gt or both");
       }
+    } else if (arg == "--maps" && i + 1 < argc) {
+      maps.clear();
+      for (const std::string& item : split(argv[++i])) {
+        octofuse::MapKind kind;
+        if (!octofuse::examples::parse_map_option(item, &kind)) {
+          return octofuse::cli::fail("--maps needs map kinds like multires,multires16");
+        }
+        maps.push_back(kind);
+      }
     } else if (arg == "--mesh-scale" && i + 1 < argc) {
       if (!octofuse::examples::parse_mesh_read_scale(argv[++i], &mesh_read_scale)) {
         return octofuse::cli::fail("--mesh-scale must be current or finest");
@@ -358,8 +372,8 @@ int main(int argc, char** argv) {
       return octofuse::cli::fail("unknown or incomplete option '" + arg + "' (see --help)");
     }
   }
-  if (voxels.empty() || thread_counts.empty()) {
-    return octofuse::cli::fail("--voxels and --threads need at least one value");
+  if (voxels.empty() || thread_counts.empty() || maps.empty()) {
+    return octofuse::cli::fail("--voxels, --threads and --maps need at least one value");
   }
   if (soak) {
     if (quick) return octofuse::cli::fail("--soak and --quick exclude each other");
@@ -387,7 +401,9 @@ int main(int argc, char** argv) {
       for (int threads : quick ? std::vector<int>{1} : thread_counts) {
         for (auto poses :
              quick ? std::vector<octofuse::PoseSource>{octofuse::PoseSource::track} : pose_modes) {
-          for (auto map : {octofuse::MapKind::multires, octofuse::MapKind::single_res}) {
+          for (auto map : quick ? std::vector<octofuse::MapKind>{octofuse::MapKind::multires,
+                                                                 octofuse::MapKind::single_res}
+                                : maps) {
             cells.push_back(Cell{scene, map, voxel, threads, poses, frames, mesh_read_scale});
           }
         }
@@ -467,9 +483,8 @@ int main(int argc, char** argv) {
         "| %s | %s | %g mm | %d | %s | %.1f | %.1f | %.1f | %.1f | %.1f +-%.1f (%.1f/%.1f/%.1f) | "
         "%.1f | %.0f/%.0f | %.0f | %s | %llu | %s | %s |\n",
         cell.scene.substr(0, cell.scene.find('/')).c_str(),
-        cell.map == octofuse::MapKind::multires ? "multires" : "single",
-        static_cast<double>(cell.voxel_m) * 1000.0, cell.threads,
-        cell.poses == octofuse::PoseSource::track ? "ICP" : "ground truth",
+        octofuse::examples::map_option_name(cell.map), static_cast<double>(cell.voxel_m) * 1000.0,
+        cell.threads, cell.poses == octofuse::PoseSource::track ? "ICP" : "ground truth",
         median_of(per_stage[0][0]), median_of(per_stage[1][0]), median_of(per_stage[2][0]),
         median_of(per_stage[3][0]), median_of(per_stage[4][0]), spread_of(per_stage[4][0]),
         median_of(per_stage[4][1]), median_of(per_stage[4][2]), median_of(per_stage[4][3]),
@@ -487,7 +502,7 @@ int main(int argc, char** argv) {
     json.begin_object();
     json.key("label").value(cell.label().c_str());
     json.key("scene").value(cell.scene.c_str());
-    json.key("map").value(cell.map == octofuse::MapKind::multires ? "multires" : "single");
+    json.key("map").value(octofuse::examples::map_option_name(cell.map));
     json.key("voxel_size_m").value(static_cast<double>(cell.voxel_m));
     json.key("threads").value(cell.threads);
     json.key("poses").value(cell.poses == octofuse::PoseSource::track ? "icp" : "ground_truth");

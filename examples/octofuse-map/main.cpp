@@ -201,5 +201,8 @@ int main(int argc, char** argv) {
   if (header.value().voxel_type == MapVoxelType::multires) {
     return run<MultiresVoxel>(command, path, header.value(), out_path, read_scale);
   }
+  if (header.value().voxel_type == MapVoxelType::multires16) {
+    return run<Multires16Voxel>(command, path, header.value(), out_path, read_scale);
+  }
   return run<TsdfVoxel>(command, path, header.value(), out_path, read_scale);
 }

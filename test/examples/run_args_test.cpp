@@ -268,7 +268,7 @@ TEST_CASE("Config errors name the file and the line", "[examples][config]") {
       {"\n\n\nvoxel-size = 2\n", "f.cfg:4: voxel-size needs metres in [0.0001, 1]"},
       {"voxel-size = 0.01cm\n", "f.cfg:1: voxel-size needs metres in [0.0001, 1]"},
       {"voxel-size =\n", "f.cfg:1: voxel-size needs metres in [0.0001, 1]"},
-      {"map = octree\n", "f.cfg:1: map must be multires or single, not 'octree'"},
+      {"map = octree\n", "f.cfg:1: map must be multires, single or multires16, not 'octree'"},
       {"threads 2\n", "f.cfg:1: expected 'key = value', got 'threads 2'"},
       {"= 2\n", "f.cfg:1: missing key before '='"},
       {"bilateral = yes\n", "f.cfg:1: bilateral takes true or false, not 'yes'"},
@@ -356,4 +356,24 @@ TEST_CASE("A value no config line can hold is refused by --print-config", "[exam
   CHECK(error.find("--out value") == 0);
   options.out_dir = " padded";
   CHECK_FALSE(format_run_config(options, &text, &error));
+}
+
+TEST_CASE("--map takes multires, single and multires16, prints and rereads them",
+          "[examples][config]") {
+  for (const char* kind : {"multires", "single", "multires16"}) {
+    CAPTURE(kind);
+    RunOptions options;
+    std::string error;
+    REQUIRE(parse({"--map", kind}, &options, &error));
+    CHECK(std::string(map_option_name(options.map_kind)) == kind);
+    const std::string printed = print(options);
+    CHECK(printed.find(std::string("map = ") + kind + "\n") != std::string::npos);
+    RunOptions reread;
+    REQUIRE(apply_run_config(printed, "printed", &reread, &error));
+    CHECK(reread.map_kind == options.map_kind);
+  }
+  RunOptions options;
+  std::string error;
+  CHECK_FALSE(parse({"--map", "multires8"}, &options, &error));
+  CHECK(error.find("must be multires, single or multires16, not 'multires8'") != std::string::npos);
 }

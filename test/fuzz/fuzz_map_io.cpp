@@ -87,8 +87,10 @@ void load(FuzzMap<VoxelT>& target, const std::uint8_t* data, std::size_t size) {
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   static FuzzMap<octofuse::MultiresVoxel> multires;
   static FuzzMap<octofuse::TsdfVoxel> single;
+  static FuzzMap<octofuse::Multires16Voxel> compact;
   load(multires, data, size);
   load(single, data, size);
+  load(compact, data, size);
   octofuse::MemorySource source(data, size);
   octofuse::read_map_header(source).status().ignore();
   return 0;

@@ -128,7 +128,16 @@ TEST_CASE("init rejects a map kind that does not match the voxel type and bad co
   Pipeline<MultiresVoxel> pipeline;
   REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).code() ==
           StatusCode::invalid_argument);
+  Pipeline<Multires16Voxel> compact;
+  REQUIRE(compact.init(buffer.data, bytes_required(config), config).code() ==
+          StatusCode::invalid_argument);
+  // The 16-bit weights end at 1023.98: a larger cap is refused for that map only.
+  config.fusion.y_max = 2000.0f;
+  config.map_kind = MapKind::multires16;
+  REQUIRE(bytes_required(config) == 0);
   config.map_kind = MapKind::multires;
+  REQUIRE(bytes_required(config) > 0);
+  config.fusion.y_max = 100.0f;
   config.workers = 0;
   REQUIRE(bytes_required(config) == 0);
   REQUIRE(pipeline.init(buffer.data, 1 << 20, config).code() == StatusCode::invalid_argument);
@@ -223,10 +232,11 @@ struct BitHash {
 
 // Every block in pool order: its place, its header and all 585 voxels (scale 0 of a block without
 // a finest level reads as unobserved).
-std::uint64_t map_hash(const Octree<MultiresVoxel>& map) {
+template <typename VoxelT>
+std::uint64_t map_hash(const Octree<VoxelT>& map) {
   BitHash h;
   for (std::uint32_t i = 0; i < map.block_count(); ++i) {
-    const VoxelBlock<MultiresVoxel>& b = map.block(i);
+    const VoxelBlock<VoxelT>& b = map.block(i);
     for (int k = 0; k < 3; ++k) h.add(b.coords[k]);
     h.add(b.last_updated_frame, 4);
     h.add(b.current_scale);
@@ -234,8 +244,10 @@ std::uint64_t map_hash(const Octree<MultiresVoxel>& map) {
     h.add(b.mip_scale);
     for (const float f : {b.tsdf_min, b.tsdf_max, b.tsdf_mean, b.weight_mean}) h.add(f);
     for (int k = 0; k < kBlockVoxelCount; ++k) {
-      const MultiresVoxel& v = b.voxel(k);
-      for (const float f : {v.x, v.x_last, v.y, v.delta_y}) h.add(f);
+      const VoxelT& v = b.voxel(k);
+      for (const float f : {voxel_tsdf(v), voxel_x_last(v), voxel_weight(v), voxel_delta_y(v)}) {
+        h.add(f);
+      }
     }
   }
   return h.value;
@@ -278,6 +290,55 @@ TEST_CASE("the same frames give the same pose and map bits on x86-64, aarch64 an
       REQUIRE(stats.raycast.valid_pixels > 0);
     }
     // The estimate moved, so tracking did something these bits record.
+    REQUIRE((pipeline.T_W_C().translation() - config.initial_T_W_C.translation()).norm() > 0.01);
+    std::uint64_t pose_bits[12];
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 4; ++c) {
+        const double value = pipeline.T_W_C().matrix()(r, c);
+        std::memcpy(&pose_bits[r * 4 + c], &value, sizeof value);
+      }
+    }
+    const std::uint64_t map_bits = map_hash(pipeline.map());
+    std::string printed = "pose bits (row-major 3x4):";
+    for (const std::uint64_t bits : pose_bits) printed += " " + hex(bits);
+    printed += "\nmap hash: " + hex(map_bits);
+    INFO(printed);
+    for (int k = 0; k < 12; ++k) CHECK(pose_bits[k] == kPoseBits[k]);
+    CHECK(map_bits == kMapHash);
+  }
+}
+
+// The 16-bit map, the same way: its rounding is integer arithmetic on exactly computed floats,
+// so the bits depend neither on the worker count nor on the machine. The constants are what the
+// x86-64 Release build printed for 1 and 3 workers; the aarch64 and armhf builds must match them.
+TEST_CASE("the 16-bit map gives the same pose and map bits for 1 and 3 workers and any machine",
+          "[multires16]") {
+  constexpr std::uint64_t kPoseBits[12] = {
+      0x3fef9900abc0bfe2, 0xbfb7d63832ed876f, 0x3fc059d37117d269, 0x3fae520dd042e7fc,
+      0xbfc43bcae75c5848, 0xbfe2acce71fd0a0e, 0x3fe97d04ac3b747c, 0xbfde1bdc18cfb2aa,
+      0x3f392a4ad698ff76, 0xbfe9d065e51b08f7, 0xbfe2e946079a71f3, 0x3ff149243e0f9ee3};
+  constexpr std::uint64_t kMapHash = 0x657023b0597403ee;
+  constexpr int kFrames = 6;
+  const sim::SimConfig sim_config = small_sim(40);
+  for (const int workers : {1, 3}) {
+    CAPTURE(workers);
+    sim::SimSource source(sim_config);
+    REQUIRE(source.open().ok());
+    PipelineConfig config = small_config(source, 0.02f, workers);
+    config.map_kind = MapKind::multires16;
+    Buffer buffer(bytes_required(config));
+    Pipeline<Multires16Voxel> pipeline;
+    REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+    DepthFrame frame;
+    for (int i = 0; i < kFrames; ++i) {
+      CAPTURE(i);
+      REQUIRE(source.next(frame).outcome == FrameOutcome::frame);
+      FrameStats stats;
+      REQUIRE(pipeline.process(frame, &stats).ok());
+      REQUIRE(stats.result == (i == 0 ? FrameResult::first : FrameResult::tracked));
+      REQUIRE(stats.integration.blocks_integrated > 0);
+      REQUIRE(stats.raycast.valid_pixels > 0);
+    }
     REQUIRE((pipeline.T_W_C().translation() - config.initial_T_W_C.translation()).norm() > 0.01);
     std::uint64_t pose_bits[12];
     for (int r = 0; r < 3; ++r) {

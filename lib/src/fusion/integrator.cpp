@@ -101,9 +101,12 @@ inline bool update_voxel(VoxelT& v, float measured_m, float z_m, float ray_scale
   if (d < -mu_m) return false;
   const float f = std::min(1.0f, d * inv_mu);
   if constexpr (IsMultiresVoxel<VoxelT>::value) {
-    v.x = std::clamp((v.y * v.x + f) / (v.y + 1.0f), -1.0f, 1.0f);
-    v.y = std::min(y_max, v.y + 1.0f);
-    v.delta_y += 1.0f;  // only for applied updates (a reference counted rejected ones too)
+    const float x = voxel_tsdf(v);
+    const float y = voxel_weight(v);
+    set_voxel_tsdf(v, std::clamp((y * x + f) / (y + 1.0f), -1.0f, 1.0f));
+    // y = min(y_max, y + 1), delta_y += 1: only for applied updates (a reference counted
+    // rejected ones too).
+    count_voxel_sample(v, y_max);
   } else {
     v.tsdf = std::clamp((v.weight * v.tsdf + f) / (v.weight + 1.0f), -1.0f, 1.0f);
     v.weight = std::min(y_max, v.weight + 1.0f);
@@ -801,5 +804,6 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
 
 template class Integrator<TsdfVoxel>;
 template class Integrator<MultiresVoxel>;
+template class Integrator<Multires16Voxel>;
 
 }  // namespace octofuse

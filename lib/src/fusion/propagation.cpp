@@ -22,12 +22,13 @@ AxisTap axis_tap(int child, int parent_side) {
 
 }  // namespace
 
-void propagate_block_down(VoxelBlock<MultiresVoxel>& block, int parent_scale, float y_max) {
+template <typename VoxelT>
+void propagate_block_down(VoxelBlock<VoxelT>& block, int parent_scale, float y_max) {
   const int child_scale = parent_scale - 1;
   const int pn = block_scale_side(parent_scale);
   const int cn = block_scale_side(child_scale);
-  MultiresVoxel* parents = block.scale_begin(parent_scale);
-  MultiresVoxel* children = block.scale_begin(child_scale);
+  VoxelT* parents = block.scale_begin(parent_scale);
+  VoxelT* children = block.scale_begin(child_scale);
   // Per axis and child coordinate, the two parents along that axis (own, neighbour) as index
   // offsets and their weights, computed once instead of per child and corner.
   struct Axis {
@@ -44,19 +45,21 @@ void propagate_block_down(VoxelBlock<MultiresVoxel>& block, int parent_scale, fl
     ay[c] = Axis{{p * pn, t.neighbour * pn}, {1.0f - t.weight, t.weight}};
     az[c] = Axis{{p * pn * pn, t.neighbour * pn * pn}, {1.0f - t.weight, t.weight}};
   }
-  MultiresVoxel* child_ptr = children;
+  VoxelT* child_ptr = children;
   for (int cz = 0; cz < cn; ++cz) {
     const Axis& tz = az[cz];
     for (int cy = 0; cy < cn; ++cy) {
       const Axis& ty = ay[cy];
       for (int cx = 0; cx < cn; ++cx, ++child_ptr) {
         const Axis& tx = ax[cx];
-        const MultiresVoxel& parent = parents[tx.offset[0] + ty.offset[0] + tz.offset[0]];
-        MultiresVoxel& child = *child_ptr;
+        const VoxelT& parent = parents[tx.offset[0] + ty.offset[0] + tz.offset[0]];
+        VoxelT& child = *child_ptr;
         if (voxel_observed(child)) {
-          child.x = std::clamp(child.x + (parent.x - parent.x_last), -1.0f, 1.0f);
-          child.y = std::min(y_max, child.y + parent.delta_y);
-          child.delta_y += parent.delta_y;
+          set_voxel_tsdf(child,
+                         std::clamp(voxel_tsdf(child) + (voxel_tsdf(parent) - voxel_x_last(parent)),
+                                    -1.0f, 1.0f));
+          set_voxel_weight(child, std::min(y_max, voxel_weight(child) + voxel_delta_y(parent)));
+          set_voxel_delta_y(child, voxel_delta_y(child) + voxel_delta_y(parent));
           continue;
         }
         if (!voxel_observed(parent)) continue;
@@ -68,24 +71,27 @@ void propagate_block_down(VoxelBlock<MultiresVoxel>& block, int parent_scale, fl
           const int ox = c & 1;
           const int oy = (c >> 1) & 1;
           const int oz = c >> 2;
-          const MultiresVoxel& v = parents[tx.offset[ox] + ty.offset[oy] + tz.offset[oz]];
+          const VoxelT& v = parents[tx.offset[ox] + ty.offset[oy] + tz.offset[oz]];
           if (!voxel_observed(v)) {
             complete = false;
             break;
           }
-          value += tx.weight[ox] * ty.weight[oy] * tz.weight[oz] * v.x;
+          value += tx.weight[ox] * ty.weight[oy] * tz.weight[oz] * voxel_tsdf(v);
         }
-        child.x = complete ? std::clamp(value, -1.0f, 1.0f) : parent.x;
-        child.x_last = child.x;
-        child.y = parent.y;
-        child.delta_y = 0.0f;
+        set_voxel_tsdf(child, complete ? std::clamp(value, -1.0f, 1.0f) : voxel_tsdf(parent));
+        set_voxel_x_last(child, voxel_tsdf(child));
+        set_voxel_weight(child, voxel_weight(parent));
+        set_voxel_delta_y(child, 0.0f);
       }
     }
   }
   for (int i = 0; i < pn * pn * pn; ++i) {
-    parents[i].x_last = parents[i].x;
-    parents[i].delta_y = 0.0f;
+    set_voxel_x_last(parents[i], voxel_tsdf(parents[i]));
+    set_voxel_delta_y(parents[i], 0.0f);
   }
 }
+
+template void propagate_block_down(VoxelBlock<MultiresVoxel>&, int, float);
+template void propagate_block_down(VoxelBlock<Multires16Voxel>&, int, float);
 
 }  // namespace octofuse

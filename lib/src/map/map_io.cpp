@@ -57,35 +57,71 @@ bool weight_ok(float w) {
   return w >= 0.0f && w <= kMaxSavedWeight;
 }
 
-// Voxel <-> floats, in the file's field order.
-constexpr int voxel_fields(const TsdfVoxel*) {
-  return 2;
+// Voxel <-> bytes, in the file's field order: float types as their floats' bit patterns,
+// Multires16Voxel as its four 16-bit fields.
+void put_u16(std::uint8_t* p, std::uint16_t v) {
+  p[0] = static_cast<std::uint8_t>(v);
+  p[1] = static_cast<std::uint8_t>(v >> 8);
 }
-constexpr int voxel_fields(const MultiresVoxel*) {
-  return 4;
+std::uint16_t get_u16(const std::uint8_t* p) {
+  return static_cast<std::uint16_t>(p[0] | (p[1] << 8));
 }
-void voxel_to_floats(const TsdfVoxel& v, float* f) {
-  f[0] = v.tsdf;
-  f[1] = v.weight;
+float get_f32(const std::uint8_t* p) {
+  return bits_float(get_u32(p));
 }
-void voxel_to_floats(const MultiresVoxel& v, float* f) {
-  f[0] = v.x;
-  f[1] = v.x_last;
-  f[2] = v.y;
-  f[3] = v.delta_y;
+constexpr int voxel_bytes(const TsdfVoxel*) {
+  return 8;
 }
-bool floats_to_voxel(const float* f, TsdfVoxel& v) {
-  if (!tsdf_ok(f[0]) || !weight_ok(f[1])) return false;
-  v.tsdf = f[0];
-  v.weight = f[1];
+constexpr int voxel_bytes(const MultiresVoxel*) {
+  return 16;
+}
+constexpr int voxel_bytes(const Multires16Voxel*) {
+  return 8;
+}
+void encode_voxel(const TsdfVoxel& v, std::uint8_t* p) {
+  put_u32(p, float_bits(v.tsdf));
+  put_u32(p + 4, float_bits(v.weight));
+}
+void encode_voxel(const MultiresVoxel& v, std::uint8_t* p) {
+  put_u32(p, float_bits(v.x));
+  put_u32(p + 4, float_bits(v.x_last));
+  put_u32(p + 8, float_bits(v.y));
+  put_u32(p + 12, float_bits(v.delta_y));
+}
+void encode_voxel(const Multires16Voxel& v, std::uint8_t* p) {
+  put_u16(p, static_cast<std::uint16_t>(v.x_q));
+  put_u16(p + 2, static_cast<std::uint16_t>(v.x_last_q));
+  put_u16(p + 4, v.y_q);
+  put_u16(p + 6, v.delta_y_q);
+}
+bool decode_voxel(const std::uint8_t* p, TsdfVoxel& v) {
+  const float tsdf = get_f32(p);
+  const float weight = get_f32(p + 4);
+  if (!tsdf_ok(tsdf) || !weight_ok(weight)) return false;
+  v.tsdf = tsdf;
+  v.weight = weight;
   return true;
 }
-bool floats_to_voxel(const float* f, MultiresVoxel& v) {
+bool decode_voxel(const std::uint8_t* p, MultiresVoxel& v) {
+  const float f[4] = {get_f32(p), get_f32(p + 4), get_f32(p + 8), get_f32(p + 12)};
   if (!tsdf_ok(f[0]) || !tsdf_ok(f[1]) || !weight_ok(f[2]) || !weight_ok(f[3])) return false;
   v.x = f[0];
   v.x_last = f[1];
   v.y = f[2];
   v.delta_y = f[3];
+  return true;
+}
+bool decode_voxel(const std::uint8_t* p, Multires16Voxel& v) {
+  // Every weight is valid; a TSDF step must lie in [-1, 1] (-32768 .. -16385 and 16385 .. 32767
+  // are outside).
+  const auto x = static_cast<std::int16_t>(get_u16(p));
+  const auto x_last = static_cast<std::int16_t>(get_u16(p + 2));
+  constexpr int kOne = static_cast<int>(kMultires16TsdfScale);
+  if (x < -kOne || x > kOne || x_last < -kOne || x_last > kOne) return false;
+  v.x_q = x;
+  v.x_last_q = x_last;
+  v.y_q = get_u16(p + 4);
+  v.delta_y_q = get_u16(p + 6);
   return true;
 }
 
@@ -111,16 +147,12 @@ class RecordWriter {
   void f32(float v) { u32(float_bits(v)); }
   template <typename VoxelT>
   void voxels(const VoxelT* v, int count) {
-    constexpr int kFields = voxel_fields(static_cast<const VoxelT*>(nullptr));
-    std::uint8_t chunk[kVoxelChunk * kFields * 4];
+    constexpr int kBytes = voxel_bytes(static_cast<const VoxelT*>(nullptr));
+    std::uint8_t chunk[kVoxelChunk * kBytes];
     for (int start = 0; start < count; start += kVoxelChunk) {
       const int n = count - start < kVoxelChunk ? count - start : kVoxelChunk;
-      for (int i = 0; i < n; ++i) {
-        float f[kFields];
-        voxel_to_floats(v[start + i], f);
-        for (int k = 0; k < kFields; ++k) put_u32(chunk + (i * kFields + k) * 4, float_bits(f[k]));
-      }
-      bytes(chunk, static_cast<std::size_t>(n) * kFields * 4);
+      for (int i = 0; i < n; ++i) encode_voxel(v[start + i], chunk + i * kBytes);
+      bytes(chunk, static_cast<std::size_t>(n) * kBytes);
     }
   }
   // Appends the record's CRC and starts the next record.
@@ -201,15 +233,13 @@ class RecordReader {
   }
   template <typename VoxelT>
   bool voxels(VoxelT* v, int count) {
-    constexpr int kFields = voxel_fields(static_cast<const VoxelT*>(nullptr));
-    std::uint8_t chunk[kVoxelChunk * kFields * 4];
+    constexpr int kBytes = voxel_bytes(static_cast<const VoxelT*>(nullptr));
+    std::uint8_t chunk[kVoxelChunk * kBytes];
     for (int start = 0; start < count; start += kVoxelChunk) {
       const int n = count - start < kVoxelChunk ? count - start : kVoxelChunk;
-      if (!bytes(chunk, static_cast<std::size_t>(n) * kFields * 4)) return false;
+      if (!bytes(chunk, static_cast<std::size_t>(n) * kBytes)) return false;
       for (int i = 0; i < n; ++i) {
-        float f[kFields];
-        for (int k = 0; k < kFields; ++k) f[k] = bits_float(get_u32(chunk + (i * kFields + k) * 4));
-        if (!floats_to_voxel(f, v[start + i])) {
+        if (!decode_voxel(chunk + i * kBytes, v[start + i])) {
           return fail(StatusCode::data_loss, "voxel %d out of range", start + i);
         }
       }
@@ -404,7 +434,8 @@ Result<MapFileHeader> read_header_record(RecordReader& r) {
   h.free_octant_voxels = free_octant;
   h.free_max_count = free_cap;
   if (type != static_cast<std::uint8_t>(MapVoxelType::single_res) &&
-      type != static_cast<std::uint8_t>(MapVoxelType::multires)) {
+      type != static_cast<std::uint8_t>(MapVoxelType::multires) &&
+      type != static_cast<std::uint8_t>(MapVoxelType::multires16)) {
     r.fail(StatusCode::data_loss, "unknown voxel type %u", static_cast<unsigned>(type));
     return r.status();
   }
@@ -611,7 +642,9 @@ Result<std::size_t> MemorySource::read(std::uint8_t* bytes, std::size_t count) {
 }
 
 const char* map_voxel_type_name(MapVoxelType type) {
-  return type == MapVoxelType::multires ? "multires" : "single-res";
+  return type == MapVoxelType::multires     ? "multires"
+         : type == MapVoxelType::multires16 ? "multires16"
+                                            : "single-res";
 }
 
 std::uint32_t crc32(const std::uint8_t* bytes, std::size_t count, std::uint32_t crc) {
@@ -826,6 +859,11 @@ template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorT
 template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
+                         ErrorText*);
+template Status save_map(const Octree<Multires16Voxel>&, const FreeSpace*, const MapSaveInfo&,
+                         ByteSink&);
+template Status load_map(ByteSource&, Octree<Multires16Voxel>&, MapFileHeader*, ErrorText*);
+template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeSpace*, MapFileHeader*,
                          ErrorText*);
 
 }  // namespace octofuse

@@ -4,5 +4,6 @@ namespace octofuse {
 
 template class Octree<TsdfVoxel>;
 template class Octree<MultiresVoxel>;
+template class Octree<Multires16Voxel>;
 
 }  // namespace octofuse

@@ -193,5 +193,6 @@ Status Mesher<VoxelT>::mesh_block(const Octree<VoxelT>& map, std::uint32_t block
 
 template class Mesher<TsdfVoxel>;
 template class Mesher<MultiresVoxel>;
+template class Mesher<Multires16Voxel>;
 
 }  // namespace octofuse

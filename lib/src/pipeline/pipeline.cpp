@@ -119,6 +119,9 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
         "fusion (y_max >= 1, allocation_pixel_step >= 1, max_blocks_per_frame > 0, "
         "scale_hysteresis in [0, 1), fixed_scale <= 3, task_count >= 1)");
   }
+  if (config.map_kind == MapKind::multires16 && !(f.y_max <= kMultires16MaxWeight)) {
+    return bad("fusion.y_max must be <= 1023.98 for the multires16 map (its largest weight)");
+  }
   if (!validate(config.free_space).ok()) {
     return bad("free_space (finite margins >= 0, max_free_count >= 1, visit budget > 0)");
   }
@@ -231,6 +234,9 @@ std::size_t bytes_required(const PipelineConfig& config) {
   if (config.map_kind == MapKind::multires) {
     Pipeline<MultiresVoxel> probe;
     status = probe.reserve(sizer, config);
+  } else if (config.map_kind == MapKind::multires16) {
+    Pipeline<Multires16Voxel> probe;
+    status = probe.reserve(sizer, config);
   } else {
     Pipeline<TsdfVoxel> probe;
     status = probe.reserve(sizer, config);
@@ -244,12 +250,10 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   initialised_ = false;
   own_error_ = true;
   OCTOFUSE_TRY(validate(config, &error_));
-  const MapKind expected =
-      std::is_same_v<VoxelT, MultiresVoxel> ? MapKind::multires : MapKind::single_res;
+  const MapKind expected = map_kind_of<VoxelT>();
   if (config.map_kind != expected) {
     error_.set("invalid configuration: map_kind is %s but the pipeline's voxel type is %s",
-               config.map_kind == MapKind::multires ? "multires" : "single_res",
-               expected == MapKind::multires ? "multires" : "single_res");
+               map_kind_name(config.map_kind), map_kind_name(expected));
     return StatusCode::invalid_argument;
   }
   if (buffer == nullptr || reinterpret_cast<std::uintptr_t>(buffer) % kArenaAlignment != 0) {
@@ -614,5 +618,6 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
 
 template class Pipeline<TsdfVoxel>;
 template class Pipeline<MultiresVoxel>;
+template class Pipeline<Multires16Voxel>;
 
 }  // namespace octofuse

@@ -377,5 +377,6 @@ Result<RegionAnswer> MapQuery<VoxelT>::swept_sphere(const Eigen::Vector3f& a_W,
 
 template class MapQuery<TsdfVoxel>;
 template class MapQuery<MultiresVoxel>;
+template class MapQuery<Multires16Voxel>;
 
 }  // namespace octofuse

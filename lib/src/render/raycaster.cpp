@@ -640,5 +640,6 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
 
 template class Raycaster<TsdfVoxel>;
 template class Raycaster<MultiresVoxel>;
+template class Raycaster<Multires16Voxel>;
 
 }  // namespace octofuse

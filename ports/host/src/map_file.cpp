@@ -117,5 +117,9 @@ template Status load_map_file(const char*, Octree<TsdfVoxel>&, FreeSpace*, MapFi
                               ErrorText*);
 template Status load_map_file(const char*, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
                               ErrorText*);
+template Status save_map_file(const char*, const Octree<Multires16Voxel>&, const FreeSpace*,
+                              const MapSaveInfo&, ErrorText*);
+template Status load_map_file(const char*, Octree<Multires16Voxel>&, FreeSpace*, MapFileHeader*,
+                              ErrorText*);
 
 }  // namespace octofuse::host

@@ -1,5 +1,6 @@
 #include "octofuse/fusion/integrator.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstring>
@@ -175,6 +176,85 @@ TEST_CASE("a sphere fused at each scale crosses zero within a quarter voxel of i
       CAPTURE(column.transpose(), truth, z);
       REQUIRE(std::isfinite(z));
       CHECK(std::abs(z - truth) <= kTolerance_m);
+    }
+  }
+}
+
+// Multires16Voxel against MultiresVoxel, same frames at a fixed scale. Each update rounds to the
+// nearest 2^-14 step, at most half a step h = 2^-15 off; the float mean forgets an old error by
+// y / (y + 1) per sample, so after n samples the two differ by at most (n + 1) / 2 * h (plus float
+// rounding, far below). Mip levels (means of children, rounded once more) add h per level.
+// Across a plane the normalised TSDF falls by 1 / mu per metre, so a TSDF error e moves the
+// interpolated zero crossing by about e * mu.
+TEST_CASE("the 16-bit voxel fuses like the float one within its quantisation bound",
+          "[fusion][integrator][multires16]") {
+  constexpr float kVoxel_m = 0.01f;
+  constexpr float kMu_m = 8 * kVoxel_m;
+  constexpr int kFrames = 12;
+  constexpr double kHalfStep = 1.0 / 32768.0;
+  constexpr double kFloatSlack = 1e-6;  // float rounding of the two running means
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.237});
+  scene.spheres.push_back({Eigen::Vector3d(0.2, 0.1, 1.0), 0.15});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  for (int scale = 0; scale <= 1; ++scale) {
+    CAPTURE(scale);
+    Fusion<MultiresVoxel> ref(map_config(kVoxel_m, 8, 8000), fusion_config(kMu_m, scale), camera);
+    Fusion<Multires16Voxel> q16(map_config(kVoxel_m, 8, 8000), fusion_config(kMu_m, scale), camera);
+    for (int i = 0; i < kFrames; ++i) {
+      // A small sideways sweep: every voxel sees samples that differ from frame to frame.
+      const Se3d pose = test::looking_along_z({0.004 * i, -0.003 * i, 0.1 + 0.002 * i});
+      const IntegrationReport a = ref.fuse(scene, pose);
+      const IntegrationReport b = q16.fuse(scene, pose);
+      REQUIRE(a.status.ok());
+      REQUIRE(b.status.ok());
+      REQUIRE(a.voxels_updated == b.voxels_updated);
+    }
+    REQUIRE(ref.map.block_count() == q16.map.block_count());
+    const double voxel_bound = (kFrames + 1) / 2.0 * kHalfStep + kFloatSlack;
+    double worst = 0.0;
+    std::uint64_t compared = 0;
+    for (std::uint32_t i = 0; i < ref.map.block_count(); ++i) {
+      const VoxelBlock<MultiresVoxel>& a = ref.map.block(i);
+      const VoxelBlock<Multires16Voxel>& b = q16.map.block(i);
+      REQUIRE(a.coords == b.coords);
+      if (!a.integrated()) continue;
+      const MultiresVoxel* va = a.scale_begin(scale);
+      const Multires16Voxel* vb = b.scale_begin(scale);
+      for (int k = 0; k < block_scale_count(scale); ++k) {
+        // Whole sample counts: the weights are exact.
+        REQUIRE(voxel_weight(vb[k]) == voxel_weight(va[k]));
+        REQUIRE(voxel_delta_y(vb[k]) == voxel_delta_y(va[k]));
+        if (!voxel_observed(va[k])) continue;
+        worst = std::max(worst, std::abs(double{voxel_tsdf(vb[k])} - voxel_tsdf(va[k])));
+        ++compared;
+      }
+    }
+    CAPTURE(worst, voxel_bound);
+    CHECK(compared > 10000);
+    CHECK(worst <= voxel_bound);
+    CHECK(worst > 0.0);  // the two really differ: the bound is what is tested
+    // The plane's zero crossing, at the fused scale and one mip level up (completing the lazy
+    // up-propagation first, as a coarse query would).
+    for (std::uint32_t i = 0; i < ref.map.block_count(); ++i) {
+      VoxelBlock<MultiresVoxel>& a = ref.map.block(i);
+      VoxelBlock<Multires16Voxel>& b = q16.map.block(i);
+      if (a.integrated()) propagate_block_up(a, a.mip_scale, kMaxBlockScale);
+      if (b.integrated()) propagate_block_up(b, b.mip_scale, kMaxBlockScale);
+    }
+    for (int s = scale; s <= scale + 1; ++s) {
+      const double bound_m = (voxel_bound + (s - scale) * kHalfStep) * kMu_m;
+      for (const Eigen::Vector3i& column :
+           {Eigen::Vector3i(100, 100, 0), Eigen::Vector3i(96, 150, 0),
+            Eigen::Vector3i(150, 90, 0)}) {
+        CAPTURE(s, column.transpose());
+        const double za = zero_crossing_z(ref.map, column, s, 0, 256);
+        const double zb = zero_crossing_z(q16.map, column, s, 0, 256);
+        REQUIRE(std::isfinite(za));
+        REQUIRE(std::isfinite(zb));
+        CHECK(std::abs(za - 1.237) <= 0.25 * kVoxel_m * (1 << s));
+        CHECK(std::abs(zb - za) <= bound_m);
+      }
     }
   }
 }
@@ -499,9 +579,10 @@ TEST_CASE("a full finest-level pool keeps blocks at scale 1, counted, and the ma
 }
 
 // Both maps hold the same blocks, voxels and node summaries, bit for bit.
-void require_same_map(const Octree<MultiresVoxel>& one, const Octree<MultiresVoxel>& two) {
+template <typename VoxelT>
+void require_same_map(const Octree<VoxelT>& one, const Octree<VoxelT>& two) {
   REQUIRE(one.block_count() == two.block_count());
-  using Block = VoxelBlock<MultiresVoxel>;
+  using Block = VoxelBlock<VoxelT>;
   for (std::uint32_t i = 0; i < one.block_count(); ++i) {
     const Block& a = one.block(i);
     const Block& b = two.block(i);
@@ -512,7 +593,7 @@ void require_same_map(const Octree<MultiresVoxel>& one, const Octree<MultiresVox
     REQUIRE(std::memcmp(a.inline_voxels, b.inline_voxels, sizeof(a.inline_voxels)) == 0);
     REQUIRE(a.has_finest() == b.has_finest());
     REQUIRE(std::memcmp(a.scale_begin(0), b.scale_begin(0),
-                        sizeof(MultiresVoxel) * kBlockFinestVoxelCount) == 0);
+                        sizeof(VoxelT) * kBlockFinestVoxelCount) == 0);
   }
   REQUIRE(one.memory().finest_used == two.memory().finest_used);
   for (std::uint32_t i = 0; i < one.node_count(); ++i) {
@@ -522,18 +603,21 @@ void require_same_map(const Octree<MultiresVoxel>& one, const Octree<MultiresVox
   }
 }
 
-TEST_CASE("results are bit-identical for 1 and 2 workers", "[fusion][integrator][threads]") {
+TEMPLATE_TEST_CASE("results are bit-identical for 1, 2 and 3 workers",
+                   "[fusion][integrator][threads]", MultiresVoxel, Multires16Voxel) {
   AnalyticScene scene;
   scene.spheres.push_back({Eigen::Vector3d(0.1, 0.0, 1.3), 0.3});
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.9});
   const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
-  Fusion<MultiresVoxel> one(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
-  Fusion<MultiresVoxel> two(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
+  const int workers = GENERATE(2, 3);
+  CAPTURE(workers);
+  Fusion<TestType> one(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
+  Fusion<TestType> two(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
   for (int i = 0; i < 6; ++i) {
     // Moving back then forward: blocks change scale both ways.
     const Se3d pose = test::looking_along_z({0.02 * i, 0.0, -0.6 + 0.25 * (i % 4)});
     const IntegrationReport a = one.fuse(scene, pose, FusionBudget(), 1);
-    const IntegrationReport b = two.fuse(scene, pose, FusionBudget(), 2);
+    const IntegrationReport b = two.fuse(scene, pose, FusionBudget(), workers);
     REQUIRE(a.status.ok());
     REQUIRE(b.status.ok());
     REQUIRE(a.voxels_updated == b.voxels_updated);

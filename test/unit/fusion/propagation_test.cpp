@@ -1,5 +1,8 @@
 #include "octofuse/fusion/propagation.hpp"
 
+#include <algorithm>
+#include <cmath>
+
 #include <catch2/catch.hpp>
 
 #include "octofuse/map/mip.hpp"
@@ -99,6 +102,62 @@ TEST_CASE("down then up: parents are the mean of the updated children", "[fusion
   propagate_block_up(block, 2, 3);
   CHECK(block.at(0, 0, 0, 3).x == Approx(0.21875f + 0.25f).margin(1e-6));
   CHECK(block.at(0, 0, 0, 3).y == 5.0f);
+}
+
+// The same block in both types, its values on the 16-bit grid (so the inputs are equal): the
+// 16-bit down-propagation is the float one rounded once, half a step at most, and its weights are
+// exact.
+TEST_CASE("16-bit down-propagation is the float one rounded to the nearest step",
+          "[fusion][down][multires16]") {
+  constexpr float kHalfStep = 0.5f / 16384.0f;
+  VoxelBlock<MultiresVoxel> ref;
+  VoxelBlock<Multires16Voxel> q16;
+  FinestLevel<MultiresVoxel> ref_finest;
+  FinestLevel<Multires16Voxel> q16_finest;
+  ref.finest = &ref_finest;
+  q16.finest = &q16_finest;
+  // A curved parent field at scale 1 with steps of fresh samples; every other child observed.
+  for (int z = 0; z < 4; ++z)
+    for (int y = 0; y < 4; ++y)
+      for (int x = 0; x < 4; ++x) {
+        const float value = 0.9f - 0.05f * static_cast<float>(x * x + 2 * y + z);
+        const float last = value - 0.01f * static_cast<float>(x + y);
+        MultiresVoxel& p = ref.at(x, y, z, 1);
+        Multires16Voxel& q = q16.at(x, y, z, 1);
+        set_voxel_tsdf(q, value);
+        set_voxel_x_last(q, last);
+        set_voxel_weight(q, static_cast<float>(3 + x));
+        set_voxel_delta_y(q, static_cast<float>(z));
+        p = MultiresVoxel{voxel_tsdf(q), voxel_x_last(q), voxel_weight(q), voxel_delta_y(q)};
+      }
+  for (int i = 0; i < kBlockFinestVoxelCount; i += 2) {
+    Multires16Voxel& q = q16.voxel(i);
+    set_voxel_tsdf(q, 0.3f - 0.001f * static_cast<float>(i));
+    set_voxel_x_last(q, voxel_tsdf(q));
+    set_voxel_weight(q, 95.0f + static_cast<float>(i % 7));
+    set_voxel_delta_y(q, 1.0f);
+    ref.voxel(i) = MultiresVoxel{voxel_tsdf(q), voxel_x_last(q), voxel_weight(q), voxel_delta_y(q)};
+  }
+  propagate_block_down(ref, 1, kYMax);
+  propagate_block_down(q16, 1, kYMax);
+  float worst = 0.0f;
+  for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
+    CAPTURE(i);
+    const MultiresVoxel& a = ref.voxel(i);
+    const Multires16Voxel& b = q16.voxel(i);
+    REQUIRE(voxel_observed(b));
+    CHECK(std::abs(voxel_tsdf(b) - a.x) <= kHalfStep);
+    CHECK(std::abs(voxel_x_last(b) - a.x_last) <= kHalfStep);
+    CHECK(voxel_weight(b) == a.y);  // whole counts, some capped at y_max
+    CHECK(voxel_delta_y(b) == a.delta_y);
+    worst = std::max(worst, std::abs(voxel_tsdf(b) - a.x));
+  }
+  CHECK(worst > 0.0f);
+  for (int i = 0; i < block_scale_count(1); ++i) {
+    CHECK(q16.voxel(block_scale_offset(1) + i).delta_y_q == 0);
+    CHECK(voxel_x_last(q16.voxel(block_scale_offset(1) + i)) ==
+          voxel_tsdf(q16.voxel(block_scale_offset(1) + i)));
+  }
 }
 
 }  // namespace

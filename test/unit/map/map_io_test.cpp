@@ -108,7 +108,7 @@ class Frames {
 template <typename VoxelT>
 PipelineConfig config_for(float voxel_m = 0.02f) {
   PipelineConfig c = default_pipeline_config(camera(), voxel_m, 7, 4096, Eigen::Vector3f(0, 0, 1));
-  c.map_kind = IsMultiresVoxel<VoxelT>::value ? MapKind::multires : MapKind::single_res;
+  c.map_kind = map_kind_of<VoxelT>();
   c.preprocess.downsample_factor = 1;
   c.pose_source = PoseSource::ground_truth;
   c.initial_T_W_C = pose(0);
@@ -284,14 +284,15 @@ constexpr std::size_t kHeaderBytes = 8 + 4 + 1 + 4 + 4 + 1 + 12 + 4 + 4 + 4 + 8 
 constexpr std::size_t kFreeRecordBytes = 1 + 1 + 4 + 8 * 4 + 1 + 4;
 
 // Offsets where records start (and the file's size last), walking the layout of map_io.hpp.
-std::vector<std::size_t> record_offsets(const std::vector<std::uint8_t>& f, bool multires) {
+std::vector<std::size_t> record_offsets(const std::vector<std::uint8_t>& f, bool multires,
+                                        std::size_t voxel_bytes = 0) {
   const std::size_t header = kHeaderBytes;
   const std::uint32_t nodes = get_u32(f, kNodeCountAt);
   const std::uint32_t blocks = get_u32(f, kBlockCountAt);
   const std::uint32_t free_nodes = get_u32(f, kFreeCountAt);
   std::vector<std::size_t> at = {0, header};
   for (std::uint32_t i = 0; i < nodes; ++i) at.push_back(at.back() + 30);
-  const std::size_t voxel_bytes = multires ? 16 : 8;
+  if (voxel_bytes == 0) voxel_bytes = multires ? 16 : 8;
   for (std::uint32_t i = 0; i < blocks; ++i) {
     const std::size_t start = at.back();
     const bool finest = !multires || (f[start + 16] & 1) != 0;
@@ -320,7 +321,7 @@ TEST_CASE("crc32 matches the IEEE check value and continues across calls") {
 }
 
 TEMPLATE_TEST_CASE("a loaded map is the saved one: same bytes, mesh and ray-cast", "", TsdfVoxel,
-                   MultiresVoxel) {
+                   MultiresVoxel, Multires16Voxel) {
   const PipelineConfig config = config_for<TestType>();
   const Frames frames(6);
   Mapper<TestType> mapper(config);
@@ -399,7 +400,7 @@ TEST_CASE("a map that evicted blocks saves and loads whole: same bytes, mesh and
 }
 
 TEMPLATE_TEST_CASE("fusing on in a loaded map gives the map of an uninterrupted run", "", TsdfVoxel,
-                   MultiresVoxel) {
+                   MultiresVoxel, Multires16Voxel) {
   // Ground-truth poses: the loaded run's first frame takes the same pose the uninterrupted run
   // had, so every later integration and carving is the same and so must be the maps and their
   // free space.
@@ -425,6 +426,87 @@ TEMPLATE_TEST_CASE("fusing on in a loaded map gives the map of an uninterrupted 
   CHECK(save(resumed.pipeline.map(), resumed.pipeline.free_space(), 10) ==
         save(whole.pipeline.map(), whole.pipeline.free_space(), 10));
   CHECK(resumed.pipeline.free_space().node_count() > first_half.pipeline.free_space().node_count());
+}
+
+TEST_CASE("a 16-bit map file says so and is refused by float maps, and they by it",
+          "[multires16]") {
+  const Frames frames(3);
+  Mapper<Multires16Voxel> q16(config_for<Multires16Voxel>());
+  q16.run(frames, 0, frames.count());
+  Mapper<MultiresVoxel> f32(config_for<MultiresVoxel>());
+  f32.run(frames, 0, frames.count());
+  const std::vector<std::uint8_t> file16 = save(q16.pipeline.map(), 3);
+  const std::vector<std::uint8_t> file32 = save(f32.pipeline.map(), 3);
+  REQUIRE(q16.pipeline.map().block_count() == f32.pipeline.map().block_count());
+  CHECK(file16[12] == 3);  // the header's voxel type byte
+  {
+    MemorySource source(file16.data(), file16.size());
+    const Result<MapFileHeader> header = read_map_header(source);
+    REQUIRE(header.ok());
+    CHECK(header.value().voxel_type == MapVoxelType::multires16);
+    CHECK(std::string(map_voxel_type_name(header.value().voxel_type)) == "multires16");
+  }
+  // Half the voxel bytes: each block record holds 585 or 73 voxels of 8 bytes instead of 16.
+  const std::vector<std::size_t> r16 = record_offsets(file16, true, 8);
+  const std::vector<std::size_t> r32 = record_offsets(file32, true, 16);
+  REQUIRE(r16.back() == file16.size());
+  REQUIRE(r32.back() == file32.size());
+  const std::uint32_t nodes = get_u32(file16, kNodeCountAt);
+  const std::uint32_t blocks = get_u32(file16, kBlockCountAt);
+  std::size_t voxels = 0;
+  for (std::uint32_t i = 0; i < blocks; ++i) {
+    const std::size_t record = r16[2 + nodes + i] - r16[1 + nodes + i];
+    voxels += (record - 37) / 8;  // tag, key, state, summary and crc take 37 bytes
+  }
+  CHECK(voxels > 73 * blocks);  // some blocks hold a finest level
+  CHECK(file32.size() - file16.size() == 8 * voxels);
+  ErrorText error;
+  BareMap<MultiresVoxel> float_map(config_for<MultiresVoxel>().map);
+  CHECK(load_bytes(file16, float_map.map, &error).code() == StatusCode::invalid_argument);
+  CHECK(std::string(error.c_str()).find("holds a multires16 map, this one is multires") !=
+        std::string::npos);
+  CHECK(empty(float_map.map));
+  BareMap<TsdfVoxel> single(config_for<TsdfVoxel>().map);
+  CHECK(load_bytes(file16, single.map, &error).code() == StatusCode::invalid_argument);
+  CHECK(empty(single.map));
+  BareMap<Multires16Voxel> compact(config_for<Multires16Voxel>().map);
+  CHECK(load_bytes(file32, compact.map, &error).code() == StatusCode::invalid_argument);
+  CHECK(std::string(error.c_str()).find("holds a multires map, this one is multires16") !=
+        std::string::npos);
+  CHECK(empty(compact.map));
+  // The right map takes it.
+  REQUIRE(load_bytes(file16, compact.map, &error).ok());
+  CHECK(save(compact.map, 3) == file16);
+}
+
+TEST_CASE("a 16-bit TSDF step outside [-1, 1] in a file is data_loss", "[multires16]") {
+  Mapper<Multires16Voxel> mapper(config_for<Multires16Voxel>());
+  mapper.run(Frames(2), 0, 2);
+  const std::vector<std::uint8_t> file = save(mapper.pipeline.map(), 2);
+  const std::vector<std::size_t> records = record_offsets(file, true, 8);
+  const std::uint32_t nodes = get_u32(file, kNodeCountAt);
+  // The first block record: its first voxel's x (after the 33 bytes of key, state and summary).
+  const std::size_t begin = records[1 + nodes];
+  const std::size_t end = records[2 + nodes];
+  REQUIRE(file[begin] == 'B');
+  BareMap<Multires16Voxel> target(config_for<Multires16Voxel>().map);
+  ErrorText error;
+  for (const std::uint16_t bad_step : {std::uint16_t{16385}, std::uint16_t{0x8000}}) {
+    CAPTURE(bad_step);
+    std::vector<std::uint8_t> bad = file;
+    bad[begin + 33] = static_cast<std::uint8_t>(bad_step);
+    bad[begin + 34] = static_cast<std::uint8_t>(bad_step >> 8);
+    reseal(bad, begin, end);
+    CHECK(load_bytes(bad, target.map, &error).code() == StatusCode::data_loss);
+    CHECK(std::string(error.c_str()).find("out of range") != std::string::npos);
+    CHECK(empty(target.map));
+  }
+  // The largest valid steps load.
+  std::vector<std::uint8_t> edge = file;
+  edge[begin + 33] = 0x00;
+  edge[begin + 34] = 0xC0;  // -16384
+  reseal(edge, begin, end);
+  CHECK(load_bytes(edge, target.map, &error).ok());
 }
 
 // A dozen blocks, with and without finest levels: small enough to load thousands of times.
@@ -671,7 +753,7 @@ QueryAnswers answers_of(const Octree<VoxelT>& map, const FreeSpace* free_space, 
 }
 
 TEMPLATE_TEST_CASE("free space is saved and loaded: same nodes, same query answers", "", TsdfVoxel,
-                   MultiresVoxel) {
+                   MultiresVoxel, Multires16Voxel) {
   const PipelineConfig config = config_for<TestType>();
   REQUIRE(config.free_space.enabled);
   const Frames frames(6);

@@ -1,8 +1,9 @@
 #pragma once
-// Depth fusion into the octree map (paper 4.3). One class template serves both maps:
+// Depth fusion into the octree map (paper 4.3). One class template serves every map:
 // Integrator<TsdfVoxel> is the single-resolution baseline (every block at scale 0),
 // Integrator<MultiresVoxel> the adaptive-resolution fusion (per-block scale from the pixel
-// footprint, down-propagation on refinement, up-propagation after every update).
+// footprint, down-propagation on refinement, up-propagation after every update), and
+// Integrator<Multires16Voxel> the same fusion over 16-bit fixed-point voxels (map/voxel.hpp).
 //
 // Per frame: (1) march each valid pixel's ray over the band depth +- mu and collect the distinct
 // blocks it crosses, in first-crossed order (bands of rows in parallel, merged in band order);
@@ -204,6 +205,7 @@ class Integrator {
 
 extern template class Integrator<TsdfVoxel>;
 extern template class Integrator<MultiresVoxel>;
+extern template class Integrator<Multires16Voxel>;
 
 using SingleResIntegrator = Integrator<TsdfVoxel>;
 using MultiresIntegrator = Integrator<MultiresVoxel>;

@@ -15,7 +15,9 @@
 
 namespace octofuse {
 
-// Down-propagates from `parent_scale` (1..3) to parent_scale - 1.
-void propagate_block_down(VoxelBlock<MultiresVoxel>& block, int parent_scale, float y_max);
+// Down-propagates from `parent_scale` (1..3) to parent_scale - 1 (MultiresVoxel and
+// Multires16Voxel blocks).
+template <typename VoxelT>
+void propagate_block_down(VoxelBlock<VoxelT>& block, int parent_scale, float y_max);
 
 }  // namespace octofuse

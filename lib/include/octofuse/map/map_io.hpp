@@ -7,7 +7,8 @@
 // their IEEE-754 bit patterns. The file is a sequence of records, each ending with the CRC-32 (IEEE
 // 802.3) of its own bytes:
 //
-//   header  "OCTOFMAP" u32 version, u8 voxel type (1 single-res, 2 multires), f32 voxel_size_m,
+//   header  "OCTOFMAP" u32 version, u8 voxel type (1 single-res, 2 multires, 3 multires16),
+//           f32 voxel_size_m,
 //           f32 mu_m (the truncation distance the TSDF is normalised by), u8 voxel_depth,
 //           3 x f32 origin_W, u32 nodes, u32 blocks, u32 finest levels, u64 frames (frames the
 //           map's pipeline had processed), u32 free nodes (0: saved without free space),
@@ -19,7 +20,8 @@
 //           i8 mip_scale, u8 flags (bit 0: holds a finest level), 4 x f32 summary (tsdf_min,
 //           tsdf_max, tsdf_mean, weight_mean), voxels, crc   -- one per block
 //           voxels: the finest level (512) when held (always for single-res), then scales 1-3
-//           (73); single-res: tsdf, weight; multires: x, x_last, y, delta_y
+//           (73); single-res: f32 tsdf, weight; multires: f32 x, x_last, y, delta_y;
+//           multires16: i16 x, x_last, u16 y, delta_y (the fixed-point steps of voxel.hpp)
 //   free    u8 'F' u8 free_count, u32 free_frame, 8 x u32 children (pool indices, 0xFFFFFFFF
 //           for none), u8 sub_free (version 2 on; only leaves may set it), crc
 //                                                         -- one per free-space node, root first
@@ -37,17 +39,22 @@
 // Loading validates every field before it is used: magic, version, voxel type, the geometry
 // against the map it is loaded into, counts against its pools, record tags and checksums, each
 // node's and block's key (canonical, inside the cube, parent present, not a duplicate), block
-// states and every float (finite; TSDF values in [-1, 1], weights in [0, kMaxSavedWeight]).
+// states and every float (finite; TSDF values in [-1, 1], weights in [0, kMaxSavedWeight]; a
+// multires16 TSDF step in [-16384, 16384]).
 // Free space: the settings (margin finite and positive, octants of 2, 4 or 8 voxels, cap >= 1),
 // each node's count (at most the cap), frame (before the header's frame count, or 0) and
 // children (after their parent, below the count); loaded into a FreeSpace, also the tree: each
 // node but the root the child of exactly one earlier node, none below the finest octant level.
+//
+// Voxel type 3 (multires16) adds no field, so the version stays 2: a build that predates it
+// rejects such a file as an unknown voxel type, and this one still loads every older file.
 //
 // Adding a field means: bump kMapFormatVersion (once a version has been released), extend the
 // record's write_*_record() / read_*_record() in map_io.cpp, and keep reading older versions.
 
 #include <cstddef>
 #include <cstdint>
+#include <type_traits>
 
 #include <Eigen/Core>
 
@@ -123,10 +130,11 @@ class CountingSink final : public ByteSink {
   std::size_t size_ = 0;
 };
 
-enum class MapVoxelType : std::uint8_t { single_res = 1, multires = 2 };
+enum class MapVoxelType : std::uint8_t { single_res = 1, multires = 2, multires16 = 3 };
 
 template <typename VoxelT>
 constexpr MapVoxelType map_voxel_type() {
+  if constexpr (std::is_same_v<VoxelT, Multires16Voxel>) return MapVoxelType::multires16;
   return IsMultiresVoxel<VoxelT>::value ? MapVoxelType::multires : MapVoxelType::single_res;
 }
 const char* map_voxel_type_name(MapVoxelType type);
@@ -184,7 +192,7 @@ MapConfig map_config_for(const MapFileHeader& header);
 
 // Replaces the contents of `map` (reserved) with the map in `source`. Returns ok, or (with a
 // one-line reason in `error`): invalid_argument when the source is not a map file or holds the
-// other voxel type or a different geometry (voxel size, depth, origin) than `map` was reserved
+// another voxel type or a different geometry (voxel size, depth, origin) than `map` was reserved
 // with; out_of_range for a newer format version; resource_exhausted when the map's pools are too
 // small for it; data_loss when it is truncated, corrupt (a checksum, a tag, a key, a state or a
 // value out of range) or followed by extra bytes; or the source's error. On any error the map is
@@ -212,6 +220,11 @@ extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHead
 extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*,
                                 ErrorText*);
 extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
+                                ErrorText*);
+extern template Status save_map(const Octree<Multires16Voxel>&, const FreeSpace*,
+                                const MapSaveInfo&, ByteSink&);
+extern template Status load_map(ByteSource&, Octree<Multires16Voxel>&, MapFileHeader*, ErrorText*);
+extern template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeSpace*, MapFileHeader*,
                                 ErrorText*);
 
 }  // namespace octofuse

@@ -22,6 +22,12 @@ inline void set_parent_from_children(MultiresVoxel& parent, float tsdf_mean, flo
   parent.y = weight_mean;
   parent.delta_y = 0.0f;
 }
+inline void set_parent_from_children(Multires16Voxel& parent, float tsdf_mean, float weight_mean) {
+  set_voxel_tsdf(parent, tsdf_mean);
+  parent.x_last_q = parent.x_q;
+  set_voxel_weight(parent, weight_mean);
+  parent.delta_y_q = 0;
+}
 
 // Recomputes scale s+1 from scale s, for s = from_scale .. to_scale-1 (0 <= from < to <= 3).
 template <typename VoxelT>

@@ -800,5 +800,6 @@ class Octree {
 
 extern template class Octree<TsdfVoxel>;
 extern template class Octree<MultiresVoxel>;
+extern template class Octree<Multires16Voxel>;
 
 }  // namespace octofuse

@@ -1,9 +1,11 @@
 #pragma once
 // Voxel payloads. The TSDF is stored normalised by the truncation distance mu, so it lies in
 // [-1, 1] (positive in front of the surface). A weight of 0 means "never observed"; its TSDF is
-// then meaningless (initialised to 1, free space). Both types are trivially copyable 4-byte-float
-// records; the map is templated on the type, never switched at run time.
+// then meaningless (initialised to 1, free space). The map is templated on the type, never
+// switched at run time. Code shared by the types reads and writes the fields as float through
+// the voxel_* / set_voxel_* functions below, never the members.
 
+#include <algorithm>
 #include <cstdint>
 
 namespace octofuse {
@@ -22,7 +24,68 @@ struct MultiresVoxel {
   float delta_y = 0.0f;  // weight added since the last down-propagation
 };
 
-// Read accessors shared by code that works over either voxel type (ray-casting, meshing).
+// Compact multi-resolution TSDF for small boards: the fields of MultiresVoxel in 16-bit fixed
+// point, 8 bytes (half the map memory per block). Every value is stored rounded to the nearest
+// step (ties away from zero) by integer arithmetic on exactly computed floats, so the bits are
+// the same for any thread count and on x86-64, aarch64 and armhf.
+//
+// TSDF x, x_last: int16 in steps of 2^-14 (16384 steps per mu). A power-of-two scale makes the
+// conversions exact: to float is one exact multiply, and -1, 0 and 1 are represented exactly (a
+// scale of 32767 would buy one bit but need a division per read). One step is mu / 16384: at the
+// default mu of 8 voxels that is 1/2048 of a voxel (4.9 um at 1 cm), so a stored value is off by
+// at most mu / 32768. The running mean (eq. 3) moves a voxel by (f - x) / (y + 1) per sample; a
+// move below half a step rounds away, so the stored value may trail the float mean by up to
+// (y_max + 1) / 2 steps: 0.3% of mu at y_max = 100 (0.25 mm at 1 cm voxels, mu 8 cm). Eight bits
+// (steps of mu / 127) could trail by 40% of mu, too coarse for the surface.
+// Weights y, delta_y: uint16 in steps of 2^-6. The integrator's weights are whole sample counts
+// and up-propagation rounds its means up, so they are integers and exact; the six fractional bits
+// keep a fractional y_max (and means not rounded up) within 1/128. The largest weight is
+// 65535 / 64 = 1023.98, so y_max must not exceed it (the pipeline checks). delta_y saturates
+// there: it is only ever added to y under min(y_max, ...), where a saturated value gives the same
+// result as the exact one.
+struct Multires16Voxel {
+  std::int16_t x_q = 16384;       // x * 2^14
+  std::int16_t x_last_q = 16384;  // x_last * 2^14
+  std::uint16_t y_q = 0;          // y * 2^6
+  std::uint16_t delta_y_q = 0;    // delta_y * 2^6, saturating
+};
+
+inline constexpr float kMultires16TsdfScale = 16384.0f;  // steps per unit of normalised TSDF
+inline constexpr float kMultires16WeightScale = 64.0f;   // steps per unit of weight
+// Largest weight a Multires16Voxel holds (y_max may not exceed it).
+inline constexpr float kMultires16MaxWeight = 65535.0f / kMultires16WeightScale;
+
+namespace voxel_detail {
+// Nearest integer to c, ties away from zero, for |c| <= 65535: c - trunc(c) is exact there.
+inline int round_to_int(float c) {
+  const int t = static_cast<int>(c);
+  const float frac = c - static_cast<float>(t);
+  return t + (frac >= 0.5f ? 1 : 0) - (frac <= -0.5f ? 1 : 0);
+}
+}  // namespace voxel_detail
+
+// Normalised TSDF to its 16-bit step, clamped to [-1, 1] (NaN stores as -1).
+inline std::int16_t quantise_tsdf16(float x) {
+  float c = x * kMultires16TsdfScale;  // exact: a power of two
+  c = c > kMultires16TsdfScale ? kMultires16TsdfScale : c;
+  c = c >= -kMultires16TsdfScale ? c : -kMultires16TsdfScale;
+  return static_cast<std::int16_t>(voxel_detail::round_to_int(c));
+}
+// Weight to its 16-bit step, clamped to [0, kMultires16MaxWeight] (NaN stores as 0).
+inline std::uint16_t quantise_weight16(float w) {
+  float c = w * kMultires16WeightScale;
+  c = c > 65535.0f ? 65535.0f : c;
+  c = c >= 0.0f ? c : 0.0f;
+  return static_cast<std::uint16_t>(voxel_detail::round_to_int(c));
+}
+inline float dequantise_tsdf16(std::int16_t q) {
+  return static_cast<float>(q) * (1.0f / kMultires16TsdfScale);
+}
+inline float dequantise_weight16(std::uint16_t q) {
+  return static_cast<float>(q) * (1.0f / kMultires16WeightScale);
+}
+
+// Read accessors shared by code that works over any voxel type (ray-casting, meshing).
 inline float voxel_tsdf(const TsdfVoxel& v) {
   return v.tsdf;
 }
@@ -35,20 +98,94 @@ inline float voxel_tsdf(const MultiresVoxel& v) {
 inline float voxel_weight(const MultiresVoxel& v) {
   return v.y;
 }
+inline float voxel_tsdf(const Multires16Voxel& v) {
+  return dequantise_tsdf16(v.x_q);
+}
+inline float voxel_weight(const Multires16Voxel& v) {
+  return dequantise_weight16(v.y_q);
+}
 inline bool voxel_observed(const TsdfVoxel& v) {
   return v.weight > 0.0f;
 }
 inline bool voxel_observed(const MultiresVoxel& v) {
   return v.y > 0.0f;
 }
+inline bool voxel_observed(const Multires16Voxel& v) {
+  return v.y_q != 0;
+}
 
-// True for the multi-resolution type (compile time; picks the integrator's code path).
+// Writes, and the multi-resolution fields (x_last, delta_y), as float. The 16-bit type rounds
+// what it is given to its step (see Multires16Voxel).
+inline void set_voxel_tsdf(TsdfVoxel& v, float tsdf) {
+  v.tsdf = tsdf;
+}
+inline void set_voxel_weight(TsdfVoxel& v, float weight) {
+  v.weight = weight;
+}
+inline void set_voxel_tsdf(MultiresVoxel& v, float x) {
+  v.x = x;
+}
+inline void set_voxel_weight(MultiresVoxel& v, float y) {
+  v.y = y;
+}
+inline float voxel_x_last(const MultiresVoxel& v) {
+  return v.x_last;
+}
+inline float voxel_delta_y(const MultiresVoxel& v) {
+  return v.delta_y;
+}
+inline void set_voxel_x_last(MultiresVoxel& v, float x_last) {
+  v.x_last = x_last;
+}
+inline void set_voxel_delta_y(MultiresVoxel& v, float delta_y) {
+  v.delta_y = delta_y;
+}
+inline void set_voxel_tsdf(Multires16Voxel& v, float x) {
+  v.x_q = quantise_tsdf16(x);
+}
+inline void set_voxel_weight(Multires16Voxel& v, float y) {
+  v.y_q = quantise_weight16(y);
+}
+inline float voxel_x_last(const Multires16Voxel& v) {
+  return dequantise_tsdf16(v.x_last_q);
+}
+inline float voxel_delta_y(const Multires16Voxel& v) {
+  return dequantise_weight16(v.delta_y_q);
+}
+inline void set_voxel_x_last(Multires16Voxel& v, float x_last) {
+  v.x_last_q = quantise_tsdf16(x_last);
+}
+inline void set_voxel_delta_y(Multires16Voxel& v, float delta_y) {
+  v.delta_y_q = quantise_weight16(delta_y);
+}
+
+// After a sample is fused (eq. 3): y = min(y_max, y + 1) and delta_y += 1, as a store of each
+// through the setters would give. In 16-bit steps both additions are exact, so they are integer
+// additions there (saturating; the cap rounds as a stored y_max would).
+inline void count_voxel_sample(MultiresVoxel& v, float y_max) {
+  v.y = std::min(y_max, v.y + 1.0f);
+  v.delta_y += 1.0f;
+}
+inline void count_voxel_sample(Multires16Voxel& v, float y_max) {
+  constexpr int kOne = static_cast<int>(kMultires16WeightScale);
+  const int cap = quantise_weight16(y_max);
+  const int y = v.y_q + kOne;
+  const int delta_y = v.delta_y_q + kOne;
+  v.y_q = static_cast<std::uint16_t>(y < cap ? y : cap);
+  v.delta_y_q = static_cast<std::uint16_t>(delta_y < 65535 ? delta_y : 65535);
+}
+
+// True for the multi-resolution types (compile time; picks the integrator's code path).
 template <typename VoxelT>
 struct IsMultiresVoxel {
   static constexpr bool value = false;
 };
 template <>
 struct IsMultiresVoxel<MultiresVoxel> {
+  static constexpr bool value = true;
+};
+template <>
+struct IsMultiresVoxel<Multires16Voxel> {
   static constexpr bool value = true;
 };
 

@@ -117,5 +117,6 @@ class Mesher {
 
 extern template class Mesher<TsdfVoxel>;
 extern template class Mesher<MultiresVoxel>;
+extern template class Mesher<Multires16Voxel>;
 
 }  // namespace octofuse

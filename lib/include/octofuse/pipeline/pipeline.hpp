@@ -61,6 +61,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <type_traits>
 
 #include "octofuse/core/arena.hpp"
 #include "octofuse/core/error_text.hpp"
@@ -83,7 +84,22 @@
 
 namespace octofuse {
 
-enum class MapKind : std::uint8_t { multires, single_res };
+// The voxel type of a pipeline: Pipeline<MultiresVoxel>, Pipeline<TsdfVoxel> and
+// Pipeline<Multires16Voxel> (quantised, half the memory; fusion.y_max <= kMultires16MaxWeight).
+enum class MapKind : std::uint8_t { multires, single_res, multires16 };
+
+template <typename VoxelT>
+constexpr MapKind map_kind_of() {
+  if constexpr (std::is_same_v<VoxelT, MultiresVoxel>) return MapKind::multires;
+  if constexpr (std::is_same_v<VoxelT, Multires16Voxel>) return MapKind::multires16;
+  return MapKind::single_res;
+}
+// "multires", "single_res" or "multires16".
+inline const char* map_kind_name(MapKind kind) {
+  return kind == MapKind::multires     ? "multires"
+         : kind == MapKind::multires16 ? "multires16"
+                                       : "single_res";
+}
 enum class PoseSource : std::uint8_t { track, ground_truth, external, external_prior };
 const char* pose_source_name(PoseSource source);
 
@@ -347,5 +363,6 @@ class Pipeline {
 
 extern template class Pipeline<TsdfVoxel>;
 extern template class Pipeline<MultiresVoxel>;
+extern template class Pipeline<Multires16Voxel>;
 
 }  // namespace octofuse

@@ -117,5 +117,6 @@ class MapQuery {
 
 extern template class MapQuery<TsdfVoxel>;
 extern template class MapQuery<MultiresVoxel>;
+extern template class MapQuery<Multires16Voxel>;
 
 }  // namespace octofuse

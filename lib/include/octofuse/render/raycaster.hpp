@@ -163,5 +163,6 @@ class Raycaster {
 
 extern template class Raycaster<TsdfVoxel>;
 extern template class Raycaster<MultiresVoxel>;
+extern template class Raycaster<Multires16Voxel>;
 
 }  // namespace octofuse

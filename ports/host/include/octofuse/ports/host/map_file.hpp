@@ -47,5 +47,9 @@ extern template Status load_map_file(const char*, Octree<TsdfVoxel>&, FreeSpace*
                                      ErrorText*);
 extern template Status load_map_file(const char*, Octree<MultiresVoxel>&, FreeSpace*,
                                      MapFileHeader*, ErrorText*);
+extern template Status save_map_file(const char*, const Octree<Multires16Voxel>&, const FreeSpace*,
+                                     const MapSaveInfo&, ErrorText*);
+extern template Status load_map_file(const char*, Octree<Multires16Voxel>&, FreeSpace*,
+                                     MapFileHeader*, ErrorText*);
 
 }  // namespace octofuse::host

@@ -473,6 +473,13 @@ FrameObservation Pipeline<VoxelT>::observe_frame(const FrameStats& stats, bool i
                            static_cast<double>(block_scale_count(scale));
     }
     o.integrate.ms = stats.times.integrate_ms;
+    // A coarsened block saved at most a scale-0 block less a scale-1 one; a skipped one at most
+    // a whole block.
+    o.integrate.demand = o.integrate.units +
+                         static_cast<double>(stats.integration.budget_blocks_coarsened) *
+                             static_cast<double>(block_scale_count(0) - block_scale_count(1)) +
+                         static_cast<double>(stats.integration.budget_blocks_skipped) *
+                             static_cast<double>(block_scale_count(0));
   }
   if (carved) {
     o.free_space.ran = true;
@@ -485,6 +492,11 @@ FrameObservation Pipeline<VoxelT>::observe_frame(const FrameStats& stats, bool i
     o.raycast.budget_hit = stats.raycast.budget_hit();
     o.raycast.units = static_cast<double>(stats.raycast.steps);
     o.raycast.ms = stats.times.raycast_ms;
+    // The pixels left invalid would have marched as the others did.
+    const double pixels =
+        static_cast<double>(working_camera_.width) * static_cast<double>(working_camera_.height);
+    const double reached = pixels - static_cast<double>(stats.raycast.budget_cut_pixels);
+    if (reached > 0.0) o.raycast.demand = o.raycast.units * pixels / reached;
   }
   return o;
 }

@@ -18,11 +18,12 @@ constexpr double kTolerance_ms = 1e-9;
 
 CostModel hand_model() {
   CostModel m;
-  m.fixed_ms = 2.0;
-  m.icp_ms_per_mpixel_iteration = 100.0;  // one finest iteration: 1 ms
-  m.integrate_ms_per_mvoxel = 10.0;
-  m.raycast_ms_per_mstep = 50.0;
-  m.free_space_ms_per_mvisit = 200.0;
+  // Fixed parts 2 ms in all: 1 for the frame and a quarter for each stage.
+  m.fixed_ms = 1.0;
+  m.icp = {0.25, 100.0};  // one finest iteration: 1 ms
+  m.integrate = {0.25, 10.0};
+  m.raycast = {0.25, 50.0};
+  m.free_space = {0.25, 200.0};
   return m;
 }
 
@@ -148,32 +149,51 @@ TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
   CHECK(previous == static_cast<int>(DeadlineStep::free_space));
 }
 
-TEST_CASE("an adapting model learns the rates from times that follow the work") {
-  // True rates twice and half the starting ones: rising is fast, falling gradual.
-  DeadlineConfig config = hand_config(40.0);
+TEST_CASE("an adapting model learns each stage's line from times that follow the work") {
+  // Each stage costs a fixed part plus a rate per unit; the units vary from frame to frame as
+  // budgets and views do, which shows the slope apart from the fixed part.
+  DeadlineConfig config = hand_config(1000.0);
   config.adapt = true;
   DeadlineController controller;
   controller.reset(config, kIcp, kSide, kSide, true, true);
-  constexpr double kIcpRate = 200.0, kVoxelRate = 5.0, kStepRate = 100.0, kVisitRate = 100.0;
-  constexpr double kFixed_ms = 1.0;
+  const StageCost icp{0.5, 200.0}, voxels{3.0, 5.0}, steps{4.0, 100.0}, visits{0.1, 300.0};
+  constexpr double kFixed_ms = 1.5;
   for (int frame = 0; frame < 200; ++frame) {
     const DeadlineReport plan = controller.plan();
+    const double scale = 1.0 + 0.25 * static_cast<double>(frame % 4);
     FrameObservation o;
     o.timed = true;
-    o.icp = {true, false, 58750.0, 58750.0 * 1e-6 * kIcpRate};
-    o.integrate = {true, false, 1e6, 1e6 * 1e-6 * kVoxelRate};
-    o.raycast = {true, false, 2e5, 2e5 * 1e-6 * kStepRate};
-    o.free_space = {true, false, 1e4, 1e4 * 1e-6 * kVisitRate};
+    o.icp = {true, false, 58750.0 * scale, icp.ms(58750.0 * scale)};
+    o.integrate = {true, false, 1e6 * scale, voxels.ms(1e6 * scale)};
+    o.raycast = {true, false, 2e5 / scale, steps.ms(2e5 / scale)};
+    o.free_space = {true, false, 1e4 * scale, visits.ms(1e4 * scale)};
     o.total_ms = kFixed_ms + o.icp.ms + o.integrate.ms + o.raycast.ms + o.free_space.ms;
     controller.observe(o, plan);
   }
   const CostModel& m = controller.model();
-  CHECK(m.icp_ms_per_mpixel_iteration == Approx(kIcpRate).epsilon(1e-6));
-  CHECK(m.integrate_ms_per_mvoxel == Approx(kVoxelRate).epsilon(1e-3));
-  CHECK(m.raycast_ms_per_mstep == Approx(kStepRate).epsilon(1e-6));
-  CHECK(m.free_space_ms_per_mvisit == Approx(kVisitRate).epsilon(1e-3));
-  CHECK(m.fixed_ms == Approx(kFixed_ms).epsilon(1e-3));
-  CHECK(m.safety == 1.0);  // 38.75 ms frames never went over 40
+  constexpr double kRelative = 1e-9;
+  CHECK(m.icp.ms_per_munit == Approx(icp.ms_per_munit).epsilon(kRelative));
+  CHECK(m.icp.fixed_ms == Approx(icp.fixed_ms).epsilon(kRelative));
+  CHECK(m.integrate.ms_per_munit == Approx(voxels.ms_per_munit).epsilon(kRelative));
+  CHECK(m.integrate.fixed_ms == Approx(voxels.fixed_ms).epsilon(kRelative));
+  CHECK(m.raycast.ms_per_munit == Approx(steps.ms_per_munit).epsilon(kRelative));
+  CHECK(m.raycast.fixed_ms == Approx(steps.fixed_ms).epsilon(kRelative));
+  CHECK(m.free_space.ms_per_munit == Approx(visits.ms_per_munit).epsilon(kRelative));
+  CHECK(m.free_space.fixed_ms == Approx(visits.fixed_ms).epsilon(kRelative));
+  CHECK(m.fixed_ms == Approx(kFixed_ms).epsilon(1e-6));
+  CHECK(m.safety == 1.0);  // never over 1000 ms
+
+  // Units that do not vary keep the rate and put the line through their mean.
+  DeadlineController steady;
+  steady.reset(config, kIcp, kSide, kSide, true, true);
+  for (int frame = 0; frame < 50; ++frame) {
+    FrameObservation o = demand_frame();
+    o.timed = true;
+    o.raycast.ms = 12.0;  // 2e5 steps: 2 ms over the starting line's 10.25
+    steady.observe(o, steady.plan());
+  }
+  CHECK(steady.model().raycast.ms_per_munit == 50.0);
+  CHECK(steady.model().raycast.fixed_ms == Approx(2.0));
 }
 
 TEST_CASE("a frozen model reads no time; overruns raise an adapting model's safety factor") {
@@ -185,7 +205,8 @@ TEST_CASE("a frozen model reads no time; overruns raise an adapting model's safe
   slow.raycast.ms = 900.0;
   frozen.observe(slow, frozen.plan());
   frozen.observe(slow, frozen.plan());
-  CHECK(frozen.model().raycast_ms_per_mstep == hand_model().raycast_ms_per_mstep);
+  CHECK(frozen.model().raycast.ms_per_munit == hand_model().raycast.ms_per_munit);
+  CHECK(frozen.model().raycast.fixed_ms == hand_model().raycast.fixed_ms);
   CHECK(frozen.model().safety == 1.0);
 
   DeadlineConfig config = hand_config(10.0);
@@ -194,9 +215,15 @@ TEST_CASE("a frozen model reads no time; overruns raise an adapting model's safe
   adapting.reset(config, kIcp, kSide, kSide, true, true);
   adapting.observe(slow, adapting.plan());  // unplanned: the safety factor stays
   CHECK(adapting.model().safety == 1.0);
-  adapting.observe(slow, adapting.plan());
+  DeadlineReport met = adapting.plan();
+  met.infeasible = false;
+  adapting.observe(slow, met);
   CHECK(adapting.model().safety == Approx(1.2));
-  for (int i = 0; i < 100; ++i) adapting.observe(slow, adapting.plan());
+  DeadlineReport below_floors = met;
+  below_floors.infeasible = true;  // the floors alone did not fit: no fault of the model
+  adapting.observe(slow, below_floors);
+  CHECK(adapting.model().safety == Approx(1.2));
+  for (int i = 0; i < 100; ++i) adapting.observe(slow, met);
   CHECK(adapting.model().safety == 16.0);
   CHECK(validate(adapting.model()).ok());
 }
@@ -213,8 +240,18 @@ TEST_CASE("bad deadline settings and models are refused with a reason") {
   CHECK(std::string(error.c_str()).find("deadline_ms") != std::string::npos);
   for (const double bad : {0.0, -1.0, nan, inf, 2e6}) {
     CostModel m;
-    m.raycast_ms_per_mstep = bad;
+    m.raycast.ms_per_munit = bad;
     CHECK(validate(m, &error).code() == StatusCode::invalid_argument);
+  }
+  for (const double bad : {-1.0, nan, inf, 2e6}) {
+    CostModel m;
+    m.integrate.fixed_ms = bad;
+    CHECK(validate(m, &error).code() == StatusCode::invalid_argument);
+  }
+  {
+    CostModel m;
+    m.free_space.fixed_ms = 0.0;  // a fixed part may be nothing
+    CHECK(validate(m).ok());
   }
   for (const double bad : {0.5, 17.0, nan}) {
     CostModel m;

@@ -14,15 +14,17 @@
 // Units per stage (the quantities the budgets bound): ICP pixel-iterations (a pyramid level's
 // pixels times its iterations, summed), integration voxel cost (block_scale_count of each
 // integrated block's scale, as FusionBudget::max_voxel_updates counts it), ray-cast march steps,
-// free-space node visits. The model keeps milliseconds per million units of each and a fixed
-// part (validation, pre-processing and what the stages do besides their units).
+// free-space node visits. Each stage costs a fixed part plus milliseconds per million units (the
+// ray-cast, for one, projects the map's octants and clears every pixel whatever its step budget;
+// integration marches every ray to find its blocks before it updates a voxel), and the frame a
+// fixed part of its own (validation, pre-processing).
 //
 // Once all floors are in the plan and the frame still does not fit, the plan says so
 // (infeasible) and the frame runs at the floors.
 //
 // Where determinism is lost: with `adapt` the model learns from the stage times the clock
-// measures (an asymmetric running mean that follows increases fast and decreases slowly, and a
-// safety factor raised after each frame over the deadline), so the budgets, and through them the
+// measures (per stage a least-squares line through the recent frames' units and times, and a
+// safety factor raised after each frame over a deadline its plan met), so the budgets, and the
 // map and the trajectory, depend on the machine and its load. A frozen model (`adapt` false)
 // reads no time: the budgets follow from the model's numbers and the work counts of the earlier
 // frames, which are the same for any worker count and CPU, so the same model and input give
@@ -36,20 +38,26 @@
 
 namespace octofuse {
 
-// Milliseconds per million units of each stage (see the top of this file), and a fixed part per
-// frame. `safety` (>= 1) multiplies the modelled frame time before it is compared with the
-// deadline. The defaults are the medians of a 1-thread 7-Scenes run at 1 cm, QVGA, on a 2-core
-// x86-64; a run calibrates them within a few frames.
+// One stage: fixed_ms whenever it runs, plus ms_per_munit per million units.
+struct StageCost {
+  double fixed_ms = 0.0;
+  double ms_per_munit = 1.0;
+  double ms(double units) const { return fixed_ms + ms_per_munit * units * 1e-6; }
+};
+
+// The machine's costs (see the top of this file). `safety` (>= 1) multiplies the modelled frame
+// time before it is compared with the deadline. The defaults are rounded from 7-Scenes at 1 cm,
+// QVGA, 1 thread on a 2-core x86-64; a run calibrates them within a few frames.
 struct CostModel {
-  double fixed_ms = 3.5;
-  double icp_ms_per_mpixel_iteration = 35.0;
-  double integrate_ms_per_mvoxel = 14.0;
-  double raycast_ms_per_mstep = 110.0;
-  double free_space_ms_per_mvisit = 350.0;
+  double fixed_ms = 3.5;                // validation and pre-processing, per frame
+  StageCost icp = {0.5, 33.0};          // per million pixel-iterations
+  StageCost integrate = {5.0, 10.0};    // per million voxels
+  StageCost raycast = {5.0, 90.0};      // per million march steps
+  StageCost free_space = {0.5, 400.0};  // per million node visits
   double safety = 1.0;
 };
 
-// ok, or invalid_argument: every rate and fixed_ms must be finite and in (0, 1e6], safety in
+// ok, or invalid_argument: fixed parts finite in [0, 1e6], rates finite in (0, 1e6], safety in
 // [1, 16].
 Status validate(const CostModel& model, ErrorText* error = nullptr);
 
@@ -108,6 +116,10 @@ struct StageObservation {
   bool budget_hit = false;  // its budget bound (it wanted more)
   double units = 0.0;
   double ms = 0.0;
+  // With budget_hit: the units it would have done unbounded, as far as the stage's report shows
+  // (the ray-cast's steps scaled by the pixels it reached, integration's units plus the most
+  // its coarsened and skipped blocks could have cost); 0 where unknown.
+  double demand = 0.0;
 };
 struct FrameObservation {
   bool timed = false;  // the times come from a clock (a null clock reads none)
@@ -132,7 +144,15 @@ class DeadlineController {
   const DeadlineConfig& config() const { return config_; }
 
  private:
-  double icp_cost_ms(const int iterations[kPyramidLevels]) const;
+  // Units and times of the recent frames of one stage, each older frame weighing kForget less.
+  struct Regression {
+    double weight = 0.0;
+    double units = 0.0, ms = 0.0, units_sq = 0.0, units_ms = 0.0;
+  };
+  static void learn(Regression& regression, StageCost& cost, double units, double ms);
+  double icp_units(const int iterations[kPyramidLevels]) const;
+
+  Regression icp_fit_, integrate_fit_, raycast_fit_, free_space_fit_;
 
   DeadlineConfig config_;
   CostModel model_;

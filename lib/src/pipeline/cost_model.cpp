@@ -191,10 +191,12 @@ DeadlineReport DeadlineController::plan() const {
     cut(visits, config_.min_free_space_fraction, visit_rate, DeadlineStep::free_space);
   }
   r.infeasible = over_ms > kNegligible_ms;
-  // To the nearest unit: the remainders above are rounding, and half a unit costs nothing.
-  r.max_voxel_updates = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(voxels + 0.5));
-  r.raycast_steps = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(steps + 0.5));
-  r.free_space_visits = static_cast<std::uint32_t>(std::clamp(visits + 0.5, 1.0, 4294967295.0));
+  // Whole units, rounded down but for the rounding of the subtractions above (a millionth of a
+  // unit), so a budget never buys more than the plan's time.
+  auto whole = [](double units) { return std::floor(units + 1e-6); };
+  r.max_voxel_updates = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(whole(voxels)));
+  r.raycast_steps = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(whole(steps)));
+  r.free_space_visits = static_cast<std::uint32_t>(std::clamp(whole(visits), 1.0, 4294967295.0));
   r.predicted_ms = (fixed_ms + stages_ms(r.icp_iterations, static_cast<double>(r.max_voxel_updates),
                                          static_cast<double>(r.raycast_steps),
                                          static_cast<double>(r.free_space_visits))) *

@@ -33,6 +33,13 @@ DeadlineConfig hand_config(double deadline_ms) {
   c.model = hand_model();
   c.adapt = false;
   c.demand_growth = 1.0f;  // budgets equal to the demand, so the sums below are exact
+  // Floors as the hand computations below assume (not the defaults).
+  c.min_icp_iterations[0] = 1;
+  c.min_icp_iterations[1] = 1;
+  c.min_icp_iterations[2] = 2;
+  c.min_voxel_fraction = 0.25f;
+  c.min_raycast_fraction = 0.25f;
+  c.min_free_space_fraction = 0.0f;
   return c;
 }
 

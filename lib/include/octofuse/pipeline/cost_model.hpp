@@ -67,9 +67,9 @@ struct DeadlineConfig {
   bool adapt = true;         // false: frozen model, deterministic budgets (see above)
   // Floors of the cuts. ICP index 0 = finest level, as PipelineBudget::icp_iterations; a floor
   // above the configured budget is the configured budget.
-  int min_icp_iterations[kPyramidLevels] = {1, 1, 2};
+  int min_icp_iterations[kPyramidLevels] = {2, 2, 4};
   float min_voxel_fraction = 0.25f;
-  float min_raycast_fraction = 0.25f;
+  float min_raycast_fraction = 0.5f;
   float min_free_space_fraction = 0.0f;  // at least one visit stays
   // A stage that is not cut gets its demand times this as its budget, so a view that asks for a
   // little more than the last one is served whole.

@@ -260,12 +260,15 @@ void DeadlineController::observe(const FrameObservation& frame, const DeadlineRe
           std::clamp(model_.fixed_ms + kFixedGain * (rest_ms - model_.fixed_ms), 0.0, kMaxValue);
     }
   }
-  // Only a plan that met the deadline on paper says the model was short; below the floors
-  // nothing would help.
-  if (plan.planned && !plan.infeasible) {
-    model_.safety = frame.total_ms > config_.deadline_ms
-                        ? std::min(kMaxSafety, model_.safety * kSafetyRise)
-                        : std::max(1.0, model_.safety * kSafetyFall);
+  // Only a plan that met the deadline on paper and missed it says the model was short (below
+  // the floors nothing would help); any frame within the deadline lets the factor fall, or one
+  // raised by a burst of load would keep every later plan at its floors.
+  if (plan.planned) {
+    if (frame.total_ms <= config_.deadline_ms) {
+      model_.safety = std::max(1.0, model_.safety * kSafetyFall);
+    } else if (!plan.infeasible) {
+      model_.safety = std::min(kMaxSafety, model_.safety * kSafetyRise);
+    }
   }
 }
 

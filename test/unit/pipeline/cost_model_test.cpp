@@ -230,6 +230,10 @@ TEST_CASE("a frozen model reads no time; overruns raise an adapting model's safe
   below_floors.infeasible = true;  // the floors alone did not fit: no fault of the model
   adapting.observe(slow, below_floors);
   CHECK(adapting.model().safety == Approx(1.2));
+  FrameObservation quick = slow;
+  quick.total_ms = 5.0;
+  adapting.observe(quick, below_floors);  // within the deadline, feasible or not: it falls
+  CHECK(adapting.model().safety == Approx(1.2 * 0.999));
   for (int i = 0; i < 100; ++i) adapting.observe(slow, met);
   CHECK(adapting.model().safety == 16.0);
   CHECK(validate(adapting.model()).ok());

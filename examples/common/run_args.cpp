@@ -71,6 +71,14 @@ void print_run_usage(const char* program, const char* default_source) {
       "                       blocks farthest from the camera until it is at LOW %% (default\n"
       "                       90,80; off: a full pool refuses new blocks instead)\n"
       "  --budget-evict N     evict at most N blocks per frame\n"
+      "  --deadline-ms D      keep each frame within D ms (0: off): the budgets above are derived\n"
+      "                       per frame from a cost model of this machine, learnt as it runs,\n"
+      "                       cut in the degradation order (ICP, voxel updates, ray-cast steps,\n"
+      "                       free space); stats.json says what each frame gave up\n"
+      "  --deadline-calibration FILE   start the cost model from FILE when it exists and write\n"
+      "                       the learnt one to it after the run\n"
+      "  --deadline-freeze    use FILE's model as it is, learning nothing: the same input and\n"
+      "                       calibration give the same result on any machine and thread count\n"
       "  --no-free-space      do not record free space (queries then know only the TSDF band)\n"
       "  --query-points FILE  answer FILE's points (one 'x y z' per line, metres, world frame)\n"
       "                       against the final map into DIR/queries.txt:\n"
@@ -518,6 +526,35 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.budget.max_evictions);
        return o.budget.max_evictions > 0;
      }},
+    {"deadline-ms", true,
+     [](RunOptions& o, const std::string& v) {
+       double number = 0.0;
+       if (!cli::parse_double(v, 0.0, 10000.0, number)) {
+         return std::string(" needs milliseconds in [0, 10000] (0: off)");
+       }
+       o.deadline_ms = number;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.deadline_ms);
+       return o.deadline_ms > 0.0;
+     }},
+    {"deadline-calibration", true,
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a file");
+       o.deadline_calibration = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.deadline_calibration;
+       return !o.deadline_calibration.empty();
+     }},
+    {"deadline-freeze", false,
+     [](RunOptions& o, const std::string&) {
+       o.deadline_freeze = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(o.deadline_freeze, v); }},
     {"no-free-space", false,
      [](RunOptions& o, const std::string&) {
        o.free_space = false;
@@ -696,6 +733,14 @@ bool parse_run_args(int argc, char** argv, RunOptions* options, RunArgsRequest* 
     *error = "--odometry and --gt-poses exclude each other";
     return false;
   }
+  if (!options->deadline_calibration.empty() && !(options->deadline_ms > 0.0)) {
+    *error = "--deadline-calibration needs --deadline-ms D (D > 0)";
+    return false;
+  }
+  if (options->deadline_freeze && options->deadline_calibration.empty()) {
+    *error = "--deadline-freeze needs --deadline-calibration FILE";
+    return false;
+  }
   if (options->save_every > 0 && options->save_map_path.empty()) {
     *error = "--save-every needs --save-map FILE";
     return false;
@@ -737,6 +782,13 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
   if (summary.have_ate) {
     std::printf("ATE RMSE %.2f cm (max %.2f cm)\n", summary.ate_rmse_m * 100.0,
                 summary.ate_max_m * 100.0);
+  }
+  if (options.deadline_ms > 0.0 && !summary.frames.empty()) {
+    std::printf("deadline %.1f ms: %llu of %zu frames over (%.2f %%)\n", options.deadline_ms,
+                static_cast<unsigned long long>(summary.frames_over_deadline),
+                summary.frames.size(),
+                100.0 * static_cast<double>(summary.frames_over_deadline) /
+                    static_cast<double>(summary.frames.size()));
   }
   if (summary.map_loaded) {
     std::printf("loaded %s: %u blocks, %u free-space nodes in %.3f s\n",

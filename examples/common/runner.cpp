@@ -4,6 +4,7 @@
 
 #include <sys/stat.h>
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -11,6 +12,7 @@
 #include <memory>
 #include <utility>
 
+#include "deadline_calibration.hpp"
 #include "host_memory.hpp"
 #include "live_server.hpp"
 #include "looping_source.hpp"
@@ -123,6 +125,29 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("free_space_nodes").value(static_cast<std::uint64_t>(s.free_space.nodes_used));
   json.key("free_space_pruned").value(static_cast<std::uint64_t>(s.free_space.pruned));
   json.key("blocks_used").value(static_cast<std::uint64_t>(s.memory.blocks_used));
+  if (s.deadline.active) {
+    // What the frame deadline derived and what the frame gave up for it (budgets 0: configured).
+    const DeadlineReport& d = s.deadline;
+    json.key("deadline").begin_object();
+    json.key("over").value(d.over);
+    json.key("planned").value(d.planned);
+    json.key("infeasible").value(d.infeasible);
+    json.key("cut_to").value(deadline_step_name(d.deepest));
+    json.key("predicted_ms").value(d.predicted_ms);
+    json.key("icp_iterations").begin_array();
+    for (const int iterations : d.icp_iterations) json.value(iterations);
+    json.end_array();
+    json.key("icp_iterations_given_up").value(d.icp_iterations_given_up);
+    json.key("max_voxel_updates").value(d.max_voxel_updates);
+    json.key("raycast_steps").value(d.raycast_steps);
+    json.key("free_space_visits").value(static_cast<std::uint64_t>(d.free_space_visits));
+    json.key("blocks_coarsened")
+        .value(static_cast<std::uint64_t>(s.integration.budget_blocks_coarsened));
+    json.key("blocks_skipped")
+        .value(static_cast<std::uint64_t>(s.integration.budget_blocks_skipped));
+    json.key("raycast_pixels_cut").value(static_cast<std::uint64_t>(s.raycast.budget_cut_pixels));
+    json.end_object();
+  }
   json.end_object();
 }
 
@@ -391,6 +416,20 @@ void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, 
 template <typename VoxelT>
 int run_typed(const RunOptions& options, RunSummary* summary) {
   std::string error;
+  // The deadline's starting model: the calibration file when there is one (frozen: it must be).
+  CostModel deadline_model;
+  if (!options.deadline_calibration.empty()) {
+    std::FILE* probe = std::fopen(options.deadline_calibration.c_str(), "rb");
+    const bool absent = probe == nullptr && errno == ENOENT;
+    if (probe != nullptr) std::fclose(probe);
+    if (!absent || options.deadline_freeze) {
+      if (!read_deadline_calibration(options.deadline_calibration, &deadline_model, &error)) {
+        return error_exit(error);
+      }
+      summary->deadline_calibration_loaded = true;
+    }
+  }
+  summary->deadline_model = deadline_model;
   std::vector<Eigen::Vector3f> query_points;
   if (!options.query_points_path.empty() &&
       !load_query_points(options.query_points_path, &query_points, &error)) {
@@ -472,6 +511,9 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
           options.odometry_only ? PoseSource::external : PoseSource::external_prior;
     }
     config.budget = options.budget;
+    config.deadline.deadline_ms = options.deadline_ms;
+    config.deadline.model = deadline_model;
+    config.deadline.adapt = !options.deadline_freeze;
     config.eviction = options.eviction;
     config.free_space.enabled = options.free_space;
     if (load_map && loaded.free_node_count > 0) {
@@ -681,6 +723,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       continue;
     }
     consecutive_failures = 0;
+    if (stats.deadline.over) ++summary->frames_over_deadline;
     if (stats.result == FrameResult::lost) ++summary->frames_lost;
     if (stats.result == FrameResult::nearly_empty) ++summary->frames_nearly_empty;
     if (stats.pose_origin == PoseOrigin::prior_gate) ++summary->frames_prior_gate;
@@ -790,6 +833,14 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   if (buffer == nullptr) return error_exit(options.source_spec + ": no usable frame");
   summary->frames_lost = pipeline.frames_lost();
   summary->map_memory = pipeline.map().memory();
+  if (options.deadline_ms > 0.0) {
+    summary->deadline_model = pipeline.cost_model();
+    if (!options.deadline_calibration.empty() && !options.deadline_freeze &&
+        !write_deadline_calibration(options.deadline_calibration, summary->deadline_model,
+                                    &error)) {
+      return error_exit(error);
+    }
+  }
   if (options.free_space) summary->free_space_bytes = pipeline.free_space().bytes_used();
   if constexpr (std::is_same_v<VoxelT, MultiresVoxel>) {
     if (options.inspect_final_map) options.inspect_final_map(pipeline.query());
@@ -958,6 +1009,32 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       json.key("ate_max_m").value(summary->ate_max_m);
     }
     json.key("wall_s").value(summary->wall_s);
+    if (options.deadline_ms > 0.0) {
+      const CostModel& m = summary->deadline_model;
+      json.key("deadline").begin_object();
+      json.key("deadline_ms").value(options.deadline_ms);
+      json.key("frozen").value(options.deadline_freeze);
+      json.key("calibration_loaded").value(summary->deadline_calibration_loaded);
+      json.key("frames_over").value(summary->frames_over_deadline);
+      json.key("share_over")
+          .value(summary->frames_processed > 0
+                     ? static_cast<double>(summary->frames_over_deadline) /
+                           static_cast<double>(summary->frames_processed)
+                     : 0.0);
+      json.key("model").begin_object();
+      json.key("fixed_ms").value(m.fixed_ms);
+      json.key("icp_fixed_ms").value(m.icp.fixed_ms);
+      json.key("icp_ms_per_mpixel_iteration").value(m.icp.ms_per_munit);
+      json.key("integrate_fixed_ms").value(m.integrate.fixed_ms);
+      json.key("integrate_ms_per_mvoxel").value(m.integrate.ms_per_munit);
+      json.key("raycast_fixed_ms").value(m.raycast.fixed_ms);
+      json.key("raycast_ms_per_mstep").value(m.raycast.ms_per_munit);
+      json.key("free_space_fixed_ms").value(m.free_space.fixed_ms);
+      json.key("free_space_ms_per_mvisit").value(m.free_space.ms_per_munit);
+      json.key("safety").value(m.safety);
+      json.end_object();
+      json.end_object();
+    }
     json.end_object();
     json.end_object();
     ErrorText json_error;

@@ -36,6 +36,12 @@ struct RunOptions {
   std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
   float map_memory_mb = 1024.0f;  // used when max_blocks is 0
   PipelineBudget budget;
+  // --deadline-ms: a per-frame time limit the budgets are derived from (0 = off); the cost model
+  // starts from --deadline-calibration FILE when it exists and is written back to it after the
+  // run, unless --deadline-freeze keeps it fixed (then FILE must exist, and results repeat).
+  double deadline_ms = 0.0;
+  std::string deadline_calibration;
+  bool deadline_freeze = false;
   // --evict: on by default in the programs, so a memory cap bounds the map instead of tracking.
   EvictionConfig eviction = {true, 0.9f, 0.8f};
   bool bilateral = false;
@@ -116,6 +122,11 @@ struct RunSummary {
   std::uint32_t map_saves = 0;  // files written by --save-map (periodic and final)
   double map_last_save_s = 0.0;
   std::uint64_t map_file_bytes = 0;  // size of the last map file written
+  // With --deadline-ms: the cost model at the end of the run (what --deadline-calibration saves),
+  // and the frames whose process() time exceeded the deadline.
+  CostModel deadline_model;
+  std::uint64_t frames_over_deadline = 0;
+  bool deadline_calibration_loaded = false;
 };
 
 // 0 when the outputs were written (check summary->failure too); otherwise prints "error: ..."

@@ -119,7 +119,12 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "in.ofmap",
                  "--no-free-space",
                  "--query-points",
-                 "points.txt"},
+                 "points.txt",
+                 "--deadline-ms",
+                 "33.5",
+                 "--deadline-calibration",
+                 "board.cal",
+                 "--deadline-freeze"},
                 &options, &error));
   const std::string printed = print(options);
   // Nothing left at a default but the odometry options, which exclude --gt-poses (the next test

@@ -109,6 +109,30 @@ TEST_CASE("octofuse-replay: bad command lines end before any output", "[programs
     CHECK(run.exit_status == 2);
     CHECK(has(error_line(run), "--budget-icp needs three iteration counts"));
   }
+  SECTION("--deadline-ms NaN") {
+    const test::RunResult run =
+        test::run_replay({"--deadline-ms", "nan", "--out", dir + "/out"}, log);
+    CHECK(run.exit_status == 2);
+    CHECK(error_line(run) == "error: --deadline-ms needs milliseconds in [0, 10000] (0: off)");
+    CHECK_FALSE(test::file_exists(dir + "/out"));
+  }
+  SECTION("--deadline-freeze without a calibration file") {
+    const test::RunResult run = test::run_replay({"--deadline-ms", "33", "--deadline-freeze"}, log);
+    CHECK(run.exit_status == 2);
+    CHECK(error_line(run) == "error: --deadline-freeze needs --deadline-calibration FILE");
+  }
+  SECTION("a corrupt deadline calibration") {
+    const std::string calibration = dir + "/corrupt.cal";
+    write_text(calibration, "fixed_ms = 3\nsafety = 1e400\n");
+    const test::RunResult run =
+        test::run_replay({"--deadline-ms", "33", "--deadline-calibration", calibration, "--out",
+                          dir + "/out", "--frames", "2"},
+                         log);
+    CHECK(run.exit_status == 1);
+    CHECK(error_line(run) ==
+          "error: " + calibration + ":2: safety needs a number in [1, 16], not '1e400'");
+    CHECK_FALSE(test::file_exists(dir + "/out"));
+  }
 }
 
 TEST_CASE("octofuse-replay: bad 7-Scenes recordings", "[programs]") {

@@ -132,6 +132,10 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
   if (e.enabled && config.budget.max_evictions == 0) {
     return bad("budget.max_evictions must be >= 1 when eviction is enabled");
   }
+  {
+    ErrorText deadline_error;
+    if (!validate(config.deadline, &deadline_error).ok()) return bad(deadline_error.c_str());
+  }
   if (!config.preprocess.valid()) return bad("preprocess");
   if (!config.track.valid()) return bad("track");
   if (config.workers < 1 || config.workers > 64) return bad("workers must be in [1, 64]");
@@ -289,6 +293,11 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   }
   team_ = WorkerTeam(config.workers);
   working_camera_ = config.input_camera.downsampled(config.preprocess.downsample_factor);
+  deadline_.reset(
+      config.deadline, config.budget.icp_iterations, working_camera_.width, working_camera_.height,
+      config.pose_source == PoseSource::track || config.pose_source == PoseSource::external_prior,
+      config.free_space.enabled);
+  current_ = FrameStats{};
   T_W_C_ = rigid_from(config.initial_T_W_C.matrix());
   T_W_Cref_ = T_W_C_;
   T_Cprev_C_ = Se3d::Identity();
@@ -347,7 +356,8 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
     T_W_Cref_ = T_W_C_;
     return ok_status();
   }
-  // The old reference was seen from elsewhere: ray-cast what the map shows from here.
+  // The old reference was seen from elsewhere: ray-cast what the map shows from here, whole.
+  if (deadline_.active()) raycaster_.set_step_budget(config_.budget.raycast_steps);
   const Result<RaycastStats> raycast = raycaster_.raycast(map_, working_camera_, T_W_C_, team_);
   if (!raycast.ok()) return raycast.status();
   T_W_Cref_ = T_W_C_;
@@ -425,16 +435,100 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
 }
 
 template <typename VoxelT>
+void Pipeline<VoxelT>::apply_deadline(const DeadlineReport& plan) {
+  TrackConfig track = tracker_.config();
+  for (int level = 0; level < kPyramidLevels; ++level) {
+    track.iterations[level] = plan.icp_iterations[level];
+  }
+  // The plan keeps each level within [floor, configured budget], which the config validated.
+  (void)tracker_.set_config(track);
+  // Planned budgets never exceed the configured ones (0 = unbounded there).
+  auto bounded = [](std::uint64_t configured, std::uint64_t planned) {
+    if (planned == 0) return configured;
+    return configured == 0 ? planned : std::min(configured, planned);
+  };
+  raycaster_.set_step_budget(bounded(config_.budget.raycast_steps, plan.raycast_steps));
+  if (free_space_.reserved()) {
+    free_space_.set_visit_budget(static_cast<std::uint32_t>(
+        bounded(config_.free_space.max_node_visits, plan.free_space_visits)));
+  }
+}
+
+template <typename VoxelT>
+FrameObservation Pipeline<VoxelT>::observe_frame(const FrameStats& stats, bool integrated,
+                                                 bool carved, bool raycast_done) const {
+  FrameObservation o;
+  o.timed = clock_.now_us != nullptr;
+  o.total_ms = stats.times.total_ms;
+  if (stats.track_attempted) {
+    o.icp.ran = true;
+    o.icp.budget_hit = stats.budget_icp_hit;
+    for (int level = 0; level < kPyramidLevels; ++level) {
+      o.icp.units += static_cast<double>(stats.track.iterations[level]) *
+                     static_cast<double>(working_camera_.width >> level) *
+                     static_cast<double>(working_camera_.height >> level);
+    }
+    o.icp.ms = stats.times.track_ms;
+  }
+  if (integrated) {
+    o.integrate.ran = true;
+    o.integrate.budget_hit = stats.integration.budget_hit;
+    for (int scale = 0; scale < 4; ++scale) {
+      o.integrate.units += static_cast<double>(stats.integration.blocks_per_scale[scale]) *
+                           static_cast<double>(block_scale_count(scale));
+    }
+    o.integrate.ms = stats.times.integrate_ms;
+    // A coarsened block saved at most a scale-0 block less a scale-1 one; a skipped one at most
+    // a whole block.
+    o.integrate.demand = o.integrate.units +
+                         static_cast<double>(stats.integration.budget_blocks_coarsened) *
+                             static_cast<double>(block_scale_count(0) - block_scale_count(1)) +
+                         static_cast<double>(stats.integration.budget_blocks_skipped) *
+                             static_cast<double>(block_scale_count(0));
+  }
+  if (carved) {
+    o.free_space.ran = true;
+    o.free_space.budget_hit = stats.free_space.budget_hit;
+    o.free_space.units = static_cast<double>(stats.free_space.node_visits);
+    o.free_space.ms = stats.times.free_space_ms;
+  }
+  if (raycast_done) {
+    o.raycast.ran = true;
+    o.raycast.budget_hit = stats.raycast.budget_hit();
+    o.raycast.units = static_cast<double>(stats.raycast.steps);
+    o.raycast.ms = stats.times.raycast_ms;
+    // The pixels left invalid would have marched as the others did.
+    const double pixels =
+        static_cast<double>(working_camera_.width) * static_cast<double>(working_camera_.height);
+    const double reached = pixels - static_cast<double>(stats.raycast.budget_cut_pixels);
+    if (reached > 0.0) o.raycast.demand = o.raycast.units * pixels / reached;
+  }
+  return o;
+}
+
+template <typename VoxelT>
 Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior,
                                  FrameStats* stats_out) {
-  FrameStats stats;
-  stats.frame_index = frame_index_;
-  stats.timestamp_us = frame.timestamp_us;
   if (!initialised_) {
+    FrameStats stats;
+    stats.frame_index = frame_index_;
+    stats.timestamp_us = frame.timestamp_us;
     if (stats_out != nullptr) *stats_out = stats;
     return StatusCode::failed_precondition;
   }
+  FrameStats& stats = current_;
+  stats = FrameStats{};
+  stats.frame_index = frame_index_;
+  stats.timestamp_us = frame.timestamp_us;
   ++frame_index_;
+  // The frame deadline's budgets for this frame (the configured ones when it is off).
+  stats.deadline = deadline_.plan();
+  const int* icp_budget = config_.budget.icp_iterations;
+  if (deadline_.active()) apply_deadline(stats.deadline);
+  if (stats.deadline.planned) icp_budget = stats.deadline.icp_iterations;
+  bool integrated = false;
+  bool carved = false;
+  bool raycast_done = false;
   const std::int64_t t_start = clock_.now();
   own_error_ = false;
 
@@ -458,6 +552,10 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     stats.T_W_C = T_W_C_;
     stats.memory = map_.memory();
     stats.times.total_ms = elapsed_ms(t_start, clock_.now());
+    if (deadline_.active()) {
+      stats.deadline.over = stats.times.total_ms > stats.deadline.deadline_ms;
+      deadline_.observe(observe_frame(stats, integrated, carved, raycast_done), stats.deadline);
+    }
     if (stats_out != nullptr) *stats_out = stats;
     return status;
   };
@@ -526,7 +624,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
                                  T_W_Cref_, estimate, team_, pull ? &icp_prior : nullptr);
     for (int level = 0; level < kPyramidLevels; ++level) {
-      const int budget = config_.budget.icp_iterations[level];
+      const int budget = icp_budget[level];
       if (budget > 0 && stats.track.iterations[level] >= budget) stats.budget_icp_hit = true;
     }
     if (stats.track.tracked()) {
@@ -566,6 +664,9 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   budget.max_new_blocks = config_.budget.max_new_blocks;
   budget.max_integrated_blocks = config_.budget.max_integrated_blocks;
   budget.max_voxel_updates = config_.budget.max_voxel_updates;
+  if (stats.deadline.max_voxel_updates > 0) {
+    budget.max_voxel_updates = std::min(budget.max_voxel_updates, stats.deadline.max_voxel_updates);
+  }
   std::int64_t t_integrated = 0;
   std::int64_t t_carved = 0;
   {
@@ -575,6 +676,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     stats.integration =
         integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
                               static_cast<std::uint32_t>(stats.frame_index), budget, team_);
+    integrated = true;
     t_integrated = clock_.now();
     const Status fused = stats.integration.status;
     // 4b. Free space seen by this frame (after the TSDF, which takes precedence in its band).
@@ -593,6 +695,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
         stats.free_space.nodes_used = free_space_.node_count();
         stats.free_space.bytes_used = free_space_.bytes_used();
       }
+      carved = true;
     }
     ++map_version_;
     t_carved = clock_.now();
@@ -608,9 +711,12 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   // Guided by the depth just fused from this pose: most rays start in the band in front of it.
   const Result<RaycastStats> raycast =
       raycaster_.raycast(map_, working_camera_, T_W_C_, team_, preprocessor_.pyramid().depth_m[0]);
+  if (raycast.ok()) {
+    stats.raycast = raycast.value();
+    raycast_done = true;
+  }
   stats.times.raycast_ms = elapsed_ms(t_carved, clock_.now());
   if (!raycast.ok()) return finish(result, raycast.status());
-  stats.raycast = raycast.value();
   T_W_Cref_ = T_W_C_;
   have_reference_ = true;
   return finish(result, integration_status);

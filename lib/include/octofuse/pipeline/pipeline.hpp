@@ -40,6 +40,12 @@
 // budgets (FreeSpaceConfig), leaving octants it did not reach as they were. Each hit is reported
 // in FrameStats.
 //
+// Frame deadline (PipelineConfig::deadline, pipeline/cost_model.hpp): with deadline_ms > 0 the
+// budgets of steps (1), (4), (6) and (7) are derived before each frame from a cost model of the
+// machine, learnt from the previous frames' stage times (or frozen), so that the modelled frame
+// time stays within the deadline; they are cut in that order and never above the configured
+// ones. FrameStats::deadline says what the frame gave up. Off (0, the default), nothing changes.
+//
 // Bounded memory (EvictionConfig): before a frame is integrated, when the block pool holds more
 // than high_water of its capacity, blocks are evicted until it holds at most low_water (their
 // space becomes unknown); when the finest-level pool does, blocks give their finest level back
@@ -74,6 +80,7 @@
 #include "octofuse/math/camera.hpp"
 #include "octofuse/math/se3.hpp"
 #include "octofuse/pipeline/clock.hpp"
+#include "octofuse/pipeline/cost_model.hpp"
 #include "octofuse/query/free_space.hpp"
 #include "octofuse/query/map_guard.hpp"
 #include "octofuse/query/map_query.hpp"
@@ -151,6 +158,8 @@ struct PipelineConfig {
   // clearance_m 0 takes mu / 2 and occlusion_clear_m 0 takes 4 mu.
   FreeSpaceConfig free_space;
   EvictionConfig eviction;
+  // A per-frame time limit the budgets are derived from (0 = off: the budgets above as they are).
+  DeadlineConfig deadline;
   int workers = 1;
   PoseSource pose_source = PoseSource::track;
   bool initial_pose_from_ground_truth = true;
@@ -234,6 +243,7 @@ struct FrameStats {
   FreeSpaceReport free_space;     // meaningful when integrated with free space enabled
   RaycastStats raycast;
   bool budget_icp_hit = false;  // ICP stopped by its iteration budget on some level
+  DeadlineReport deadline;      // the budgets a frame deadline derived, and what it gave up
   MapMemory memory;
   Se3d T_W_C = Se3d::Identity();
   PoseOrigin pose_origin = PoseOrigin::none;
@@ -300,6 +310,12 @@ class Pipeline {
   ImageView<const std::uint8_t> scale_image() const { return raycaster_.scale_image(); }
   const PinholeCamera& working_camera() const { return working_camera_; }
   const Se3d& reference_T_W_C() const { return T_W_Cref_; }
+  // The frame deadline's cost model as learnt so far (config().deadline.model before any frame);
+  // give it as DeadlineConfig::model to start a later run from it.
+  const CostModel& cost_model() const { return deadline_.model(); }
+  // The stats of the frame process() is working on, filled stage by stage (each stage's report
+  // before the clock is read after it): a clock that models time from work reads them.
+  const FrameStats& frame_in_progress() const { return current_; }
   const char* last_error() const { return own_error_ ? error_.c_str() : validator_.last_error(); }
   std::uint64_t frames_lost() const { return frames_lost_; }
   // Frames given to process() (the index the next frame gets).
@@ -316,6 +332,11 @@ class Pipeline {
   Status reserve(Arena& arena, const PipelineConfig& config);
   // Step (2): evicts blocks when a pool is above its high-water mark (see EvictionConfig).
   EvictionReport evict(std::uint32_t frame_index);
+  // Sets the tracker's, ray-caster's and free space's budgets from a deadline plan.
+  void apply_deadline(const DeadlineReport& plan);
+  // What the finished frame did and took, for the deadline's model.
+  FrameObservation observe_frame(const FrameStats& stats, bool integrated, bool carved,
+                                 bool raycast_done) const;
   friend std::size_t bytes_required(const PipelineConfig& config);
 
   PipelineConfig config_;
@@ -330,6 +351,8 @@ class Pipeline {
   Integrator<VoxelT> integrator_;
   Raycaster<VoxelT> raycaster_;
   FreeSpace free_space_;
+  DeadlineController deadline_;
+  FrameStats current_;
   // Eviction ranking scratch, one entry per block slot (only when eviction is enabled).
   struct EvictionCandidate {
     std::uint64_t rank = 0;  // higher goes first: not recently updated, then squared distance

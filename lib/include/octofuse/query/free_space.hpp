@@ -223,6 +223,10 @@ class FreeSpace {
   FreeOctant find(const Eigen::Vector3i& voxel) const;
 
   const FreeSpaceConfig& config() const { return config_; }
+  // Changes the node-visit budget between frames (a frame deadline sets it); 0 reads as 1.
+  void set_visit_budget(std::uint32_t max_node_visits) {
+    config_.max_node_visits = max_node_visits > 0 ? max_node_visits : 1u;
+  }
   const MapConfig& map_config() const { return map_; }
   float margin_m() const { return margin_m_; }
   // Level of the smallest octants (the blocks' level for finest_octant_voxels 8).

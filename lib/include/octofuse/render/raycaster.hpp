@@ -145,6 +145,8 @@ class Raycaster {
   void forget_previous_cast() { guided_casts_ = 0; }
 
   const RaycastConfig& config() const { return config_; }
+  // Changes the per-frame step budget between frames (0 = unbounded; a frame deadline sets it).
+  void set_step_budget(std::uint64_t steps) { config_.step_budget = steps; }
   // Valid until the next raycast().
   SurfaceMap surface_W() const { return surface_W_; }
   ImageView<const std::uint8_t> scale_image() const { return scale_; }

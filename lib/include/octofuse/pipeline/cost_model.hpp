@@ -1,0 +1,170 @@
+#pragma once
+// A frame deadline: a cost model of the machine (work units -> milliseconds, per stage) and the
+// controller that derives each frame's budgets from it, so that the modelled frame time stays
+// within the deadline. When the work the last frames asked for does not fit, it cuts in the
+// pipeline's degradation order (pipeline.hpp), each step down to its floor before the next:
+//   (1) ICP iterations, the finest level first, down to min_icp_iterations;
+//   (4) voxel updates (far blocks one scale coarser, then skipped), down to min_voxel_fraction
+//       of the demand;
+//   (6) ray-cast steps (the rows' last pixels stay invalid), down to min_raycast_fraction;
+//   (7) free-space node visits, down to min_free_space_fraction.
+// Eviction (2) answers memory, not time, and is left as configured; new blocks (3) and the
+// integrated-block count (5) are inside the voxel-update budget, which bounds their cost.
+//
+// Units per stage (the quantities the budgets bound): ICP pixel-iterations (a pyramid level's
+// pixels times its iterations, summed), integration voxel cost (block_scale_count of each
+// integrated block's scale, as FusionBudget::max_voxel_updates counts it), ray-cast march steps,
+// free-space node visits. Each stage costs a fixed part plus milliseconds per million units (the
+// ray-cast, for one, projects the map's octants and clears every pixel whatever its step budget;
+// integration marches every ray to find its blocks before it updates a voxel), and the frame a
+// fixed part of its own (validation, pre-processing).
+//
+// Once all floors are in the plan and the frame still does not fit, the plan says so
+// (infeasible) and the frame runs at the floors.
+//
+// Where determinism is lost: with `adapt` the model learns from the stage times the clock
+// measures (per stage a least-squares line through the recent frames' units and times, and a
+// safety factor raised after each frame over a deadline its plan met), so the budgets, and the
+// map and the trajectory, depend on the machine and its load. A frozen model (`adapt` false)
+// reads no time: the budgets follow from the model's numbers and the work counts of the earlier
+// frames, which are the same for any worker count and CPU, so the same model and input give
+// bit-identical results. The demand estimates come from work counts only, in both modes.
+
+#include <cstdint>
+
+#include "octofuse/core/error_text.hpp"
+#include "octofuse/core/status.hpp"
+#include "octofuse/image/depth_pyramid.hpp"
+
+namespace octofuse {
+
+// One stage: fixed_ms whenever it runs, plus ms_per_munit per million units.
+struct StageCost {
+  double fixed_ms = 0.0;
+  double ms_per_munit = 1.0;
+  double ms(double units) const { return fixed_ms + ms_per_munit * units * 1e-6; }
+};
+
+// The machine's costs (see the top of this file). `safety` (>= 1) multiplies the modelled frame
+// time before it is compared with the deadline. The defaults are rounded from 7-Scenes at 1 cm,
+// QVGA, 1 thread on a 2-core x86-64; a run calibrates them within a few frames.
+struct CostModel {
+  double fixed_ms = 3.5;                // validation and pre-processing, per frame
+  StageCost icp = {0.5, 33.0};          // per million pixel-iterations
+  StageCost integrate = {5.0, 10.0};    // per million voxels
+  StageCost raycast = {5.0, 90.0};      // per million march steps
+  StageCost free_space = {0.5, 400.0};  // per million node visits
+  double safety = 1.0;
+};
+
+// ok, or invalid_argument: fixed parts finite in [0, 1e6], rates finite in (0, 1e6], safety in
+// [1, 16].
+Status validate(const CostModel& model, ErrorText* error = nullptr);
+
+struct DeadlineConfig {
+  double deadline_ms = 0.0;  // per frame; 0 = off (the budgets are the configured ones)
+  CostModel model;           // the starting model (a calibration from an earlier run)
+  bool adapt = true;         // false: frozen model, deterministic budgets (see above)
+  // Floors of the cuts. ICP index 0 = finest level, as PipelineBudget::icp_iterations; a floor
+  // above the configured budget is the configured budget.
+  int min_icp_iterations[kPyramidLevels] = {2, 2, 4};
+  float min_voxel_fraction = 0.25f;
+  float min_raycast_fraction = 0.5f;
+  float min_free_space_fraction = 0.0f;  // at least one visit stays
+  // A stage that is not cut gets its demand times this as its budget, so a view that asks for a
+  // little more than the last one is served whole.
+  float demand_growth = 1.25f;
+};
+
+// ok, or invalid_argument: deadline_ms finite in [0, 1e5], the model valid, floors >= 0 and
+// fractions in [0, 1], demand_growth in [1, 4].
+Status validate(const DeadlineConfig& config, ErrorText* error = nullptr);
+
+// Degradation steps a deadline plan cuts (pipeline.hpp's numbering).
+enum class DeadlineStep : std::uint8_t {
+  none = 0,
+  icp = 1,
+  voxel_updates = 4,
+  raycast = 6,
+  free_space = 7,
+};
+const char* deadline_step_name(DeadlineStep step);
+
+// One frame's budgets under a deadline, and what the frame gave up for them.
+struct DeadlineReport {
+  bool active = false;      // a deadline was set and the plan applied
+  bool planned = false;     // false: no demand known yet (the first frame), configured budgets
+  bool infeasible = false;  // the floors alone do not fit the deadline
+  bool over = false;        // the measured frame time exceeded the deadline
+  DeadlineStep deepest = DeadlineStep::none;  // the last step the plan cut
+  double deadline_ms = 0.0;
+  double predicted_ms = 0.0;  // modelled frame time under these budgets, safety included
+  int icp_iterations[kPyramidLevels] = {0, 0, 0};  // budgeted per level
+  int icp_iterations_given_up = 0;                 // below the configured budget, all levels
+  std::uint64_t max_voxel_updates = 0;  // 0 where not cut (the configured budget applies)
+  std::uint64_t raycast_steps = 0;
+  std::uint32_t free_space_visits = 0;
+  // Demand estimates the plan started from (units).
+  double voxel_demand = 0.0;
+  double raycast_demand = 0.0;
+  double free_space_demand = 0.0;
+};
+
+// What one frame did and took, for the controller.
+struct StageObservation {
+  bool ran = false;         // the stage ran this frame
+  bool budget_hit = false;  // its budget bound (it wanted more)
+  double units = 0.0;
+  double ms = 0.0;
+  // With budget_hit: the units it would have done unbounded, as far as the stage's report shows
+  // (the ray-cast's steps scaled by the pixels it reached, integration's units plus the most
+  // its coarsened and skipped blocks could have cost); 0 where unknown.
+  double demand = 0.0;
+};
+struct FrameObservation {
+  bool timed = false;  // the times come from a clock (a null clock reads none)
+  double total_ms = 0.0;
+  StageObservation icp, integrate, raycast, free_space;
+};
+
+class DeadlineController {
+ public:
+  // `icp_iterations`: the configured budget per level; `width` x `height`: the working
+  // resolution (pyramid level 0); `icp_used`: the pose source tracks; `free_space_used`: carving
+  // is on. Forgets the demand estimates and starts from config.model.
+  void reset(const DeadlineConfig& config, const int icp_iterations[kPyramidLevels], int width,
+             int height, bool icp_used, bool free_space_used);
+  bool active() const { return config_.deadline_ms > 0.0; }
+  // The next frame's budgets (see DeadlineReport); configured ones before any observation.
+  DeadlineReport plan() const;
+  // Learns from a finished frame: demand estimates from its work counts; with adapt and a
+  // timed observation, the model's rates, fixed part and safety factor too.
+  void observe(const FrameObservation& frame, const DeadlineReport& plan);
+  const CostModel& model() const { return model_; }
+  const DeadlineConfig& config() const { return config_; }
+
+ private:
+  // Units and times of the recent frames of one stage, each older frame weighing kForget less.
+  struct Regression {
+    double weight = 0.0;
+    double units = 0.0, ms = 0.0, units_sq = 0.0, units_ms = 0.0;
+  };
+  static void learn(Regression& regression, StageCost& cost, double units, double ms);
+  double icp_units(const int iterations[kPyramidLevels]) const;
+
+  Regression icp_fit_, integrate_fit_, raycast_fit_, free_space_fit_;
+
+  DeadlineConfig config_;
+  CostModel model_;
+  int icp_iterations_[kPyramidLevels] = {0, 0, 0};
+  int icp_floor_[kPyramidLevels] = {0, 0, 0};
+  double level_pixels_[kPyramidLevels] = {0.0, 0.0, 0.0};
+  bool icp_used_ = true;
+  bool free_space_used_ = true;
+  bool have_demand_ = false;
+  double voxel_demand_ = 0.0;
+  double raycast_demand_ = 0.0;
+  double free_space_demand_ = 0.0;
+};
+
+}  // namespace octofuse

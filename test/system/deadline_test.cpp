@@ -1,0 +1,364 @@
+// The frame deadline through the whole pipeline, timed by a clock whose stage times are a known
+// function of the work each stage did (the "machine" below): the derived budgets keep that
+// modelled frame time within the deadline, cuts follow the documented order, a frozen
+// calibration gives bit-identical results for 1 and 3 workers whatever the clock says, a
+// deadline of 0 (or one everything fits in) changes nothing, and frames stay allocation-free.
+
+#include <algorithm>
+#include <catch2/catch.hpp>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include "octofuse/pipeline/pipeline.hpp"
+#include "octofuse/ports/sim/sim_source.hpp"
+#include "support/aligned_buffer.hpp"
+#include "support/alloc_counter.hpp"
+
+namespace octofuse {
+namespace {
+
+constexpr int kWidth = 160;
+constexpr int kHeight = 120;
+// The noisy 2 cm desk at 160 x 120 over 60 frames tracks the first 38, deadline or not: the runs
+// take the first kFrames.
+constexpr int kSimFrames = 60;
+constexpr int kFrames = 36;
+
+sim::SimConfig small_sim(int frames) {
+  sim::SimConfig config;
+  config.scene = sim::SceneId::desk;
+  config.frame_count = frames;
+  config.camera.width = kWidth;
+  config.camera.height = kHeight;
+  config.camera.fx = config.camera.fy = 525.0f / 4.0f;
+  config.camera.cx = (kWidth - 1) * 0.5f;
+  config.camera.cy = (kHeight - 1) * 0.5f;
+  return config;
+}
+
+PipelineConfig small_config(const sim::SimSource& source, int workers) {
+  const Se3d T_W_C0 = source.ground_truth_T_W_C(0);
+  PipelineConfig config =
+      default_pipeline_config(source.intrinsics(), 0.02f, 9, 20000,
+                              (T_W_C0.translation() + T_W_C0.linear().col(2)).cast<float>());
+  config.preprocess.downsample_factor = 1;
+  config.workers = workers;
+  config.initial_T_W_C = T_W_C0;
+  return config;
+}
+
+// The modelled machine: what each stage's work costs, in the model's own terms (fixed parts and
+// ms per million units), so a calibration can state it exactly.
+CostModel machine() {
+  CostModel m;
+  m.fixed_ms = 1.0;
+  m.icp = {0.2, 50.0};
+  m.integrate = {0.5, 20.0};
+  m.raycast = {0.3, 100.0};
+  m.free_space = {0.1, 200.0};
+  return m;
+}
+
+double icp_units(const FrameStats& s) {
+  double units = 0.0;
+  for (int level = 0; level < kPyramidLevels; ++level) {
+    units +=
+        static_cast<double>(s.track.iterations[level]) * (kWidth >> level) * (kHeight >> level);
+  }
+  return units;
+}
+
+double voxel_units(const FrameStats& s) {
+  double units = 0.0;
+  for (int scale = 0; scale < 4; ++scale) {
+    units += static_cast<double>(s.integration.blocks_per_scale[scale]) * block_scale_count(scale);
+  }
+  return units;
+}
+
+// Reads the frame the pipeline is working on: each stage's report is in place before the clock
+// is read after it, so the time so far is the modelled cost of the stages done. Frame k starts at
+// k * 10 s; a stage's fixed part counts once its report shows it ran.
+struct ModelClock {
+  const Pipeline<MultiresVoxel>* pipeline = nullptr;
+  CostModel cost = machine();
+
+  static double frame_ms(const FrameStats& s, const CostModel& c) {
+    double ms = 0.0;
+    if (s.input.pixel_count > 0) ms += c.fixed_ms;
+    if (s.track_attempted) ms += c.icp.ms(icp_units(s));
+    if (s.integration.blocks_touched > 0) ms += c.integrate.ms(voxel_units(s));
+    if (s.free_space.node_visits > 0) ms += c.free_space.ms(s.free_space.node_visits);
+    if (s.raycast.steps > 0) ms += c.raycast.ms(static_cast<double>(s.raycast.steps));
+    return ms;
+  }
+  static std::int64_t now_us(void* context) {
+    const ModelClock& self = *static_cast<const ModelClock*>(context);
+    const FrameStats& s = self.pipeline->frame_in_progress();
+    const double ms = static_cast<double>(s.frame_index) * 1e4 + frame_ms(s, self.cost);
+    // Rounded down to the microsecond: the frame's start is a whole one, so a frame never reads
+    // longer than its modelled time.
+    return static_cast<std::int64_t>(std::floor(ms * 1e3));
+  }
+};
+
+std::int64_t steady_now_us(void*) {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+enum class ClockKind { none, model, steady };
+
+struct Run {
+  std::vector<Se3d> poses;
+  std::vector<FrameStats> stats;
+  CostModel final_model;
+  std::uint64_t allocations = 0;
+};
+
+Run run(const PipelineConfig& config, ClockKind clock_kind, int frames = kFrames) {
+  sim::SimSource source(small_sim(kSimFrames));
+  REQUIRE(source.open().ok());
+  const std::size_t bytes = bytes_required(config);
+  REQUIRE(bytes > 0);
+  test::Buffer buffer(bytes);
+  Pipeline<MultiresVoxel> pipeline;
+  ModelClock model_clock;
+  model_clock.pipeline = &pipeline;
+  Clock clock;
+  if (clock_kind == ClockKind::model) clock = Clock{&ModelClock::now_us, &model_clock};
+  if (clock_kind == ClockKind::steady) clock = Clock{&steady_now_us, nullptr};
+  REQUIRE(pipeline.init(buffer.data, bytes, config, clock).ok());
+  Run out;
+  out.poses.reserve(static_cast<std::size_t>(frames));
+  out.stats.reserve(static_cast<std::size_t>(frames));
+  DepthFrame frame;
+  test::AllocationScope scope;
+  while (out.poses.size() < static_cast<std::size_t>(frames) &&
+         source.next(frame).outcome == FrameOutcome::frame) {
+    FrameStats stats;
+    const Status status = pipeline.process(frame, &stats);
+    REQUIRE((status.ok() || stats.result == FrameResult::lost));
+    out.poses.push_back(pipeline.T_W_C());
+    out.stats.push_back(stats);
+  }
+  out.allocations = scope.allocations();
+  out.final_model = pipeline.cost_model();
+  REQUIRE(out.poses.size() == static_cast<std::size_t>(frames));
+  return out;
+}
+
+bool same_bits(const Run& a, const Run& b) {
+  if (a.poses.size() != b.poses.size()) return false;
+  for (std::size_t i = 0; i < a.poses.size(); ++i) {
+    if (std::memcmp(a.poses[i].matrix().data(), b.poses[i].matrix().data(), sizeof(double) * 16) !=
+        0) {
+      return false;
+    }
+    const FrameStats& x = a.stats[i];
+    const FrameStats& y = b.stats[i];
+    if (x.integration.voxels_updated != y.integration.voxels_updated ||
+        x.integration.blocks_allocated != y.integration.blocks_allocated ||
+        x.raycast.steps != y.raycast.steps || x.raycast.valid_pixels != y.raycast.valid_pixels ||
+        x.free_space.node_visits != y.free_space.node_visits ||
+        x.memory.blocks_used != y.memory.blocks_used) {
+      return false;
+    }
+    for (int level = 0; level < kPyramidLevels; ++level) {
+      if (x.track.iterations[level] != y.track.iterations[level]) return false;
+    }
+  }
+  return true;
+}
+
+// The deadline: 85 % of the median modelled frame without one, so most frames must give up work.
+double deadline_for(const Run& unbounded) {
+  std::vector<double> totals;
+  for (const FrameStats& s : unbounded.stats) totals.push_back(s.times.total_ms);
+  std::sort(totals.begin(), totals.end());
+  return 0.85 * totals[totals.size() / 2];
+}
+
+TEST_CASE("derived budgets keep the modelled frame time within the deadline, in order") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 2), ClockKind::model);
+  const double deadline_ms = deadline_for(unbounded);
+  INFO("deadline " << deadline_ms << " ms");
+  REQUIRE(deadline_ms > 5.0);
+
+  PipelineConfig config = small_config(probe, 2);
+  config.deadline.deadline_ms = deadline_ms;
+  config.deadline.model = machine();  // a calibration from an earlier run, still learning
+  const Run limited = run(config, ClockKind::model);
+  REQUIRE(limited.allocations == 0);
+  int planned = 0, cut = 0, over_without = 0, lost = 0, infeasible = 0;
+  int steps_cut[8] = {};
+  for (std::size_t i = 0; i < limited.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = limited.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(d.active);
+    if (s.result == FrameResult::lost) ++lost;
+    if (!d.planned) {
+      REQUIRE(i == 0);  // only the first frame has no demand to plan from
+      continue;
+    }
+    ++planned;
+    if (unbounded.stats[i].times.total_ms > deadline_ms) ++over_without;
+    // The model is the machine, so the plan's prediction bounds the frame: within D unless even
+    // the floors did not fit.
+    REQUIRE(s.times.total_ms <= d.predicted_ms + 1e-3);
+    if (d.infeasible) {
+      ++infeasible;
+      REQUIRE(d.deepest == DeadlineStep::free_space);
+      REQUIRE(d.free_space_visits == 1);
+    } else {
+      REQUIRE(s.times.total_ms <= deadline_ms);
+      REQUIRE_FALSE(d.over);
+    }
+    ++steps_cut[static_cast<int>(d.deepest)];
+    if (d.deepest == DeadlineStep::none) continue;
+    ++cut;
+    // Work within the derived budgets.
+    for (int level = 0; level < kPyramidLevels; ++level) {
+      REQUIRE(s.track.iterations[level] <= d.icp_iterations[level]);
+    }
+    REQUIRE(voxel_units(s) <= static_cast<double>(d.max_voxel_updates));
+    REQUIRE(s.raycast.steps <= d.raycast_steps);
+    REQUIRE(s.free_space.node_visits <= d.free_space_visits);
+    // The documented order: a later step is cut only with the earlier ones at their floors.
+    if (d.deepest != DeadlineStep::icp) {
+      for (int level = 0; level < kPyramidLevels; ++level) {
+        REQUIRE(d.icp_iterations[level] == config.deadline.min_icp_iterations[level]);
+      }
+    }
+    const double growth = config.deadline.demand_growth;
+    if (d.deepest == DeadlineStep::raycast || d.deepest == DeadlineStep::free_space) {
+      const double full = std::max(d.voxel_demand * growth, 64.0 * 512.0);
+      REQUIRE(std::fabs(static_cast<double>(d.max_voxel_updates) -
+                        full * config.deadline.min_voxel_fraction) <= 1.0);
+    }
+    if (d.deepest == DeadlineStep::free_space) {
+      const double full = std::max(d.raycast_demand * growth, double{kWidth * kHeight});
+      REQUIRE(std::fabs(static_cast<double>(d.raycast_steps) -
+                        full * config.deadline.min_raycast_fraction) <= 1.0);
+    }
+    if (d.deepest == DeadlineStep::icp) REQUIRE(d.icp_iterations_given_up > 0);
+  }
+  REQUIRE(planned == kFrames - 1);
+  INFO("lost " << lost << ", below the floors " << infeasible << "; deepest step cut: icp "
+               << steps_cut[1] << ", voxels " << steps_cut[4] << ", ray-cast " << steps_cut[6]
+               << ", free space " << steps_cut[7]);
+  CHECK(lost == 0);
+  CHECK(infeasible <= planned / 10);
+  // Not vacuous: without the deadline most of these frames were over it, and with it they gave
+  // work up.
+  REQUIRE(over_without > planned / 2);
+  REQUIRE(cut > planned / 2);
+  // The learnt model is still the machine (its lines fit the times exactly).
+  CHECK(limited.final_model.raycast.ms_per_munit ==
+        Approx(machine().raycast.ms_per_munit).epsilon(1e-3));
+  CHECK(limited.final_model.integrate.fixed_ms ==
+        Approx(machine().integrate.fixed_ms).margin(1e-3));
+  CHECK(limited.final_model.safety == 1.0);
+}
+
+TEST_CASE("starting from the default model, the deadline holds once the model has learnt") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const double deadline_ms = deadline_for(run(small_config(probe, 1), ClockKind::model));
+  PipelineConfig config = small_config(probe, 1);
+  config.deadline.deadline_ms = deadline_ms;
+  const Run limited = run(config, ClockKind::model);
+  int over_late = 0;
+  constexpr std::size_t kWarmUp = 10;
+  for (std::size_t i = kWarmUp; i < limited.stats.size(); ++i) {
+    if (limited.stats[i].times.total_ms > deadline_ms) ++over_late;
+  }
+  INFO("deadline " << deadline_ms << " ms; frames over after " << kWarmUp << ": " << over_late);
+  REQUIRE(over_late == 0);
+}
+
+TEST_CASE("a frozen calibration gives bit-identical results for 1 and 3 workers, any clock") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const double deadline_ms = deadline_for(run(small_config(probe, 1), ClockKind::model));
+  PipelineConfig one = small_config(probe, 1);
+  one.deadline.deadline_ms = deadline_ms;
+  one.deadline.model = machine();
+  one.deadline.adapt = false;
+  PipelineConfig three = one;
+  three.workers = 3;
+  // The frozen budgets read no time: a modelled clock, none and the real one all agree.
+  const Run a = run(one, ClockKind::model);
+  const Run b = run(three, ClockKind::steady);
+  const Run c = run(three, ClockKind::none);
+  REQUIRE(same_bits(a, b));
+  REQUIRE(same_bits(a, c));
+  int cut = 0;
+  for (std::size_t i = 0; i < a.stats.size(); ++i) {
+    const DeadlineReport& x = a.stats[i].deadline;
+    const DeadlineReport& y = b.stats[i].deadline;
+    REQUIRE(x.deepest == y.deepest);
+    REQUIRE(x.max_voxel_updates == y.max_voxel_updates);
+    REQUIRE(x.raycast_steps == y.raycast_steps);
+    REQUIRE(x.free_space_visits == y.free_space_visits);
+    REQUIRE(std::memcmp(&x.predicted_ms, &y.predicted_ms, sizeof(double)) == 0);
+    if (x.deepest != DeadlineStep::none) ++cut;
+  }
+  REQUIRE(cut > kFrames / 2);  // the budgets did bind
+  // Frozen: the model did not move.
+  CHECK(a.final_model.raycast.ms_per_munit == machine().raycast.ms_per_munit);
+  CHECK(a.final_model.integrate.fixed_ms == machine().integrate.fixed_ms);
+  CHECK(a.final_model.safety == machine().safety);
+  // And the result differs from no deadline: the budgets changed the map.
+  REQUIRE_FALSE(same_bits(a, run(small_config(probe, 1), ClockKind::none)));
+}
+
+TEST_CASE("a deadline of 0, or one every frame fits in, is today's pipeline bit for bit") {
+  // The pinned pose and map bits in pipeline_test.cpp hold the default config to the build
+  // before deadlines existed; here the deadline's other settings must not matter when it is off.
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run plain = run(small_config(probe, 1), ClockKind::none);
+  PipelineConfig off = small_config(probe, 2);
+  off.deadline.deadline_ms = 0.0;
+  off.deadline.model = machine();
+  off.deadline.adapt = false;
+  off.deadline.min_raycast_fraction = 0.5f;
+  const Run off_run = run(off, ClockKind::model);
+  REQUIRE(same_bits(plain, off_run));
+  for (const FrameStats& s : off_run.stats) REQUIRE_FALSE(s.deadline.active);
+
+  PipelineConfig generous = small_config(probe, 2);
+  generous.deadline.deadline_ms = 1e4;  // 10 s a frame: never cuts
+  const Run generous_run = run(generous, ClockKind::steady);
+  REQUIRE(same_bits(plain, generous_run));
+  for (std::size_t i = 1; i < generous_run.stats.size(); ++i) {
+    REQUIRE(generous_run.stats[i].deadline.planned);
+    REQUIRE(generous_run.stats[i].deadline.deepest == DeadlineStep::none);
+  }
+}
+
+TEST_CASE("a bad deadline config is refused by validate and init") {
+  sim::SimSource probe(small_sim(2));
+  REQUIRE(probe.open().ok());
+  PipelineConfig config = small_config(probe, 1);
+  config.deadline.deadline_ms = std::nan("");
+  ErrorText error;
+  REQUIRE(validate(config, &error).code() == StatusCode::invalid_argument);
+  REQUIRE(std::string(error.c_str()).find("deadline_ms") != std::string::npos);
+  REQUIRE(bytes_required(config) == 0);
+  config.deadline.deadline_ms = 33.0;
+  config.deadline.model.safety = 0.0;
+  REQUIRE(validate(config).code() == StatusCode::invalid_argument);
+}
+
+}  // namespace
+}  // namespace octofuse

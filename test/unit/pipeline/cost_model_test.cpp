@@ -1,0 +1,285 @@
+// The frame deadline's planner and model (pipeline/cost_model.hpp) against hand-computed plans:
+// what fits stays, what does not is cut in the degradation order down to each floor, and the
+// model learns rates from times that are a known function of the work.
+
+#include "octofuse/pipeline/cost_model.hpp"
+
+#include <catch2/catch.hpp>
+#include <cmath>
+#include <limits>
+
+namespace octofuse {
+namespace {
+
+// A 100 x 100 working image: level pixels 10000, 2500, 625.
+constexpr int kSide = 100;
+constexpr int kIcp[kPyramidLevels] = {4, 5, 10};
+constexpr double kTolerance_ms = 1e-9;
+
+CostModel hand_model() {
+  CostModel m;
+  // Fixed parts 2 ms in all: 1 for the frame and a quarter for each stage.
+  m.fixed_ms = 1.0;
+  m.icp = {0.25, 100.0};  // one finest iteration: 1 ms
+  m.integrate = {0.25, 10.0};
+  m.raycast = {0.25, 50.0};
+  m.free_space = {0.25, 200.0};
+  return m;
+}
+
+DeadlineConfig hand_config(double deadline_ms) {
+  DeadlineConfig c;
+  c.deadline_ms = deadline_ms;
+  c.model = hand_model();
+  c.adapt = false;
+  c.demand_growth = 1.0f;  // budgets equal to the demand, so the sums below are exact
+  // Floors as the hand computations below assume (not the defaults).
+  c.min_icp_iterations[0] = 1;
+  c.min_icp_iterations[1] = 1;
+  c.min_icp_iterations[2] = 2;
+  c.min_voxel_fraction = 0.25f;
+  c.min_raycast_fraction = 0.25f;
+  c.min_free_space_fraction = 0.0f;
+  return c;
+}
+
+// One frame that integrated 1e6 voxels, marched 2e5 steps and visited 1e4 free-space octants
+// (10 + 10 + 2 ms), none of them cut; ICP at the configured 4, 5, 10 costs 5.875 ms.
+FrameObservation demand_frame() {
+  FrameObservation o;
+  o.icp = {true, false, 58750.0, 5.875};
+  o.integrate = {true, false, 1e6, 10.0};
+  o.raycast = {true, false, 2e5, 10.0};
+  o.free_space = {true, false, 1e4, 2.0};
+  o.total_ms = 29.875;
+  return o;
+}
+
+DeadlineReport plan_for(double deadline_ms) {
+  DeadlineController controller;
+  controller.reset(hand_config(deadline_ms), kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  return controller.plan();
+}
+
+TEST_CASE("no plan before the first frame shows its demand; off does nothing") {
+  DeadlineController controller;
+  controller.reset(hand_config(10.0), kIcp, kSide, kSide, true, true);
+  const DeadlineReport first = controller.plan();
+  CHECK(first.active);
+  CHECK_FALSE(first.planned);
+  CHECK(first.icp_iterations[0] == 4);
+  CHECK(first.max_voxel_updates == 0);
+
+  controller.reset(hand_config(0.0), kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  const DeadlineReport off = controller.plan();
+  CHECK_FALSE(off.active);
+  CHECK_FALSE(off.planned);
+  CHECK(off.raycast_steps == 0);
+}
+
+TEST_CASE("a frame that fits keeps the configured budgets") {
+  const DeadlineReport r = plan_for(40.0);
+  REQUIRE(r.planned);
+  CHECK(r.deepest == DeadlineStep::none);
+  CHECK(r.predicted_ms == Approx(29.875).margin(kTolerance_ms));
+  CHECK(r.icp_iterations_given_up == 0);
+  CHECK(r.max_voxel_updates == 0);  // 0: the configured budget applies
+  CHECK(r.raycast_steps == 0);
+  CHECK(r.free_space_visits == 0);
+}
+
+TEST_CASE("a small overrun is taken from ICP's finest level first") {
+  // 2.875 ms over 25 available: three finest iterations (1 ms each).
+  const DeadlineReport r = plan_for(27.0);
+  REQUIRE(r.planned);
+  CHECK(r.deepest == DeadlineStep::icp);
+  CHECK(r.icp_iterations[0] == 1);
+  CHECK(r.icp_iterations[1] == 5);
+  CHECK(r.icp_iterations[2] == 10);
+  CHECK(r.icp_iterations_given_up == 3);
+  CHECK(r.max_voxel_updates == 1000000);
+  CHECK(r.raycast_steps == 200000);
+  CHECK(r.free_space_visits == 10000);
+  CHECK(r.predicted_ms == Approx(26.875).margin(kTolerance_ms));
+  CHECK_FALSE(r.infeasible);
+}
+
+TEST_CASE("a larger overrun takes ICP to its floors, voxels to theirs, then ray-cast steps") {
+  // 14.875 ms over 13 available: ICP gives 3 + 1 + 0.5 ms at floors 1, 1, 2; voxel updates
+  // give 7.5 ms down to a quarter; 2.875 ms remain for the ray-cast: 57500 of its steps.
+  const DeadlineReport r = plan_for(15.0);
+  REQUIRE(r.planned);
+  CHECK(r.deepest == DeadlineStep::raycast);
+  CHECK(r.icp_iterations[0] == 1);
+  CHECK(r.icp_iterations[1] == 1);
+  CHECK(r.icp_iterations[2] == 2);
+  CHECK(r.icp_iterations_given_up == 15);
+  CHECK(r.max_voxel_updates == 250000);
+  CHECK(r.raycast_steps == 142500);
+  CHECK(r.free_space_visits == 10000);
+  CHECK(r.predicted_ms == Approx(15.0).margin(1e-3));
+  CHECK_FALSE(r.infeasible);
+}
+
+TEST_CASE("below the floors the plan says infeasible and keeps the floors") {
+  const DeadlineReport r = plan_for(5.0);
+  REQUIRE(r.planned);
+  CHECK(r.infeasible);
+  CHECK(r.deepest == DeadlineStep::free_space);
+  CHECK(r.max_voxel_updates == 250000);
+  CHECK(r.raycast_steps == 50000);
+  CHECK(r.free_space_visits == 1);
+  // 2 + 1.375 (ICP at 1, 1, 2) + 2.5 + 2.5 + 0.0002 ms.
+  CHECK(r.predicted_ms == Approx(8.3752).margin(1e-9));
+}
+
+TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
+  int previous = 0;
+  for (double deadline_ms = 40.0; deadline_ms > 1.0; deadline_ms -= 0.25) {
+    CAPTURE(deadline_ms);
+    const DeadlineReport r = plan_for(deadline_ms);
+    const int step = static_cast<int>(r.deepest);
+    REQUIRE(step >= previous);
+    previous = step;
+    // A step is cut only when every earlier one is at its floor.
+    if (step > static_cast<int>(DeadlineStep::icp)) {
+      CHECK(r.icp_iterations[0] == 1);
+      CHECK(r.icp_iterations[1] == 1);
+      CHECK(r.icp_iterations[2] == 2);
+    }
+    if (step > static_cast<int>(DeadlineStep::voxel_updates)) CHECK(r.max_voxel_updates == 250000);
+    if (step > static_cast<int>(DeadlineStep::raycast)) CHECK(r.raycast_steps == 50000);
+    if (!r.infeasible) CHECK(r.predicted_ms <= deadline_ms + kTolerance_ms);
+  }
+  CHECK(previous == static_cast<int>(DeadlineStep::free_space));
+}
+
+TEST_CASE("an adapting model learns each stage's line from times that follow the work") {
+  // Each stage costs a fixed part plus a rate per unit; the units vary from frame to frame as
+  // budgets and views do, which shows the slope apart from the fixed part.
+  DeadlineConfig config = hand_config(1000.0);
+  config.adapt = true;
+  DeadlineController controller;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  const StageCost icp{0.5, 200.0}, voxels{3.0, 5.0}, steps{4.0, 100.0}, visits{0.1, 300.0};
+  constexpr double kFixed_ms = 1.5;
+  for (int frame = 0; frame < 200; ++frame) {
+    const DeadlineReport plan = controller.plan();
+    const double scale = 1.0 + 0.25 * static_cast<double>(frame % 4);
+    FrameObservation o;
+    o.timed = true;
+    o.icp = {true, false, 58750.0 * scale, icp.ms(58750.0 * scale)};
+    o.integrate = {true, false, 1e6 * scale, voxels.ms(1e6 * scale)};
+    o.raycast = {true, false, 2e5 / scale, steps.ms(2e5 / scale)};
+    o.free_space = {true, false, 1e4 * scale, visits.ms(1e4 * scale)};
+    o.total_ms = kFixed_ms + o.icp.ms + o.integrate.ms + o.raycast.ms + o.free_space.ms;
+    controller.observe(o, plan);
+  }
+  const CostModel& m = controller.model();
+  constexpr double kRelative = 1e-9;
+  CHECK(m.icp.ms_per_munit == Approx(icp.ms_per_munit).epsilon(kRelative));
+  CHECK(m.icp.fixed_ms == Approx(icp.fixed_ms).epsilon(kRelative));
+  CHECK(m.integrate.ms_per_munit == Approx(voxels.ms_per_munit).epsilon(kRelative));
+  CHECK(m.integrate.fixed_ms == Approx(voxels.fixed_ms).epsilon(kRelative));
+  CHECK(m.raycast.ms_per_munit == Approx(steps.ms_per_munit).epsilon(kRelative));
+  CHECK(m.raycast.fixed_ms == Approx(steps.fixed_ms).epsilon(kRelative));
+  CHECK(m.free_space.ms_per_munit == Approx(visits.ms_per_munit).epsilon(kRelative));
+  CHECK(m.free_space.fixed_ms == Approx(visits.fixed_ms).epsilon(kRelative));
+  CHECK(m.fixed_ms == Approx(kFixed_ms).epsilon(1e-6));
+  CHECK(m.safety == 1.0);  // never over 1000 ms
+
+  // Units that do not vary keep the rate and put the line through their mean.
+  DeadlineController steady;
+  steady.reset(config, kIcp, kSide, kSide, true, true);
+  for (int frame = 0; frame < 50; ++frame) {
+    FrameObservation o = demand_frame();
+    o.timed = true;
+    o.raycast.ms = 12.0;  // 2e5 steps: 2 ms over the starting line's 10.25
+    steady.observe(o, steady.plan());
+  }
+  CHECK(steady.model().raycast.ms_per_munit == 50.0);
+  CHECK(steady.model().raycast.fixed_ms == Approx(2.0));
+}
+
+TEST_CASE("a frozen model reads no time; overruns raise an adapting model's safety factor") {
+  DeadlineController frozen;
+  frozen.reset(hand_config(10.0), kIcp, kSide, kSide, true, true);
+  FrameObservation slow = demand_frame();
+  slow.timed = true;
+  slow.total_ms = 1000.0;
+  slow.raycast.ms = 900.0;
+  frozen.observe(slow, frozen.plan());
+  frozen.observe(slow, frozen.plan());
+  CHECK(frozen.model().raycast.ms_per_munit == hand_model().raycast.ms_per_munit);
+  CHECK(frozen.model().raycast.fixed_ms == hand_model().raycast.fixed_ms);
+  CHECK(frozen.model().safety == 1.0);
+
+  DeadlineConfig config = hand_config(10.0);
+  config.adapt = true;
+  DeadlineController adapting;
+  adapting.reset(config, kIcp, kSide, kSide, true, true);
+  adapting.observe(slow, adapting.plan());  // unplanned: the safety factor stays
+  CHECK(adapting.model().safety == 1.0);
+  DeadlineReport met = adapting.plan();
+  met.infeasible = false;
+  adapting.observe(slow, met);
+  CHECK(adapting.model().safety == Approx(1.2));
+  DeadlineReport below_floors = met;
+  below_floors.infeasible = true;  // the floors alone did not fit: no fault of the model
+  adapting.observe(slow, below_floors);
+  CHECK(adapting.model().safety == Approx(1.2));
+  FrameObservation quick = slow;
+  quick.total_ms = 5.0;
+  adapting.observe(quick, below_floors);  // within the deadline, feasible or not: it falls
+  CHECK(adapting.model().safety == Approx(1.2 * 0.999));
+  for (int i = 0; i < 100; ++i) adapting.observe(slow, met);
+  CHECK(adapting.model().safety == 16.0);
+  CHECK(validate(adapting.model()).ok());
+}
+
+TEST_CASE("bad deadline settings and models are refused with a reason") {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  ErrorText error;
+  for (const double bad : {-1.0, nan, inf, 2e5}) {
+    DeadlineConfig c;
+    c.deadline_ms = bad;
+    CHECK(validate(c, &error).code() == StatusCode::invalid_argument);
+  }
+  CHECK(std::string(error.c_str()).find("deadline_ms") != std::string::npos);
+  for (const double bad : {0.0, -1.0, nan, inf, 2e6}) {
+    CostModel m;
+    m.raycast.ms_per_munit = bad;
+    CHECK(validate(m, &error).code() == StatusCode::invalid_argument);
+  }
+  for (const double bad : {-1.0, nan, inf, 2e6}) {
+    CostModel m;
+    m.integrate.fixed_ms = bad;
+    CHECK(validate(m, &error).code() == StatusCode::invalid_argument);
+  }
+  {
+    CostModel m;
+    m.free_space.fixed_ms = 0.0;  // a fixed part may be nothing
+    CHECK(validate(m).ok());
+  }
+  for (const double bad : {0.5, 17.0, nan}) {
+    CostModel m;
+    m.safety = bad;
+    CHECK(validate(m, &error).code() == StatusCode::invalid_argument);
+  }
+  DeadlineConfig c;
+  c.min_raycast_fraction = 1.5f;
+  CHECK_FALSE(validate(c).ok());
+  c = DeadlineConfig{};
+  c.min_icp_iterations[1] = -1;
+  CHECK_FALSE(validate(c).ok());
+  c = DeadlineConfig{};
+  c.demand_growth = 0.5f;
+  CHECK_FALSE(validate(c).ok());
+  CHECK(validate(DeadlineConfig{}).ok());
+}
+
+}  // namespace
+}  // namespace octofuse

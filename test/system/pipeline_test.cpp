@@ -265,10 +265,10 @@ TEST_CASE("the same frames give the same pose and map bits on x86-64, aarch64 an
   // ray-casting or tracking changes them: check that the new values are the same on all three
   // before writing them here.
   constexpr std::uint64_t kPoseBits[12] = {
-      0x3fef99081fa3a52e, 0xbfb7e0561de4acbb, 0x3fc0553baa5c2aff, 0x3fae3a043b18d70c,
-      0xbfc43b14010a90b1, 0xbfe2ab881fa24054, 0x3fe97dfcc9defe35, 0xbfde1c450a6dc02b,
-      0x3f23719a2a7e6194, 0xbfe9d12c874d65fb, 0xbfe2e83711c7b1fe, 0x3ff148a7e4ea9f30};
-  constexpr std::uint64_t kMapHash = 0xba418c1fac127f51;
+      0x3fef9881fa83fdce, 0xbfb7d73944f865b7, 0x3fc068bc1a0543dd, 0x3fae518b1119c423,
+      0xbfc4481d4d538344, 0xbfe2ad15920d52ba, 0x3fe97c33dad2d4a2, 0xbfde1c8ae555bb71,
+      0x3f45546843d272ea, 0xbfe9d02eba611799, 0xbfe2e990d6ebd0de, 0x3ff149855efa4182};
+  constexpr std::uint64_t kMapHash = 0x92d7f9723d100089;
   constexpr int kFrames = 6;  // the first frame, then five tracked ones
   const sim::SimConfig sim_config = small_sim(40);
   for (const int workers : {1, 3}) {
@@ -314,10 +314,10 @@ TEST_CASE("the same frames give the same pose and map bits on x86-64, aarch64 an
 TEST_CASE("the 16-bit map gives the same pose and map bits for 1 and 3 workers and any machine",
           "[multires16]") {
   constexpr std::uint64_t kPoseBits[12] = {
-      0x3fef9900abc0bfe2, 0xbfb7d63832ed876f, 0x3fc059d37117d269, 0x3fae520dd042e7fc,
-      0xbfc43bcae75c5848, 0xbfe2acce71fd0a0e, 0x3fe97d04ac3b747c, 0xbfde1bdc18cfb2aa,
-      0x3f392a4ad698ff76, 0xbfe9d065e51b08f7, 0xbfe2e946079a71f3, 0x3ff149243e0f9ee3};
-  constexpr std::uint64_t kMapHash = 0x657023b0597403ee;
+      0x3fef98f3daaa77b5, 0xbfb7c8d5442f76eb, 0x3fc0603e12232b76, 0x3fae2342f6f5dcff,
+      0xbfc43d029938630c, 0xbfe2adc0624082fc, 0x3fe97c43e97d5a8b, 0xbfde1cdbdabf8ff7,
+      0x3f466c04a65ce5c0, 0xbfe9cfe83bf1e18d, 0xbfe2e9f0f88e03e5, 0x3ff149ae184cf3a9};
+  constexpr std::uint64_t kMapHash = 0xa999aa0e772fca2d;
   constexpr int kFrames = 6;
   const sim::SimConfig sim_config = small_sim(40);
   for (const int workers : {1, 3}) {

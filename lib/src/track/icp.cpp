@@ -10,6 +10,9 @@ namespace {
 
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
+// The finest level's checkerboard needs a model over at least this share of the image.
+constexpr double kCheckerboardMinModelFraction = 0.5;
+
 // Everything one association pass reads; shared by all tasks.
 struct Pass {
   ImageView<const Eigen::Vector3f> vertices_C;
@@ -222,6 +225,19 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
     return reduce(partials);
   };
 
+  // Serial integer count: the same for any worker count, and a few tens of microseconds.
+  std::uint32_t model_pixels = 0;
+  for (int y = 0; y < model_W.height(); ++y) {
+    for (int x = 0; x < model_W.width(); ++x) model_pixels += model_W.valid(x, y) ? 1u : 0u;
+  }
+  // A model covering little of the view (a full block pool, the first frames of a new area)
+  // leaves too few pairs to halve: the checkerboard then lets the estimate slide.
+  const bool checkerboard =
+      config_.finest_level_checkerboard &&
+      static_cast<double>(model_pixels) >= kCheckerboardMinModelFraction *
+                                               static_cast<double>(model_W.width()) *
+                                               static_cast<double>(model_W.height());
+
   Se3d estimate = T_W_C;
   bool singular = false;
   // Residual statistics for the report: from the last level-0 pass, taken at the estimate before
@@ -240,7 +256,7 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
     }
     for (int it = 0; it < config_.iterations[level]; ++it) {
       // The finest level's passes take every other pixel, alternating between iterations.
-      const int parity = level == 0 && config_.finest_level_checkerboard ? it & 1 : -1;
+      const int parity = level == 0 && checkerboard ? it & 1 : -1;
       const Partial total = run_pass(level, estimate, parity);
       Vector6d twist;
       if (!solve_step(total, level == 0 ? pull : nullptr, estimate, twist)) {
@@ -256,17 +272,12 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       if (twist.norm() < config_.convergence_norm) break;
     }
   }
-  if (!have_final) final_total = run_pass(0, estimate, config_.finest_level_checkerboard ? 0 : -1);
+  if (!have_final) final_total = run_pass(0, estimate, checkerboard ? 0 : -1);
   // A checkerboard pass counted half the pixels: its counts stand for twice as many.
-  const std::uint32_t count_scale = config_.finest_level_checkerboard ? 2u : 1u;
+  const std::uint32_t count_scale = checkerboard ? 2u : 1u;
   final_total.count *= count_scale;
   final_total.residual_sq *= static_cast<double>(count_scale);  // the RMS stays the half's
 
-  // Serial integer count: the same for any worker count, and a few tens of microseconds.
-  std::uint32_t model_pixels = 0;
-  for (int y = 0; y < model_W.height(); ++y) {
-    for (int x = 0; x < model_W.width(); ++x) model_pixels += model_W.valid(x, y) ? 1u : 0u;
-  }
   const double pixels = static_cast<double>(width_) * static_cast<double>(height_);
   report.status = ok_status();
   report.inliers = final_total.count;

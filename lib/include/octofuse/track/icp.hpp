@@ -52,7 +52,8 @@ struct TrackConfig {
   float depth_weight_knee_m = 1.0f;
   // Level-0 passes take every other pixel in a checkerboard, the two halves alternating between
   // iterations: half the work of the costliest level; the reported inliers are then the half's
-  // count doubled.
+  // count doubled. Only while the model covers at least half of the image: a smaller one leaves
+  // too few pairs to halve.
   bool finest_level_checkerboard = true;
 
   // True when every field is finite and in range (iterations >= 0, gates and knee >= 0, dot in

@@ -128,8 +128,8 @@ Matrix6d prior_information(const IcpPrior& prior, const IcpTracker::Partial& tot
     const double sigma = a < 3 ? prior.sigma_t_m : prior.sigma_rad;
     double var = var_icp;
     if (prior.icp_error_var_C[a] > 0.0) {
-      // A_C(a, a) * var_C is ICP's variance on this axis in A's units (A_C(a, a) per unit
-      // variance); the larger of the two claims wins.
+      // For the prior-to-ICP information ratio on this axis to be var_C / sigma^2, L(a, a) must
+      // be A_C(a, a) var_C / sigma^2. The larger of the two variances wins.
       const double a_C = Ad_inv.col(a).dot(A * Ad_inv.col(a));
       const double seen = a_C * prior.icp_error_var_C[a];
       if (seen > var) var = seen;

@@ -76,7 +76,8 @@ struct TrackReport {
   std::uint32_t inliers = 0;                   // level-0 pairs that passed the gates
   std::uint32_t model_pixels = 0;              // valid pixels of the model (ray-cast)
   // When a prior pulled the finest level: the pose the data alone gives (the last finest pass's
-  // step solved without the prior), to compare with the prior unbiased by the pull.
+  // step solved without the prior), to compare with the prior unbiased by the pull. Otherwise
+  // (no pull, or that step singular) has_data_estimate is false.
   bool has_data_estimate = false;
   Se3d T_W_C_data = Se3d::Identity();
 

@@ -44,8 +44,11 @@ void print_run_usage(const char* program, const char* default_source) {
       "  --odometry-mode M    prior (default): ICP from the odometry's motion, the odometry wins\n"
       "                       when ICP is lost or off by more than 3 cm / 2 deg;\n"
       "                       only: fuse at the odometry without ICP\n"
-      "  --odometry-weight T,R   prior mode: how strongly ICP is pulled towards the odometry\n"
-      "                       (per m^2 and rad^2; default 300,300; 0,0: not at all)\n"
+      "  --odometry-noise M,R    prior mode: the odometry's error per axis of its motion over\n"
+      "                       one frame (metres, radians; default 0.0015,0.0015): ICP is pulled\n"
+      "                       towards it by the two estimates' uncertainties\n"
+      "  --odometry-weight T,R   prior mode: a fixed pull instead (per m^2 and rad^2 in ICP's\n"
+      "                       normal equations; 0,0: not at all)\n"
       "  --bilateral          bilateral-filter the depth before tracking\n"
       "  --icp-depth-knee M   ICP weighs pairs by 1/(1+(z/M)^4) (default 1; 0: all alike)\n"
       "  --no-noise           sim: noiseless depth\n"
@@ -437,6 +440,23 @@ const RunOption kRunOptions[] = {
      [](const RunOptions& o, std::string* v) {
        *v = text_of(o.odometry_information[0]) + "," + text_of(o.odometry_information[1]);
        return o.odometry_information[0] >= 0.0;
+     }},
+    {"odometry-noise", true,
+     [](RunOptions& o, const std::string& v) {
+       double m = 0.0, r = 0.0;
+       char tail = 0;
+       if (std::sscanf(v.c_str(), "%lf,%lf%c", &m, &r, &tail) != 2 || !(m >= 1e-9) || !(m <= 1e3) ||
+           !(r >= 1e-9) || !(r <= 1e3)) {
+         return std::string(
+             " needs M,R in [1e-9, 1e3] (the odometry's error per frame, metres and radians)");
+       }
+       o.odometry_noise[0] = m;
+       o.odometry_noise[1] = r;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.odometry_noise[0]) + "," + text_of(o.odometry_noise[1]);
+       return o.odometry_noise[0] > 0.0;
      }},
     {"initial-pose", true,
      [](RunOptions& o, const std::string& v) {

@@ -502,7 +502,12 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     if (load_map) config.fusion.mu_m = loaded.mu_m;  // the TSDF is normalised by it
     config.workers = options.threads;
     config.pose_source = options.pose_source;
-    if (options.odometry_information[0] >= 0.0) {
+    if (options.odometry_noise[0] > 0.0) {
+      config.prior_noise_m = options.odometry_noise[0];
+      config.prior_noise_rad = options.odometry_noise[1];
+    }
+    if (options.odometry_information[0] >= 0.0) {  // an explicit fixed pull wins
+      config.prior_fixed_information = true;
       config.prior_information_t = options.odometry_information[0];
       config.prior_information_r = options.odometry_information[1];
     }

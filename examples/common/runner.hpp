@@ -32,7 +32,8 @@ struct RunOptions {
   std::string odometry;
   bool odometry_only = false;        // --odometry-mode only: fuse at the odometry, no ICP
   bool odometry_mode_given = false;  // --odometry-mode was given (it needs --odometry)
-  double odometry_information[2] = {-1.0, -1.0};  // --odometry-weight T,R; < 0: the defaults
+  double odometry_information[2] = {-1.0, -1.0};  // --odometry-weight T,R; < 0: not given
+  double odometry_noise[2] = {-1.0, -1.0};        // --odometry-noise M,R; <= 0: the defaults
   std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
   float map_memory_mb = 1024.0f;  // used when max_blocks is 0
   PipelineBudget budget;

@@ -135,7 +135,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
     if (!line.empty() && line[0] == '#') comments += line + "\n";
   }
   CHECK(comments ==
-        "# odometry = (default)\n# odometry-mode = (default)\n# odometry-weight = (default)\n");
+        "# odometry = (default)\n# odometry-mode = (default)\n# odometry-weight = (default)\n"
+        "# odometry-noise = (default)\n");
   CHECK(printed.find("voxel-size = 0.013\n") != std::string::npos);
   CHECK(printed.find("intrinsics = 525,525.5,319.5,239.25\n") != std::string::npos);
   CHECK(printed.find("gt-poses = true\n") != std::string::npos);
@@ -188,17 +189,29 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
 TEST_CASE("The odometry options come back from their printed config", "[examples][config]") {
   RunOptions options;
   std::string error;
-  REQUIRE(parse({"--odometry", "vio.txt", "--odometry-mode", "only", "--odometry-weight", "4,0.5"},
+  REQUIRE(parse({"--odometry", "vio.txt", "--odometry-mode", "only", "--odometry-weight", "4,0.5",
+                 "--odometry-noise", "0.002,0.003"},
                 &options, &error));
   const std::string printed = print(options);
   CHECK(printed.find("odometry = vio.txt\n") != std::string::npos);
   CHECK(printed.find("odometry-mode = only\n") != std::string::npos);
   CHECK(printed.find("odometry-weight = 4,0.5\n") != std::string::npos);
+  CHECK(printed.find("odometry-noise = 0.002,0.003\n") != std::string::npos);
   RunOptions reread;
   REQUIRE(apply_run_config(printed, "printed", &reread, &error));
   CHECK(print(reread) == printed);
   CHECK(reread.odometry_only);
   CHECK(reread.odometry_information[1] == 0.5);
+  CHECK(reread.odometry_noise[0] == 0.002);
+  CHECK(reread.odometry_noise[1] == 0.003);
+  // Noise values a pipeline cannot use are refused with the option's name.
+  for (const char* bad : {"0,0.001", "0.001", "nan,0.001", "0.001,inf", "0.001,-1", "2e3,0.001",
+                          "0.001,0.001,0.001", "0.001,0.001x"}) {
+    RunOptions refused;
+    CAPTURE(bad);
+    CHECK_FALSE(parse({"--odometry", "sim", "--odometry-noise", bad}, &refused, &error));
+    CHECK(error.find("--odometry-noise") != std::string::npos);
+  }
   // Options that need one another are checked wherever they came from.
   RunOptions lonely;
   CHECK_FALSE(parse({"--odometry-mode", "only"}, &lonely, &error));

@@ -451,6 +451,13 @@ TEST_CASE("init names the setting that is wrong") {
       {"workers", [](PipelineConfig& c) { c.workers = 0; }},
       {"initial_T_W_C", [](PipelineConfig& c) { c.initial_T_W_C.matrix()(0, 0) = 3.0; }},
       {"prior_gate_m", [](PipelineConfig& c) { c.prior_gate_m = -0.1; }},
+      {"prior_noise_m", [](PipelineConfig& c) { c.prior_noise_m = 0.0; }},
+      {"prior_noise_rad", [](PipelineConfig& c) { c.prior_noise_rad = std::nan(""); }},
+      {"prior_icp_noise_floor_m", [](PipelineConfig& c) { c.prior_icp_noise_floor_m = -1e-3; }},
+      {"prior_icp_pixels_per_sample",
+       [](PipelineConfig& c) { c.prior_icp_pixels_per_sample = 0.0; }},
+      {"prior_information_t", [](PipelineConfig& c) { c.prior_information_t = -1.0; }},
+      {"prior_gap_rate", [](PipelineConfig& c) { c.prior_gap_rate = 1.5; }},
       {"input_camera", [](PipelineConfig& c) { c.input_camera.fx = 0.0f; }},
   };
   for (const Case& c : cases) {

@@ -158,6 +158,17 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
       !std::isfinite(config.prior_information_r) || !(config.prior_information_r >= 0.0)) {
     return bad("prior_information_t and prior_information_r must be finite and >= 0");
   }
+  IcpPrior prior;
+  prior.sigma_t_m = config.prior_noise_m;
+  prior.sigma_rad = config.prior_noise_rad;
+  if (!prior.valid()) return bad("prior_noise_m and prior_noise_rad must be in [1e-9, 1e3]");
+  prior.icp_noise_floor_m = config.prior_icp_noise_floor_m;
+  if (!prior.valid()) return bad("prior_icp_noise_floor_m must be in [0, 1]");
+  prior.icp_pixels_per_sample = config.prior_icp_pixels_per_sample;
+  if (!prior.valid()) return bad("prior_icp_pixels_per_sample must be in [1, 1e6]");
+  if (!(config.prior_gap_rate >= 0.0 && config.prior_gap_rate <= 1.0)) {
+    return bad("prior_gap_rate must be in [0, 1]");
+  }
   return ok_status();
 }
 
@@ -303,6 +314,7 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   T_Cprev_C_ = Se3d::Identity();
   prior_prev_ = Se3d::Identity();
   have_prior_prev_ = false;
+  restart_prior_statistics();
   have_reference_ = false;
   pose_set_ = false;
   frame_index_ = 0;
@@ -311,6 +323,16 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   map_version_ = 0;
   initialised_ = true;
   return ok_status();
+}
+
+template <typename VoxelT>
+void Pipeline<VoxelT>::restart_prior_statistics() {
+  // Gaps as large as the odometry's own noise: nothing seen against ICP yet.
+  for (int a = 0; a < 6; ++a) {
+    const double sigma = a < 3 ? config_.prior_noise_m : config_.prior_noise_rad;
+    prior_gap_sq_C_[a] = sigma * sigma;
+  }
+  last_icp_rms_m_ = 0.0;
 }
 
 template <typename VoxelT>
@@ -335,6 +357,7 @@ Status Pipeline<VoxelT>::reset() {
   T_W_Cref_ = T_W_C_;
   T_Cprev_C_ = Se3d::Identity();
   have_prior_prev_ = false;
+  restart_prior_statistics();
   have_reference_ = false;
   pose_set_ = false;
   raycaster_.forget_previous_cast();
@@ -616,11 +639,23 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     stats.track_attempted = true;
     IcpPrior icp_prior;
     icp_prior.T_W_C = prediction;
+    icp_prior.sigma_t_m = config_.prior_noise_m;
+    icp_prior.sigma_rad = config_.prior_noise_rad;
+    icp_prior.icp_noise_floor_m = config_.prior_icp_noise_floor_m;
+    icp_prior.icp_pixels_per_sample = config_.prior_icp_pixels_per_sample;
+    icp_prior.icp_sigma_m = last_icp_rms_m_;
+    for (int a = 0; a < 6; ++a) {
+      const double sigma = a < 3 ? config_.prior_noise_m : config_.prior_noise_rad;
+      const double excess = prior_gap_sq_C_[a] - sigma * sigma;
+      icp_prior.icp_error_var_C[a] = excess > 0.0 && excess <= 1.0 ? excess : 0.0;
+    }
+    icp_prior.fixed_information = config_.prior_fixed_information;
     icp_prior.information_t = config_.prior_information_t;
     icp_prior.information_r = config_.prior_information_r;
     icp_prior.gate_m = config_.prior_gate_m;
     icp_prior.gate_rad = config_.prior_gate_rad;
-    const bool pull = predict && (icp_prior.information_t > 0.0 || icp_prior.information_r > 0.0);
+    const bool pull = predict && (!icp_prior.fixed_information || icp_prior.information_t > 0.0 ||
+                                  icp_prior.information_r > 0.0);
     stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
                                  T_W_Cref_, estimate, team_, pull ? &icp_prior : nullptr);
     for (int level = 0; level < kPyramidLevels; ++level) {
@@ -628,6 +663,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
       if (budget > 0 && stats.track.iterations[level] >= budget) stats.budget_icp_hit = true;
     }
     if (stats.track.tracked()) {
+      last_icp_rms_m_ = stats.track.rms_residual_m;
       estimate = rigid_from(estimate.matrix());
       origin = PoseOrigin::icp;
       if (predict) {
@@ -638,6 +674,15 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
             !(stats.prior_gap_rad <= config_.prior_gate_rad)) {
           estimate = prediction;
           origin = PoseOrigin::prior_gate;
+        } else {
+          // How far ICP, on the data alone, and the odometry disagree per camera axis (gated
+          // frames excluded; the pulled pose would hide the disagreement it acts on).
+          const Se3d data = stats.track.has_data_estimate ? stats.track.T_W_C_data : estimate;
+          const Vector6d gap_C = se3_log(rigid_from((prediction.inverse() * data).matrix()));
+          const double rate = config_.prior_gap_rate;
+          for (int a = 0; a < 6; ++a) {
+            prior_gap_sq_C_[a] += rate * (gap_C(a) * gap_C(a) - prior_gap_sq_C_[a]);
+          }
         }
       }
     } else if (predict) {

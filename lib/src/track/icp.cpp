@@ -99,6 +99,54 @@ IcpTracker::Partial reduce(const IcpTracker::Partial* partials) {
   return total;
 }
 
+// The prior's information in the units of the pass's normal equations `A` (see IcpPrior).
+Matrix6d prior_information(const IcpPrior& prior, const IcpTracker::Partial& total,
+                           const Matrix6d& A) {
+  Matrix6d L = Matrix6d::Zero();
+  if (prior.fixed_information) {
+    for (int a = 0; a < 3; ++a) {
+      L(a, a) = prior.information_t;
+      L(a + 3, a + 3) = prior.information_r;
+    }
+    return L;
+  }
+  // The per-pair residual variance (given, else the pass's own), floored, per independent sample.
+  const double floor_sq = prior.icp_noise_floor_m * prior.icp_noise_floor_m;
+  double mean_sq = prior.icp_sigma_m * prior.icp_sigma_m;
+  if (!(prior.icp_sigma_m > 0.0)) mean_sq = total.count > 0 ? total.residual_sq / total.count : 0.0;
+  const double var_icp = (mean_sq > floor_sq ? mean_sq : floor_sq) * prior.icp_pixels_per_sample;
+  // Ad maps a world-frame left twist (v, w) to the camera-frame one: v_C = R^T (v + w x t),
+  // w_C = R^T w. Its inverse Ad_inv (v = R v_C + t x R w_C, w = R w_C) takes A to the camera's
+  // twist: A_C = Ad_inv^T A Ad_inv.
+  const Eigen::Matrix3d R_W_C = prior.T_W_C.linear();
+  const Eigen::Vector3d t = prior.T_W_C.translation();
+  Eigen::Matrix3d t_cross;
+  t_cross << 0.0, -t.z(), t.y(), t.z(), 0.0, -t.x(), -t.y(), t.x(), 0.0;
+  Matrix6d Ad = Matrix6d::Zero();
+  Ad.topLeftCorner<3, 3>() = R_W_C.transpose();
+  Ad.topRightCorner<3, 3>() = -R_W_C.transpose() * t_cross;  // w x t = -t x w
+  Ad.bottomRightCorner<3, 3>() = R_W_C.transpose();
+  Matrix6d Ad_inv = Matrix6d::Zero();
+  Ad_inv.topLeftCorner<3, 3>() = R_W_C;
+  Ad_inv.topRightCorner<3, 3>() = t_cross * R_W_C;
+  Ad_inv.bottomRightCorner<3, 3>() = R_W_C;
+  for (int a = 0; a < 6; ++a) {
+    const double sigma = a < 3 ? prior.sigma_t_m : prior.sigma_rad;
+    double var = var_icp;
+    if (prior.icp_error_var_C[a] > 0.0) {
+      // For the prior-to-ICP information ratio on this axis to be var_C / sigma^2, L(a, a) must
+      // be A_C(a, a) var_C / sigma^2. The larger of the two variances wins.
+      const double a_C = Ad_inv.col(a).dot(A * Ad_inv.col(a));
+      const double seen = a_C * prior.icp_error_var_C[a];
+      if (seen > var) var = seen;
+    }
+    L(a, a) = var / (sigma * sigma);
+  }
+  const Matrix6d L_W = Ad.transpose() * L * Ad;
+  // Exactly symmetric, so the solve does not depend on rounding in the product's two halves.
+  return 0.5 * (L_W + L_W.transpose());
+}
+
 // The Gauss-Newton step, or false when the system is singular or the pairs too few.
 bool solve_step(const IcpTracker::Partial& total, const IcpPrior* prior, const Se3d& estimate,
                 Vector6d& twist) {
@@ -116,11 +164,9 @@ bool solve_step(const IcpTracker::Partial& total, const IcpPrior* prior, const S
   for (int a = 0; a < 6; ++a) g(a) = total.jtr[a];
   if (prior != nullptr) {
     const Vector6d e = se3_log(estimate * prior->T_W_C.inverse());
-    for (int a = 0; a < 6; ++a) {
-      const double information = a < 3 ? prior->information_t : prior->information_r;
-      A(a, a) += information;
-      g(a) += information * e(a);
-    }
+    const Matrix6d L = prior_information(*prior, total, A);
+    A += L;
+    g.noalias() += L * e;
   }
   const Eigen::LDLT<Matrix6d> ldlt(A);
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return false;
@@ -144,6 +190,18 @@ bool TrackConfig::valid() const {
          lost_min_inlier_fraction <= 1.0f && std::isfinite(lost_min_image_fraction) &&
          lost_min_image_fraction >= 0.0f && lost_min_image_fraction <= 1.0f &&
          std::isfinite(depth_weight_knee_m) && depth_weight_knee_m >= 0.0f;
+}
+
+bool IcpPrior::valid() const {
+  auto in = [](double value, double low, double high) { return value >= low && value <= high; };
+  // Bounds that keep every information finite: 1 / (1e-9)^2 and 1e6 * 1^2 are far from overflow.
+  return in(sigma_t_m, 1e-9, 1e3) && in(sigma_rad, 1e-9, 1e3) && in(icp_noise_floor_m, 0.0, 1.0) &&
+         in(icp_pixels_per_sample, 1.0, 1e6) && in(icp_sigma_m, 0.0, 1.0) &&
+         in(information_t, 0.0, 1e300) && in(information_r, 0.0, 1e300) && in(gate_m, 0.0, 1e300) &&
+         in(gate_rad, 0.0, 1e300) && in(icp_error_var_C[0], 0.0, 1.0) &&
+         in(icp_error_var_C[1], 0.0, 1.0) && in(icp_error_var_C[2], 0.0, 1.0) &&
+         in(icp_error_var_C[3], 0.0, 1.0) && in(icp_error_var_C[4], 0.0, 1.0) &&
+         in(icp_error_var_C[5], 0.0, 1.0);
 }
 
 const char* track_outcome_name(TrackOutcome outcome) {
@@ -182,12 +240,7 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
                  model_W.normals.width == camera_level0.width &&
                  model_W.normals.height == camera_level0.height && is_rigid(T_W_Cref.matrix()) &&
                  is_rigid(T_W_C.matrix());
-  if (prior != nullptr) {
-    args_ok = args_ok && is_rigid(prior->T_W_C.matrix()) && std::isfinite(prior->information_t) &&
-              prior->information_t >= 0.0 && std::isfinite(prior->information_r) &&
-              prior->information_r >= 0.0 && std::isfinite(prior->gate_m) && prior->gate_m >= 0.0 &&
-              std::isfinite(prior->gate_rad) && prior->gate_rad >= 0.0;
-  }
+  if (prior != nullptr) args_ok = args_ok && prior->valid() && is_rigid(prior->T_W_C.matrix());
   for (int level = 0; level < kPyramidLevels && args_ok; ++level) {
     const int w = width_ >> level;
     const int h = height_ >> level;
@@ -222,7 +275,16 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
     pass.t_W_C = T_W_C_estimate.translation().cast<float>();
     auto task_fn = [&](std::size_t task) { accumulate_rows(pass, task, partials[task]); };
     team.for_each_task(kTrackTasks, task_fn);
-    return reduce(partials);
+    Partial total = reduce(partials);
+    if (parity >= 0) {
+      // Half the pixels stand for all of them: doubled (exactly), the sums weigh against the
+      // prior, and count against the gates, as a full pass's would; the step is the same.
+      for (double& v : total.jtj) v *= 2.0;
+      for (double& v : total.jtr) v *= 2.0;
+      total.residual_sq *= 2.0;
+      total.count *= 2u;
+    }
+    return total;
   };
 
   // Serial integer count: the same for any worker count, and a few tens of microseconds.
@@ -245,6 +307,7 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   // finest level would cost a fifth of the tracking); from a pass at the final estimate only when
   // the finest level took no step.
   Partial final_total;
+  Se3d final_pass_estimate = Se3d::Identity();
   bool have_final = false;
   const IcpPrior* pull = nullptr;
   for (int level = kPyramidLevels - 1; level >= 0; --level) {
@@ -263,20 +326,24 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
         singular = level == 0;
         break;
       }
+      const Se3d step_from = estimate;
       estimate = se3_exp(twist) * estimate;
       ++report.iterations[level];
       if (level == 0) {
         final_total = total;
+        final_pass_estimate = step_from;
         have_final = true;
       }
       if (twist.norm() < config_.convergence_norm) break;
     }
   }
   if (!have_final) final_total = run_pass(0, estimate, checkerboard ? 0 : -1);
-  // A checkerboard pass counted half the pixels: its counts stand for twice as many.
-  const std::uint32_t count_scale = checkerboard ? 2u : 1u;
-  final_total.count *= count_scale;
-  final_total.residual_sq *= static_cast<double>(count_scale);  // the RMS stays the half's
+  Vector6d data_twist;
+  if (pull != nullptr && have_final &&
+      solve_step(final_total, nullptr, final_pass_estimate, data_twist)) {
+    report.has_data_estimate = true;
+    report.T_W_C_data = se3_exp(data_twist) * final_pass_estimate;
+  }
 
   const double pixels = static_cast<double>(width_) * static_cast<double>(height_);
   report.status = ok_status();

@@ -24,7 +24,9 @@
 //   external        the frame is fused at the prior; no ICP. A frame without a prior is lost.
 //   external_prior  ICP starts from the prediction: the prior's motion since the frame that last
 //                   set the pose, applied to that pose (T_W_C * inverse(prior_prev) * prior), so
-//                   the prior's drift does not enter the map. When ICP is lost, or its result
+//                   the prior's drift does not enter the map, and is pulled towards it as far
+//                   as the two estimates' uncertainties say (prior_noise_m and the fields
+//                   after it in PipelineConfig). When ICP is lost, or its result
 //                   differs from the prediction by more than the gate (prior_gate_m or
 //                   prior_gate_rad), the frame is fused at the prediction instead; a frame
 //                   without a prediction (no prior for it or for the last posed frame) is tracked
@@ -175,15 +177,28 @@ struct PipelineConfig {
   double prior_gate_m = 0.03;
   double prior_gate_rad = 0.035;
   // external_prior: how strongly ICP is pulled towards the prediction at its finest level
-  // (IcpPrior; 0 = not at all: the prediction is then only ICP's starting point and the gate's
-  // reference). ICP's own information grows with the pixels it pairs (about 10^3-10^4 per m^2 at
-  // QVGA with the depth weights), so scale this with the working resolution. Measured with a
-  // 1 %/m drifting odometry (120 frames of sim:room, 100 of sim:desk, ATE): 0 gives ICP's
-  // 1.22 / 0.14 cm, 100 gives 1.12 / 0.24, 300 gives 0.67 / 0.30: the pull holds what the view
-  // leaves loose (the room's walls) and costs a little where ICP alone is already exact to a
-  // millimetre (the desk), adding the odometry's own noise.
-  double prior_information_t = 300.0;  // per m^2
-  double prior_information_r = 300.0;  // per rad^2
+  // (IcpPrior). By default by the two estimates' uncertainties. The odometry's: its stated error
+  // per axis of its relative motion over one frame (camera frame; the sim odometry's 1 mm / 1 mrad
+  // white noise per pose is 1.4 mm / 1.4 mrad on a difference of two). ICP's: its normal
+  // equations over the last tracked frame's residual variance (at least prior_icp_noise_floor_m
+  // squared, times prior_icp_pixels_per_sample pairs per independent sample), or, along a camera
+  // axis where the frames so far show it worse than that, what they show: the running mean
+  // square of the gap between ICP's pose on the data alone (TrackReport::T_W_C_data, so the pull
+  // does not hide the gap it acts on) and the prediction, weight prior_gap_rate per frame, frames
+  // within the gate only, less the odometry's stated variance. A view that fixes every direction
+  // (the desk: gaps as large as the odometry's noise) then barely moves, while a direction it
+  // leaves loose (a plane-only view) or along which ICP slides (the room's walls: gaps across
+  // the view twice the odometry's noise) follows the odometry. prior_fixed_information pulls with
+  // prior_information_t/_r in the normal equations' units instead, the same every frame (0, 0: not
+  // at all; the prediction is then only ICP's starting point and the gate's reference).
+  double prior_noise_m = 0.0015;
+  double prior_noise_rad = 0.0015;
+  double prior_icp_noise_floor_m = 0.0005;
+  double prior_icp_pixels_per_sample = 1.0;
+  double prior_gap_rate = 0.1;  // in [0, 1]; 0: ICP's normal equations only
+  bool prior_fixed_information = false;
+  double prior_information_t = 300.0;  // per m^2, with prior_fixed_information
+  double prior_information_r = 300.0;  // per rad^2, with prior_fixed_information
 };
 
 // The reference defaults for a camera: QVGA working resolution from VGA, mu = 8
@@ -337,6 +352,7 @@ class Pipeline {
   // What the finished frame did and took, for the deadline's model.
   FrameObservation observe_frame(const FrameStats& stats, bool integrated, bool carved,
                                  bool raycast_done) const;
+  void restart_prior_statistics();
   friend std::size_t bytes_required(const PipelineConfig& config);
 
   PipelineConfig config_;
@@ -374,6 +390,10 @@ class Pipeline {
   Se3d T_Cprev_C_ = Se3d::Identity();   // last tracked frame-to-frame motion
   Se3d prior_prev_ = Se3d::Identity();  // the prior of the frame that last set T_W_C_
   bool have_prior_prev_ = false;
+  // external_prior: running mean square of ICP's gap to the prediction per camera axis, and the
+  // last tracked frame's RMS residual (0: none yet).
+  double prior_gap_sq_C_[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+  double last_icp_rms_m_ = 0.0;
   bool have_reference_ = false;
   bool pose_set_ = false;  // set_pose() before the first frame: the first frame keeps it
   std::uint64_t frame_index_ = 0;

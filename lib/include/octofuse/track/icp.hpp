@@ -80,24 +80,65 @@ struct TrackReport {
   float inlier_fraction = 0.0f;                // inliers / model_pixels
   std::uint32_t inliers = 0;                   // level-0 pairs that passed the gates
   std::uint32_t model_pixels = 0;              // valid pixels of the model (ray-cast)
+  // When a prior pulled the finest level: the pose the data alone gives (the last finest pass's
+  // step solved without the prior), to compare with the prior unbiased by the pull. Otherwise
+  // (no pull, or that step singular) has_data_estimate is false.
+  bool has_data_estimate = false;
+  Se3d T_W_C_data = Se3d::Identity();
 
   bool tracked() const { return outcome == TrackOutcome::tracked; }
 };
 
-// A pose the estimate is pulled towards (the vehicle's odometry): each Gauss-Newton step solves
-// (A + L) dx = -(g + L e), e the twist from the prior to the estimate (world frame, translation
-// first, as the steps) and L = diag(information_t x3, information_r x3), in the units of the
-// weighted point-to-plane normal equations A (each pair adds up to n n^T to the translation
-// block). Directions the view constrains poorly (a wall, a floor) follow the prior; others ICP.
+// A pose the estimate is pulled towards (the vehicle's odometry). Each Gauss-Newton step at the
+// finest level solves (A + L) dx = -(g + L e): A and g the weighted point-to-plane normal equations
+// (each pair adds up to n n^T to the translation block), e the twist from the prior to the
+// estimate (world frame, translation first, as the steps), L the prior's information in A's
+// units. Directions the view constrains poorly (a wall, a floor) follow the prior; others ICP.
+//
+// By default L comes from the two estimates' uncertainties, per axis of the camera's twist:
+//   L = Ad^T diag(var_a / sigma_a^2) Ad,
+// sigma_a the prior's error (sigma_t_m, sigma_rad) and Ad the adjoint taking the world twist to
+// the camera's (a world rotation also moves the camera by omega x t). var_a is ICP's variance on
+// axis a in A's units: A / var_icp is ICP's information, var_icp the per-pair residual variance
+// (icp_sigma_m squared, else the pass's mean squared residual; at least icp_noise_floor_m
+// squared) times icp_pixels_per_sample, so var_a = var_icp; dividing both informations by
+// 1 / var_icp keeps A in its units. Where icp_error_var_C says ICP errs more on an axis than that
+// (the normal equations assume independent pixels, but a model error spans many, so ICP can slide
+// along a wall by millimetres that they put at micrometres), var_a = A_C(a, a) *
+// icp_error_var_C[a], A_C = A in the camera's twist: that axis is then shared as the two
+// variances say. A view that fixes every direction barely moves; a direction it leaves loose
+// (unconstrained: A_C(a, a) = 0) or that ICP is seen to get wrong follows the prior.
+//
+// With fixed_information, L = diag(information_t x3, information_r x3) in A's units instead, the
+// same for every frame (an explicit override).
+//
 // Applied at the finest level only, and only when the coarser levels, which find the basin from
 // the data alone, land within the gate of the prior: a prior that disagrees more is not pulled
 // towards (the caller decides which to trust).
 struct IcpPrior {
   Se3d T_W_C = Se3d::Identity();
-  double information_t = 0.0;  // per m^2
-  double information_r = 0.0;  // per rad^2
+  double sigma_t_m = 0.0015;           // prior's error per axis (camera frame), metres
+  double sigma_rad = 0.0015;           // and radians
+  double icp_noise_floor_m = 0.0005;   // lower bound of ICP's per-pair residual sigma
+  double icp_pixels_per_sample = 1.0;  // pairs per independent residual (>= 1)
+  // ICP's per-pair residual sigma; 0: the pass's own RMS. A caller passes the last converged
+  // frame's, which a poor starting pose (a prior that is off) cannot inflate.
+  double icp_sigma_m = 0.0;
+  // ICP's error variance per camera axis (m^2 x3, rad^2 x3) as seen from outside: how far its
+  // poses and the prior's disagree beyond the prior's own noise. Along an axis where it exceeds
+  // what the normal equations claim, L_C there is A_C * icp_error_var_C / sigma^2 (A_C: A in the
+  // camera's twist), so that axis is shared as the two variances say. 0: none.
+  double icp_error_var_C[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+  bool fixed_information = false;
+  double information_t = 0.0;  // per m^2, with fixed_information
+  double information_r = 0.0;  // per rad^2, with fixed_information
   double gate_m = 0.03;
   double gate_rad = 0.035;
+
+  // True when every field is finite and in range: sigmas in [1e-9, 1e3], floor and icp_sigma_m
+  // in [0, 1] m, pixels per sample in [1, 1e6], error variances in [0, 1], information and gates
+  // >= 0 (NaN fails).
+  bool valid() const;
 };
 
 class IcpTracker {

@@ -17,28 +17,19 @@
 #include "octofuse/ports/sim/sim_source.hpp"
 #include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
+#include "support/small_sim.hpp"
 
 namespace octofuse {
 namespace {
 
-constexpr int kWidth = 160;
-constexpr int kHeight = 120;
+constexpr int kWidth = test::kSmallSimWidth;
+constexpr int kHeight = test::kSmallSimHeight;
 // The noisy 2 cm desk at 160 x 120 over 60 frames tracks the first 38, deadline or not: the runs
 // take the first kFrames.
 constexpr int kSimFrames = 60;
 constexpr int kFrames = 36;
 
-sim::SimConfig small_sim(int frames) {
-  sim::SimConfig config;
-  config.scene = sim::SceneId::desk;
-  config.frame_count = frames;
-  config.camera.width = kWidth;
-  config.camera.height = kHeight;
-  config.camera.fx = config.camera.fy = 525.0f / 4.0f;
-  config.camera.cx = (kWidth - 1) * 0.5f;
-  config.camera.cy = (kHeight - 1) * 0.5f;
-  return config;
-}
+using test::small_sim;
 
 PipelineConfig small_config(const sim::SimSource& source, int workers) {
   const Se3d T_W_C0 = source.ground_truth_T_W_C(0);

@@ -21,26 +21,16 @@
 #include "octofuse/ports/sim/sim_source.hpp"
 #include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
+#include "support/small_sim.hpp"
 #include "support/test_dir.hpp"
 
 namespace octofuse {
 namespace {
 
-constexpr int kWidth = 160;  // a quarter of VGA in each direction
-constexpr int kHeight = 120;
+constexpr int kWidth = test::kSmallSimWidth;  // a quarter of VGA in each direction
+constexpr int kHeight = test::kSmallSimHeight;
 
-sim::SimConfig small_sim(int frames, bool noise = true) {
-  sim::SimConfig config;
-  config.scene = sim::SceneId::desk;
-  config.frame_count = frames;
-  config.camera.width = kWidth;
-  config.camera.height = kHeight;
-  config.camera.fx = config.camera.fy = 525.0f / 4.0f;
-  config.camera.cx = (kWidth - 1) * 0.5f;
-  config.camera.cy = (kHeight - 1) * 0.5f;
-  config.noise.enabled = noise;
-  return config;
-}
+using test::small_sim;
 
 using octofuse::test::Buffer;
 

@@ -19,9 +19,6 @@
 namespace octofuse {
 namespace {
 
-constexpr int kWidth = test::kSmallSimWidth;
-constexpr int kHeight = test::kSmallSimHeight;
-
 using test::small_sim;
 
 using octofuse::test::Buffer;

@@ -227,6 +227,16 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
       free_space.occlusion_clear_m = 4.0f * config.fusion.mu_m;
     }
     OCTOFUSE_TRY(free_space_.reserve(arena, free_space, config.map, working_width, working_height));
+    Result<std::uint8_t*> input_beyond = arena.template allocate_array<std::uint8_t>(
+        static_cast<std::size_t>(width) * static_cast<std::size_t>(height), kArenaAlignment);
+    OCTOFUSE_TRY(input_beyond);
+    input_beyond_far_ = ImageView<std::uint8_t>(input_beyond.value(), width, height);
+    Result<std::uint8_t*> working_beyond = arena.template allocate_array<std::uint8_t>(
+        static_cast<std::size_t>(working_width) * static_cast<std::size_t>(working_height),
+        kArenaAlignment);
+    OCTOFUSE_TRY(working_beyond);
+    working_beyond_far_ =
+        ImageView<std::uint8_t>(working_beyond.value(), working_width, working_height);
   }
   if (config.eviction.enabled) {
     const std::uint32_t blocks = config.map.block_capacity;
@@ -529,6 +539,23 @@ FrameObservation Pipeline<VoxelT>::observe_frame(const FrameStats& stats, bool i
   return o;
 }
 
+// A working pixel is beyond the range when every input pixel it covers was measured beyond it.
+template <typename VoxelT>
+void Pipeline<VoxelT>::downsample_beyond_far() {
+  const int factor = config_.preprocess.downsample_factor;
+  for (int y = 0; y < working_beyond_far_.height; ++y) {
+    std::uint8_t* out = working_beyond_far_.row(y);
+    for (int x = 0; x < working_beyond_far_.width; ++x) {
+      std::uint8_t all = 1;
+      for (int dy = 0; dy < factor; ++dy) {
+        const std::uint8_t* in = input_beyond_far_.row(factor * y + dy) + factor * x;
+        for (int dx = 0; dx < factor; ++dx) all = static_cast<std::uint8_t>(all & in[dx]);
+      }
+      out[x] = all;
+    }
+  }
+}
+
 template <typename VoxelT>
 Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior,
                                  FrameStats* stats_out) {
@@ -564,7 +591,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     ++priors_rejected_;
     valid = StatusCode::invalid_argument;
   } else {
-    valid = validator_.validate(frame, input_depth_m_, &stats.input);
+    valid = validator_.validate(frame, input_depth_m_, &stats.input, input_beyond_far_);
   }
   const std::int64_t t_validated = clock_.now();
   stats.times.validate_ms = elapsed_ms(t_start, t_validated);
@@ -727,8 +754,14 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     // 4b. Free space seen by this frame (after the TSDF, which takes precedence in its band).
     if (config_.free_space.enabled &&
         (fused.ok() || fused.code() == StatusCode::resource_exhausted)) {
+      ImageView<const std::uint8_t> beyond;
+      if (stats.input.beyond_far_pixels > 0) {
+        downsample_beyond_far();
+        beyond = working_beyond_far_;
+      }
       stats.free_space = free_space_.carve(preprocessor_.pyramid().depth_m[0], working_camera_,
-                                           T_W_C_, static_cast<std::uint32_t>(stats.frame_index));
+                                           T_W_C_, static_cast<std::uint32_t>(stats.frame_index),
+                                           beyond, config_.validator.far_m);
       // Room for the next frames: forget the free space farthest from the camera.
       const std::uint32_t capacity = free_space_.node_capacity();
       if (free_space_.node_count() > capacity - capacity / 16) {

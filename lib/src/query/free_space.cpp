@@ -42,7 +42,8 @@ Status FreeSpace::begin_restore(std::uint32_t count) {
   return ok_status();
 }
 
-void FreeSpace::build_pyramid(ImageView<const float> depth_m) {
+void FreeSpace::build_pyramid(ImageView<const float> depth_m,
+                              ImageView<const std::uint8_t> beyond_range, float beyond_free_m) {
   float* lo = depth_min_;
   float* hi = depth_max_;
   std::uint8_t* invalid = depth_invalid_;
@@ -55,6 +56,14 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m) {
       lo[y * width_ + x] = valid ? d : kNoDepth;
       hi[y * width_ + x] = valid ? d : 0.0f;
       invalid[y * width_ + x] = valid ? 0 : 1;
+    }
+    if (beyond_range.empty()) continue;
+    // Seen free out to the range's end; no surface there (hi stays 0).
+    const std::uint8_t* beyond_row = beyond_range.row(y);
+    for (int x = 0; x < width_; ++x) {
+      if (invalid[y * width_ + x] == 0 || beyond_row[x] == 0) continue;
+      lo[y * width_ + x] = beyond_free_m;
+      invalid[y * width_ + x] = 0;
     }
   }
   for (int level = 1; level < level_count_; ++level) {
@@ -221,13 +230,18 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     TileRange range;
     tile_range(level, u0, v0, u1, v1, range);
     if (room_m != nullptr) *room_m = range.hi - z_min;
-    // No valid depth in the footprint: this frame says nothing about the octant.
-    if (range.hi <= 0.0f || z_min > range.hi + occlusion_clear_m_) return Seen::not_seen;
+    // Nothing measured in the footprint: this frame says nothing about the octant.
+    if (range.lo >= kNoDepth) return Seen::not_seen;
     if (z_max < range.lo - clearance_m_) {
       // Every depth measured in the footprint lies beyond the octant: free when the footprint
       // is wholly measured, else nothing contradicts it but parts were not seen.
       return inside && !range.any_invalid ? Seen::free : Seen::clear;
     }
+    // No surface measured in the footprint, only rays that went beyond the range: the part in
+    // front of their end may be free (descend without clearing), the rest is not seen.
+    if (range.hi <= 0.0f) return z_min < range.lo - clearance_m_ ? Seen::clear : Seen::not_seen;
+    // Too far behind the farthest surface measured: not seen.
+    if (z_min > range.hi + occlusion_clear_m_) return Seen::not_seen;
     if (z_min > range.hi) return Seen::occluded;
     return Seen::partial;
   };
@@ -365,10 +379,15 @@ FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
 }
 
 FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCamera& camera,
-                                 const Se3d& T_W_C, std::uint32_t frame) {
+                                 const Se3d& T_W_C, std::uint32_t frame,
+                                 ImageView<const std::uint8_t> beyond_range, float beyond_free_m) {
   FreeSpaceReport report;
   if (!reserved_ || depth_m.width != width_ || depth_m.height != height_) return report;
-  build_pyramid(depth_m);
+  if (!beyond_range.empty() && (beyond_range.width != width_ || beyond_range.height != height_ ||
+                                !(beyond_free_m > 0.0f && beyond_free_m < kNoDepth))) {
+    beyond_range = ImageView<const std::uint8_t>();
+  }
+  build_pyramid(depth_m, beyond_range, beyond_free_m);
   const Se3f T_C_W = T_W_C.inverse().cast<float>();
   R_C_W_ = T_C_W.linear();
   t_C_W_ = T_C_W.translation();

@@ -43,7 +43,7 @@ Status FrameValidator::reject(Status why) {
 }
 
 Status FrameValidator::validate(const DepthFrame& frame, ImageView<float> depth_m,
-                                FrameReport* report) {
+                                FrameReport* report, ImageView<std::uint8_t> beyond_far) {
   FrameReport local;
   FrameReport& out = report != nullptr ? *report : local;
   out = FrameReport();
@@ -57,6 +57,13 @@ Status FrameValidator::validate(const DepthFrame& frame, ImageView<float> depth_
       depth_m.height != camera_.height || depth_m.stride < depth_m.width) {
     error_.set("frame validator: output buffer is %dx%d, expected %dx%d", depth_m.width,
                depth_m.height, camera_.width, camera_.height);
+    return StatusCode::failed_precondition;
+  }
+  const bool mark_beyond = !beyond_far.empty();
+  if (mark_beyond && (beyond_far.width != camera_.width || beyond_far.height != camera_.height ||
+                      beyond_far.stride < beyond_far.width)) {
+    error_.set("frame validator: beyond-far mask is %dx%d, expected %dx%d", beyond_far.width,
+               beyond_far.height, camera_.width, camera_.height);
     return StatusCode::failed_precondition;
   }
 
@@ -109,13 +116,16 @@ Status FrameValidator::validate(const DepthFrame& frame, ImageView<float> depth_
   std::uint32_t zero = 0;
   std::uint32_t saturated = 0;
   std::uint32_t out_of_range = 0;
+  std::uint32_t beyond = 0;
   std::uint32_t valid = 0;
   for (int y = 0; y < raw.height; ++y) {
     const std::uint16_t* in_row = raw.row(y);
     float* out_row = depth_m.row(y);
+    std::uint8_t* beyond_row = mark_beyond ? beyond_far.row(y) : nullptr;
     for (int x = 0; x < raw.width; ++x) {
       const std::uint16_t value = in_row[x];
       float metres = 0.0f;
+      std::uint8_t is_beyond = 0;
       if (value == 0) {
         ++zero;
       } else if (value == kSaturatedDepthRaw) {
@@ -124,18 +134,22 @@ Status FrameValidator::validate(const DepthFrame& frame, ImageView<float> depth_
         const float d = static_cast<float>(value) * scale;
         if (d < near_m || d > far_m) {
           ++out_of_range;
+          is_beyond = d > far_m ? 1 : 0;
+          beyond += is_beyond;
         } else {
           metres = d;
           ++valid;
         }
       }
       out_row[x] = metres;
+      if (mark_beyond) beyond_row[x] = is_beyond;
     }
   }
   out.pixel_count = static_cast<std::uint32_t>(raw.pixel_count());
   out.zero_pixels = zero;
   out.saturated_pixels = saturated;
   out.out_of_range_pixels = out_of_range;
+  out.beyond_far_pixels = beyond;
   out.valid_pixels = valid;
   out.nearly_empty = static_cast<double>(valid) <
                      static_cast<double>(config_.min_valid_fraction) * out.pixel_count;

@@ -377,6 +377,58 @@ TEST_CASE("pixels without depth neither carve nor clear; the rest of the view st
   REQUIRE(ask(fresh, 0.0f, 0.45f, 1.5f).state == PointState::free);
 }
 
+TEST_CASE("pixels measured beyond the range carve in front of its end and clear nothing behind") {
+  // Every pixel saw a surface beyond the range (depth 0, marked beyond): free out to the range's
+  // end less the clearance, unknown past it.
+  const float range_end_m = 1.2f;
+  std::vector<float> no_depth;
+  std::vector<std::uint8_t> all_beyond;
+  {
+    Mapper m;
+    no_depth.assign(
+        static_cast<std::size_t>(m.camera.width) * static_cast<std::size_t>(m.camera.height), 0.0f);
+    all_beyond.assign(no_depth.size(), 1);
+    const ImageView<const float> depth(no_depth.data(), m.camera.width, m.camera.height);
+    const ImageView<const std::uint8_t> beyond(all_beyond.data(), m.camera.width, m.camera.height);
+    // Without the mask the frame shows nothing.
+    m.free_space.carve(depth, m.camera, Se3d::Identity(), m.frame++);
+    REQUIRE(ask(m, 0.0f, 0.0f, 0.8f).state == PointState::unknown);
+    const FreeSpaceReport report =
+        m.free_space.carve(depth, m.camera, Se3d::Identity(), m.frame++, beyond, range_end_m);
+    REQUIRE(!report.budget_hit);
+    REQUIRE(report.marked_free > 0);
+    REQUIRE(ask(m, 0.0f, 0.0f, 0.8f).state == PointState::free);
+    REQUIRE(ask(m, 0.1f, -0.1f, 1.0f).state == PointState::free);
+    // Nothing free at or past the range's end less the clearance.
+    for (float z = 1.2f - 0.5f * kMu_m; z < 3.0f; z += 0.01f) {
+      REQUIRE(ask(m, 0.0f, 0.0f, z).state == PointState::unknown);
+    }
+    // A mask whose size is not the image's is ignored.
+    Mapper other;
+    const ImageView<const std::uint8_t> wrong(all_beyond.data(), m.camera.width - 1,
+                                              m.camera.height);
+    other.free_space.carve(depth, other.camera, Se3d::Identity(), other.frame++, wrong,
+                           range_end_m);
+    REQUIRE(ask(other, 0.0f, 0.0f, 0.8f).state == PointState::unknown);
+  }
+  // Free space seen earlier behind the range's end: a surface measured there would clear it (it
+  // lies within the occlusion depth behind), a ray that went beyond the range does not.
+  Mapper m;
+  const AnalyticScene scene = wall_at(kWall_m);
+  for (int i = 0; i < 2; ++i) m.fuse(scene);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.5f).state == PointState::free);
+  const ImageView<const float> depth(no_depth.data(), m.camera.width, m.camera.height);
+  const ImageView<const std::uint8_t> beyond(all_beyond.data(), m.camera.width, m.camera.height);
+  const float end_m = 1.4f;
+  m.free_space.carve(depth, m.camera, Se3d::Identity(), m.frame++, beyond, end_m);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.5f).state == PointState::free);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.8f).state == PointState::free);
+  std::vector<float> flat(no_depth.size(), end_m);
+  const ImageView<const float> surface(flat.data(), m.camera.width, m.camera.height);
+  m.free_space.carve(surface, m.camera, Se3d::Identity(), m.frame++);
+  REQUIRE(ask(m, 0.0f, 0.0f, 1.5f).state == PointState::unknown);
+}
+
 TEST_CASE(
     "leaves carve by halves: air beside a surface in a leaf's view is free, the surface not") {
   AnalyticScene scene = wall_at(kWall_m);

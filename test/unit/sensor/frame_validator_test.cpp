@@ -101,6 +101,40 @@ TEST_CASE("a good frame converts to metres and counts every pixel class") {
   REQUIRE(f.validator.frames_accepted() == 1);
 }
 
+TEST_CASE("pixels measured beyond far are marked for free space; no return and too near are not") {
+  Fixture f;
+  f.raw[0] = 0;                   // no measurement
+  f.raw[1] = kSaturatedDepthRaw;  // saturated: not a measurement either
+  f.raw[2] = 399;                 // below near
+  f.raw[3] = 4001;                // beyond far
+  f.raw[4] = 4000;                // exactly far: valid depth
+  f.raw[5] = 9000;                // beyond far
+  std::vector<std::uint8_t> beyond(kWidth * kHeight, 7);
+  FrameReport report;
+  REQUIRE(f.validator
+              .validate(f.frame, f.out(), &report,
+                        ImageView<std::uint8_t>(beyond.data(), kWidth, kHeight))
+              .ok());
+  REQUIRE(report.out_of_range_pixels == 3);
+  REQUIRE(report.beyond_far_pixels == 2);
+  const std::uint8_t expected[6] = {0, 0, 0, 1, 0, 1};
+  for (int i = 0; i < 6; ++i) REQUIRE(beyond[static_cast<std::size_t>(i)] == expected[i]);
+  for (std::size_t i = 6; i < beyond.size(); ++i) REQUIRE(beyond[i] == 0);
+  REQUIRE(f.metres[3] == 0.0f);
+  REQUIRE(f.metres[5] == 0.0f);
+
+  // Without a mask the counts are the same; a mask of the wrong size is a caller error.
+  f.advance();
+  FrameReport plain;
+  REQUIRE(f.run(&plain).ok());
+  REQUIRE(plain.beyond_far_pixels == 2);
+  f.advance();
+  REQUIRE(f.validator
+              .validate(f.frame, f.out(), nullptr,
+                        ImageView<std::uint8_t>(beyond.data(), kWidth - 1, kHeight))
+              .code() == StatusCode::failed_precondition);
+}
+
 TEST_CASE("metres_per_unit scales raw depth (TUM 5000 units per metre)") {
   Fixture f;
   f.frame.metres_per_unit = 0.0002f;

@@ -361,6 +361,11 @@ class Pipeline {
   LinearArena arena_;
   FrameValidator validator_;
   ImageView<float> input_depth_m_;
+  // Pixels measured beyond the depth range, at the input and the working resolution (free
+  // space's evidence; reserved only with free space on).
+  ImageView<std::uint8_t> input_beyond_far_;
+  ImageView<std::uint8_t> working_beyond_far_;
+  void downsample_beyond_far();
   DepthPreprocessor preprocessor_;
   IcpTracker tracker_;
   Map map_;

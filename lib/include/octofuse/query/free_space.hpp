@@ -205,8 +205,15 @@ class FreeSpace {
 
   // Records what `depth_m` (working resolution, metres, 0 invalid) seen from T_W_C with
   // `camera` shows free. `frame` is the pipeline's frame index. Never allocates.
+  // `beyond_range` (empty, or working resolution): pixels without depth whose sensor measured a
+  // surface beyond the depth range. Each is evidence that its ray is free out to `beyond_free_m`
+  // (the range's far end) but not of a surface there: it lets octants in front of it be free,
+  // and neither clears nor occludes anything behind (a room whose far wall lies out of range
+  // still carves the air in front of the camera).
   FreeSpaceReport carve(ImageView<const float> depth_m, const PinholeCamera& camera,
-                        const Se3d& T_W_C, std::uint32_t frame);
+                        const Se3d& T_W_C, std::uint32_t frame,
+                        ImageView<const std::uint8_t> beyond_range = {},
+                        float beyond_free_m = 0.0f);
 
   // Forgets every octant lying wholly farther than `keep_radius_m` from `centre_W` (its subtree
   // with it: what was free there reads unknown again) and compacts the pool in place, keeping
@@ -262,10 +269,11 @@ class FreeSpace {
     std::uint8_t clear = 0;  // sub-cells with a measured depth within or just before them
   };
   SubCellUpdate classify_sub_cells(const Eigen::Vector3i& leaf_min_voxel) const;
-  void build_pyramid(ImageView<const float> depth_m);
+  void build_pyramid(ImageView<const float> depth_m, ImageView<const std::uint8_t> beyond_range,
+                     float beyond_free_m);
   struct TileRange {
-    float lo = 0.0f;  // least measured depth (kNoDepth: none)
-    float hi = 0.0f;  // greatest measured depth (0: none)
+    float lo = 0.0f;  // least depth seen free to (kNoDepth: none); beyond-range pixels included
+    float hi = 0.0f;  // greatest measured surface depth (0: none); beyond-range pixels excluded
     bool any_invalid = false;
   };
   void tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const;

@@ -31,6 +31,7 @@ struct FrameReport {
   std::uint32_t zero_pixels = 0;          // raw 0: no measurement
   std::uint32_t saturated_pixels = 0;     // raw 65535
   std::uint32_t out_of_range_pixels = 0;  // a measurement outside [near_m, far_m]
+  std::uint32_t beyond_far_pixels = 0;    // of those, beyond far_m (the ray saw no surface nearer)
   std::uint64_t dropped_before = 0;       // sequence numbers skipped since the previous frame
   bool nearly_empty = false;              // valid_pixels < min_valid_fraction * pixel_count
 
@@ -48,6 +49,9 @@ class FrameValidator {
   Status init(const PinholeCamera& camera, const FrameValidatorConfig& config);
 
   // Checks `frame` and writes depth in metres to `depth_m` (camera-sized; 0 = invalid pixel).
+  // When `beyond_far` is not empty (camera-sized), it is written for every accepted frame: 1 where
+  // the sensor measured a surface beyond far_m (no depth, but the ray saw nothing nearer: free
+  // space's evidence), else 0.
   // Returns
   //   ok                   the frame is good; `report` and `depth_m` are filled.
   //   data_loss            well-formed but nearly empty (see FrameReport::nearly_empty); `depth_m`
@@ -57,9 +61,11 @@ class FrameValidator {
   //                        sequence number not after the last one, ground truth not finite or
   //                        not rigid. The frame is rejected: time/sequence state is unchanged and
   //                        `depth_m` is not written.
-  //   failed_precondition  init() has not succeeded, or `depth_m` is not camera-sized.
+  //   failed_precondition  init() has not succeeded, or `depth_m` (or a non-empty `beyond_far`)
+  //                        is not camera-sized.
   // last_error() explains every non-ok result.
-  Status validate(const DepthFrame& frame, ImageView<float> depth_m, FrameReport* report);
+  Status validate(const DepthFrame& frame, ImageView<float> depth_m, FrameReport* report,
+                  ImageView<std::uint8_t> beyond_far = {});
 
   // Forgets the previous frame (a new stream begins); totals are kept.
   void restart_stream() { have_previous_ = false; }

@@ -521,6 +521,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     config.deadline.adapt = !options.deadline_freeze;
     config.eviction = options.eviction;
     config.free_space.enabled = options.free_space;
+    config.free_space.exact_silhouettes = options.free_space_exact;
     if (load_map && loaded.free_node_count > 0) {
       // The saved free space is read with the settings it was carved with (its distance bounds
       // depend on the margin), in a pool that holds it.

@@ -49,8 +49,9 @@ struct RunOptions {
   float icp_depth_knee_m = -1.0f;  // < 0: the library's default
   bool write_mesh = true;
   MeshReadScale mesh_read_scale = MeshReadScale::current;
-  bool write_frames = false;  // frames/render_NNNNNN.png after every frame
-  bool free_space = true;     // carve free space (PipelineConfig::free_space.enabled)
+  bool write_frames = false;      // frames/render_NNNNNN.png after every frame
+  bool free_space = true;         // carve free space (PipelineConfig::free_space.enabled)
+  bool free_space_exact = false;  // FreeSpaceConfig::exact_silhouettes
   // --query-points FILE: answered against the final map into DIR/queries.txt (empty: none).
   std::string query_points_path;
   // Called with the final multires map's queries before the run returns (benchmarks).

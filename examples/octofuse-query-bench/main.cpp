@@ -93,7 +93,7 @@ double segment_distance(const octofuse::sim::Scene& scene, const Eigen::Vector3d
 }
 
 int run_scene(const std::string& name, long frames, long sample_points, float voxel_m, int threads,
-              int finest_octant, Figures* f) {
+              int finest_octant, bool exact, Figures* f) {
   const std::string spec = "sim:" + name;
   octofuse::ErrorText error;
   std::unique_ptr<octofuse::sim::SimSource> truth = octofuse::sim::make_sim_source(
@@ -114,6 +114,7 @@ int run_scene(const std::string& name, long frames, long sample_points, float vo
     options.source.frames = frames;
   }
   const double voxel = voxel_m;
+  options.free_space_exact = exact;
   options.adjust_config = [finest_octant](octofuse::PipelineConfig* c) {
     c->free_space.finest_octant_voxels = finest_octant;
   };
@@ -284,6 +285,7 @@ int main(int argc, char** argv) {
   double voxel = 0.01;
   std::int64_t threads = 1;
   std::int64_t finest_octant = 0;
+  bool exact = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     std::int64_t n = 0;
@@ -292,6 +294,7 @@ int main(int argc, char** argv) {
           "usage: octofuse-query-bench [--scenes desk,room] [--frames N] [--points N]\n"
           "                            [--voxel-size M] [--threads N] [--finest-octant "
           "0|2|4|8|16|32|64]\n"
+          "                            [--free-space-exact]\n"
           "  --frames N   frames per run (default: the scene's whole sequence)\n"
           "  --points N   random points for safety and coverage (default 1000000)\n");
       return 0;
@@ -330,6 +333,8 @@ int main(int argc, char** argv) {
         return octofuse::cli::fail(
             "--finest-octant needs 0 (automatic), 2, 4, 8, 16, 32 or 64 (voxels)");
       }
+    } else if (arg == "--free-space-exact") {
+      exact = true;
     } else if (arg == "--threads" && i + 1 < argc) {
       if (!octofuse::cli::parse_int(argv[++i], 1, 64, threads)) {
         return octofuse::cli::fail("--threads needs a count in [1, 64]");
@@ -348,7 +353,7 @@ int main(int argc, char** argv) {
   for (const std::string& name : scenes) {
     Figures f;
     const int rc = run_scene(name, frames, points, static_cast<float>(voxel),
-                             static_cast<int>(threads), static_cast<int>(finest_octant), &f);
+                             static_cast<int>(threads), static_cast<int>(finest_octant), exact, &f);
     if (rc != 0) return rc;
     const double share = f.truly_free_in_view > 0
                              ? static_cast<double>(f.truly_free_in_view_reported_free) /

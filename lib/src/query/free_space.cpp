@@ -101,12 +101,14 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m,
   }
 }
 
-void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const {
+void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, float zone_lo, float zone_hi,
+                           TileRange& range) const {
   const int w = level_width_[level];
   const float* plo = depth_min_ + level_offset_[level];
   const float* phi = depth_max_ + level_offset_[level];
   const std::uint8_t* pin = depth_invalid_ + level_offset_[level];
   std::uint8_t invalid = 0;
+  bool in_zone = false;
   float lo = kNoDepth;
   float hi = 0.0f;
   const int x0 = u0 >> level;
@@ -119,11 +121,13 @@ void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, TileRange&
       lo = std::min(lo, row_lo[x]);
       hi = std::max(hi, row_hi[x]);
       invalid = static_cast<std::uint8_t>(invalid | row_in[x]);
+      in_zone = in_zone | ((row_lo[x] <= zone_hi) & (row_hi[x] >= zone_lo));
     }
   }
   range.lo = lo;
   range.hi = hi;
   range.any_invalid = invalid != 0;
+  range.any_in_zone = in_zone;
 }
 
 namespace {
@@ -138,7 +142,7 @@ int clamped_floor(float f) {
 }
 }  // namespace
 
-FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels, bool precise,
+FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look,
                                     float* room_m) const {
   const float voxel = map_.voxel_size_m;
   const Eigen::Vector3f lo_W =
@@ -194,11 +198,11 @@ FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_v
     v_max = std::max(v_max, px.y());
   }
   // The projection of a convex body in front of the camera lies in the hull of its corners'.
-  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, precise, room_m);
+  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, look, room_m);
 }
 
 FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_min, float u_max,
-                                              float v_min, float v_max, bool precise,
+                                              float v_min, float v_max, Look look,
                                               float* room_m) const {
   const float w = static_cast<float>(width_);
   const float h = static_cast<float>(height_);
@@ -219,16 +223,22 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   // The tiles covering the footprint, at the finest pyramid level where they span at most
   // `tiles` x `tiles`: the window exceeds the footprint by up to one tile on each side, so a
   // depth just beside the octant can make it look partial. Octants that descend anyway take 3 x 3
-  // (at most 9 reads); the leaves, whose answer is final (a partial leaf loses its free state),
-  // and octants that would otherwise not be free, look again at up to 8 x 8.
-  auto classify_window = [&](int tiles) {
+  // (at most 9 reads). The answers of leaves (after a second look at up to 8 x 8) and of their
+  // sub-cells are final (a partial one loses its free state), so those left partial or clear
+  // by a window whose depths straddle the zone (a nearer object's silhouette, with depths
+  // behind) or that holds pixels without depth are settled pixel by pixel (refine_footprint()).
+  const float zone_lo = z_min - occlusion_clear_m_;
+  const float zone_hi = z_max + clearance_m_;
+  auto window_level = [&](int tiles) {
     int level = 0;
     while (level + 1 < level_count_ &&
            (((u1 >> level) - (u0 >> level)) >= tiles || ((v1 >> level) - (v0 >> level)) >= tiles)) {
       ++level;
     }
-    TileRange range;
-    tile_range(level, u0, v0, u1, v1, range);
+    return level;
+  };
+  auto classify_window = [&](int level, TileRange& range) {
+    tile_range(level, u0, v0, u1, v1, zone_lo, zone_hi, range);
     if (room_m != nullptr) *room_m = range.hi - z_min;
     // Nothing measured in the footprint: this frame says nothing about the octant.
     if (range.lo >= kNoDepth) return Seen::not_seen;
@@ -243,11 +253,116 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     // Too far behind the farthest surface measured: not seen.
     if (z_min > range.hi + occlusion_clear_m_) return Seen::not_seen;
     if (z_min > range.hi) return Seen::occluded;
+    // Some rays are blocked well in front of the octant (a nearer object's silhouette), the
+    // others see through it, and no tile's depths could lie within it: nothing here contradicts
+    // free space, but not all of it was seen.
+    if (!range.any_in_zone) return Seen::clear;
     return Seen::partial;
   };
-  const Seen coarse = classify_window(3);
-  if (coarse == Seen::free || coarse == Seen::not_seen || !precise) return coarse;
-  return classify_window(8);
+  int level = window_level(3);
+  TileRange range;
+  Seen seen = classify_window(level, range);
+  if (look == Look::coarse || seen == Seen::free || seen == Seen::not_seen) return seen;
+  if (look == Look::leaf) {
+    level = window_level(8);
+    seen = classify_window(level, range);
+  }
+  if (!config_.exact_silhouettes || seen != Seen::partial) return seen;
+  // The window's nearest or farthest depth lies in the zone: a surface in or at the octant
+  // (or just beside it, which only makes the answer cautious).
+  const bool extreme_in_zone =
+      (range.hi >= zone_lo && range.hi <= zone_hi) || (range.lo >= zone_lo && range.lo <= zone_hi);
+  if (extreme_in_zone) return seen;
+  // Depths in front of the zone and behind it: settled from tiles of up to 8 x 8, most of them
+  // wholly inside the footprint.
+  return refine_footprint(look == Look::leaf ? level : window_level(8), u0, v0, u1, v1, zone_lo,
+                          zone_hi, inside);
+}
+
+FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, int v1,
+                                            float zone_lo, float zone_hi, bool inside) const {
+  // Depth-first over the tiles covering pixels [u0, u1] x [v0, v1], splitting only those whose
+  // range can neither be settled as seen through nor as holding a surface in the zone: the
+  // silhouettes of nearer objects and the tiles overhanging the footprint, down to pixels.
+  struct Tile {
+    int level;
+    int x;
+    int y;
+  };
+  // At most 9 x 9 tiles to start, then 3 more per level.
+  constexpr int kCapacity = 128;
+  Tile stack[kCapacity];
+  int top = 0;
+  // First the tiles wholly inside the footprint: one whose farthest surface lies in the zone
+  // settles it (a surface running through the view of the octant, the common case).
+  const int w = level_width_[level];
+  const std::size_t offset = level_offset_[level];
+  const int side = 1 << level;
+  for (int y = v0 >> level; y <= (v1 >> level); ++y) {
+    const bool rows_inside = y * side >= v0 && y * side + side - 1 <= v1;
+    for (int x = u0 >> level; x <= (u1 >> level); ++x) {
+      stack[top++] = Tile{level, x, y};
+      if (!rows_inside || x * side < u0 || x * side + side - 1 > u1) continue;
+      const float hi =
+          depth_max_[offset + static_cast<std::size_t>(y) * static_cast<std::size_t>(w) +
+                     static_cast<std::size_t>(x)];
+      if (hi >= zone_lo && hi <= zone_hi && hi > 0.0f) return Seen::partial;
+    }
+  }
+  bool any_through = false;
+  bool all_through = true;
+  bool invalid = false;
+  while (top > 0) {
+    const Tile t = stack[--top];
+    const std::size_t i =
+        level_offset_[t.level] +
+        static_cast<std::size_t>(t.y) * static_cast<std::size_t>(level_width_[t.level]) +
+        static_cast<std::size_t>(t.x);
+    const float lo = depth_min_[i];
+    const float hi = depth_max_[i];
+    const bool tile_invalid = depth_invalid_[i] != 0;
+    // Every pixel measured and seeing through (a superset of the footprint's part is too).
+    if (lo > zone_hi && !tile_invalid) {
+      any_through = true;
+      continue;
+    }
+    const int px0 = t.x << t.level;
+    const int py0 = t.y << t.level;
+    const int px1 = px0 + (1 << t.level) - 1;
+    const int py1 = py0 + (1 << t.level) - 1;
+    const bool whole = px0 >= u0 && py0 >= v0 && px1 <= u1 && py1 <= v1;
+    // A surface (hi is the farthest measured surface) in the zone.
+    if ((whole || t.level == 0) && hi >= zone_lo && hi <= zone_hi && hi > 0.0f) {
+      return Seen::partial;
+    }
+    if (t.level == 0) {
+      if (tile_invalid) {
+        invalid = true;
+      } else {
+        all_through = false;  // blocked in front, or beyond the range but short of the zone
+      }
+      continue;
+    }
+    if (whole && (hi < zone_lo || (hi <= 0.0f && lo < zone_lo))) {
+      // Surfaces only in front (or beyond-range rays ending in front): not all seen through.
+      all_through = false;
+      invalid = invalid || tile_invalid;
+      continue;
+    }
+    if (top + 4 > kCapacity) return Seen::partial;  // cannot happen (see kCapacity); cautious
+    for (int c = 0; c < 4; ++c) {
+      const Tile child{t.level - 1, 2 * t.x + (c & 1), 2 * t.y + (c >> 1)};
+      const int cx0 = child.x << child.level;
+      const int cy0 = child.y << child.level;
+      const int cx1 = cx0 + (1 << child.level) - 1;
+      const int cy1 = cy0 + (1 << child.level) - 1;
+      if (cx1 < u0 || cy1 < v0 || cx0 > u1 || cy0 > v1) continue;
+      if (child.x >= level_width_[child.level] || child.y >= level_height_[child.level]) continue;
+      stack[top++] = child;
+    }
+  }
+  if (any_through && all_through && !invalid && inside) return Seen::free;
+  return any_through ? Seen::clear : Seen::not_seen;
 }
 
 FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
@@ -361,7 +476,8 @@ FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
         // At the camera: nothing measurable is that close; the sub-cell keeps its state.
         if (!cell_ok) continue;
         const auto bit = static_cast<std::uint8_t>(1u << ((k * n + j) * n + i));
-        switch (classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, false, nullptr)) {
+        switch (
+            classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, Look::sub_cell, nullptr)) {
           case Seen::free:
             update.set = static_cast<std::uint8_t>(update.set | bit);
             break;
@@ -431,7 +547,8 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     ++report.node_visits;
     const int size = 1 << (depth - e.level);
     float room_m = 0.0f;
-    const Seen seen = classify(e.min_voxel, size, e.level == leaf, &room_m);
+    const Seen seen =
+        classify(e.min_voxel, size, e.level == leaf ? Look::leaf : Look::coarse, &room_m);
     if (seen == Seen::not_seen) continue;
     std::uint32_t index = e.node;
     if (seen == Seen::clear) {

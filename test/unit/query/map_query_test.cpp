@@ -429,6 +429,52 @@ TEST_CASE("pixels measured beyond the range carve in front of its end and clear 
   REQUIRE(ask(m, 0.0f, 0.0f, 1.5f).state == PointState::unknown);
 }
 
+TEST_CASE("exact silhouettes: a nearer object's silhouette neither clears free air nor hides it") {
+  // The wall at 2 m, then a ball 0.8 m in front of the camera. The ball's shadow at 1.5 m
+  // reaches about 0.19 m from the axis. Its depth lies far (more than occlusion_clear_m) in front
+  // of the air there, so it is no evidence about that air either way: octants that see the
+  // ball's edge and the wall behind are settled pixel by pixel.
+  AnalyticScene ball = wall_at(kWall_m);
+  ball.spheres.push_back({Eigen::Vector3d(0.0, 0.0, 0.8), 0.1});
+  FreeSpaceConfig exact;
+  exact.exact_silhouettes = true;
+  Mapper fresh(exact);
+  fresh.fuse(ball);
+  fresh.fuse(ball);
+  // Seen only with the ball: free from a leaf's width beside the shadow to short of the image's
+  // border, unknown in the shadow.
+  for (float x = 0.34f; x <= 0.58f; x += 0.02f) {
+    INFO("x " << x);
+    REQUIRE(ask(fresh, x, 0.0f, 1.5f).state == PointState::free);
+    REQUIRE(ask(fresh, -x, 0.0f, 1.5f).state == PointState::free);
+    REQUIRE(ask(fresh, 0.0f, x, 1.5f).state == PointState::free);
+  }
+  for (float z = 1.1f; z < 1.8f; z += 0.02f) {
+    INFO("z " << z);
+    REQUIRE(ask(fresh, 0.0f, 0.0f, z).state == PointState::unknown);
+    REQUIRE(ask(fresh, 0.05f, -0.05f, z).state == PointState::unknown);
+  }
+  // Seen free first, then the ball passes in front: the air across its silhouette stays free.
+  Mapper m(exact);
+  const AnalyticScene wall = wall_at(kWall_m);
+  m.fuse(wall);
+  m.fuse(wall);
+  for (float x = 0.0f; x <= 0.4f; x += 0.02f) {
+    REQUIRE(ask(m, x, 0.0f, 1.5f).state == PointState::free);
+  }
+  m.fuse(ball);
+  m.fuse(ball);
+  for (float x = 0.0f; x <= 0.4f; x += 0.02f) {
+    INFO("x " << x);
+    REQUIRE(ask(m, x, 0.0f, 1.5f).state == PointState::free);
+    REQUIRE(ask(m, 0.0f, -x, 1.5f).state == PointState::free);
+  }
+  // The ball itself and the air just around it are not free.
+  REQUIRE(ask(m, 0.0f, 0.0f, 0.8f).state != PointState::free);
+  REQUIRE(ask(m, 0.0f, 0.0f, 0.69f).state != PointState::free);
+  REQUIRE(ask(m, 0.11f, 0.0f, 0.8f).state != PointState::free);
+}
+
 TEST_CASE(
     "leaves carve by halves: air beside a surface in a leaf's view is free, the surface not") {
   AnalyticScene scene = wall_at(kWall_m);

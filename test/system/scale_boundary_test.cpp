@@ -7,10 +7,12 @@
 #include <catch2/catch.hpp>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
 #include "support/aligned_buffer.hpp"
+#include "support/alloc_counter.hpp"
 #include "support/small_sim.hpp"
 
 namespace octofuse {
@@ -94,6 +96,19 @@ Coverage measure(const Pipeline<MultiresVoxel>& pipeline, const DepthFrame& fram
   return c;
 }
 
+// Whether two ray-casts are the same, bit for bit.
+bool same_surface(const ConstSurfaceMap& a, const ConstSurfaceMap& b) {
+  for (int y = 0; y < a.height(); ++y) {
+    for (int x = 0; x < a.width(); ++x) {
+      if (std::memcmp(a.vertices(x, y).data(), b.vertices(x, y).data(), sizeof(float) * 3) != 0 ||
+          std::memcmp(a.normals(x, y).data(), b.normals(x, y).data(), sizeof(float) * 3) != 0) {
+        return false;
+      }
+    }
+  }
+  return true;
+}
+
 TEST_CASE("at 2 mm every pixel with fused depth gets a vertex on the surface, across scales") {
   sim::SimSource source(test::small_sim(kPathFrames, /*noise=*/false));
   REQUIRE(source.open().ok());
@@ -104,17 +119,31 @@ TEST_CASE("at 2 mm every pixel with fused depth gets a vertex on the surface, ac
   config.preprocess.downsample_factor = 1;  // the exact depth is the working depth
   config.pose_source = PoseSource::ground_truth;
   config.free_space.enabled = false;
+  // The same frames through a pipeline with 3 workers give the same ray-cast.
+  PipelineConfig config3 = config;
+  config3.workers = 3;
   test::Buffer buffer(bytes_required(config));
+  test::Buffer buffer3(bytes_required(config3));
   Pipeline<MultiresVoxel> pipeline;
+  Pipeline<MultiresVoxel> pipeline3;
   REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+  REQUIRE(pipeline3.init(buffer3.data, bytes_required(config3), config3).ok());
   int scale_pixels[kMaxBlockScale + 1] = {};
   DepthFrame frame;
   for (int i = 0; i < kFrames; ++i) {
     CAPTURE(i);
     REQUIRE(source.next(frame).outcome == FrameOutcome::frame);
     FrameStats stats;
-    REQUIRE(pipeline.process(frame, &stats).ok());
+    FrameStats stats3;
+    {
+      const test::AllocationScope scope;
+      REQUIRE(pipeline.process(frame, &stats).ok());
+      REQUIRE(pipeline3.process(frame, &stats3).ok());
+      // No frame allocates, the ray-cast's thin-band paths included.
+      REQUIRE(scope.allocations() == 0);
+    }
     REQUIRE(stats.integration.pool_refusals == 0);
+    REQUIRE(same_surface(pipeline.surface_W(), pipeline3.surface_W()));
     const Coverage c = measure(pipeline, frame, source.last_exact_depth_m());
     CAPTURE(c.checked, c.scale_pixels[1], c.scale_pixels[2], c.scale_pixels[3], c.scale_pairs);
     REQUIRE(c.checked > test::kSmallSimWidth * test::kSmallSimHeight / 3);

@@ -102,15 +102,21 @@ inline void project_row(const float (&x_C)[kBlockSide], const float (&y_C)[kBloc
 }
 
 // The TSDF update of one voxel (eq. 2-3) from the measured depth at its pixel; false when the
-// sample does not apply.
-template <typename VoxelT>
+// sample does not apply. kPastMu: the band reaches behind_m (> mu) behind the surface, where the
+// truncated distance is -1; otherwise it ends at mu (behind_m unused).
+template <bool kPastMu, typename VoxelT>
 inline bool update_voxel(VoxelT& v, float measured_m, float z_m, float ray_scale, float near_m,
                          float far_m, float mu_m, float inv_mu, float behind_m, float y_max) {
   if (!(measured_m >= near_m && measured_m <= far_m)) return false;
   const float d = (measured_m - z_m) * ray_scale;
-  if (d < -behind_m) return false;
-  // Past -mu (kMinBehind_voxels at a coarse scale) the truncated distance is -1.
-  const float f = d < -mu_m ? -1.0f : std::min(1.0f, d * inv_mu);
+  float f = 0.0f;
+  if constexpr (kPastMu) {
+    if (d < -behind_m) return false;
+    f = d < -mu_m ? -1.0f : std::min(1.0f, d * inv_mu);
+  } else {
+    if (d < -mu_m) return false;
+    f = std::min(1.0f, d * inv_mu);
+  }
   if constexpr (IsMultiresVoxel<VoxelT>::value) {
     const float x = voxel_tsdf(v);
     const float y = voxel_weight(v);
@@ -211,8 +217,9 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
   float lift_sum[kMaxParents];
   float lift_weight[kMaxParents];
   int lift_count[kMaxParents];
-  auto visit = [&](auto lift_tag) {
+  auto visit = [&](auto lift_tag, auto past_mu_tag) {
     constexpr bool kLift = decltype(lift_tag)::value;
+    constexpr bool kPastMu = decltype(past_mu_tag)::value;
     if constexpr (kLift) {
       for (int k = 0; k < pn * pn * pn; ++k) {
         lift_sum[k] = 0.0f;
@@ -241,8 +248,9 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
         for (int x = 0; x < n; ++x, ++i) {
           VoxelT& v = voxels[i];
           if (row.u[x] >= 0 &&
-              update_voxel(v, f.depth[row.v[x] * f.stride + row.u[x]], row.z_m[x], row.ray_scale[x],
-                           f.near_m, f.far_m, f.mu_m, f.inv_mu, behind_m, f.y_max)) {
+              update_voxel<kPastMu>(v, f.depth[row.v[x] * f.stride + row.u[x]], row.z_m[x],
+                                    row.ray_scale[x], f.near_m, f.far_m, f.mu_m, f.inv_mu, behind_m,
+                                    f.y_max)) {
             ++updated;
           }
           if (!voxel_observed(v)) continue;
@@ -262,9 +270,17 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
       }
     }
   };
+  // The band's far side as a compile-time choice: at mu (always at 1 cm) the loop is the plain one.
+  auto visit_band = [&](auto lift_tag) {
+    if (behind_m > f.mu_m) {
+      visit(lift_tag, std::true_type{});
+    } else {
+      visit(lift_tag, std::false_type{});
+    }
+  };
   if constexpr (kMultires) {
     if (target > scale) {
-      visit(std::true_type{});
+      visit_band(std::true_type{});
       VoxelT* parents = block.scale_begin(scale + 1);
       for (int k = 0; k < pn * pn * pn; ++k) {
         if (lift_count[k] == 0) continue;  // no observed child: the parent keeps its value
@@ -274,11 +290,11 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
       }
       if (target > scale + 1) propagate_block_up(block, scale + 1, target);
     } else {
-      visit(std::false_type{});
+      visit_band(std::false_type{});
     }
     block.mip_scale = static_cast<std::int8_t>(target);
   } else {
-    visit(std::false_type{});
+    visit_band(std::false_type{});
     block.mip_scale = 0;  // single-res blocks keep scale 0 only
   }
   if (observed > 0) {

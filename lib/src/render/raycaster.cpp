@@ -175,6 +175,14 @@ int thin_band_scale(float mu_m, float voxel_m) {
   return kMaxBlockScale + 1;
 }
 
+// sample_tsdf_observed_at_voxel_coords, kept out of the march loop: it runs only where a sample
+// failed near a crossing, and inlined it would cost every other sample.
+template <typename VoxelT>
+[[gnu::noinline]] bool sample_observed_corners(const Octree<VoxelT>& map, const Eigen::Vector3f& q,
+                                               const VoxelBlock<VoxelT>* home, TsdfSample& out) {
+  return sample_tsdf_observed_at_voxel_coords(map, q, home, kMinObservedWeight, out);
+}
+
 // What one ray leaves for the next: neighbouring rays descend through the same nodes and sample
 // the same blocks, so a row keeps one cursor and one block neighbourhood for all its rays.
 template <typename VoxelT>
@@ -207,7 +215,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   float t = std::max(t0, t_start);
   // A guided march that never read a voxel proved nothing about its start.
   auto no_hit = [&guided] { return guided ? MarchResult::rejected : MarchResult::miss; };
-  // Until a guided march takes a positive trilinear sample, a negative one means it started
+  // Until a guided march takes a positive sample, a negative trilinear one means it started
   // behind the surface.
   bool confirm_start = guided;
   const int thin_scale = cache.thin_scale;
@@ -218,14 +226,9 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   TsdfSample sample;
   TsdfSample prev_sample;  // the full sample at prev_t, when have_prev_sample
   bool have_prev_sample = false;
-  // The last positive sample before samples failed (the prev_* values then), kept for a negative
-  // sample that follows within kBridge_mu; forgotten at a free octant and a positive sample.
-  bool have_bridge = false;
-  bool bridge_nearest = false;
-  bool bridge_has_sample = false;
-  float bridge_t = 0.0f;
-  float bridge_f = 0.0f;
-  TsdfSample bridge_sample;
+  // Samples failed at a thin-band scale after a positive one, which the prev_* values (not
+  // have_prev) still hold: a negative sample within kBridge_mu of it closes the crossing.
+  bool kept_prev = false;
   // Consecutive samples mostly fall in the same block: look it up only when the block changes.
   const VoxelBlock<VoxelT>* block = nullptr;
   Eigen::Vector3i block_coords(-1, -1, -1);
@@ -274,9 +277,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       // Far from the origin a step can vanish in float rounding: give up rather than spin.
       if (!(t_next > t)) return no_hit();
       t = t_next;
+      if (have_prev && prev_f > 0.0f) confirm_start = false;
       have_prev = false;
       have_prev_sample = false;
-      have_bridge = false;
+      kept_prev = false;
       continue;
     }
     bool unobserved = false;  // the sample at q is known to fail
@@ -322,10 +326,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     }
     bool sampled = !unobserved && sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, sample);
     const bool thin = !sampled && block_read_scale(*block) >= thin_scale;
-    if (thin && ((have_prev && prev_f > 0.0f) || have_bridge || confirm_start)) {
+    if (thin && ((have_prev && prev_f > 0.0f) || kept_prev || confirm_start)) {
       // At coarse scales the band is a voxel or two thick: the cell around a crossing often
       // reaches a voxel the integrator never updated, or a block it never allocated.
-      sampled = sample_tsdf_observed_at_voxel_coords(map, q, block, kMinObservedWeight, sample);
+      sampled = sample_observed_corners(map, q, block, sample);
     }
     if (!sampled) {
       // Past a positive sample the observed band behind a surface can be thinner than a coarse
@@ -338,32 +342,22 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       // band, whose positive side is mu thick, so half of mu cannot step over it.
       const float t_next = t + std::max(kUnobservedStep_mu * config.mu_m, voxel_m);
       if (!(t_next > t)) return no_hit();
-      if (thin && have_prev && prev_f > 0.0f) {
-        have_bridge = true;
-        bridge_nearest = prev_nearest;
-        bridge_has_sample = have_prev_sample;
-        bridge_t = prev_t;
-        bridge_f = prev_f;
-        bridge_sample = prev_sample;
+      // prev_* and have_prev_sample are left as they are: only have_prev says they are current.
+      if (have_prev) {
+        if (prev_f > 0.0f) confirm_start = false;
+        kept_prev = thin && prev_f > 0.0f;
       }
       t = t_next;
       have_prev = false;
-      have_prev_sample = false;
       continue;
     }
     const float f = sample.tsdf;
-    if (f > 0.0f) {
-      confirm_start = false;
-      have_bridge = false;
-    } else if (!have_prev) {
-      if (have_bridge && t - bridge_t <= kBridge_mu * config.mu_m) {
+    // Both flags are brought up to date where have_prev is dropped (a positive prev ends
+    // confirm_start and is kept), not at every sample.
+    if (!have_prev && f <= 0.0f && (kept_prev || confirm_start)) {
+      if (kept_prev && t - prev_t <= kBridge_mu * config.mu_m) {
         // Only unobserved samples lay between: the crossing is between the two good ones.
         have_prev = true;
-        prev_nearest = bridge_nearest;
-        have_prev_sample = bridge_has_sample;
-        prev_t = bridge_t;
-        prev_f = bridge_f;
-        prev_sample = bridge_sample;
       } else if (confirm_start && sample.scale >= thin_scale) {
         return MarchResult::rejected;
       }

@@ -175,14 +175,6 @@ int thin_band_scale(float mu_m, float voxel_m) {
   return kMaxBlockScale + 1;
 }
 
-// sample_tsdf_observed_at_voxel_coords, kept out of the march loop: it runs only where a sample
-// failed near a crossing, and inlined it would cost every other sample.
-template <typename VoxelT>
-[[gnu::noinline]] bool sample_observed_corners(const Octree<VoxelT>& map, const Eigen::Vector3f& q,
-                                               const VoxelBlock<VoxelT>* home, TsdfSample& out) {
-  return sample_tsdf_observed_at_voxel_coords(map, q, home, kMinObservedWeight, out);
-}
-
 // What one ray leaves for the next: neighbouring rays descend through the same nodes and sample
 // the same blocks, so a row keeps one cursor and one block neighbourhood for all its rays.
 template <typename VoxelT>
@@ -329,7 +321,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     if (thin && ((have_prev && prev_f > 0.0f) || kept_prev || confirm_start)) {
       // At coarse scales the band is a voxel or two thick: the cell around a crossing often
       // reaches a voxel the integrator never updated, or a block it never allocated.
-      sampled = sample_observed_corners(map, q, block, sample);
+      sampled = sample_tsdf_observed_at_voxel_coords(map, q, block, kMinObservedWeight, sample);
     }
     if (!sampled) {
       // Past a positive sample the observed band behind a surface can be thinner than a coarse

@@ -127,13 +127,14 @@ TEST_CASE("a plane fused at each scale crosses zero within a quarter voxel of it
   }
 }
 
-TEST_CASE("where mu is under three voxels of the scale, voxels three voxels behind are observed",
+TEST_CASE("where mu is under 2.5 voxels of the scale, voxels 2.5 voxels behind are observed",
           "[fusion][integrator]") {
-  // mu = 2 voxels at 1 cm: at scale 0 the band reaches 3 voxels behind the plane instead of 2, at
-  // scale s 3 * 2^s voxels; past mu the value is -1. The blocks are those of the band +- mu.
+  // mu = 1.5 voxels at 1 cm: at scale 0 the band reaches 2.5 voxels behind the plane instead of
+  // 1.5, at scale s 2.5 * 2^s voxels; past mu the value is -1. The blocks are those of the band
+  // +- mu.
   constexpr double kPlaneZ_m = 1.237;
   constexpr float kVoxel_m = 0.01f;
-  constexpr float kMu_m = 2 * kVoxel_m;
+  constexpr float kMu_m = 1.5f * kVoxel_m;
   constexpr double kMargin_m = 0.001;  // keeps voxel centres clear of the thresholds
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
@@ -144,7 +145,7 @@ TEST_CASE("where mu is under three voxels of the scale, voxels three voxels behi
                                  camera);
     REQUIRE(fusion.fuse(scene, test::looking_along_z({0.0, 0.0, 0.1})).status.ok());
     const double cell_m = kVoxel_m * (1 << scale);
-    const double behind_m = std::max<double>(kMu_m, 3.0 * cell_m);
+    const double behind_m = std::max<double>(kMu_m, 2.5 * cell_m);
     int observed_past_mu = 0;
     // The column through the optical axis, where distances along the ray are along z.
     for (int z = 0; z < 256; z += 1 << scale) {

@@ -16,6 +16,19 @@ constexpr float kExitNudge_voxels = 1e-3f;
 constexpr float kUnobservedStep_mu = 0.5f;
 // Smallest gap, in finest voxels, that is still halved when a step lands on unobserved voxels.
 constexpr float kRetreatMin_voxels = 1.5f;
+// Scales whose voxels are so large that mu spans fewer than this many of them (2 mm voxels with
+// the default mu of 8: scales 2 and 3) hold a band only a voxel or two thick. There the trilinear
+// cell around a crossing often reaches a voxel no update reached or a block never allocated, and
+// the march below treats samples near a crossing specially (at 1 cm such scales lie beyond 7 m).
+constexpr float kThinBand_cells = 5.0f;
+// At such scales: a negative sample after samples that failed still closes a crossing with the
+// last positive sample before them when it lies at most this far (a fraction of mu) behind it
+// (one step through unobserved voxels plus the backed-off gap) ...
+constexpr float kBridge_mu = 0.75f;
+// ... and where a crossing is expected (after a positive sample, or at a guided start) and the
+// full sample fails, the cell is read from its observed corners when they carry at least this
+// share of its trilinear weight.
+constexpr float kMinObservedWeight = 0.25f;
 // Above this normalised TSDF the nearest voxel alone chooses the step; the full trilinear sample
 // is only taken closer to the surface.
 constexpr float kFarTsdf = 0.25f;
@@ -154,19 +167,31 @@ bool cell_inside_block(const VoxelBlock<VoxelT>& block, const Eigen::Vector3f& q
   return true;
 }
 
+// The finest scale whose band is thin (kThinBand_cells); kMaxBlockScale + 1 when none is.
+int thin_band_scale(float mu_m, float voxel_m) {
+  for (int s = 0; s <= kMaxBlockScale; ++s) {
+    if (mu_m < kThinBand_cells * voxel_m * static_cast<float>(1 << s)) return s;
+  }
+  return kMaxBlockScale + 1;
+}
+
 // What one ray leaves for the next: neighbouring rays descend through the same nodes and sample
 // the same blocks, so a row keeps one cursor and one block neighbourhood for all its rays.
 template <typename VoxelT>
 struct RowCache {
-  explicit RowCache(const Octree<VoxelT>& map) : cursor(map) {}
+  RowCache(const Octree<VoxelT>& map, float mu_m)
+      : cursor(map), thin_scale(thin_band_scale(mu_m, map.voxel_size_m())) {}
   TreeCursor<VoxelT> cursor;
   BlockNeighbourhood<VoxelT> neighbourhood;
+  int thin_scale;
 };
 
 // Marches from t_start (>= t_near) to t_far. With `guided`, the first voxel of an allocated block
-// the ray reaches must be observed and in front of a surface, or the march is rejected (also when
-// it reads no voxel at all). Once accepted, no crossing after the start is a miss: a surface in
-// front of the start is one the fused view did not see.
+// the ray reaches must be observed and in front of a surface, and at a thin-band scale so must the
+// first trilinear sample (a coarse voxel's centre can be in front of the surface while the start
+// is behind it), or the march is rejected (also when it reads no voxel at all). Once accepted, no
+// crossing after the start is a miss: a surface in front of the start is one the fused view did
+// not see.
 template <typename VoxelT>
 MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const Ray& ray,
                   float t_near, float t_far, float t_start, bool guided, RowCache<VoxelT>& cache,
@@ -182,6 +207,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   float t = std::max(t0, t_start);
   // A guided march that never read a voxel proved nothing about its start.
   auto no_hit = [&guided] { return guided ? MarchResult::rejected : MarchResult::miss; };
+  // Until a guided march takes a positive sample, a negative trilinear one means it started
+  // behind the surface.
+  bool confirm_start = guided;
+  const int thin_scale = cache.thin_scale;
   bool have_prev = false;
   bool prev_nearest = false;  // prev_f is a nearest-voxel read, not a trilinear sample
   float prev_t = 0.0f;
@@ -189,6 +218,9 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   TsdfSample sample;
   TsdfSample prev_sample;  // the full sample at prev_t, when have_prev_sample
   bool have_prev_sample = false;
+  // Samples failed at a thin-band scale after a positive one, which the prev_* values (not
+  // have_prev) still hold: a negative sample within kBridge_mu of it closes the crossing.
+  bool kept_prev = false;
   // Consecutive samples mostly fall in the same block: look it up only when the block changes.
   const VoxelBlock<VoxelT>* block = nullptr;
   Eigen::Vector3i block_coords(-1, -1, -1);
@@ -237,8 +269,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       // Far from the origin a step can vanish in float rounding: give up rather than spin.
       if (!(t_next > t)) return no_hit();
       t = t_next;
+      if (have_prev && prev_f > 0.0f) confirm_start = false;
       have_prev = false;
       have_prev_sample = false;
+      kept_prev = false;
       continue;
     }
     bool unobserved = false;  // the sample at q is known to fail
@@ -282,7 +316,14 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
         unobserved = cell_inside_block(*block, q, read_scale);
       }
     }
-    if (unobserved || !sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, sample)) {
+    bool sampled = !unobserved && sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, sample);
+    const bool thin = !sampled && block_read_scale(*block) >= thin_scale;
+    if (thin && ((have_prev && prev_f > 0.0f) || kept_prev || confirm_start)) {
+      // At coarse scales the band is a voxel or two thick: the cell around a crossing often
+      // reaches a voxel the integrator never updated, or a block it never allocated.
+      sampled = sample_tsdf_observed_at_voxel_coords(map, q, block, kMinObservedWeight, sample);
+    }
+    if (!sampled) {
       // Past a positive sample the observed band behind a surface can be thinner than a coarse
       // step: back off towards the last good sample before giving up on it.
       if (have_prev && prev_f > 0.0f && t - prev_t > kRetreatMin_voxels * voxel_m) {
@@ -293,12 +334,26 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       // band, whose positive side is mu thick, so half of mu cannot step over it.
       const float t_next = t + std::max(kUnobservedStep_mu * config.mu_m, voxel_m);
       if (!(t_next > t)) return no_hit();
+      // prev_* and have_prev_sample are left as they are: only have_prev says they are current.
+      if (have_prev) {
+        if (prev_f > 0.0f) confirm_start = false;
+        kept_prev = thin && prev_f > 0.0f;
+      }
       t = t_next;
       have_prev = false;
-      have_prev_sample = false;
       continue;
     }
     const float f = sample.tsdf;
+    // Both flags are brought up to date where have_prev is dropped (a positive prev ends
+    // confirm_start and is kept), not at every sample.
+    if (!have_prev && f <= 0.0f && (kept_prev || confirm_start)) {
+      if (kept_prev && t - prev_t <= kBridge_mu * config.mu_m) {
+        // Only unobserved samples lay between: the crossing is between the two good ones.
+        have_prev = true;
+      } else if (confirm_start && sample.scale >= thin_scale) {
+        return MarchResult::rejected;
+      }
+    }
     if (have_prev && prev_f > 0.0f && f <= 0.0f) {
       if (prev_nearest) {
         // Interpolate between two trilinear samples: take the full sample at the previous step.
@@ -490,7 +545,7 @@ struct RowJob {
   // One task: kRowsPerTask consecutive rows, so a worker's cache keeps the voxels that
   // neighbouring rows share (rows dealt out one by one split them between the cores).
   void operator()(std::size_t task) const {
-    RowCache<VoxelT> cache(*map);
+    RowCache<VoxelT> cache(*map, config->mu_m);
     const std::size_t end = std::min(static_cast<std::size_t>(config->height),
                                      (task + 1) * static_cast<std::size_t>(kRowsPerTask));
     for (std::size_t row = task * kRowsPerTask; row < end; ++row) march_row(row, cache);

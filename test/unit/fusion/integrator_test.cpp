@@ -127,6 +127,49 @@ TEST_CASE("a plane fused at each scale crosses zero within a quarter voxel of it
   }
 }
 
+TEST_CASE("where mu is under 2.5 voxels of the scale, voxels 2.5 voxels behind are observed",
+          "[fusion][integrator]") {
+  // mu = 1.5 voxels at 1 cm: at scale 0 the band reaches 2.5 voxels behind the plane instead of
+  // 1.5, at scale s 2.5 * 2^s voxels; past mu the value is -1. The blocks are those of the band
+  // +- mu.
+  constexpr double kPlaneZ_m = 1.237;
+  constexpr float kVoxel_m = 0.01f;
+  constexpr float kMu_m = 1.5f * kVoxel_m;
+  constexpr double kMargin_m = 0.001;  // keeps voxel centres clear of the thresholds
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  for (int scale = 0; scale <= kMaxBlockScale; ++scale) {
+    CAPTURE(scale);
+    Fusion<MultiresVoxel> fusion(map_config(kVoxel_m, 8, 8000), fusion_config(kMu_m, scale),
+                                 camera);
+    REQUIRE(fusion.fuse(scene, test::looking_along_z({0.0, 0.0, 0.1})).status.ok());
+    const double cell_m = kVoxel_m * (1 << scale);
+    const double behind_m = std::max<double>(kMu_m, 2.5 * cell_m);
+    int observed_past_mu = 0;
+    // The column through the optical axis, where distances along the ray are along z.
+    for (int z = 0; z < 256; z += 1 << scale) {
+      const Eigen::Vector3i column(128, 128, z);
+      const MultiresVoxel* v = fusion.map.voxel(column, scale);
+      if (v == nullptr) continue;  // not in the band's blocks
+      const double behind_plane_m = fusion.map.voxel_centre_W(column, scale).z() - kPlaneZ_m;
+      CAPTURE(z, behind_plane_m);
+      if (behind_plane_m > behind_m + kMargin_m) {
+        CHECK_FALSE(voxel_observed(*v));
+      } else if (behind_plane_m > kMu_m + kMargin_m) {
+        REQUIRE(voxel_observed(*v));
+        CHECK(voxel_tsdf(*v) == -1.0f);
+        ++observed_past_mu;
+      } else if (behind_plane_m > -kMu_m) {
+        REQUIRE(voxel_observed(*v));
+        CHECK(voxel_tsdf(*v) == Approx(-behind_plane_m / kMu_m).margin(1e-3));
+      }
+    }
+    // Each scale's band has voxels past mu in the blocks: the check above saw some.
+    CHECK(observed_past_mu > 0);
+  }
+}
+
 TEST_CASE("single-resolution fusion of a plane crosses zero within a quarter voxel",
           "[fusion][integrator]") {
   constexpr double kPlaneZ_m = 1.161;

@@ -85,5 +85,91 @@ TEST_CASE("no sample outside the map, in missing blocks or unobserved voxels") {
   REQUIRE_FALSE(sample_tsdf(owned.map, Eigen::Vector3f(0.28f, 0.28f, 0.28f), sample));
 }
 
+// The normalised field at the centre of a finest voxel, as fill_block writes it.
+float voxel_value(const Eigen::Vector3i& voxel) {
+  return linear_sdf((voxel.cast<float>() + Eigen::Vector3f::Constant(0.5f)) * kVoxel_m) / kMu_m;
+}
+
+// Trilinear weight of corner c (bit 0: x, 1: y, 2: z) at fractions `frac`.
+float corner_weight(int c, const Eigen::Vector3f& frac) {
+  return ((c & 1) != 0 ? frac.x() : 1.0f - frac.x()) * ((c & 2) != 0 ? frac.y() : 1.0f - frac.y()) *
+         ((c & 4) != 0 ? frac.z() : 1.0f - frac.z());
+}
+
+TEST_CASE("a cell with unobserved corners is sampled from its observed ones, by their weights") {
+  test::OwnedMap<MultiresVoxel> owned(small_config());
+  fill_all(owned.map, [](const Eigen::Vector3i&) { return 0; });
+  // q = p / voxel: the cell's corners are voxels (27..28, 29..30, 29..30), all in block (3, 3, 3)
+  // near the field's zero, at fractions (0.8, 0.1, 0.7) of it.
+  const Eigen::Vector3f q(28.3f, 29.6f, 30.2f);
+  const Eigen::Vector3i base(27, 29, 29);
+  const Eigen::Vector3f frac = q - Eigen::Vector3f::Constant(0.5f) - base.cast<float>();
+  const VoxelBlock<MultiresVoxel>* home = owned.map.find_block({3, 3, 3});
+  REQUIRE(home != nullptr);
+  BlockNeighbourhood<MultiresVoxel> neighbourhood;
+  TsdfSample full;
+  TsdfSample observed;
+  // All observed: the full sample, value and gradient.
+  REQUIRE(sample_tsdf_at_voxel_coords(owned.map, q, home, neighbourhood, full));
+  REQUIRE(sample_tsdf_observed_at_voxel_coords(owned.map, q, home, 1.0f, observed));
+  REQUIRE(observed.tsdf == Approx(full.tsdf).margin(kTolerance));
+  REQUIRE((observed.gradient - full.gradient).norm() < 1e-3f);
+  REQUIRE(observed.scale == 0);
+
+  auto corner = [&](int c) -> Eigen::Vector3i {
+    return base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+  };
+  auto unobserve = [&](int c) {
+    test::set_voxel(owned.map.find_block_at_voxel(corner(c))->at_voxel(corner(c), 0), 0.0f, 0.0f);
+  };
+  // Corner 7 unobserved: the full sample fails; the others' weighted mean, weight 0.944.
+  unobserve(7);
+  REQUIRE_FALSE(sample_tsdf_at_voxel_coords(owned.map, q, home, neighbourhood, full));
+  float sum = 0.0f;
+  float weight = 0.0f;
+  for (int c = 0; c < 7; ++c) {
+    sum += corner_weight(c, frac) * voxel_value(corner(c));
+    weight += corner_weight(c, frac);
+  }
+  REQUIRE(weight == Approx(0.944f));
+  REQUIRE(sample_tsdf_observed_at_voxel_coords(owned.map, q, home, 0.9f, observed));
+  REQUIRE(observed.tsdf == Approx(sum / weight).margin(kTolerance));
+  REQUIRE(observed.gradient.allFinite());
+  REQUIRE_FALSE(sample_tsdf_observed_at_voxel_coords(owned.map, q, home, 0.95f, observed));
+
+  // Only corner 0 left (weight 0.2 * 0.9 * 0.3 = 0.054): its value, when that much is enough.
+  for (int c = 1; c < 7; ++c) unobserve(c);
+  REQUIRE_FALSE(sample_tsdf_observed_at_voxel_coords(owned.map, q, home, 0.25f, observed));
+  REQUIRE(sample_tsdf_observed_at_voxel_coords(owned.map, q, home, 0.05f, observed));
+  REQUIRE(observed.tsdf == Approx(voxel_value(corner(0))).margin(kTolerance));
+  // Nothing observed: no sample, whatever the threshold.
+  unobserve(0);
+  REQUIRE_FALSE(sample_tsdf_observed_at_voxel_coords(owned.map, q, home, 1e-6f, observed));
+}
+
+TEST_CASE("corners in a block never allocated count as unobserved") {
+  test::OwnedMap<MultiresVoxel> owned(small_config());
+  Result<std::uint32_t> b = owned.map.allocate_block({3, 3, 3});
+  REQUIRE(b.ok());
+  test::fill_block(owned.map, owned.map.block(b.value()), 0, kMu_m, linear_sdf);
+  // Corners x = 31 (block 3) and x = 32 (block 4, not allocated), fractions (0.7, 0.5, 0.5).
+  const Eigen::Vector3f q(32.2f, 28.0f, 28.0f);
+  const VoxelBlock<MultiresVoxel>* home = &owned.map.block(b.value());
+  BlockNeighbourhood<MultiresVoxel> neighbourhood;
+  TsdfSample sample;
+  REQUIRE_FALSE(sample_tsdf_at_voxel_coords(owned.map, q, home, neighbourhood, sample));
+  // The x = 31 face carries 0.3 of the weight; on it the field is linear, so the sample is the
+  // field at (31.5, 28, 28) voxels.
+  REQUIRE_FALSE(sample_tsdf_observed_at_voxel_coords(owned.map, q, home, 0.5f, sample));
+  REQUIRE(sample_tsdf_observed_at_voxel_coords(owned.map, q, home, 0.25f, sample));
+  const Eigen::Vector3f face_W = Eigen::Vector3f(31.5f, 28.0f, 28.0f) * kVoxel_m;
+  REQUIRE(sample.tsdf == Approx(linear_sdf(face_W) / kMu_m).margin(kTolerance));
+  // Outside the cube or NaN: no sample.
+  REQUIRE_FALSE(sample_tsdf_observed_at_voxel_coords(owned.map, Eigen::Vector3f(NAN, 28.0f, 28.0f),
+                                                     home, 0.25f, sample));
+  REQUIRE_FALSE(sample_tsdf_observed_at_voxel_coords(
+      owned.map, Eigen::Vector3f(-5.0f, 28.0f, 28.0f), home, 0.25f, sample));
+}
+
 }  // namespace
 }  // namespace octofuse

@@ -5,6 +5,7 @@
 // scale. Blocks integrated finer are read through their (up-propagated) mip levels. Single-res
 // maps have every block at scale 0 and take the same path.
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 
@@ -209,6 +210,92 @@ bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3
     const float y1 = x01 + (x11 - x01) * fy;
     out.tsdf = y0 + (y1 - y0) * fz;
     // Derivatives of the trilinear interpolant, per grid unit, then per metre.
+    const float dx0 = (values[1] - values[0]) * (1 - fy) + (values[3] - values[2]) * fy;
+    const float dx1 = (values[5] - values[4]) * (1 - fy) + (values[7] - values[6]) * fy;
+    const float dy0 = (values[2] - values[0]) * (1 - fx) + (values[3] - values[1]) * fx;
+    const float dy1 = (values[6] - values[4]) * (1 - fx) + (values[7] - values[5]) * fx;
+    const float cell_m = map.voxel_size_m() * static_cast<float>(size);
+    out.gradient =
+        Eigen::Vector3f(dx0 + (dx1 - dx0) * fz, dy0 + (dy1 - dy0) * fz, y1 - y0) / cell_m;
+    out.scale = scale;
+    return true;
+  }
+  return false;
+}
+
+// The trilinear sample at q from the observed corners alone, for where the full sample fails: the
+// corners in unallocated blocks or unobserved take the mean of the observed ones, weighted as the
+// full sample weighs them, so the value is that weighted mean and the gradient that of the
+// completed cell. The scale is chosen as the full sample chooses it (the coarsest read scale of
+// the blocks found). False when the observed corners carry less than `min_weight` of the cell's
+// weight (in (0, 1]), or as the full sample (no home block, outside the cube).
+template <typename VoxelT>
+bool sample_tsdf_observed_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3f& q,
+                                          const VoxelBlock<VoxelT>* home, float min_weight,
+                                          TsdfSample& out) {
+  if (home == nullptr) return false;
+  const float limit = static_cast<float>(map.voxels_per_side()) + 1.0f;
+  if (!(q.x() > -1.0f && q.y() > -1.0f && q.z() > -1.0f && q.x() < limit && q.y() < limit &&
+        q.z() < limit)) {
+    return false;
+  }
+  const int n = map.voxels_per_side();
+  int scale = block_read_scale(*home);
+  while (scale <= kMaxBlockScale) {
+    const int size = 1 << scale;
+    const Eigen::Vector3f qs =
+        q * (1.0f / static_cast<float>(size)) - Eigen::Vector3f::Constant(0.5f);
+    const Eigen::Vector3i base(detail::floor_to_int(qs.x()), detail::floor_to_int(qs.y()),
+                               detail::floor_to_int(qs.z()));
+    const Eigen::Vector3f frac = qs - base.cast<float>();
+    float values[8];
+    bool observed[8];
+    float weight_sum = 0.0f;
+    float value_sum = 0.0f;
+    int needed = scale;
+    for (int c = 0; c < 8; ++c) {
+      const Eigen::Vector3i corner = base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+      const Eigen::Vector3i v = corner * size;
+      observed[c] = false;
+      values[c] = 0.0f;
+      if (v.x() < 0 || v.y() < 0 || v.z() < 0 || v.x() >= n || v.y() >= n || v.z() >= n) {
+        continue;
+      }
+      const Eigen::Vector3i block_coords = voxel_to_block(v);
+      const VoxelBlock<VoxelT>* block =
+          block_coords == home->coords ? home : map.find_block(block_coords);
+      if (block == nullptr) continue;
+      needed = std::max(needed, block_read_scale(*block));
+      const VoxelT& voxel = block->at_voxel(v, scale);
+      if (!voxel_observed(voxel)) continue;
+      const float w = ((c & 1) != 0 ? frac.x() : 1.0f - frac.x()) *
+                      (((c >> 1) & 1) != 0 ? frac.y() : 1.0f - frac.y()) *
+                      (((c >> 2) & 1) != 0 ? frac.z() : 1.0f - frac.z());
+      observed[c] = true;
+      values[c] = voxel_tsdf(voxel);
+      weight_sum += w;
+      value_sum += w * values[c];
+    }
+    if (needed > scale) {
+      scale = needed;
+      continue;
+    }
+    // Also false for NaN voxels.
+    if (!(weight_sum >= min_weight)) return false;
+    const float mean = value_sum / weight_sum;
+    for (int c = 0; c < 8; ++c) {
+      if (!observed[c]) values[c] = mean;
+    }
+    const float fx = frac.x();
+    const float fy = frac.y();
+    const float fz = frac.z();
+    const float x00 = values[0] + (values[1] - values[0]) * fx;
+    const float x10 = values[2] + (values[3] - values[2]) * fx;
+    const float x01 = values[4] + (values[5] - values[4]) * fx;
+    const float x11 = values[6] + (values[7] - values[6]) * fx;
+    const float y0 = x00 + (x10 - x00) * fy;
+    const float y1 = x01 + (x11 - x01) * fy;
+    out.tsdf = y0 + (y1 - y0) * fz;
     const float dx0 = (values[1] - values[0]) * (1 - fy) + (values[3] - values[2]) * fy;
     const float dx1 = (values[5] - values[4]) * (1 - fy) + (values[7] - values[6]) * fy;
     const float dy0 = (values[2] - values[0]) * (1 - fx) + (values[3] - values[1]) * fx;

@@ -5,7 +5,10 @@
 // through unobserved voxels, sample by multi-resolution trilinear interpolation
 // (interpolation.hpp), find the + to - zero crossing by linear interpolation (backing off when a
 // coarse step overshoots a thin observed band) and take the normal from central differences of
-// the TSDF at the hit's scale (the trilinear cell's gradient where a neighbour is missing).
+// the TSDF at the hit's scale (the trilinear cell's gradient where a neighbour is missing). Where
+// mu spans only a few voxels of the scale, a failed sample near a crossing is read from the cell's
+// observed corners, and failed samples between a positive and a negative one do not hide the
+// crossing (raycaster.cpp).
 //
 // Output, in buffers reserved at init: a SurfaceMap in the world frame (what ICP associates
 // against) and an 8-bit image of the interpolation scale per pixel (kNoScale where invalid).
@@ -129,8 +132,9 @@ class Raycaster {
   // `guide_depth_m` (optional, the reserved size, depth along the optical axis, no data = 0 or
   // NaN): the depth just fused from this pose. A guided ray starts mu / 2 in front of its guide
   // depth instead of at the near end of its tile, and keeps that start only when the first voxel it
-  // reads there is observed and positive; otherwise (or when it reads no voxel at all) it is
-  // marched again in full. It returns the surface nearest the guide from the front, or none: a
+  // reads there is observed and positive (and, where mu spans fewer than 5 voxels of the scale, its
+  // first trilinear sample too); otherwise (or when it reads no voxel at all) it is marched again
+  // in full. It returns the surface nearest the guide from the front, or none: a
   // stale surface further in front that the fused view did not see is not reported.
   // In a guided cast, a pixel without a guide depth whose ray found nothing in the previous cast
   // (no vertex) stays empty, and is marched only every 4th guided cast, pixels taking turns

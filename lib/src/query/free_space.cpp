@@ -101,14 +101,12 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m,
   }
 }
 
-void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, float zone_lo, float zone_hi,
-                           TileRange& range) const {
+void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const {
   const int w = level_width_[level];
   const float* plo = depth_min_ + level_offset_[level];
   const float* phi = depth_max_ + level_offset_[level];
   const std::uint8_t* pin = depth_invalid_ + level_offset_[level];
   std::uint8_t invalid = 0;
-  bool in_zone = false;
   float lo = kNoDepth;
   float hi = 0.0f;
   const int x0 = u0 >> level;
@@ -121,13 +119,24 @@ void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, float zone
       lo = std::min(lo, row_lo[x]);
       hi = std::max(hi, row_hi[x]);
       invalid = static_cast<std::uint8_t>(invalid | row_in[x]);
-      in_zone = in_zone | ((row_lo[x] <= zone_hi) & (row_hi[x] >= zone_lo));
     }
   }
   range.lo = lo;
   range.hi = hi;
   range.any_invalid = invalid != 0;
-  range.any_in_zone = in_zone;
+}
+
+bool FreeSpace::any_tile_in_zone(int level, int u0, int v0, int u1, int v1, float zone_lo,
+                                 float zone_hi) const {
+  const int w = level_width_[level];
+  const float* plo = depth_min_ + level_offset_[level];
+  const float* phi = depth_max_ + level_offset_[level];
+  for (int y = v0 >> level; y <= (v1 >> level); ++y) {
+    for (int x = u0 >> level; x <= (u1 >> level); ++x) {
+      if (plo[y * w + x] <= zone_hi && phi[y * w + x] >= zone_lo) return true;
+    }
+  }
+  return false;
 }
 
 namespace {
@@ -238,7 +247,7 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     return level;
   };
   auto classify_window = [&](int level, TileRange& range) {
-    tile_range(level, u0, v0, u1, v1, zone_lo, zone_hi, range);
+    tile_range(level, u0, v0, u1, v1, range);
     if (room_m != nullptr) *room_m = range.hi - z_min;
     // Nothing measured in the footprint: this frame says nothing about the octant.
     if (range.lo >= kNoDepth) return Seen::not_seen;
@@ -256,7 +265,7 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     // Some rays are blocked well in front of the octant (a nearer object's silhouette), the
     // others see through it, and no tile's depths could lie within it: nothing here contradicts
     // free space, but not all of it was seen.
-    if (!range.any_in_zone) return Seen::clear;
+    if (!any_tile_in_zone(level, u0, v0, u1, v1, zone_lo, zone_hi)) return Seen::clear;
     return Seen::partial;
   };
   int level = window_level(3);

@@ -292,14 +292,14 @@ class FreeSpace {
     float lo = 0.0f;  // least depth seen free to (kNoDepth: none); beyond-range pixels included
     float hi = 0.0f;  // greatest measured surface depth (0: none); beyond-range pixels excluded
     bool any_invalid = false;
-    // Some tile's depths overlap [zone_lo, zone_hi]: a surface may lie within the octant, or
-    // the octant just behind one (see tile_range()).
-    bool any_in_zone = false;
   };
   // The depth ranges of the tiles of pyramid level `level` covering pixels [u0, u1] x [v0, v1],
-  // merged, and whether one tile's range overlaps [zone_lo, zone_hi].
-  void tile_range(int level, int u0, int v0, int u1, int v1, float zone_lo, float zone_hi,
-                  TileRange& range) const;
+  // merged.
+  void tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const;
+  // Whether one of those tiles' ranges overlaps [zone_lo, zone_hi]: a surface may lie within
+  // the octant, or the octant just behind one.
+  bool any_tile_in_zone(int level, int u0, int v0, int u1, int v1, float zone_lo,
+                        float zone_hi) const;
   // Nodes within keep_radius_m of centre_W (the root and every node whose octant comes that close
   // and whose parent stays); with `mark`, remap_[i] = 1 for those, 0 for the others.
   std::uint32_t walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m, bool mark);

@@ -13,7 +13,10 @@
 
 namespace octofuse {
 
-// Raw value a sensor writes for "too far / no return" (Kinect v1, 7-Scenes).
+// Raw value a sensor writes for "too far / no return" (Kinect v1, 7-Scenes). It and 0 are no
+// measurement; any other value beyond far_m is a measured surface beyond the range, which free
+// space takes as its ray seen free out to far_m. A port whose sensor writes some other code for
+// "no return" must map it to 0.
 inline constexpr std::uint16_t kSaturatedDepthRaw = 65535;
 
 struct FrameValidatorConfig {

@@ -84,7 +84,7 @@ void print_run_usage(const char* program, const char* default_source) {
       "                       calibration give the same result on any machine and thread count\n"
       "  --no-free-space      do not record free space (queries then know only the TSDF band)\n"
       "  --free-space-exact   settle octants beside nearer objects' silhouettes pixel by\n"
-      "                       pixel: more air reads free, carving costs about twice as much\n"
+      "                       pixel: more air reads free, carving costs about 1.6x as much\n"
       "  --query-points FILE  answer FILE's points (one 'x y z' per line, metres, world frame)\n"
       "                       against the final map into DIR/queries.txt:\n"
       "                       'x y z STATE DISTANCE', STATE outside|unknown|free|near|inside\n"

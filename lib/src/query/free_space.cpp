@@ -140,6 +140,11 @@ bool FreeSpace::any_tile_in_zone(int level, int u0, int v0, int u1, int v1, floa
 }
 
 namespace {
+// floor(log2(x)) for x > 0.
+int floor_log2(std::uint32_t x) {
+  return 31 - __builtin_clz(x);
+}
+
 int clamped_floor(float f) {
   constexpr float kLimit = 1e6f;
   if (!(f > -kLimit)) return -1000000;
@@ -238,8 +243,13 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   // behind) or that holds pixels without depth are settled pixel by pixel (refine_footprint()).
   const float zone_lo = z_min - occlusion_clear_m_;
   const float zone_hi = z_max + clearance_m_;
+  // Below level floor(log2(span)) - floor(log2(tiles)) the window spans more than `tiles` tiles
+  // (floor(a / k) - floor(b / k) >= floor((a - b) / k)), so the search starts there.
+  const int span = std::max(u1 - u0, v1 - v0);
+  const int span_log2 = span > 0 ? floor_log2(static_cast<std::uint32_t>(span)) : 0;
   auto window_level = [&](int tiles) {
-    int level = 0;
+    int level = std::max(
+        0, std::min(span_log2 - floor_log2(static_cast<std::uint32_t>(tiles)), level_count_ - 1));
     while (level + 1 < level_count_ &&
            (((u1 >> level) - (u0 >> level)) >= tiles || ((v1 >> level) - (v0 >> level)) >= tiles)) {
       ++level;

@@ -238,9 +238,9 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   // `tiles` x `tiles`: the window exceeds the footprint by up to one tile on each side, so a
   // depth just beside the octant can make it look partial. Octants that descend anyway take 3 x 3
   // (at most 9 reads). The answers of leaves (after a second look at up to 8 x 8) and of their
-  // sub-cells are final (a partial one loses its free state), so those left partial or clear
-  // by a window whose depths straddle the zone (a nearer object's silhouette, with depths
-  // behind) or that holds pixels without depth are settled pixel by pixel (refine_footprint()).
+  // sub-cells are final (a partial one loses its free state); with exact_silhouettes, those left
+  // partial by a window whose depths straddle the zone (a nearer object's silhouette, with depths
+  // behind) are settled pixel by pixel (refine_footprint()).
   const float zone_lo = z_min - occlusion_clear_m_;
   const float zone_hi = z_max + clearance_m_;
   // Below level floor(log2(span)) - floor(log2(tiles)) the window spans more than `tiles` tiles
@@ -308,7 +308,7 @@ FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, i
     int x;
     int y;
   };
-  // At most 9 x 9 tiles to start, then 3 more per level.
+  // At most 8 x 8 tiles to start (a window of up to 8), then 3 more per level.
   constexpr int kCapacity = 128;
   Tile stack[kCapacity];
   int top = 0;

@@ -10,27 +10,18 @@
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
+#include "support/small_sim.hpp"
 #include "support/test_dir.hpp"
 
 namespace octofuse {
 namespace {
 
-constexpr int kWidth = 160;
-constexpr int kHeight = 120;
 constexpr int kFrames = 30;
 constexpr int kSaveAt = 15;
 
+// Noiseless, as the tracking test: within 1 cm, no frame lost.
 sim::SimConfig sim_config() {
-  sim::SimConfig config;
-  config.scene = sim::SceneId::desk;
-  config.frame_count = kFrames;
-  config.camera.width = kWidth;
-  config.camera.height = kHeight;
-  config.camera.fx = config.camera.fy = 525.0f / 4.0f;
-  config.camera.cx = (kWidth - 1) * 0.5f;
-  config.camera.cy = (kHeight - 1) * 0.5f;
-  config.noise.enabled = false;  // as the tracking test: within 1 cm, no frame lost
-  return config;
+  return test::small_sim(kFrames, false);
 }
 
 struct Run {

@@ -52,6 +52,29 @@ inline int floor_to_int(float x) {
   const int i = static_cast<int>(x);
   return i - (x < static_cast<float>(i) ? 1 : 0);
 }
+
+// The trilinear interpolant of a cell's 8 corner values (x fastest) at `frac` in [0, 1]^3, and
+// its gradient per metre for a cell `cell_m` on a side, into `out`.
+inline void interpolate_cell(const float (&values)[8], const Eigen::Vector3f& frac, float cell_m,
+                             int scale, TsdfSample& out) {
+  const float fx = frac.x();
+  const float fy = frac.y();
+  const float fz = frac.z();
+  const float x00 = values[0] + (values[1] - values[0]) * fx;
+  const float x10 = values[2] + (values[3] - values[2]) * fx;
+  const float x01 = values[4] + (values[5] - values[4]) * fx;
+  const float x11 = values[6] + (values[7] - values[6]) * fx;
+  const float y0 = x00 + (x10 - x00) * fy;
+  const float y1 = x01 + (x11 - x01) * fy;
+  out.tsdf = y0 + (y1 - y0) * fz;
+  // Derivatives of the trilinear interpolant, per grid unit, then per metre.
+  const float dx0 = (values[1] - values[0]) * (1 - fy) + (values[3] - values[2]) * fy;
+  const float dx1 = (values[5] - values[4]) * (1 - fy) + (values[7] - values[6]) * fy;
+  const float dy0 = (values[2] - values[0]) * (1 - fx) + (values[3] - values[1]) * fx;
+  const float dy1 = (values[6] - values[4]) * (1 - fx) + (values[7] - values[5]) * fx;
+  out.gradient = Eigen::Vector3f(dx0 + (dx1 - dx0) * fz, dy0 + (dy1 - dy0) * fz, y1 - y0) / cell_m;
+  out.scale = scale;
+}
 }  // namespace detail
 
 // Samples the normalised TSDF at p_W. False when a neighbour lies outside the map, in an
@@ -199,25 +222,8 @@ bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3
       scale = needed;
       continue;
     }
-    const float fx = frac.x();
-    const float fy = frac.y();
-    const float fz = frac.z();
-    const float x00 = values[0] + (values[1] - values[0]) * fx;
-    const float x10 = values[2] + (values[3] - values[2]) * fx;
-    const float x01 = values[4] + (values[5] - values[4]) * fx;
-    const float x11 = values[6] + (values[7] - values[6]) * fx;
-    const float y0 = x00 + (x10 - x00) * fy;
-    const float y1 = x01 + (x11 - x01) * fy;
-    out.tsdf = y0 + (y1 - y0) * fz;
-    // Derivatives of the trilinear interpolant, per grid unit, then per metre.
-    const float dx0 = (values[1] - values[0]) * (1 - fy) + (values[3] - values[2]) * fy;
-    const float dx1 = (values[5] - values[4]) * (1 - fy) + (values[7] - values[6]) * fy;
-    const float dy0 = (values[2] - values[0]) * (1 - fx) + (values[3] - values[1]) * fx;
-    const float dy1 = (values[6] - values[4]) * (1 - fx) + (values[7] - values[5]) * fx;
-    const float cell_m = map.voxel_size_m() * static_cast<float>(size);
-    out.gradient =
-        Eigen::Vector3f(dx0 + (dx1 - dx0) * fz, dy0 + (dy1 - dy0) * fz, y1 - y0) / cell_m;
-    out.scale = scale;
+    detail::interpolate_cell(values, frac, map.voxel_size_m() * static_cast<float>(size), scale,
+                             out);
     return true;
   }
   return false;
@@ -286,24 +292,8 @@ bool sample_tsdf_observed_at_voxel_coords(const Octree<VoxelT>& map, const Eigen
     for (int c = 0; c < 8; ++c) {
       if (!observed[c]) values[c] = mean;
     }
-    const float fx = frac.x();
-    const float fy = frac.y();
-    const float fz = frac.z();
-    const float x00 = values[0] + (values[1] - values[0]) * fx;
-    const float x10 = values[2] + (values[3] - values[2]) * fx;
-    const float x01 = values[4] + (values[5] - values[4]) * fx;
-    const float x11 = values[6] + (values[7] - values[6]) * fx;
-    const float y0 = x00 + (x10 - x00) * fy;
-    const float y1 = x01 + (x11 - x01) * fy;
-    out.tsdf = y0 + (y1 - y0) * fz;
-    const float dx0 = (values[1] - values[0]) * (1 - fy) + (values[3] - values[2]) * fy;
-    const float dx1 = (values[5] - values[4]) * (1 - fy) + (values[7] - values[6]) * fy;
-    const float dy0 = (values[2] - values[0]) * (1 - fx) + (values[3] - values[1]) * fx;
-    const float dy1 = (values[6] - values[4]) * (1 - fx) + (values[7] - values[5]) * fx;
-    const float cell_m = map.voxel_size_m() * static_cast<float>(size);
-    out.gradient =
-        Eigen::Vector3f(dx0 + (dx1 - dx0) * fz, dy0 + (dy1 - dy0) * fz, y1 - y0) / cell_m;
-    out.scale = scale;
+    detail::interpolate_cell(values, frac, map.voxel_size_m() * static_cast<float>(size), scale,
+                             out);
     return true;
   }
   return false;

@@ -42,41 +42,79 @@ Status FreeSpace::begin_restore(std::uint32_t count) {
   return ok_status();
 }
 
+namespace {
+// floor(log2(x)) for x > 0.
+int floor_log2(std::uint32_t x) {
+  return 31 - __builtin_clz(x);
+}
+
+int clamped_floor(float f) {
+  constexpr float kLimit = 1e6f;
+  if (!(f > -kLimit)) return -1000000;
+  if (!(f < kLimit)) return 1000000;
+  // floor by truncation and a correction: exact in this range, without a libm call (the x86-64
+  // baseline has no rounding instruction).
+  const int i = static_cast<int>(f);
+  return i - (f < static_cast<float>(i) ? 1 : 0);
+}
+}  // namespace
+
 void FreeSpace::build_pyramid(ImageView<const float> depth_m,
                               ImageView<const std::uint8_t> beyond_range, float beyond_free_m) {
   float* lo = depth_min_;
   float* hi = depth_max_;
   std::uint8_t* invalid = depth_invalid_;
+  // One output per loop, branch-free, so that each is vectorised.
   for (int y = 0; y < height_; ++y) {
     const float* row = depth_m.row(y);
-    for (int x = 0; x < width_; ++x) {
-      const float d = row[x];
-      // NaN and infinities fail the test too.
-      const bool valid = d > 0.0f && d < kNoDepth;
-      lo[y * width_ + x] = valid ? d : kNoDepth;
-      hi[y * width_ + x] = valid ? d : 0.0f;
-      invalid[y * width_ + x] = valid ? 0 : 1;
-    }
+    float* lo_row = lo + static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
+    float* hi_row = hi + static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
+    std::uint8_t* in_row = invalid + static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
+    // NaN and infinities fail the test too.
+    for (int x = 0; x < width_; ++x)
+      lo_row[x] = (row[x] > 0.0f) & (row[x] < kNoDepth) ? row[x] : kNoDepth;
+    for (int x = 0; x < width_; ++x)
+      hi_row[x] = (row[x] > 0.0f) & (row[x] < kNoDepth) ? row[x] : 0.0f;
+    for (int x = 0; x < width_; ++x) in_row[x] = lo_row[x] < kNoDepth ? 0 : 1;
     if (beyond_range.empty()) continue;
     // Seen free out to the range's end; no surface there (hi stays 0).
     const std::uint8_t* beyond_row = beyond_range.row(y);
     for (int x = 0; x < width_; ++x) {
-      if (invalid[y * width_ + x] == 0 || beyond_row[x] == 0) continue;
-      lo[y * width_ + x] = beyond_free_m;
-      invalid[y * width_ + x] = 0;
+      lo_row[x] = (in_row[x] != 0) & (beyond_row[x] != 0) ? beyond_free_m : lo_row[x];
+    }
+    for (int x = 0; x < width_; ++x) {
+      in_row[x] = static_cast<std::uint8_t>(in_row[x] & (beyond_row[x] == 0 ? 1 : 0));
     }
   }
+  // Aligned tiles of the levels the range table holds are its entries at multiples of the side.
+  const std::size_t level_size =
+      static_cast<std::size_t>(width_) * static_cast<std::size_t>(height_);
+  build_range_table();
   for (int level = 1; level < level_count_; ++level) {
     const int w = level_width_[level];
     const int h = level_height_[level];
+    float* clo = depth_min_ + level_offset_[level];
+    float* chi = depth_max_ + level_offset_[level];
+    std::uint8_t* cin = depth_invalid_ + level_offset_[level];
+    if (level < table_levels_) {
+      const std::size_t offset = static_cast<std::size_t>(level - 1) * level_size;
+      for (int y = 0; y < h; ++y) {
+        const std::size_t row =
+            (static_cast<std::size_t>(y) << level) * static_cast<std::size_t>(width_);
+        for (int x = 0; x < w; ++x) {
+          const std::size_t i = offset + row + (static_cast<std::size_t>(x) << level);
+          clo[y * w + x] = table_min_[i];
+          chi[y * w + x] = table_max_[i];
+          cin[y * w + x] = table_invalid_[i];
+        }
+      }
+      continue;
+    }
     const int pw = level_width_[level - 1];
     const int ph = level_height_[level - 1];
     const float* plo = depth_min_ + level_offset_[level - 1];
     const float* phi = depth_max_ + level_offset_[level - 1];
     const std::uint8_t* pin = depth_invalid_ + level_offset_[level - 1];
-    float* clo = depth_min_ + level_offset_[level];
-    float* chi = depth_max_ + level_offset_[level];
-    std::uint8_t* cin = depth_invalid_ + level_offset_[level];
     for (int y = 0; y < h; ++y) {
       for (int x = 0; x < w; ++x) {
         float a = kNoDepth;
@@ -101,25 +139,101 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m,
   }
 }
 
-void FreeSpace::tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const {
-  const int w = level_width_[level];
-  const float* plo = depth_min_ + level_offset_[level];
-  const float* phi = depth_max_ + level_offset_[level];
-  const std::uint8_t* pin = depth_invalid_ + level_offset_[level];
-  std::uint8_t invalid = 0;
+void FreeSpace::build_range_table() {
+  // The range table: each level merges four squares of the one below, offset by half a side
+  // (clamped to the last row / column, which then lies inside the square anyway).
+  const std::size_t level_size =
+      static_cast<std::size_t>(width_) * static_cast<std::size_t>(height_);
+  for (int t = 1; t < table_levels_; ++t) {
+    const int half = 1 << (t - 1);
+    const float* plo =
+        t == 1 ? depth_min_ : table_min_ + static_cast<std::size_t>(t - 2) * level_size;
+    const float* phi =
+        t == 1 ? depth_max_ : table_max_ + static_cast<std::size_t>(t - 2) * level_size;
+    const std::uint8_t* pin =
+        t == 1 ? depth_invalid_ : table_invalid_ + static_cast<std::size_t>(t - 2) * level_size;
+    float* clo = table_min_ + static_cast<std::size_t>(t - 1) * level_size;
+    float* chi = table_max_ + static_cast<std::size_t>(t - 1) * level_size;
+    std::uint8_t* cin = table_invalid_ + static_cast<std::size_t>(t - 1) * level_size;
+    const int x_split = std::max(width_ - half, 0);
+    for (int y = 0; y < height_; ++y) {
+      const std::size_t r0 = static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
+      const std::size_t r1 = static_cast<std::size_t>(std::min(y + half, height_ - 1)) *
+                             static_cast<std::size_t>(width_);
+      const float* a_lo = plo + r0;
+      const float* b_lo = plo + r1;
+      const float* a_hi = phi + r0;
+      const float* b_hi = phi + r1;
+      const std::uint8_t* a_in = pin + r0;
+      const std::uint8_t* b_in = pin + r1;
+      float* o_lo = clo + r0;
+      float* o_hi = chi + r0;
+      std::uint8_t* o_in = cin + r0;
+      // One output per loop, so that each is vectorised.
+      for (int x = 0; x < x_split; ++x) {
+        o_lo[x] = std::min(std::min(a_lo[x], a_lo[x + half]), std::min(b_lo[x], b_lo[x + half]));
+      }
+      for (int x = 0; x < x_split; ++x) {
+        o_hi[x] = std::max(std::max(a_hi[x], a_hi[x + half]), std::max(b_hi[x], b_hi[x + half]));
+      }
+      for (int x = 0; x < x_split; ++x) {
+        o_in[x] = static_cast<std::uint8_t>(a_in[x] | a_in[x + half] | b_in[x] | b_in[x + half]);
+      }
+      const int last = width_ - 1;
+      for (int x = x_split; x < width_; ++x) {
+        o_lo[x] = std::min(std::min(a_lo[x], a_lo[last]), std::min(b_lo[x], b_lo[last]));
+        o_hi[x] = std::max(std::max(a_hi[x], a_hi[last]), std::max(b_hi[x], b_hi[last]));
+        o_in[x] = static_cast<std::uint8_t>(a_in[x] | a_in[last] | b_in[x] | b_in[last]);
+      }
+    }
+  }
+}
+
+FreeSpace::PixelRange FreeSpace::pixel_range(int u0, int v0, int u1, int v1) const {
+  PixelRange out;
+  if (!reserved_) return out;
+  u0 = std::max(u0, 0);
+  v0 = std::max(v0, 0);
+  u1 = std::min(u1, width_ - 1);
+  v1 = std::min(v1, height_ - 1);
+  if (u0 > u1 || v0 > v1) return out;
+  TileRange range;
+  rect_range(u0, v0, u1, v1, range);
+  out.lo_m = range.lo;
+  out.hi_m = range.hi;
+  out.any_invalid = range.any_invalid;
+  return out;
+}
+
+void FreeSpace::rect_range(int u0, int v0, int u1, int v1, TileRange& range) const {
+  const int rect_w = u1 - u0 + 1;
+  const int rect_h = v1 - v0 + 1;
+  const int t =
+      std::min(floor_log2(static_cast<std::uint32_t>(std::min(rect_w, rect_h))), table_levels_ - 1);
+  const int s = 1 << t;
+  const std::size_t level_size =
+      static_cast<std::size_t>(width_) * static_cast<std::size_t>(height_);
+  const std::size_t offset = t == 0 ? 0 : static_cast<std::size_t>(t - 1) * level_size;
+  const float* plo = t == 0 ? depth_min_ : table_min_ + offset;
+  const float* phi = t == 0 ? depth_max_ : table_max_ + offset;
+  const std::uint8_t* pin = t == 0 ? depth_invalid_ : table_invalid_ + offset;
+  // Squares at u0, u0 + s, ... and the last one flush with u1 (overlaps change no min or max).
+  const int x_last = u1 - s + 1;
+  const int y_last = v1 - s + 1;
   float lo = kNoDepth;
   float hi = 0.0f;
-  const int x0 = u0 >> level;
-  const int x1 = u1 >> level;
-  for (int y = v0 >> level; y <= (v1 >> level); ++y) {
-    const float* row_lo = plo + y * w;
-    const float* row_hi = phi + y * w;
-    const std::uint8_t* row_in = pin + y * w;
-    for (int x = x0; x <= x1; ++x) {
-      lo = std::min(lo, row_lo[x]);
-      hi = std::max(hi, row_hi[x]);
-      invalid = static_cast<std::uint8_t>(invalid | row_in[x]);
+  std::uint8_t invalid = 0;
+  for (int y = v0;; y += s) {
+    const int yy = std::min(y, y_last);
+    const std::size_t row = static_cast<std::size_t>(yy) * static_cast<std::size_t>(width_);
+    for (int x = u0;; x += s) {
+      const std::size_t i = row + static_cast<std::size_t>(std::min(x, x_last));
+      lo = std::min(lo, plo[i]);
+      hi = std::max(hi, phi[i]);
+      invalid = static_cast<std::uint8_t>(invalid | pin[i]);
+      if (x >= x_last) break;
     }
+    if (y >= y_last) break;
   }
   range.lo = lo;
   range.hi = hi;
@@ -138,23 +252,6 @@ bool FreeSpace::any_tile_in_zone(int level, int u0, int v0, int u1, int v1, floa
   }
   return false;
 }
-
-namespace {
-// floor(log2(x)) for x > 0.
-int floor_log2(std::uint32_t x) {
-  return 31 - __builtin_clz(x);
-}
-
-int clamped_floor(float f) {
-  constexpr float kLimit = 1e6f;
-  if (!(f > -kLimit)) return -1000000;
-  if (!(f < kLimit)) return 1000000;
-  // floor by truncation and a correction: exact in this range, without a libm call (the x86-64
-  // baseline has no rounding instruction).
-  const int i = static_cast<int>(f);
-  return i - (f < static_cast<float>(i) ? 1 : 0);
-}
-}  // namespace
 
 FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look,
                                     float* room_m) const {
@@ -234,10 +331,10 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   v0 = std::max(v0, 0);
   u1 = std::min(u1, width_ - 1);
   v1 = std::min(v1, height_ - 1);
-  // The tiles covering the footprint, at the finest pyramid level where they span at most
-  // `tiles` x `tiles`: the window exceeds the footprint by up to one tile on each side, so a
-  // depth just beside the octant can make it look partial. Octants that descend anyway take 3 x 3
-  // (at most 9 reads). The answers of leaves (after a second look at up to 8 x 8) and of their
+  // The footprint's pixels are merged exactly (the range table). Only the silhouette test reads
+  // the tiles covering the footprint, at the finest pyramid level where they span at most
+  // `tiles` x `tiles`, each exceeding the footprint by up to one tile on each side: 3 x 3 for
+  // octants that descend anyway, up to 8 x 8 for leaves. The answers of leaves and of their
   // sub-cells are final (a partial one loses its free state); with exact_silhouettes, those left
   // partial by a window whose depths straddle the zone (a nearer object's silhouette, with depths
   // behind) are settled pixel by pixel (refine_footprint()).
@@ -256,8 +353,11 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     }
     return level;
   };
-  auto classify_window = [&](int level, TileRange& range) {
-    tile_range(level, u0, v0, u1, v1, range);
+  // Leaves look for silhouettes at tiles of up to 8 x 8, the others at 3 x 3 (found only when
+  // needed).
+  int zone_level = -1;
+  // The footprint's exact range decides, but for the silhouette test tile by tile.
+  auto classify_range = [&](const TileRange& range) {
     if (room_m != nullptr) *room_m = range.hi - z_min;
     // Nothing measured in the footprint: this frame says nothing about the octant.
     if (range.lo >= kNoDepth) return Seen::not_seen;
@@ -275,17 +375,14 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     // Some rays are blocked well in front of the octant (a nearer object's silhouette), the
     // others see through it, and no tile's depths could lie within it: nothing here contradicts
     // free space, but not all of it was seen.
-    if (!any_tile_in_zone(level, u0, v0, u1, v1, zone_lo, zone_hi)) return Seen::clear;
+    zone_level = window_level(look == Look::leaf ? 8 : 3);
+    if (!any_tile_in_zone(zone_level, u0, v0, u1, v1, zone_lo, zone_hi)) return Seen::clear;
     return Seen::partial;
   };
-  int level = window_level(3);
   TileRange range;
-  Seen seen = classify_window(level, range);
-  if (look == Look::coarse || seen == Seen::free || seen == Seen::not_seen) return seen;
-  if (look == Look::leaf) {
-    level = window_level(8);
-    seen = classify_window(level, range);
-  }
+  rect_range(u0, v0, u1, v1, range);
+  const Seen seen = classify_range(range);
+  if (look == Look::coarse) return seen;
   if (!config_.exact_silhouettes || seen != Seen::partial) return seen;
   // The window's nearest or farthest depth lies in the zone: a surface in or at the octant
   // (or just beside it, which only makes the answer cautious).
@@ -294,8 +391,8 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   if (extreme_in_zone) return seen;
   // Depths in front of the zone and behind it: settled from tiles of up to 8 x 8, most of them
   // wholly inside the footprint.
-  return refine_footprint(look == Look::leaf ? level : window_level(8), u0, v0, u1, v1, zone_lo,
-                          zone_hi, inside);
+  return refine_footprint(look == Look::leaf ? zone_level : window_level(8), u0, v0, u1, v1,
+                          zone_lo, zone_hi, inside);
 }
 
 FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, int v1,

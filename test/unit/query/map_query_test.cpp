@@ -377,6 +377,68 @@ TEST_CASE("pixels without depth neither carve nor clear; the rest of the view st
   REQUIRE(ask(fresh, 0.0f, 0.45f, 1.5f).state == PointState::free);
 }
 
+TEST_CASE("the depth range of any pixel rectangle is the brute-force one") {
+  // Random depths, holes and beyond-range pixels; every rectangle's range from the range table
+  // equals the one computed pixel by pixel.
+  Mapper m;
+  const int w = m.camera.width;
+  const int h = m.camera.height;
+  const float range_end_m = 3.5f;
+  std::vector<float> depth(static_cast<std::size_t>(w) * static_cast<std::size_t>(h));
+  std::vector<std::uint8_t> beyond(depth.size(), 0);
+  std::uint32_t state = 12345u;
+  auto next = [&state]() {
+    state = state * 1664525u + 1013904223u;
+    return state >> 8;
+  };
+  for (std::size_t i = 0; i < depth.size(); ++i) {
+    const std::uint32_t r = next() % 100u;
+    depth[i] = r < 10 ? 0.0f : 0.3f + static_cast<float>(next() % 3000u) * 0.001f;
+    beyond[i] = r < 5 ? 1 : 0;
+  }
+  const ImageView<const float> depth_view(depth.data(), w, h);
+  const ImageView<const std::uint8_t> beyond_view(beyond.data(), w, h);
+  m.free_space.carve(depth_view, m.camera, Se3d::Identity(), m.frame++, beyond_view, range_end_m);
+  for (int trial = 0; trial < 3000; ++trial) {
+    int u0 = static_cast<int>(next() % static_cast<std::uint32_t>(w));
+    int v0 = static_cast<int>(next() % static_cast<std::uint32_t>(h));
+    // Mostly small rectangles, some up to the whole image.
+    const std::uint32_t max_side = trial % 4 == 0 ? 200u : 24u;
+    int u1 = u0 + static_cast<int>(next() % max_side);
+    int v1 = v0 + static_cast<int>(next() % max_side);
+    const FreeSpace::PixelRange got = m.free_space.pixel_range(u0, v0, u1, v1);
+    u1 = std::min(u1, w - 1);
+    v1 = std::min(v1, h - 1);
+    float lo = FreeSpace::kNoDepth;
+    float hi = 0.0f;
+    bool invalid = false;
+    for (int v = v0; v <= v1; ++v) {
+      for (int u = u0; u <= u1; ++u) {
+        const std::size_t i =
+            static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
+        if (depth[i] > 0.0f) {
+          lo = std::min(lo, depth[i]);
+          hi = std::max(hi, depth[i]);
+        } else if (beyond[i] != 0) {
+          lo = std::min(lo, range_end_m);
+        } else {
+          invalid = true;
+        }
+      }
+    }
+    REQUIRE(got.lo_m == lo);
+    REQUIRE(got.hi_m == hi);
+    REQUIRE(got.any_invalid == invalid);
+  }
+  // Clipped to the image; wholly outside it nothing is measured.
+  const FreeSpace::PixelRange all = m.free_space.pixel_range(-5, -5, w + 5, h + 5);
+  REQUIRE(all.any_invalid);
+  REQUIRE(all.hi_m > 0.0f);
+  const FreeSpace::PixelRange outside = m.free_space.pixel_range(w, 0, w + 3, 4);
+  REQUIRE(outside.lo_m == FreeSpace::kNoDepth);
+  REQUIRE(outside.hi_m == 0.0f);
+}
+
 TEST_CASE("pixels measured beyond the range carve in front of its end and clear nothing behind") {
   // Every pixel saw a surface beyond the range (depth 0, marked beyond): free out to the range's
   // end less the clearance, unknown past it.

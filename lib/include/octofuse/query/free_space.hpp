@@ -67,6 +67,7 @@
 //
 // Threading: carve() and clear() must not overlap reads (the pipeline's MapGuard orders them).
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <type_traits>
@@ -240,6 +241,19 @@ class FreeSpace {
   FreeOctant find(const Eigen::Vector3i& voxel) const;
 
   const FreeSpaceConfig& config() const { return config_; }
+  // The last carved frame's depths over pixels [u0, u1] x [v0, v1] (clipped to the image; empty
+  // after clipping reads as nothing measured): the least depth seen free to (kNoDepth: none;
+  // pixels measured beyond the range count with the range's end), the greatest measured surface
+  // depth (0: none) and whether some pixel had no depth. What carving compares octants with, from
+  // at most a few reads of the range table; public for tests and tools.
+  struct PixelRange {
+    float lo_m = kNoDepth;
+    float hi_m = 0.0f;
+    bool any_invalid = false;
+  };
+  PixelRange pixel_range(int u0, int v0, int u1, int v1) const;
+  static constexpr float kNoDepth = 1e30f;
+
   // Changes the node-visit budget between frames (a frame deadline sets it); 0 reads as 1.
   void set_visit_budget(std::uint32_t max_node_visits) {
     config_.max_node_visits = max_node_visits > 0 ? max_node_visits : 1u;
@@ -288,14 +302,17 @@ class FreeSpace {
   SubCellUpdate classify_sub_cells(const Eigen::Vector3i& leaf_min_voxel) const;
   void build_pyramid(ImageView<const float> depth_m, ImageView<const std::uint8_t> beyond_range,
                      float beyond_free_m);
+  // Levels 1 .. table_levels_ - 1 of the range table, from the pyramid's level 0.
+  void build_range_table();
   struct TileRange {
     float lo = 0.0f;  // least depth seen free to (kNoDepth: none); beyond-range pixels included
     float hi = 0.0f;  // greatest measured surface depth (0: none); beyond-range pixels excluded
     bool any_invalid = false;
   };
-  // The depth ranges of the tiles of pyramid level `level` covering pixels [u0, u1] x [v0, v1],
-  // merged.
-  void tile_range(int level, int u0, int v0, int u1, int v1, TileRange& range) const;
+  // The depth range of exactly the pixels [u0, u1] x [v0, v1] (inside the image), from at most
+  // a few overlapping squares of the range table (ceil(w / s) x ceil(h / s) reads, s the largest
+  // tabled power of two not above the shorter side; 4 for a square-ish footprint).
+  void rect_range(int u0, int v0, int u1, int v1, TileRange& range) const;
   // Whether one of those tiles' ranges overlaps [zone_lo, zone_hi]: a surface may lie within
   // the octant, or the octant just behind one.
   bool any_tile_in_zone(int level, int u0, int v0, int u1, int v1, float zone_lo,
@@ -303,7 +320,6 @@ class FreeSpace {
   // Nodes within keep_radius_m of centre_W (the root and every node whose octant comes that close
   // and whose parent stays); with `mark`, remap_[i] = 1 for those, 0 for the others.
   std::uint32_t walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m, bool mark);
-  static constexpr float kNoDepth = 1e30f;
   static constexpr std::uint8_t kAllSubCells = 0xFF;
 
   FreeSpaceConfig config_;
@@ -311,6 +327,14 @@ class FreeSpace {
   IndexPool<FreeNode> nodes_;
   // Depth min/max pyramid: level l is ceil(w / 2^l) x ceil(h / 2^l), stored back to back.
   static constexpr int kMaxPyramidLevels = 16;
+  // Range table (a 2-D sparse table): level t >= 1 holds, at every pixel (x, y), the range of the
+  // 2^t x 2^t pixels from it (cut at the image's edges), so any rectangle's range is the merge of
+  // a few overlapping squares. Level 0 is the pyramid's level 0. Each level is a full image.
+  static constexpr int kMaxTableLevels = 7;  // squares up to 64 pixels
+  float* table_min_ = nullptr;               // levels 1 .. table_levels_ - 1, back to back
+  float* table_max_ = nullptr;
+  std::uint8_t* table_invalid_ = nullptr;
+  int table_levels_ = 1;
   float* depth_min_ = nullptr;
   float* depth_max_ = nullptr;
   std::uint8_t* depth_invalid_ = nullptr;  // 1: some pixel of the tile has no depth
@@ -371,6 +395,20 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   Result<std::uint8_t*> invalid =
       arena.template allocate_array<std::uint8_t>(total, kArenaAlignment);
   OCTOFUSE_TRY(invalid);
+  int table_levels = 1;
+  while (table_levels < kMaxTableLevels && (2 << (table_levels - 1)) <= std::min(width, height)) {
+    ++table_levels;
+  }
+  const std::size_t table_total = static_cast<std::size_t>(table_levels - 1) *
+                                  static_cast<std::size_t>(width) *
+                                  static_cast<std::size_t>(height);
+  Result<float*> table_lo = arena.template allocate_array<float>(table_total, kArenaAlignment);
+  OCTOFUSE_TRY(table_lo);
+  Result<float*> table_hi = arena.template allocate_array<float>(table_total, kArenaAlignment);
+  OCTOFUSE_TRY(table_hi);
+  Result<std::uint8_t*> table_invalid =
+      arena.template allocate_array<std::uint8_t>(table_total, kArenaAlignment);
+  OCTOFUSE_TRY(table_invalid);
   Result<std::uint32_t*> remap = arena.template allocate_array<std::uint32_t>(capacity);
   OCTOFUSE_TRY(remap);
   OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
@@ -378,6 +416,10 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   depth_max_ = hi.value();
   depth_invalid_ = invalid.value();
   remap_ = remap.value();
+  table_min_ = table_lo.value();
+  table_max_ = table_hi.value();
+  table_invalid_ = table_invalid.value();
+  table_levels_ = table_levels;
   level_count_ = levels;
   width_ = width;
   height_ = height;

@@ -26,6 +26,9 @@ void print_run_usage(const char* program, const char* default_source) {
       "                       multires16 (multires in 16-bit fixed point, half the memory)\n"
       "  --voxel-size M       finest voxel edge in metres (default 0.01)\n"
       "  --mu M               truncation distance in metres (default 8 voxels)\n"
+      "  --band-behind F      voxels are updated up to F * mu behind the surface, F in (0, 1]\n"
+      "                       (default 1; shorter keeps thin objects and the surfaces behind\n"
+      "                       them apart, see the README)\n"
       "  --map-size M         side of the mapped cube in metres (default 8)\n"
       "  --map-memory MB      memory for blocks and finest levels, when --max-blocks is not given\n"
       "                       (default 1024)\n"
@@ -204,6 +207,14 @@ const RunOption kRunOptions[] = {
      [](const RunOptions& o, std::string* v) {
        *v = text_of(o.mu_m);
        return o.mu_m > 0.0f;
+     }},
+    {"band-behind", true,
+     [](RunOptions& o, const std::string& v) {
+       return set_float(v, 0.01, 1.0, &o.band_behind_mu, " needs a share of mu in [0.01, 1]");
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.band_behind_mu);
+       return o.band_behind_mu != 1.0f;
      }},
     {"map-size", true,
      [](RunOptions& o, const std::string& v) {

@@ -499,6 +499,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
     config.map_kind = map_kind_of<VoxelT>();
     if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;
+    config.fusion.behind_mu = options.band_behind_mu;
     if (load_map) config.fusion.mu_m = loaded.mu_m;  // the TSDF is normalised by it
     config.workers = options.threads;
     config.pose_source = options.pose_source;

@@ -22,9 +22,10 @@ struct RunOptions {
   std::string out_dir;  // empty: write nothing
   MapKind map_kind = MapKind::multires;
   float voxel_size_m = 0.01f;
-  float mu_m = 0.0f;        // 0: 8 voxels
-  float map_size_m = 8.0f;  // cube side (rounded up to a power of two of voxels)
-  long max_frames = -1;     // stop after this many frames; -1 = the whole source
+  float mu_m = 0.0f;            // 0: 8 voxels
+  float band_behind_mu = 1.0f;  // FusionConfig::behind_mu
+  float map_size_m = 8.0f;      // cube side (rounded up to a power of two of voxels)
+  long max_frames = -1;         // stop after this many frames; -1 = the whole source
   int threads = 1;
   PoseSource pose_source = PoseSource::track;
   // --odometry: a TUM trajectory file, or "sim[:drift=..,noise=..,seed=..]" for a drifting noisy

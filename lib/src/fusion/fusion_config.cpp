@@ -13,6 +13,7 @@ Status validate(const FusionConfig& c) {
     return StatusCode::invalid_argument;
   }
   if (!(c.y_max >= 1.0f) || !std::isfinite(c.y_max)) return StatusCode::invalid_argument;
+  if (!(c.behind_mu > 0.0f && c.behind_mu <= 1.0f)) return StatusCode::invalid_argument;
   if (c.allocation_pixel_step < 1 || c.max_blocks_per_frame == 0) {
     return StatusCode::invalid_argument;
   }

@@ -31,7 +31,7 @@ struct Integrator<VoxelT>::Frame {
   float voxel_size_m = 0;
   float mu_m = 0;
   float inv_mu = 0;
-  // Per scale, how far behind the measured depth a voxel is still updated: mu, or
+  // Per scale, how far behind the measured depth a voxel is still updated: behind_mu * mu, or
   // kMinBehind_voxels of the scale where that is more.
   float behind_m[kMaxBlockScale + 1] = {};
   float near_m = 0;
@@ -104,8 +104,8 @@ inline void project_row(const float (&x_C)[kBlockSide], const float (&y_C)[kBloc
 }
 
 // The TSDF update of one voxel (eq. 2-3) from the measured depth at its pixel; false when the
-// sample does not apply. kPastMu: the band reaches behind_m (> mu) behind the surface, where the
-// truncated distance is -1; otherwise it ends at mu (behind_m unused).
+// sample does not apply. The band ends behind_m behind the surface; kPastMu: behind_m > mu, and
+// past mu the truncated distance is -1.
 template <bool kPastMu, typename VoxelT>
 inline bool update_voxel(VoxelT& v, float measured_m, float z_m, float ray_scale, float near_m,
                          float far_m, float mu_m, float inv_mu, float behind_m, float y_max) {
@@ -116,7 +116,7 @@ inline bool update_voxel(VoxelT& v, float measured_m, float z_m, float ray_scale
     if (d < -behind_m) return false;
     f = d < -mu_m ? -1.0f : std::min(1.0f, d * inv_mu);
   } else {
-    if (d < -mu_m) return false;
+    if (d < -behind_m) return false;
     f = std::min(1.0f, d * inv_mu);
   }
   if constexpr (IsMultiresVoxel<VoxelT>::value) {
@@ -272,7 +272,8 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
       }
     }
   };
-  // The band's far side as a compile-time choice: at mu (always at 1 cm) the loop is the plain one.
+  // The band's far side as a compile-time choice: up to mu (always at 1 cm) the loop is the plain
+  // one.
   auto visit_band = [&](auto lift_tag) {
     if (behind_m > f.mu_m) {
       visit(lift_tag, std::true_type{});
@@ -614,7 +615,10 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   f.inv_mu = 1.0f / config_.mu_m;
   for (int s = 0; s <= kMaxBlockScale; ++s) {
     const float cell_m = f.voxel_size_m * static_cast<float>(1 << s);
-    f.behind_m[s] = kMultires ? std::max(f.mu_m, kMinBehind_voxels * cell_m) : f.mu_m;
+    const float behind_m = config_.behind_mu * f.mu_m;
+    // Single-resolution blocks never reach past mu (they have no coarse scales to close).
+    f.behind_m[s] = kMultires ? std::max(behind_m, kMinBehind_voxels * cell_m)
+                              : std::max(behind_m, std::min(f.mu_m, kMinBehind_voxels * cell_m));
   }
   f.near_m = config_.near_m;
   f.far_m = config_.far_m;

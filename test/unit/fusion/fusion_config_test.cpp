@@ -56,6 +56,13 @@ TEST_CASE("fusion config validation", "[fusion][config]") {
   c = FusionConfig();
   c.scale_hysteresis = 1.0f;
   CHECK(validate(c) == StatusCode::invalid_argument);
+  for (float behind : {0.0f, -0.5f, 1.01f, std::nanf("")}) {
+    c = FusionConfig();
+    c.behind_mu = behind;
+    CHECK(validate(c) == StatusCode::invalid_argument);
+  }
+  c.behind_mu = 0.25f;
+  CHECK(validate(c).ok());
 }
 
 TEST_CASE("scale_for_any_current gives the coarsest scale just past the last threshold's margin",

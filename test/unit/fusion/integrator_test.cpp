@@ -127,6 +127,52 @@ TEST_CASE("a plane fused at each scale crosses zero within a quarter voxel of it
   }
 }
 
+TEMPLATE_TEST_CASE(
+    "a shorter band behind the surface stops at behind_mu * mu, the values unchanged",
+    "[fusion][integrator]", TsdfVoxel, MultiresVoxel) {
+  // mu = 8 voxels at 1 cm, a plane head-on at scale 0: with behind_mu 3/8 voxels up to 3 cm
+  // behind it are updated, with their full-band values; deeper ones are not observed. In front
+  // nothing changes.
+  constexpr double kPlaneZ_m = 1.237;
+  constexpr float kVoxel_m = 0.01f;
+  constexpr float kMu_m = 8.0f * kVoxel_m;
+  constexpr double kMargin_m = 0.001;
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
+  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  FusionConfig full_config = fusion_config(kMu_m, 0);
+  FusionConfig short_config = full_config;
+  short_config.behind_mu = 0.375f;
+  Fusion<TestType> full(map_config(kVoxel_m, 8, 8000), full_config, camera);
+  Fusion<TestType> cut(map_config(kVoxel_m, 8, 8000), short_config, camera);
+  const Se3d T_W_C = test::looking_along_z({0.0, 0.0, 0.1});
+  REQUIRE(full.fuse(scene, T_W_C).status.ok());
+  REQUIRE(cut.fuse(scene, T_W_C).status.ok());
+  int in_front = 0;
+  int behind_kept = 0;
+  int behind_cut = 0;
+  for (int z = 0; z < 256; ++z) {
+    const Eigen::Vector3i column(128, 128, z);
+    const TestType* a = full.map.voxel(column, 0);
+    const TestType* b = cut.map.voxel(column, 0);
+    if (a == nullptr || b == nullptr) continue;
+    const double behind_plane_m = full.map.voxel_centre_W(column, 0).z() - kPlaneZ_m;
+    if (!voxel_observed(*a)) continue;
+    CAPTURE(z, behind_plane_m);
+    if (behind_plane_m > 0.375 * kMu_m + kMargin_m) {
+      CHECK_FALSE(voxel_observed(*b));
+      ++behind_cut;
+    } else {
+      REQUIRE(voxel_observed(*b));
+      CHECK(voxel_tsdf(*b) == voxel_tsdf(*a));
+      ++(behind_plane_m > 0.0 ? behind_kept : in_front);
+    }
+  }
+  CHECK(in_front >= 7);
+  CHECK(behind_kept >= 3);
+  CHECK(behind_cut >= 4);
+}
+
 TEST_CASE("where mu is under 2.5 voxels of the scale, voxels 2.5 voxels behind are observed",
           "[fusion][integrator]") {
   // mu = 1.5 voxels at 1 cm: at scale 0 the band reaches 2.5 voxels behind the plane instead of

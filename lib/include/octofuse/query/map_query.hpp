@@ -6,7 +6,8 @@
 //   1. outside the cube: `outside`;
 //   2. a block whose TSDF was integrated at or after the last frame that saw the point's free
 //      octant free (FreeSpace): the TSDF decides. Interpolated |tsdf| < 1: `near`, with the
-//      signed distance (metres) and its gradient; -1 (more than mu behind a surface): `inside`.
+//      signed distance (metres) and its gradient; -1 (more than mu behind a surface): `inside`
+//      (with FusionConfig::behind_mu < 1 the band ends sooner, and deeper points read unknown).
 //      The TSDF holds distances along camera rays, longer than the Euclidean ones on slanted
 //      surfaces by the gradient's length, so the distance is divided by that when it exceeds 1;
 //      it stays an estimate (thin objects seen from one side read negative behind them), not a

@@ -65,16 +65,41 @@ class TreeCursor {
   explicit TreeCursor(const Octree<VoxelT>& map)
       : map_(map),
         depth_(map.voxel_depth()),
+        block_level_(map.block_level()),
         anchor_level_(std::max(0, map.block_level() - kAnchorLevelsAboveBlocks)) {}
 
   // Same answer as Octree::lookup(voxel); `voxel` must be inside the cube.
   OctantLookup find(const Eigen::Vector3i& voxel) {
+    // Most lookups land in the 2x2x2 blocks under the last block parent: one child read.
+    if (parent_ != kNoIndex) {
+      const Eigen::Vector3i d = voxel - parent_corner_;
+      constexpr unsigned side = kParentSide;
+      if (static_cast<unsigned>(d.x()) < side && static_cast<unsigned>(d.y()) < side &&
+          static_cast<unsigned>(d.z()) < side) {
+        const int child = (d.x() >> kBlockSideLog2) | ((d.y() >> kBlockSideLog2) << 1) |
+                          ((d.z() >> kBlockSideLog2) << 2);
+        OctantLookup out;
+        out.block = map_.node(parent_).children[child];
+        out.level = out.block == kNoIndex ? block_level_ - 1 : block_level_;
+        out.node = parent_;
+        return out;
+      }
+    }
     if (anchor_ == kNoIndex || !inside_anchor(voxel)) reanchor(voxel);
-    return map_.lookup_from(voxel, anchor_, anchor_node_level_);
+    const OctantLookup out = map_.lookup_from(voxel, anchor_, anchor_node_level_);
+    if (out.level >= block_level_ - 1) {
+      parent_ = out.node;
+      parent_corner_ =
+          Eigen::Vector3i(voxel.x() & ~(kParentSide - 1), voxel.y() & ~(kParentSide - 1),
+                          voxel.z() & ~(kParentSide - 1));
+    }
+    return out;
   }
 
  private:
   static constexpr int kAnchorLevelsAboveBlocks = 3;
+  // Side, in voxels, of a node holding blocks (2 blocks).
+  static constexpr int kParentSide = 2 * kBlockSide;
 
   bool inside_anchor(const Eigen::Vector3i& voxel) const {
     const Eigen::Vector3i d = voxel - anchor_corner_;
@@ -104,7 +129,10 @@ class TreeCursor {
 
   const Octree<VoxelT>& map_;
   int depth_;
+  int block_level_;
   int anchor_level_;
+  std::uint32_t parent_ = kNoIndex;  // the last lookup's node of level block_level - 1
+  Eigen::Vector3i parent_corner_ = Eigen::Vector3i::Zero();
   std::uint32_t anchor_ = kNoIndex;
   int anchor_node_level_ = 0;
   int anchor_size_ = 0;

@@ -232,6 +232,18 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   float t1 = t_far;
   if (!clip_to_cube(ray_v, side_v, t0, t1)) return MarchResult::miss;
 
+  // The step counters in registers, written back on every return (they are the caller's).
+  struct StepTally {
+    std::uint64_t& left_out;
+    std::uint64_t& taken_out;
+    std::uint64_t left;
+    std::uint64_t taken;
+    ~StepTally() {
+      left_out = left;
+      taken_out += taken;
+    }
+  } tally{steps_left, steps, steps_left, 0};
+
   float t = std::max(t0, t_start);
   // A guided march that never read a voxel proved nothing about its start.
   auto no_hit = [&guided] { return guided ? MarchResult::rejected : MarchResult::miss; };
@@ -270,9 +282,9 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     return sample_tsdf_at_voxel_coords(map, q, block_at(q), neighbourhood, out);
   };
   while (t <= t1) {
-    if (steps_left == 0) return MarchResult::out_of_steps;
-    --steps_left;
-    ++steps;
+    if (tally.left == 0) return MarchResult::out_of_steps;
+    --tally.left;
+    ++tally.taken;
     const Eigen::Vector3f q = ray_v.origin_v + t * ray_v.dir_v;
     // Inside the cube q is non-negative, so truncation is floor (and NaN fails the test).
     if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < side_v && q.y() < side_v &&
@@ -344,7 +356,9 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
         unobserved = cell_inside_block(*block, q, read_scale);
       }
     }
-    bool sampled = !unobserved && sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, sample);
+    // q is inside the cube and its block exists: the checked sample, inlined.
+    bool sampled =
+        !unobserved && detail::sample_tsdf_checked(map, q, *block, neighbourhood, sample);
     const bool thin = !sampled && block_read_scale(*block) >= thin_scale;
     if (thin && ((have_prev && prev_f > 0.0f) || kept_prev || confirm_start)) {
       // At coarse scales the band is a voxel or two thick: the cell around a crossing often

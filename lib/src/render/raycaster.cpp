@@ -263,6 +263,9 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   bool kept_prev = false;
   // Consecutive samples mostly fall in the same block: look it up only when the block changes.
   const VoxelBlock<VoxelT>* block = nullptr;
+  // The block's read scale and that level's voxels, kept with it.
+  int block_scale = 0;
+  const VoxelT* block_level = nullptr;
   Eigen::Vector3i block_coords(-1, -1, -1);
   TreeCursor<VoxelT>& cursor = cache.cursor;
   BlockNeighbourhood<VoxelT>& neighbourhood = cache.neighbourhood;
@@ -296,6 +299,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     if (coords != block_coords) {
       where = cursor.find(voxel);
       block = where.block == kNoIndex ? nullptr : &map.block(where.block);
+      if (block != nullptr) {
+        block_scale = block_read_scale(*block);
+        block_level = block->scale_begin(block_scale);
+      }
       block_coords = coords;
     }
     if (block == nullptr) {
@@ -319,8 +326,12 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     {
       // Far from the surface: step by the nearest voxel's value, less the distance to its
       // centre, so the step cannot pass further than the field says is free.
-      const int read_scale = block_read_scale(*block);
-      const VoxelT& nearest = block->at_voxel(voxel, read_scale);
+      const int read_scale = block_scale;
+      const int side = block_scale_side(read_scale);
+      const VoxelT& nearest =
+          block_level[((voxel.x() & (kBlockSide - 1)) >> read_scale) +
+                      ((voxel.y() & (kBlockSide - 1)) >> read_scale) * side +
+                      ((voxel.z() & (kBlockSide - 1)) >> read_scale) * side * side];
       if (guided) {
         bool accept = voxel_observed(nearest) && voxel_tsdf(nearest) > 0.0f;
         if (!accept && read_scale > 0) {
@@ -359,7 +370,7 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     // q is inside the cube and its block exists: the checked sample, inlined.
     bool sampled =
         !unobserved && detail::sample_tsdf_checked(map, q, *block, neighbourhood, sample);
-    const bool thin = !sampled && block_read_scale(*block) >= thin_scale;
+    const bool thin = !sampled && block_scale >= thin_scale;
     if (thin && ((have_prev && prev_f > 0.0f) || kept_prev || confirm_start)) {
       // At coarse scales the band is a voxel or two thick: the cell around a crossing often
       // reaches a voxel the integrator never updated, or a block it never allocated.

@@ -71,7 +71,7 @@ class TreeCursor {
   // Same answer as Octree::lookup(voxel); `voxel` must be inside the cube.
   OctantLookup find(const Eigen::Vector3i& voxel) {
     // Most lookups land in the 2x2x2 blocks under the last block parent: one child read.
-    if (parent_ != kNoIndex) {
+    if (parent_children_ != nullptr) {
       const Eigen::Vector3i d = voxel - parent_corner_;
       constexpr unsigned side = kParentSide;
       if (static_cast<unsigned>(d.x()) < side && static_cast<unsigned>(d.y()) < side &&
@@ -79,7 +79,7 @@ class TreeCursor {
         const int child = (d.x() >> kBlockSideLog2) | ((d.y() >> kBlockSideLog2) << 1) |
                           ((d.z() >> kBlockSideLog2) << 2);
         OctantLookup out;
-        out.block = map_.node(parent_).children[child];
+        out.block = parent_children_[child];
         out.level = out.block == kNoIndex ? block_level_ - 1 : block_level_;
         out.node = parent_;
         return out;
@@ -89,6 +89,7 @@ class TreeCursor {
     const OctantLookup out = map_.lookup_from(voxel, anchor_, anchor_node_level_);
     if (out.level >= block_level_ - 1) {
       parent_ = out.node;
+      parent_children_ = map_.node(out.node).children;
       parent_corner_ =
           Eigen::Vector3i(voxel.x() & ~(kParentSide - 1), voxel.y() & ~(kParentSide - 1),
                           voxel.z() & ~(kParentSide - 1));
@@ -132,6 +133,7 @@ class TreeCursor {
   int block_level_;
   int anchor_level_;
   std::uint32_t parent_ = kNoIndex;  // the last lookup's node of level block_level - 1
+  const std::uint32_t* parent_children_ = nullptr;  // its children
   Eigen::Vector3i parent_corner_ = Eigen::Vector3i::Zero();
   std::uint32_t anchor_ = kNoIndex;
   int anchor_node_level_ = 0;

@@ -97,8 +97,6 @@ bool sample_tsdf(const Octree<VoxelT>& map, const Eigen::Vector3f& p_W,
   return sample_tsdf_at_voxel_coords(map, map.point_to_voxel_f(p_W), home, neighbourhood, out);
 }
 
-// Same, at continuous finest-voxel coordinates q (Octree::point_to_voxel_f), reusing and updating
-// the caller's block neighbourhood.
 namespace detail {
 // sample_tsdf_at_voxel_coords without its argument checks, inlined where it is called: for
 // callers that already know `home` exists and q lies in (-1, voxels_per_side + 1)^3 (the
@@ -109,6 +107,8 @@ __attribute__((always_inline)) inline bool sample_tsdf_checked(
     BlockNeighbourhood<VoxelT>& neighbourhood, TsdfSample& out);
 }  // namespace detail
 
+// Same, at continuous finest-voxel coordinates q (Octree::point_to_voxel_f), reusing and updating
+// the caller's block neighbourhood.
 template <typename VoxelT>
 bool sample_tsdf_at_voxel_coords(const Octree<VoxelT>& map, const Eigen::Vector3f& q,
                                  const VoxelBlock<VoxelT>* home,

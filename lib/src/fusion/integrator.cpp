@@ -232,6 +232,19 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
     int i = 0;
     const float u_end = static_cast<float>(f.width) - 0.5f;
     const float v_end = static_cast<float>(f.height) - 0.5f;
+    // The frame's constants in locals: the voxel stores are floats, which could alias f's floats,
+    // so read through f they are loaded again for every voxel.
+    const float* const depth = f.depth;
+    const std::ptrdiff_t stride = f.stride;
+    const float fx = f.fx;
+    const float fy = f.fy;
+    const float cx = f.cx;
+    const float cy = f.cy;
+    const float near_m = f.near_m;
+    const float far_m = f.far_m;
+    const float mu_m = f.mu_m;
+    const float inv_mu = f.inv_mu;
+    const float y_max = f.y_max;
     for (int z = 0; z < n; ++z) {
       for (int y = 0; y < n; ++y) {
         // Voxel centres by repeated addition, as a voxel-by-voxel loop steps them; lanes past n
@@ -246,13 +259,12 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
           z_C[x] = p_C.z();
         }
         RowProjection row;
-        project_row(x_C, y_C, z_C, f.fx, f.fy, f.cx, f.cy, u_end, v_end, row);
+        project_row(x_C, y_C, z_C, fx, fy, cx, cy, u_end, v_end, row);
         for (int x = 0; x < n; ++x, ++i) {
           VoxelT& v = voxels[i];
-          if (row.u[x] >= 0 &&
-              update_voxel<kPastMu>(v, f.depth[row.v[x] * f.stride + row.u[x]], row.z_m[x],
-                                    row.ray_scale[x], f.near_m, f.far_m, f.mu_m, f.inv_mu, behind_m,
-                                    f.y_max)) {
+          if (row.u[x] >= 0 && update_voxel<kPastMu>(v, depth[row.v[x] * stride + row.u[x]],
+                                                     row.z_m[x], row.ray_scale[x], near_m, far_m,
+                                                     mu_m, inv_mu, behind_m, y_max)) {
             ++updated;
           }
           if (!voxel_observed(v)) continue;

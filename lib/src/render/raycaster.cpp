@@ -65,16 +65,42 @@ class TreeCursor {
   explicit TreeCursor(const Octree<VoxelT>& map)
       : map_(map),
         depth_(map.voxel_depth()),
+        block_level_(map.block_level()),
         anchor_level_(std::max(0, map.block_level() - kAnchorLevelsAboveBlocks)) {}
 
   // Same answer as Octree::lookup(voxel); `voxel` must be inside the cube.
   OctantLookup find(const Eigen::Vector3i& voxel) {
+    // Most lookups land in the 2x2x2 blocks under the last block parent: one child read.
+    if (parent_children_ != nullptr) {
+      const Eigen::Vector3i d = voxel - parent_corner_;
+      constexpr unsigned side = kParentSide;
+      if (static_cast<unsigned>(d.x()) < side && static_cast<unsigned>(d.y()) < side &&
+          static_cast<unsigned>(d.z()) < side) {
+        const int child = (d.x() >> kBlockSideLog2) | ((d.y() >> kBlockSideLog2) << 1) |
+                          ((d.z() >> kBlockSideLog2) << 2);
+        OctantLookup out;
+        out.block = parent_children_[child];
+        out.level = out.block == kNoIndex ? block_level_ - 1 : block_level_;
+        out.node = parent_;
+        return out;
+      }
+    }
     if (anchor_ == kNoIndex || !inside_anchor(voxel)) reanchor(voxel);
-    return map_.lookup_from(voxel, anchor_, anchor_node_level_);
+    const OctantLookup out = map_.lookup_from(voxel, anchor_, anchor_node_level_);
+    if (out.level >= block_level_ - 1) {
+      parent_ = out.node;
+      parent_children_ = map_.node(out.node).children;
+      parent_corner_ =
+          Eigen::Vector3i(voxel.x() & ~(kParentSide - 1), voxel.y() & ~(kParentSide - 1),
+                          voxel.z() & ~(kParentSide - 1));
+    }
+    return out;
   }
 
  private:
   static constexpr int kAnchorLevelsAboveBlocks = 3;
+  // Side, in voxels, of a node holding blocks (2 blocks).
+  static constexpr int kParentSide = 2 * kBlockSide;
 
   bool inside_anchor(const Eigen::Vector3i& voxel) const {
     const Eigen::Vector3i d = voxel - anchor_corner_;
@@ -104,7 +130,11 @@ class TreeCursor {
 
   const Octree<VoxelT>& map_;
   int depth_;
+  int block_level_;
   int anchor_level_;
+  std::uint32_t parent_ = kNoIndex;  // the last lookup's node of level block_level - 1
+  const std::uint32_t* parent_children_ = nullptr;  // its children
+  Eigen::Vector3i parent_corner_ = Eigen::Vector3i::Zero();
   std::uint32_t anchor_ = kNoIndex;
   int anchor_node_level_ = 0;
   int anchor_size_ = 0;
@@ -204,6 +234,18 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   float t1 = t_far;
   if (!clip_to_cube(ray_v, side_v, t0, t1)) return MarchResult::miss;
 
+  // The step counters in registers, written back on every return (they are the caller's).
+  struct StepTally {
+    std::uint64_t& left_out;
+    std::uint64_t& taken_out;
+    std::uint64_t left;
+    std::uint64_t taken;
+    ~StepTally() {
+      left_out = left;
+      taken_out += taken;
+    }
+  } tally{steps_left, steps, steps_left, 0};
+
   float t = std::max(t0, t_start);
   // A guided march that never read a voxel proved nothing about its start.
   auto no_hit = [&guided] { return guided ? MarchResult::rejected : MarchResult::miss; };
@@ -223,6 +265,9 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   bool kept_prev = false;
   // Consecutive samples mostly fall in the same block: look it up only when the block changes.
   const VoxelBlock<VoxelT>* block = nullptr;
+  // The block's read scale and that level's voxels, kept with it.
+  int block_scale = 0;
+  const VoxelT* block_level = nullptr;
   Eigen::Vector3i block_coords(-1, -1, -1);
   TreeCursor<VoxelT>& cursor = cache.cursor;
   BlockNeighbourhood<VoxelT>& neighbourhood = cache.neighbourhood;
@@ -242,9 +287,9 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     return sample_tsdf_at_voxel_coords(map, q, block_at(q), neighbourhood, out);
   };
   while (t <= t1) {
-    if (steps_left == 0) return MarchResult::out_of_steps;
-    --steps_left;
-    ++steps;
+    if (tally.left == 0) return MarchResult::out_of_steps;
+    --tally.left;
+    ++tally.taken;
     const Eigen::Vector3f q = ray_v.origin_v + t * ray_v.dir_v;
     // Inside the cube q is non-negative, so truncation is floor (and NaN fails the test).
     if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < side_v && q.y() < side_v &&
@@ -256,6 +301,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     if (coords != block_coords) {
       where = cursor.find(voxel);
       block = where.block == kNoIndex ? nullptr : &map.block(where.block);
+      if (block != nullptr) {
+        block_scale = block_read_scale(*block);
+        block_level = block->scale_begin(block_scale);
+      }
       block_coords = coords;
     }
     if (block == nullptr) {
@@ -279,8 +328,12 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
     {
       // Far from the surface: step by the nearest voxel's value, less the distance to its
       // centre, so the step cannot pass further than the field says is free.
-      const int read_scale = block_read_scale(*block);
-      const VoxelT& nearest = block->at_voxel(voxel, read_scale);
+      const int read_scale = block_scale;
+      const int side = block_scale_side(read_scale);
+      const VoxelT& nearest =
+          block_level[((voxel.x() & (kBlockSide - 1)) >> read_scale) +
+                      ((voxel.y() & (kBlockSide - 1)) >> read_scale) * side +
+                      ((voxel.z() & (kBlockSide - 1)) >> read_scale) * side * side];
       if (guided) {
         bool accept = voxel_observed(nearest) && voxel_tsdf(nearest) > 0.0f;
         if (!accept && read_scale > 0) {
@@ -316,8 +369,10 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
         unobserved = cell_inside_block(*block, q, read_scale);
       }
     }
-    bool sampled = !unobserved && sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, sample);
-    const bool thin = !sampled && block_read_scale(*block) >= thin_scale;
+    // q is inside the cube and its block exists: the checked sample, inlined.
+    bool sampled =
+        !unobserved && detail::sample_tsdf_checked(map, q, *block, neighbourhood, sample);
+    const bool thin = !sampled && block_scale >= thin_scale;
     if (thin && ((have_prev && prev_f > 0.0f) || kept_prev || confirm_start)) {
       // At coarse scales the band is a voxel or two thick: the cell around a crossing often
       // reaches a voxel the integrator never updated, or a block it never allocated.

@@ -118,8 +118,8 @@ struct FreeSpaceConfig {
   int finest_octant_voxels = 0;
   // Leaves and sub-cells whose view holds depths both well in front of them (a nearer object's
   // silhouette, a slanted floor) and behind them are settled pixel by pixel before they are
-  // cleared: more of the air beside silhouettes reads free (sim:room 61 -> 68 % of the air in
-  // view), for a costlier stage (sim:room 109 -> 174 M carving instructions per frame).
+  // cleared: more of the air beside silhouettes reads free (sim:room 66 -> 73 % of the air in
+  // view), for a costlier stage (sim:room 84 -> 137 M carving instructions per frame).
   bool exact_silhouettes = false;
   // Octants nearer than this to the camera plane are not tested (projection degenerates).
   float near_m = 0.05f;

@@ -31,6 +31,10 @@ constexpr int kFrames = 36;
 
 using test::small_sim;
 
+// Of the deadline below (85 % of the median unbounded frame): where the floors of ICP and the
+// voxel updates no longer fit on the small sim.
+constexpr double kHalfResolutionShare = 0.5;
+
 PipelineConfig small_config(const sim::SimSource& source, int workers) {
   const Se3d T_W_C0 = source.ground_truth_T_W_C(0);
   PipelineConfig config =
@@ -189,7 +193,7 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
   const Run limited = run(config, ClockKind::model);
   REQUIRE(limited.allocations == 0);
   int planned = 0, cut = 0, over_without = 0, lost = 0, infeasible = 0;
-  int steps_cut[8] = {};
+  int steps_cut[6] = {};
   for (std::size_t i = 0; i < limited.stats.size(); ++i) {
     CAPTURE(i);
     const FrameStats& s = limited.stats[i];
@@ -230,22 +234,28 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
       }
     }
     const double growth = config.deadline.demand_growth;
-    if (d.deepest == DeadlineStep::raycast || d.deepest == DeadlineStep::free_space) {
+    if (static_cast<int>(d.deepest) > static_cast<int>(DeadlineStep::voxel_updates)) {
       const double full = std::max(d.voxel_demand * growth, 64.0 * 512.0);
       REQUIRE(std::fabs(static_cast<double>(d.max_voxel_updates) -
                         full * config.deadline.min_voxel_fraction) <= 1.0);
     }
+    // Half resolution from its step on, and then a quarter of the rays march.
+    const bool half = static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::raycast_half);
+    REQUIRE(d.raycast_half == half);
+    REQUIRE(s.raycast.marched_pixels ==
+            static_cast<std::uint32_t>(half ? kWidth * kHeight / 4 : kWidth * kHeight));
     if (d.deepest == DeadlineStep::free_space) {
       const double full = std::max(d.raycast_demand * growth, double{kWidth * kHeight});
       REQUIRE(std::fabs(static_cast<double>(d.raycast_steps) -
-                        full * config.deadline.min_raycast_fraction) <= 1.0);
+                        0.25 * full * config.deadline.min_raycast_fraction) <= 1.0);
     }
     if (d.deepest == DeadlineStep::icp) REQUIRE(d.icp_iterations_given_up > 0);
   }
   REQUIRE(planned == kFrames - 1);
   INFO("lost " << lost << ", below the floors " << infeasible << "; deepest step cut: icp "
-               << steps_cut[1] << ", voxels " << steps_cut[4] << ", ray-cast " << steps_cut[6]
-               << ", free space " << steps_cut[7]);
+               << steps_cut[1] << ", voxels " << steps_cut[2] << ", half-resolution ray-cast "
+               << steps_cut[3] << ", ray-cast steps " << steps_cut[4] << ", free space "
+               << steps_cut[5]);
   CHECK(lost == 0);
   CHECK(infeasible <= planned / 10);
   // Not vacuous: without the deadline most of these frames were over it, and with it they gave
@@ -310,6 +320,61 @@ TEST_CASE("a frozen calibration gives bit-identical results for 1 and 3 workers,
   CHECK(a.final_model.safety == machine().safety);
   // And the result differs from no deadline: the budgets changed the map.
   REQUIRE_FALSE(same_bits(a, run(small_config(probe, 1), ClockKind::none)));
+}
+
+TEST_CASE(
+    "below the first floors the reference is ray-cast at half resolution, deterministically") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  // Tighter than above: ICP and the voxel updates at their floors do not fit.
+  const double deadline_ms = kHalfResolutionShare * deadline_for(unbounded);
+  PipelineConfig config = small_config(probe, 1);
+  config.deadline.deadline_ms = deadline_ms;
+  config.deadline.model = machine();
+  config.deadline.adapt = false;
+  const Run a = run(config, ClockKind::model);
+  int half = 0;
+  for (std::size_t i = 1; i < a.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = a.stats[i];
+    const FrameStats& u = unbounded.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(d.planned);
+    if (!d.raycast_half) {
+      REQUIRE(static_cast<int>(d.deepest) < static_cast<int>(DeadlineStep::raycast_half));
+      REQUIRE(s.raycast.marched_pixels == static_cast<std::uint32_t>(kWidth * kHeight));
+      continue;
+    }
+    ++half;
+    // Engaged only with the earlier steps at their floors, and within the modelled deadline
+    // unless the floors after it do not fit either.
+    REQUIRE(static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::raycast_half));
+    for (int level = 0; level < kPyramidLevels; ++level) {
+      REQUIRE(d.icp_iterations[level] == config.deadline.min_icp_iterations[level]);
+    }
+    if (!d.infeasible) REQUIRE(s.times.total_ms <= deadline_ms);
+    // A quarter of the rays march and take well under half of the steps, and the model stays
+    // dense where no step budget cut it.
+    REQUIRE(s.raycast.marched_pixels == static_cast<std::uint32_t>(kWidth * kHeight / 4));
+    REQUIRE(s.raycast.steps * 2 < u.raycast.steps);
+    if (d.deepest == DeadlineStep::raycast_half) {
+      REQUIRE(s.raycast.budget_cut_pixels == 0);
+      REQUIRE(s.raycast.valid_pixels * 10 > u.raycast.valid_pixels * 8);
+    }
+  }
+  INFO("deadline " << deadline_ms << " ms: " << half << " frames at half resolution");
+  REQUIRE(half > kFrames / 2);
+  CHECK(a.stats.back().result == FrameResult::tracked);
+  // Frozen, the half-resolution frames are the same for 3 workers and any clock.
+  PipelineConfig three = config;
+  three.workers = 3;
+  const Run b = run(three, ClockKind::steady);
+  REQUIRE(same_bits(a, b));
+  for (std::size_t i = 0; i < a.stats.size(); ++i) {
+    REQUIRE(a.stats[i].deadline.raycast_half == b.stats[i].deadline.raycast_half);
+    REQUIRE(a.stats[i].raycast.marched_pixels == b.stats[i].raycast.marched_pixels);
+  }
 }
 
 TEST_CASE("a deadline of 0, or one every frame fits in, is today's pipeline bit for bit") {

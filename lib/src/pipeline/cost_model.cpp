@@ -97,6 +97,8 @@ const char* deadline_step_name(DeadlineStep step) {
       return "icp";
     case DeadlineStep::voxel_updates:
       return "voxel_updates";
+    case DeadlineStep::raycast_half:
+      return "raycast_half";
     case DeadlineStep::raycast:
       return "raycast";
     case DeadlineStep::free_space:
@@ -118,6 +120,7 @@ void DeadlineController::reset(const DeadlineConfig& config,
     level_pixels_[level] =
         static_cast<double>(width >> level) * static_cast<double>(height >> level);
   }
+  half_pixels_ = static_cast<double>((width + 1) / 2) * static_cast<double>((height + 1) / 2);
   icp_fit_ = integrate_fit_ = raycast_fit_ = free_space_fit_ = Regression{};
   have_demand_ = false;
   voxel_demand_ = 0.0;
@@ -177,8 +180,9 @@ DeadlineReport DeadlineController::plan() const {
     }
   }
   // (4), (6), (7): each down to its floor before the next.
+  // Every budget keeps at least one unit (below), so no cut goes under one either.
   auto cut = [&](double& units, float floor_fraction, double rate, DeadlineStep step) {
-    const double room = units * (1.0 - static_cast<double>(floor_fraction));
+    const double room = units - std::max(units * static_cast<double>(floor_fraction), 1.0);
     if (over_ms <= kNegligible_ms || room <= 0.0 || rate <= 0.0) return;
     const double removed = std::min(room, over_ms / rate);
     units -= removed;
@@ -186,6 +190,14 @@ DeadlineReport DeadlineController::plan() const {
     r.deepest = step;
   };
   cut(voxels, config_.min_voxel_fraction, voxel_rate, DeadlineStep::voxel_updates);
+  // Half resolution: a quarter of the rays, so (about) a quarter of the steps.
+  if (over_ms > kNegligible_ms && config_.raycast_half_resolution && step_rate > 0.0) {
+    const double half = steps * (half_pixels_ / level_pixels_[0]);
+    over_ms -= (steps - half) * step_rate;
+    steps = half;
+    r.raycast_half = true;
+    r.deepest = DeadlineStep::raycast_half;
+  }
   cut(steps, config_.min_raycast_fraction, step_rate, DeadlineStep::raycast);
   if (free_space_used_) {
     cut(visits, config_.min_free_space_fraction, visit_rate, DeadlineStep::free_space);

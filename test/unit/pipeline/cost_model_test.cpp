@@ -106,20 +106,51 @@ TEST_CASE("a small overrun is taken from ICP's finest level first") {
   CHECK_FALSE(r.infeasible);
 }
 
-TEST_CASE("a larger overrun takes ICP to its floors, voxels to theirs, then ray-cast steps") {
+TEST_CASE("a larger overrun takes ICP and voxels to their floors, then ray-casts at half size") {
   // 14.875 ms over 13 available: ICP gives 3 + 1 + 0.5 ms at floors 1, 1, 2; voxel updates
-  // give 7.5 ms down to a quarter; 2.875 ms remain for the ray-cast: 57500 of its steps.
+  // give 7.5 ms down to a quarter; the 2.875 ms left cost a half-resolution ray-cast, which
+  // marches a quarter of the rays: 50000 steps, 7.5 ms less.
   const DeadlineReport r = plan_for(15.0);
   REQUIRE(r.planned);
-  CHECK(r.deepest == DeadlineStep::raycast);
+  CHECK(r.deepest == DeadlineStep::raycast_half);
   CHECK(r.icp_iterations[0] == 1);
   CHECK(r.icp_iterations[1] == 1);
   CHECK(r.icp_iterations[2] == 2);
   CHECK(r.icp_iterations_given_up == 15);
   CHECK(r.max_voxel_updates == 250000);
-  CHECK(r.raycast_steps == 142500);
+  CHECK(r.raycast_half);
+  CHECK(r.raycast_steps == 50000);
   CHECK(r.free_space_visits == 10000);
+  CHECK(r.predicted_ms == Approx(10.375).margin(1e-9));
+  CHECK_FALSE(r.infeasible);
+}
+
+TEST_CASE("without half resolution, the ray-cast's steps are cut after the voxels") {
+  // As above, the 2.875 ms from the full ray-cast's steps: 57500 of them.
+  DeadlineConfig config = hand_config(15.0);
+  config.raycast_half_resolution = false;
+  DeadlineController controller;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  const DeadlineReport r = controller.plan();
+  REQUIRE(r.planned);
+  CHECK(r.deepest == DeadlineStep::raycast);
+  CHECK_FALSE(r.raycast_half);
+  CHECK(r.max_voxel_updates == 250000);
+  CHECK(r.raycast_steps == 142500);
   CHECK(r.predicted_ms == Approx(15.0).margin(1e-3));
+}
+
+TEST_CASE("half-resolution steps are cut next, then free-space visits") {
+  // 20.875 ms over 7 available: ICP and voxels at their floors and the half-resolution cast
+  // leave 1.375 ms over, 27500 of its 50000 steps.
+  const DeadlineReport r = plan_for(9.0);
+  REQUIRE(r.planned);
+  CHECK(r.deepest == DeadlineStep::raycast);
+  CHECK(r.raycast_half);
+  CHECK(r.raycast_steps == 22500);
+  CHECK(r.free_space_visits == 10000);
+  CHECK(r.predicted_ms == Approx(9.0).margin(1e-3));
   CHECK_FALSE(r.infeasible);
 }
 
@@ -129,10 +160,11 @@ TEST_CASE("below the floors the plan says infeasible and keeps the floors") {
   CHECK(r.infeasible);
   CHECK(r.deepest == DeadlineStep::free_space);
   CHECK(r.max_voxel_updates == 250000);
-  CHECK(r.raycast_steps == 50000);
+  CHECK(r.raycast_half);
+  CHECK(r.raycast_steps == 12500);  // a quarter of the half-resolution 50000
   CHECK(r.free_space_visits == 1);
-  // 2 + 1.375 (ICP at 1, 1, 2) + 2.5 + 2.5 + 0.0002 ms.
-  CHECK(r.predicted_ms == Approx(8.3752).margin(1e-9));
+  // 2 + 1.375 (ICP at 1, 1, 2) + 2.5 + 0.625 + 0.0002 ms.
+  CHECK(r.predicted_ms == Approx(6.5002).margin(1e-9));
 }
 
 TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
@@ -150,7 +182,8 @@ TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
       CHECK(r.icp_iterations[2] == 2);
     }
     if (step > static_cast<int>(DeadlineStep::voxel_updates)) CHECK(r.max_voxel_updates == 250000);
-    if (step > static_cast<int>(DeadlineStep::raycast)) CHECK(r.raycast_steps == 50000);
+    CHECK(r.raycast_half == (step >= static_cast<int>(DeadlineStep::raycast_half)));
+    if (step > static_cast<int>(DeadlineStep::raycast)) CHECK(r.raycast_steps == 12500);
     if (!r.infeasible) CHECK(r.predicted_ms <= deadline_ms + kTolerance_ms);
   }
   CHECK(previous == static_cast<int>(DeadlineStep::free_space));

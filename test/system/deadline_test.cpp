@@ -34,6 +34,8 @@ using test::small_sim;
 // Of the deadline below (85 % of the median unbounded frame): where the floors of ICP and the
 // voxel updates no longer fit on the small sim.
 constexpr double kHalfResolutionShare = 0.5;
+// And where the half-resolution ray-cast does not suffice either.
+constexpr double kAllocationHalfShare = 0.4;
 
 PipelineConfig small_config(const sim::SimSource& source, int workers) {
   const Se3d T_W_C0 = source.ground_truth_T_W_C(0);
@@ -86,7 +88,11 @@ struct ModelClock {
     double ms = 0.0;
     if (s.input.pixel_count > 0) ms += c.fixed_ms;
     if (s.track_attempted) ms += c.icp.ms(icp_units(s));
-    if (s.integration.blocks_touched > 0) ms += c.integrate.ms(voxel_units(s));
+    if (s.integration.blocks_touched > 0) {
+      ms += c.integrate.ms(voxel_units(s));
+      // Its fixed part is the allocation march, a quarter of it at every other pixel.
+      if (s.deadline.allocation_half) ms -= 0.75 * c.integrate.fixed_ms;
+    }
     if (s.free_space.node_visits > 0) ms += c.free_space.ms(s.free_space.node_visits);
     if (s.raycast.steps > 0) ms += c.raycast.ms(static_cast<double>(s.raycast.steps));
     return ms;
@@ -242,6 +248,8 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
     // Half resolution from its step on, and then a quarter of the rays march.
     const bool half = static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::raycast_half);
     REQUIRE(d.raycast_half == half);
+    REQUIRE(d.allocation_half ==
+            (static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::allocation_half)));
     REQUIRE(s.raycast.marched_pixels ==
             static_cast<std::uint32_t>(half ? kWidth * kHeight / 4 : kWidth * kHeight));
     if (d.deepest == DeadlineStep::free_space) {
@@ -374,6 +382,49 @@ TEST_CASE(
   for (std::size_t i = 0; i < a.stats.size(); ++i) {
     REQUIRE(a.stats[i].deadline.raycast_half == b.stats[i].deadline.raycast_half);
     REQUIRE(a.stats[i].raycast.marched_pixels == b.stats[i].raycast.marched_pixels);
+  }
+}
+
+TEST_CASE("deeper still, allocation marches every other pixel's ray, deterministically") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  const double deadline_ms = kAllocationHalfShare * deadline_for(unbounded);
+  PipelineConfig config = small_config(probe, 1);
+  config.deadline.deadline_ms = deadline_ms;
+  config.deadline.model = machine();
+  config.deadline.adapt = false;
+  const Run a = run(config, ClockKind::model);
+  int halved = 0;
+  for (std::size_t i = 1; i < a.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = a.stats[i];
+    const FrameStats& u = unbounded.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(d.planned);
+    if (!d.allocation_half) {
+      REQUIRE(static_cast<int>(d.deepest) < static_cast<int>(DeadlineStep::allocation_half));
+      continue;
+    }
+    ++halved;
+    REQUIRE(d.raycast_half);  // the step before it is in the plan
+    if (!d.infeasible) REQUIRE(s.times.total_ms <= deadline_ms);
+    // About a quarter of the rays march, and they still find most blocks (at this sim's 2 cm
+    // and 160 x 120 a skipped ray's band is more often the only one in a block than at 1 cm).
+    REQUIRE(s.integration.allocation_rays * 3 < u.integration.allocation_rays);
+    REQUIRE(s.integration.allocation_rays * 5 > u.integration.allocation_rays);
+    REQUIRE(s.integration.blocks_touched * 10 > u.integration.blocks_touched * 8);
+  }
+  INFO("deadline " << deadline_ms << " ms: " << halved << " frames with allocation halved");
+  REQUIRE(halved > kFrames / 2);
+  CHECK(a.stats.back().result == FrameResult::tracked);
+  PipelineConfig three = config;
+  three.workers = 3;
+  const Run b = run(three, ClockKind::none);
+  REQUIRE(same_bits(a, b));
+  for (std::size_t i = 0; i < a.stats.size(); ++i) {
+    REQUIRE(a.stats[i].deadline.allocation_half == b.stats[i].deadline.allocation_half);
+    REQUIRE(a.stats[i].integration.allocation_rays == b.stats[i].integration.allocation_rays);
   }
 }
 

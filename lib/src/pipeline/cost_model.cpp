@@ -99,6 +99,8 @@ const char* deadline_step_name(DeadlineStep step) {
       return "voxel_updates";
     case DeadlineStep::raycast_half:
       return "raycast_half";
+    case DeadlineStep::allocation_half:
+      return "allocation_half";
     case DeadlineStep::raycast:
       return "raycast";
     case DeadlineStep::free_space:
@@ -157,9 +159,9 @@ DeadlineReport DeadlineController::plan() const {
   const double step_rate = model_.raycast.ms_per_munit * 1e-6;
   const double visit_rate = free_space_used_ ? model_.free_space.ms_per_munit * 1e-6 : 0.0;
   // What every frame pays whatever its budgets.
-  const double fixed_ms = model_.fixed_ms + (icp_used_ ? model_.icp.fixed_ms : 0.0) +
-                          model_.integrate.fixed_ms + model_.raycast.fixed_ms +
-                          (free_space_used_ ? model_.free_space.fixed_ms : 0.0);
+  double fixed_ms = model_.fixed_ms + (icp_used_ ? model_.icp.fixed_ms : 0.0) +
+                    model_.integrate.fixed_ms + model_.raycast.fixed_ms +
+                    (free_space_used_ ? model_.free_space.fixed_ms : 0.0);
   auto stages_ms = [&](const int iterations[kPyramidLevels], double v, double s, double f) {
     return icp_rate * icp_units(iterations) + voxel_rate * v + step_rate * s + visit_rate * f;
   };
@@ -197,6 +199,14 @@ DeadlineReport DeadlineController::plan() const {
     steps = half;
     r.raycast_half = true;
     r.deepest = DeadlineStep::raycast_half;
+  }
+  // Allocation at every other pixel: its march, the integration's fixed part, at that share.
+  if (over_ms > kNegligible_ms && config_.allocation_half) {
+    const double saved_ms = model_.integrate.fixed_ms * (1.0 - half_pixels_ / level_pixels_[0]);
+    over_ms -= saved_ms;
+    fixed_ms -= saved_ms;
+    r.allocation_half = true;
+    r.deepest = DeadlineStep::allocation_half;
   }
   cut(steps, config_.min_raycast_fraction, step_rate, DeadlineStep::raycast);
   if (free_space_used_) {
@@ -258,7 +268,11 @@ void DeadlineController::observe(const FrameObservation& frame, const DeadlineRe
   if (!config_.adapt || !frame.timed) return;
   if (frame.icp.ran) learn(icp_fit_, model_.icp, frame.icp.units, frame.icp.ms);
   if (frame.integrate.ran) {
-    learn(integrate_fit_, model_.integrate, frame.integrate.units, frame.integrate.ms);
+    double integrate_ms = frame.integrate.ms;
+    if (plan.allocation_half) {
+      integrate_ms += model_.integrate.fixed_ms * (1.0 - half_pixels_ / level_pixels_[0]);
+    }
+    learn(integrate_fit_, model_.integrate, frame.integrate.units, integrate_ms);
   }
   if (frame.raycast.ran) learn(raycast_fit_, model_.raycast, frame.raycast.units, frame.raycast.ms);
   if (frame.free_space.ran) {

@@ -485,6 +485,9 @@ void Pipeline<VoxelT>::apply_deadline(const DeadlineReport& plan) {
   };
   raycaster_.set_step_budget(bounded(config_.budget.raycast_steps, plan.raycast_steps));
   raycaster_.set_pixel_stride(plan.raycast_half ? 2 : 1);
+  const int allocation_step = config_.fusion.allocation_pixel_step;
+  integrator_.set_allocation_pixel_step(plan.allocation_half ? 2 * allocation_step
+                                                             : allocation_step);
   if (free_space_.reserved()) {
     free_space_.set_visit_budget(static_cast<std::uint32_t>(
         bounded(config_.free_space.max_node_visits, plan.free_space_visits)));

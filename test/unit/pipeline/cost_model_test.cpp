@@ -125,8 +125,10 @@ TEST_CASE("a larger overrun takes ICP and voxels to their floors, then ray-casts
   CHECK_FALSE(r.infeasible);
 }
 
-TEST_CASE("without half resolution, the ray-cast's steps are cut after the voxels") {
-  // As above, the 2.875 ms from the full ray-cast's steps: 57500 of them.
+TEST_CASE("without half resolution, allocation and then the ray-cast's steps come next") {
+  // As above, 2.875 ms over after the voxels: allocation at every other pixel gives 0.1875 ms
+  // (three quarters of integration's fixed part), the full ray-cast's steps the other 2.6875 ms,
+  // 53750 of them.
   DeadlineConfig config = hand_config(15.0);
   config.raycast_half_resolution = false;
   DeadlineController controller;
@@ -136,19 +138,30 @@ TEST_CASE("without half resolution, the ray-cast's steps are cut after the voxel
   REQUIRE(r.planned);
   CHECK(r.deepest == DeadlineStep::raycast);
   CHECK_FALSE(r.raycast_half);
+  CHECK(r.allocation_half);
   CHECK(r.max_voxel_updates == 250000);
-  CHECK(r.raycast_steps == 142500);
+  CHECK(r.raycast_steps == 146250);
   CHECK(r.predicted_ms == Approx(15.0).margin(1e-3));
+
+  config.allocation_half = false;  // and without either, all 2.875 ms from the steps
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  const DeadlineReport steps_only = controller.plan();
+  CHECK(steps_only.deepest == DeadlineStep::raycast);
+  CHECK_FALSE(steps_only.allocation_half);
+  CHECK(steps_only.raycast_steps == 142500);
 }
 
-TEST_CASE("half-resolution steps are cut next, then free-space visits") {
+TEST_CASE("then allocation at every other pixel, the half-resolution steps, free-space visits") {
   // 20.875 ms over 7 available: ICP and voxels at their floors and the half-resolution cast
-  // leave 1.375 ms over, 27500 of its 50000 steps.
+  // leave 1.375 ms over; allocation at every other pixel gives 0.1875 ms of it and 23750 of
+  // the 50000 steps the rest.
   const DeadlineReport r = plan_for(9.0);
   REQUIRE(r.planned);
   CHECK(r.deepest == DeadlineStep::raycast);
   CHECK(r.raycast_half);
-  CHECK(r.raycast_steps == 22500);
+  CHECK(r.allocation_half);
+  CHECK(r.raycast_steps == 26250);
   CHECK(r.free_space_visits == 10000);
   CHECK(r.predicted_ms == Approx(9.0).margin(1e-3));
   CHECK_FALSE(r.infeasible);
@@ -161,10 +174,11 @@ TEST_CASE("below the floors the plan says infeasible and keeps the floors") {
   CHECK(r.deepest == DeadlineStep::free_space);
   CHECK(r.max_voxel_updates == 250000);
   CHECK(r.raycast_half);
+  CHECK(r.allocation_half);
   CHECK(r.raycast_steps == 12500);  // a quarter of the half-resolution 50000
   CHECK(r.free_space_visits == 1);
-  // 2 + 1.375 (ICP at 1, 1, 2) + 2.5 + 0.625 + 0.0002 ms.
-  CHECK(r.predicted_ms == Approx(6.5002).margin(1e-9));
+  // 2 - 0.1875 (allocation) + 1.375 (ICP at 1, 1, 2) + 2.5 + 0.625 + 0.0002 ms.
+  CHECK(r.predicted_ms == Approx(6.3127).margin(1e-9));
 }
 
 TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
@@ -183,6 +197,7 @@ TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
     }
     if (step > static_cast<int>(DeadlineStep::voxel_updates)) CHECK(r.max_voxel_updates == 250000);
     CHECK(r.raycast_half == (step >= static_cast<int>(DeadlineStep::raycast_half)));
+    CHECK(r.allocation_half == (step >= static_cast<int>(DeadlineStep::allocation_half)));
     if (step > static_cast<int>(DeadlineStep::raycast)) CHECK(r.raycast_steps == 12500);
     if (!r.infeasible) CHECK(r.predicted_ms <= deadline_ms + kTolerance_ms);
   }
@@ -234,6 +249,27 @@ TEST_CASE("an adapting model learns each stage's line from times that follow the
   }
   CHECK(steady.model().raycast.ms_per_munit == 50.0);
   CHECK(steady.model().raycast.fixed_ms == Approx(2.0));
+}
+
+TEST_CASE("frames with allocation halved still teach the full march's line") {
+  // Integration's fixed part is its allocation march: at every other pixel a quarter of it.
+  DeadlineConfig config = hand_config(1000.0);
+  config.adapt = true;
+  DeadlineController controller;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  const StageCost voxels{3.0, 5.0};
+  for (int frame = 0; frame < 400; ++frame) {
+    DeadlineReport plan = controller.plan();
+    plan.allocation_half = frame % 2 == 1;
+    const double units = 1e6 * (1.0 + 0.25 * static_cast<double>(frame % 4));
+    FrameObservation o = demand_frame();
+    o.timed = true;
+    o.integrate = {true, false, units, voxels.ms(units)};
+    if (plan.allocation_half) o.integrate.ms -= 0.75 * voxels.fixed_ms;
+    controller.observe(o, plan);
+  }
+  CHECK(controller.model().integrate.fixed_ms == Approx(voxels.fixed_ms).epsilon(1e-3));
+  CHECK(controller.model().integrate.ms_per_munit == Approx(voxels.ms_per_munit).epsilon(1e-3));
 }
 
 TEST_CASE("a frozen model reads no time; overruns raise an adapting model's safety factor") {

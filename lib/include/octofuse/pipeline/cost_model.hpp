@@ -9,6 +9,10 @@
 //   then, the deadline's own step, the reference ray-cast at half resolution (a quarter of the
 //       rays, each filling its 2 x 2 pixels; raycaster.hpp) when raycast_half_resolution allows:
 //       it costs ICP less than the empty row ends of the next step;
+//   then integration's allocation march at every other pixel in x and y (allocation_half;
+//       integrator.hpp): the stage's fixed part, which is that march, is then modelled at the
+//       share of the rays it marches (a quarter); blocks only the skipped rays cross wait for
+//       a later frame;
 //   (6) ray-cast steps (the rows' last pixels stay invalid), down to min_raycast_fraction of
 //       the (half-resolution) demand;
 //   (7) free-space node visits, down to min_free_space_fraction.
@@ -76,6 +80,7 @@ struct DeadlineConfig {
   float min_raycast_fraction = 0.5f;
   float min_free_space_fraction = 0.0f;  // at least one visit stays
   bool raycast_half_resolution = true;   // false: the ray-cast always marches every pixel
+  bool allocation_half = true;           // false: allocation always marches every pixel's ray
   // A stage that is not cut gets its demand times this as its budget, so a view that asks for a
   // little more than the last one is served whole.
   float demand_growth = 1.25f;
@@ -86,14 +91,15 @@ struct DeadlineConfig {
 Status validate(const DeadlineConfig& config, ErrorText* error = nullptr);
 
 // Degradation steps a deadline plan cuts, numbered in the order it cuts them (pipeline.hpp's
-// steps (1), (4), (6) and (7), with the half-resolution ray-cast before (6)).
+// steps (1), (4), (6) and (7), with the half-resolution ray-cast and allocation before (6)).
 enum class DeadlineStep : std::uint8_t {
   none = 0,
   icp = 1,
   voxel_updates = 2,
   raycast_half = 3,
-  raycast = 4,
-  free_space = 5,
+  allocation_half = 4,
+  raycast = 5,
+  free_space = 6,
 };
 const char* deadline_step_name(DeadlineStep step);
 
@@ -110,7 +116,8 @@ struct DeadlineReport {
   int icp_iterations_given_up = 0;                 // below the configured budget, all levels
   std::uint64_t max_voxel_updates = 0;  // 0 where not cut (the configured budget applies)
   std::uint64_t raycast_steps = 0;
-  bool raycast_half = false;  // the reference ray-cast at half resolution
+  bool raycast_half = false;     // the reference ray-cast at half resolution
+  bool allocation_half = false;  // allocation marched every other pixel's ray in x and y
   std::uint32_t free_space_visits = 0;
   // Demand estimates the plan started from (units).
   double voxel_demand = 0.0;
@@ -147,7 +154,9 @@ class DeadlineController {
   // The next frame's budgets (see DeadlineReport); configured ones before any observation.
   DeadlineReport plan() const;
   // Learns from a finished frame: demand estimates from its work counts; with adapt and a
-  // timed observation, the model's rates, fixed part and safety factor too.
+  // timed observation, the model's rates, fixed part and safety factor too (a frame whose
+  // allocation was halved adds the modelled saving back to its integration time first, so the
+  // line stays that of a full march).
   void observe(const FrameObservation& frame, const DeadlineReport& plan);
   const CostModel& model() const { return model_; }
   const DeadlineConfig& config() const { return config_; }

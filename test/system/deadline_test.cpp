@@ -36,6 +36,8 @@ using test::small_sim;
 constexpr double kHalfResolutionShare = 0.5;
 // And where the half-resolution ray-cast does not suffice either.
 constexpr double kAllocationHalfShare = 0.4;
+// And where the voxel updates must fall below their first floor.
+constexpr double kVoxelDeepShare = 0.3;
 
 PipelineConfig small_config(const sim::SimSource& source, int workers) {
   const Se3d T_W_C0 = source.ground_truth_T_W_C(0);
@@ -199,7 +201,7 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
   const Run limited = run(config, ClockKind::model);
   REQUIRE(limited.allocations == 0);
   int planned = 0, cut = 0, over_without = 0, lost = 0, infeasible = 0;
-  int steps_cut[6] = {};
+  int steps_cut[8] = {};
   for (std::size_t i = 0; i < limited.stats.size(); ++i) {
     CAPTURE(i);
     const FrameStats& s = limited.stats[i];
@@ -217,7 +219,7 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
     REQUIRE(s.times.total_ms <= d.predicted_ms + 1e-3);
     if (d.infeasible) {
       ++infeasible;
-      REQUIRE(d.deepest == DeadlineStep::free_space);
+      REQUIRE(d.deepest == DeadlineStep::voxel_updates_deep);
       REQUIRE(d.free_space_visits == 1);
     } else {
       REQUIRE(s.times.total_ms <= deadline_ms);
@@ -240,10 +242,17 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
       }
     }
     const double growth = config.deadline.demand_growth;
-    if (static_cast<int>(d.deepest) > static_cast<int>(DeadlineStep::voxel_updates)) {
-      const double full = std::max(d.voxel_demand * growth, 64.0 * 512.0);
+    const double voxels_full = std::max(d.voxel_demand * growth, 64.0 * 512.0);
+    if (static_cast<int>(d.deepest) > static_cast<int>(DeadlineStep::voxel_updates) &&
+        d.deepest != DeadlineStep::voxel_updates_deep) {
       REQUIRE(std::fabs(static_cast<double>(d.max_voxel_updates) -
-                        full * config.deadline.min_voxel_fraction) <= 1.0);
+                        voxels_full * config.deadline.min_voxel_fraction) <= 1.0);
+    }
+    if (d.deepest == DeadlineStep::voxel_updates_deep) {
+      REQUIRE(static_cast<double>(d.max_voxel_updates) <
+              voxels_full * config.deadline.min_voxel_fraction);
+      REQUIRE(static_cast<double>(d.max_voxel_updates) >=
+              std::floor(voxels_full * config.deadline.min_voxel_fraction_deep));
     }
     // Half resolution from its step on, and then a quarter of the rays march.
     const bool half = static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::raycast_half);
@@ -252,7 +261,7 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
             (static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::allocation_half)));
     REQUIRE(s.raycast.marched_pixels ==
             static_cast<std::uint32_t>(half ? kWidth * kHeight / 4 : kWidth * kHeight));
-    if (d.deepest == DeadlineStep::free_space) {
+    if (static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::free_space)) {
       const double full = std::max(d.raycast_demand * growth, double{kWidth * kHeight});
       REQUIRE(std::fabs(static_cast<double>(d.raycast_steps) -
                         0.25 * full * config.deadline.min_raycast_fraction) <= 1.0);
@@ -262,8 +271,9 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
   REQUIRE(planned == kFrames - 1);
   INFO("lost " << lost << ", below the floors " << infeasible << "; deepest step cut: icp "
                << steps_cut[1] << ", voxels " << steps_cut[2] << ", half-resolution ray-cast "
-               << steps_cut[3] << ", ray-cast steps " << steps_cut[4] << ", free space "
-               << steps_cut[5]);
+               << steps_cut[3] << ", allocation " << steps_cut[4] << ", ray-cast steps "
+               << steps_cut[5] << ", free space " << steps_cut[6] << ", voxels again "
+               << steps_cut[7]);
   CHECK(lost == 0);
   CHECK(infeasible <= planned / 10);
   // Not vacuous: without the deadline most of these frames were over it, and with it they gave
@@ -426,6 +436,40 @@ TEST_CASE("deeper still, allocation marches every other pixel's ray, determinist
     REQUIRE(a.stats[i].deadline.allocation_half == b.stats[i].deadline.allocation_half);
     REQUIRE(a.stats[i].integration.allocation_rays == b.stats[i].integration.allocation_rays);
   }
+}
+
+TEST_CASE("deepest, voxel updates fall to their deeper floor, deterministically") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  const double deadline_ms = kVoxelDeepShare * deadline_for(unbounded);
+  PipelineConfig config = small_config(probe, 1);
+  config.deadline.deadline_ms = deadline_ms;
+  config.deadline.model = machine();
+  config.deadline.adapt = false;
+  const Run a = run(config, ClockKind::model);
+  int deep = 0;
+  for (std::size_t i = 1; i < a.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = a.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(d.planned);
+    if (d.deepest != DeadlineStep::voxel_updates_deep) continue;
+    ++deep;
+    REQUIRE(d.free_space_visits == 1);  // the step before it is at its floor
+    if (!d.infeasible) REQUIRE(s.times.total_ms <= deadline_ms);
+    // Below the first floor, a quarter of the demand, and the integration within it.
+    const double voxels_full = std::max(d.voxel_demand * config.deadline.demand_growth, 32768.0);
+    REQUIRE(static_cast<double>(d.max_voxel_updates) <
+            voxels_full * config.deadline.min_voxel_fraction);
+    REQUIRE(voxel_units(s) <= static_cast<double>(d.max_voxel_updates));
+    REQUIRE(voxel_units(s) * 4 < voxel_units(unbounded.stats[i]));
+  }
+  INFO("deadline " << deadline_ms << " ms: " << deep << " frames at the deeper voxel floor");
+  REQUIRE(deep > kFrames / 2);
+  PipelineConfig three = config;
+  three.workers = 3;
+  REQUIRE(same_bits(a, run(three, ClockKind::steady)));
 }
 
 TEST_CASE("a deadline of 0, or one every frame fits in, is today's pipeline bit for bit") {

@@ -75,8 +75,8 @@ Status validate(const DeadlineConfig& config, ErrorText* error) {
       return StatusCode::invalid_argument;
     }
   }
-  for (const float f :
-       {config.min_voxel_fraction, config.min_raycast_fraction, config.min_free_space_fraction}) {
+  for (const float f : {config.min_voxel_fraction, config.min_voxel_fraction_deep,
+                        config.min_raycast_fraction, config.min_free_space_fraction}) {
     if (!(f >= 0.0f && f <= 1.0f)) {
       err.set("deadline floor fractions must be in [0, 1]");
       return StatusCode::invalid_argument;
@@ -105,6 +105,8 @@ const char* deadline_step_name(DeadlineStep step) {
       return "raycast";
     case DeadlineStep::free_space:
       return "free_space";
+    case DeadlineStep::voxel_updates_deep:
+      return "voxel_updates_deep";
   }
   return "unknown";
 }
@@ -152,6 +154,7 @@ DeadlineReport DeadlineController::plan() const {
   r.free_space_demand = free_space_used_ ? free_space_demand_ : 0.0;
   const double growth = static_cast<double>(config_.demand_growth);
   double voxels = std::max(voxel_demand_ * growth, kMinVoxelDemand);
+  const double voxels_full = voxels;
   double steps = std::max(raycast_demand_ * growth, level_pixels_[0]);
   double visits = free_space_used_ ? std::max(free_space_demand_ * growth, kMinVisitDemand) : 0.0;
   const double icp_rate = icp_used_ ? model_.icp.ms_per_munit * 1e-6 : 0.0;
@@ -211,6 +214,18 @@ DeadlineReport DeadlineController::plan() const {
   cut(steps, config_.min_raycast_fraction, step_rate, DeadlineStep::raycast);
   if (free_space_used_) {
     cut(visits, config_.min_free_space_fraction, visit_rate, DeadlineStep::free_space);
+  }
+  // Voxel updates once more, to the deeper floor (a fraction of the demand, as the first).
+  if (config_.min_voxel_fraction_deep < config_.min_voxel_fraction) {
+    const double floor =
+        std::max(voxels_full * static_cast<double>(config_.min_voxel_fraction_deep), 1.0);
+    const double room = voxels - floor;
+    if (over_ms > kNegligible_ms && room > 0.0 && voxel_rate > 0.0) {
+      const double removed = std::min(room, over_ms / voxel_rate);
+      voxels -= removed;
+      over_ms -= removed * voxel_rate;
+      r.deepest = DeadlineStep::voxel_updates_deep;
+    }
   }
   r.infeasible = over_ms > kNegligible_ms;
   // Whole units, rounded down but for the rounding of the subtractions above (a millionth of a

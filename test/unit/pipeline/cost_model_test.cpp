@@ -167,18 +167,30 @@ TEST_CASE("then allocation at every other pixel, the half-resolution steps, free
   CHECK_FALSE(r.infeasible);
 }
 
+TEST_CASE("after free space, voxel updates are cut again to their deeper floor") {
+  // 2 - 0.1875 (allocation) + 1.375 (ICP at 1, 1, 2) + 2.5 + 0.625 + 0.0002 ms at the floors
+  // before this step: 0.3127 ms over 6, 31270 voxel updates.
+  const DeadlineReport r = plan_for(6.0);
+  REQUIRE(r.planned);
+  CHECK_FALSE(r.infeasible);
+  CHECK(r.deepest == DeadlineStep::voxel_updates_deep);
+  CHECK(r.free_space_visits == 1);
+  CHECK(static_cast<double>(r.max_voxel_updates) == Approx(218730.0).margin(1.0));
+  CHECK(r.predicted_ms == Approx(6.0).margin(1e-3));
+}
+
 TEST_CASE("below the floors the plan says infeasible and keeps the floors") {
   const DeadlineReport r = plan_for(5.0);
   REQUIRE(r.planned);
   CHECK(r.infeasible);
-  CHECK(r.deepest == DeadlineStep::free_space);
-  CHECK(r.max_voxel_updates == 250000);
+  CHECK(r.deepest == DeadlineStep::voxel_updates_deep);
+  CHECK(r.max_voxel_updates == 125000);  // an eighth of the demand
   CHECK(r.raycast_half);
   CHECK(r.allocation_half);
   CHECK(r.raycast_steps == 12500);  // a quarter of the half-resolution 50000
   CHECK(r.free_space_visits == 1);
-  // 2 - 0.1875 (allocation) + 1.375 (ICP at 1, 1, 2) + 2.5 + 0.625 + 0.0002 ms.
-  CHECK(r.predicted_ms == Approx(6.3127).margin(1e-9));
+  // 2 - 0.1875 (allocation) + 1.375 (ICP at 1, 1, 2) + 1.25 + 0.625 + 0.0002 ms.
+  CHECK(r.predicted_ms == Approx(5.0627).margin(1e-9));
 }
 
 TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
@@ -195,13 +207,21 @@ TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
       CHECK(r.icp_iterations[1] == 1);
       CHECK(r.icp_iterations[2] == 2);
     }
-    if (step > static_cast<int>(DeadlineStep::voxel_updates)) CHECK(r.max_voxel_updates == 250000);
+    if (step > static_cast<int>(DeadlineStep::voxel_updates) &&
+        step < static_cast<int>(DeadlineStep::voxel_updates_deep)) {
+      CHECK(r.max_voxel_updates == 250000);
+    }
+    if (step == static_cast<int>(DeadlineStep::voxel_updates_deep)) {
+      CHECK(r.max_voxel_updates < 250000);
+      CHECK(r.max_voxel_updates >= 125000);
+      CHECK(r.free_space_visits == 1);
+    }
     CHECK(r.raycast_half == (step >= static_cast<int>(DeadlineStep::raycast_half)));
     CHECK(r.allocation_half == (step >= static_cast<int>(DeadlineStep::allocation_half)));
     if (step > static_cast<int>(DeadlineStep::raycast)) CHECK(r.raycast_steps == 12500);
     if (!r.infeasible) CHECK(r.predicted_ms <= deadline_ms + kTolerance_ms);
   }
-  CHECK(previous == static_cast<int>(DeadlineStep::free_space));
+  CHECK(previous == static_cast<int>(DeadlineStep::voxel_updates_deep));
 }
 
 TEST_CASE("an adapting model learns each stage's line from times that follow the work") {

@@ -15,7 +15,9 @@
 //       a later frame;
 //   (6) ray-cast steps (the rows' last pixels stay invalid), down to min_raycast_fraction of
 //       the (half-resolution) demand;
-//   (7) free-space node visits, down to min_free_space_fraction.
+//   (7) free-space node visits, down to min_free_space_fraction;
+//   last, voxel updates again, down to min_voxel_fraction_deep of the demand (about every block
+//       one scale coarser, the near ones included, before far ones are skipped).
 // Eviction (2) answers memory, not time, and is left as configured; new blocks (3) and the
 // integrated-block count (5) are inside the voxel-update budget, which bounds their cost.
 //
@@ -77,6 +79,7 @@ struct DeadlineConfig {
   // above the configured budget is the configured budget.
   int min_icp_iterations[kPyramidLevels] = {2, 2, 4};
   float min_voxel_fraction = 0.25f;
+  float min_voxel_fraction_deep = 0.125f;  // the last step's floor; above min_voxel_fraction: off
   float min_raycast_fraction = 0.5f;
   float min_free_space_fraction = 0.0f;  // at least one visit stays
   bool raycast_half_resolution = true;   // false: the ray-cast always marches every pixel
@@ -91,7 +94,8 @@ struct DeadlineConfig {
 Status validate(const DeadlineConfig& config, ErrorText* error = nullptr);
 
 // Degradation steps a deadline plan cuts, numbered in the order it cuts them (pipeline.hpp's
-// steps (1), (4), (6) and (7), with the half-resolution ray-cast and allocation before (6)).
+// steps (1), (4), (6) and (7), with the half-resolution ray-cast and allocation before (6) and
+// a deeper cut of (4) after (7)).
 enum class DeadlineStep : std::uint8_t {
   none = 0,
   icp = 1,
@@ -100,6 +104,7 @@ enum class DeadlineStep : std::uint8_t {
   allocation_half = 4,
   raycast = 5,
   free_space = 6,
+  voxel_updates_deep = 7,
 };
 const char* deadline_step_name(DeadlineStep step);
 

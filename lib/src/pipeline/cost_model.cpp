@@ -257,8 +257,11 @@ void DeadlineController::learn(Regression& f, StageCost& cost, double units, dou
   if (f.weight > 2.5 && mean_u > 0.0 && var_u > spread * spread) {
     rate = (f.units_ms / f.weight - mean_u * mean_ms) / var_u;
   }
-  // A line through the mean with a positive slope and a fixed part >= 0.
-  if (!(rate > 0.0) && mean_u > 0.0) rate = mean_ms / mean_u;
+  // A line through the mean with a positive slope and a fixed part >= 0. A slope that comes out
+  // <= 0 (a burst of load on frames of few units) keeps the last one: a line through the origin
+  // instead prices a stage held at one unit (free space at its floor) at its whole time per unit,
+  // which kept it at its floor for good.
+  if (!(rate > 0.0)) rate = cost.ms_per_munit;
   double fixed = mean_ms - rate * mean_u;
   if (fixed < 0.0 && mean_u > 0.0) {
     rate = mean_ms / mean_u;

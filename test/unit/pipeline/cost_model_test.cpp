@@ -292,6 +292,34 @@ TEST_CASE("frames with allocation halved still teach the full march's line") {
   CHECK(controller.model().integrate.ms_per_munit == Approx(voxels.ms_per_munit).epsilon(1e-3));
 }
 
+TEST_CASE("a stage held at one unit keeps a sane rate through a burst of load") {
+  // Free space at its floor (one visit) for long after it last carved, a frame slowed by load,
+  // then one of 64 visits as quick as the rest: the slope through the recent frames comes out
+  // negative. The rate stays the last one, not the frames' time per unit (75 000 ms per million
+  // visits here), which would keep the stage at its floor for good.
+  DeadlineConfig config = hand_config(1000.0);
+  config.adapt = true;
+  DeadlineController controller;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  auto carve = [&](double visits, double ms) {
+    FrameObservation o;
+    o.timed = true;
+    o.total_ms = ms;
+    o.free_space = {true, false, visits, ms};
+    controller.observe(o, controller.plan());
+  };
+  for (int i = 0; i < 20; ++i) carve(1e4, 2.1);  // 0.1 ms and 200 ms per million visits
+  for (int i = 0; i < 300; ++i) carve(1.0, 0.1);
+  carve(1.0, 4.1);
+  carve(1.0, 0.1);
+  carve(1.0, 0.1);
+  carve(64.0, 0.1);
+  for (int i = 0; i < 20; ++i) carve(1.0, 0.1);
+  CHECK(controller.model().free_space.ms_per_munit < 1000.0);
+  CHECK(controller.model().free_space.ms_per_munit > 50.0);
+  CHECK(validate(controller.model()).ok());
+}
+
 TEST_CASE("a frozen model reads no time; overruns raise an adapting model's safety factor") {
   DeadlineController frozen;
   frozen.reset(hand_config(10.0), kIcp, kSide, kSide, true, true);

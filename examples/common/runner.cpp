@@ -140,6 +140,9 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
     json.key("icp_iterations_given_up").value(d.icp_iterations_given_up);
     json.key("max_voxel_updates").value(d.max_voxel_updates);
     json.key("raycast_steps").value(d.raycast_steps);
+    json.key("raycast_half_resolution").value(d.raycast_half);
+    json.key("allocation_half").value(d.allocation_half);
+    json.key("allocation_rays").value(static_cast<std::uint64_t>(s.integration.allocation_rays));
     json.key("free_space_visits").value(static_cast<std::uint64_t>(d.free_space_visits));
     json.key("blocks_coarsened")
         .value(static_cast<std::uint64_t>(s.integration.budget_blocks_coarsened));

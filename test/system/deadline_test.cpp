@@ -31,6 +31,14 @@ constexpr int kFrames = 36;
 
 using test::small_sim;
 
+// Of the deadline below (85 % of the median unbounded frame): where the floors of ICP and the
+// voxel updates no longer fit on the small sim.
+constexpr double kHalfResolutionShare = 0.5;
+// And where the half-resolution ray-cast does not suffice either.
+constexpr double kAllocationHalfShare = 0.4;
+// And where the voxel updates must fall below their first floor.
+constexpr double kVoxelDeepShare = 0.3;
+
 PipelineConfig small_config(const sim::SimSource& source, int workers) {
   const Se3d T_W_C0 = source.ground_truth_T_W_C(0);
   PipelineConfig config =
@@ -82,7 +90,11 @@ struct ModelClock {
     double ms = 0.0;
     if (s.input.pixel_count > 0) ms += c.fixed_ms;
     if (s.track_attempted) ms += c.icp.ms(icp_units(s));
-    if (s.integration.blocks_touched > 0) ms += c.integrate.ms(voxel_units(s));
+    if (s.integration.blocks_touched > 0) {
+      ms += c.integrate.ms(voxel_units(s));
+      // Its fixed part is the allocation march, a quarter of it at every other pixel.
+      if (s.deadline.allocation_half) ms -= 0.75 * c.integrate.fixed_ms;
+    }
     if (s.free_space.node_visits > 0) ms += c.free_space.ms(s.free_space.node_visits);
     if (s.raycast.steps > 0) ms += c.raycast.ms(static_cast<double>(s.raycast.steps));
     return ms;
@@ -207,7 +219,7 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
     REQUIRE(s.times.total_ms <= d.predicted_ms + 1e-3);
     if (d.infeasible) {
       ++infeasible;
-      REQUIRE(d.deepest == DeadlineStep::free_space);
+      REQUIRE(d.deepest == DeadlineStep::voxel_updates_deep);
       REQUIRE(d.free_space_visits == 1);
     } else {
       REQUIRE(s.times.total_ms <= deadline_ms);
@@ -230,22 +242,38 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
       }
     }
     const double growth = config.deadline.demand_growth;
-    if (d.deepest == DeadlineStep::raycast || d.deepest == DeadlineStep::free_space) {
-      const double full = std::max(d.voxel_demand * growth, 64.0 * 512.0);
+    const double voxels_full = std::max(d.voxel_demand * growth, 64.0 * 512.0);
+    if (static_cast<int>(d.deepest) > static_cast<int>(DeadlineStep::voxel_updates) &&
+        d.deepest != DeadlineStep::voxel_updates_deep) {
       REQUIRE(std::fabs(static_cast<double>(d.max_voxel_updates) -
-                        full * config.deadline.min_voxel_fraction) <= 1.0);
+                        voxels_full * config.deadline.min_voxel_fraction) <= 1.0);
     }
-    if (d.deepest == DeadlineStep::free_space) {
+    if (d.deepest == DeadlineStep::voxel_updates_deep) {
+      REQUIRE(static_cast<double>(d.max_voxel_updates) <
+              voxels_full * config.deadline.min_voxel_fraction);
+      REQUIRE(static_cast<double>(d.max_voxel_updates) >=
+              std::floor(voxels_full * config.deadline.min_voxel_fraction_deep));
+    }
+    // Half resolution from its step on, and then a quarter of the rays march.
+    const bool half = static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::raycast_half);
+    REQUIRE(d.raycast_half == half);
+    REQUIRE(d.allocation_half ==
+            (static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::allocation_half)));
+    REQUIRE(s.raycast.marched_pixels ==
+            static_cast<std::uint32_t>(half ? kWidth * kHeight / 4 : kWidth * kHeight));
+    if (static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::free_space)) {
       const double full = std::max(d.raycast_demand * growth, double{kWidth * kHeight});
       REQUIRE(std::fabs(static_cast<double>(d.raycast_steps) -
-                        full * config.deadline.min_raycast_fraction) <= 1.0);
+                        0.25 * full * config.deadline.min_raycast_fraction) <= 1.0);
     }
     if (d.deepest == DeadlineStep::icp) REQUIRE(d.icp_iterations_given_up > 0);
   }
   REQUIRE(planned == kFrames - 1);
   INFO("lost " << lost << ", below the floors " << infeasible << "; deepest step cut: icp "
-               << steps_cut[1] << ", voxels " << steps_cut[4] << ", ray-cast " << steps_cut[6]
-               << ", free space " << steps_cut[7]);
+               << steps_cut[1] << ", voxels " << steps_cut[2] << ", half-resolution ray-cast "
+               << steps_cut[3] << ", allocation " << steps_cut[4] << ", ray-cast steps "
+               << steps_cut[5] << ", free space " << steps_cut[6] << ", voxels again "
+               << steps_cut[7]);
   CHECK(lost == 0);
   CHECK(infeasible <= planned / 10);
   // Not vacuous: without the deadline most of these frames were over it, and with it they gave
@@ -310,6 +338,138 @@ TEST_CASE("a frozen calibration gives bit-identical results for 1 and 3 workers,
   CHECK(a.final_model.safety == machine().safety);
   // And the result differs from no deadline: the budgets changed the map.
   REQUIRE_FALSE(same_bits(a, run(small_config(probe, 1), ClockKind::none)));
+}
+
+TEST_CASE(
+    "below the first floors the reference is ray-cast at half resolution, deterministically") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  // Tighter than above: ICP and the voxel updates at their floors do not fit.
+  const double deadline_ms = kHalfResolutionShare * deadline_for(unbounded);
+  PipelineConfig config = small_config(probe, 1);
+  config.deadline.deadline_ms = deadline_ms;
+  config.deadline.model = machine();
+  config.deadline.adapt = false;
+  const Run a = run(config, ClockKind::model);
+  int half = 0;
+  for (std::size_t i = 1; i < a.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = a.stats[i];
+    const FrameStats& u = unbounded.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(d.planned);
+    if (!d.raycast_half) {
+      REQUIRE(static_cast<int>(d.deepest) < static_cast<int>(DeadlineStep::raycast_half));
+      REQUIRE(s.raycast.marched_pixels == static_cast<std::uint32_t>(kWidth * kHeight));
+      continue;
+    }
+    ++half;
+    // Engaged only with the earlier steps at their floors, and within the modelled deadline
+    // unless the floors after it do not fit either.
+    REQUIRE(static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::raycast_half));
+    for (int level = 0; level < kPyramidLevels; ++level) {
+      REQUIRE(d.icp_iterations[level] == config.deadline.min_icp_iterations[level]);
+    }
+    if (!d.infeasible) REQUIRE(s.times.total_ms <= deadline_ms);
+    // A quarter of the rays march and take well under half of the steps, and the model stays
+    // dense where no step budget cut it.
+    REQUIRE(s.raycast.marched_pixels == static_cast<std::uint32_t>(kWidth * kHeight / 4));
+    REQUIRE(s.raycast.steps * 2 < u.raycast.steps);
+    if (d.deepest == DeadlineStep::raycast_half) {
+      REQUIRE(s.raycast.budget_cut_pixels == 0);
+      REQUIRE(s.raycast.valid_pixels * 10 > u.raycast.valid_pixels * 8);
+    }
+  }
+  INFO("deadline " << deadline_ms << " ms: " << half << " frames at half resolution");
+  REQUIRE(half > kFrames / 2);
+  CHECK(a.stats.back().result == FrameResult::tracked);
+  // Frozen, the half-resolution frames are the same for 3 workers and any clock.
+  PipelineConfig three = config;
+  three.workers = 3;
+  const Run b = run(three, ClockKind::steady);
+  REQUIRE(same_bits(a, b));
+  for (std::size_t i = 0; i < a.stats.size(); ++i) {
+    REQUIRE(a.stats[i].deadline.raycast_half == b.stats[i].deadline.raycast_half);
+    REQUIRE(a.stats[i].raycast.marched_pixels == b.stats[i].raycast.marched_pixels);
+  }
+}
+
+TEST_CASE("deeper still, allocation marches every other pixel's ray, deterministically") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  const double deadline_ms = kAllocationHalfShare * deadline_for(unbounded);
+  PipelineConfig config = small_config(probe, 1);
+  config.deadline.deadline_ms = deadline_ms;
+  config.deadline.model = machine();
+  config.deadline.adapt = false;
+  const Run a = run(config, ClockKind::model);
+  int halved = 0;
+  for (std::size_t i = 1; i < a.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = a.stats[i];
+    const FrameStats& u = unbounded.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(d.planned);
+    if (!d.allocation_half) {
+      REQUIRE(static_cast<int>(d.deepest) < static_cast<int>(DeadlineStep::allocation_half));
+      continue;
+    }
+    ++halved;
+    REQUIRE(d.raycast_half);  // the step before it is in the plan
+    if (!d.infeasible) REQUIRE(s.times.total_ms <= deadline_ms);
+    // About a quarter of the rays march, and they still find most blocks (at this sim's 2 cm
+    // and 160 x 120 a skipped ray's band is more often the only one in a block than at 1 cm).
+    REQUIRE(s.integration.allocation_rays * 3 < u.integration.allocation_rays);
+    REQUIRE(s.integration.allocation_rays * 5 > u.integration.allocation_rays);
+    REQUIRE(s.integration.blocks_touched * 10 > u.integration.blocks_touched * 8);
+  }
+  INFO("deadline " << deadline_ms << " ms: " << halved << " frames with allocation halved");
+  REQUIRE(halved > kFrames / 2);
+  CHECK(a.stats.back().result == FrameResult::tracked);
+  PipelineConfig three = config;
+  three.workers = 3;
+  const Run b = run(three, ClockKind::none);
+  REQUIRE(same_bits(a, b));
+  for (std::size_t i = 0; i < a.stats.size(); ++i) {
+    REQUIRE(a.stats[i].deadline.allocation_half == b.stats[i].deadline.allocation_half);
+    REQUIRE(a.stats[i].integration.allocation_rays == b.stats[i].integration.allocation_rays);
+  }
+}
+
+TEST_CASE("deepest, voxel updates fall to their deeper floor, deterministically") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  const double deadline_ms = kVoxelDeepShare * deadline_for(unbounded);
+  PipelineConfig config = small_config(probe, 1);
+  config.deadline.deadline_ms = deadline_ms;
+  config.deadline.model = machine();
+  config.deadline.adapt = false;
+  const Run a = run(config, ClockKind::model);
+  int deep = 0;
+  for (std::size_t i = 1; i < a.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = a.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(d.planned);
+    if (d.deepest != DeadlineStep::voxel_updates_deep) continue;
+    ++deep;
+    REQUIRE(d.free_space_visits == 1);  // the step before it is at its floor
+    if (!d.infeasible) REQUIRE(s.times.total_ms <= deadline_ms);
+    // Below the first floor, a quarter of the demand, and the integration within it.
+    const double voxels_full = std::max(d.voxel_demand * config.deadline.demand_growth, 32768.0);
+    REQUIRE(static_cast<double>(d.max_voxel_updates) <
+            voxels_full * config.deadline.min_voxel_fraction);
+    REQUIRE(voxel_units(s) <= static_cast<double>(d.max_voxel_updates));
+    REQUIRE(voxel_units(s) * 4 < voxel_units(unbounded.stats[i]));
+  }
+  INFO("deadline " << deadline_ms << " ms: " << deep << " frames at the deeper voxel floor");
+  REQUIRE(deep > kFrames / 2);
+  PipelineConfig three = config;
+  three.workers = 3;
+  REQUIRE(same_bits(a, run(three, ClockKind::steady)));
 }
 
 TEST_CASE("a deadline of 0, or one every frame fits in, is today's pipeline bit for bit") {

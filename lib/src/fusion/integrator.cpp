@@ -388,8 +388,8 @@ struct MarchSetup {
 // with its pixel in (stop_v, stop_u). Cells outside the cube and far-off rays add to `outside`.
 template <typename FrameT, typename Room, typename Emit>
 bool march_rows(const FrameT& f, const MarchSetup& m, int v_begin, int u_begin, int v_end,
-                std::uint64_t* seen, std::uint32_t& outside, Room&& room, Emit&& emit, int& stop_v,
-                int& stop_u) {
+                std::uint64_t* seen, std::uint32_t& outside, std::uint32_t& rays, Room&& room,
+                Emit&& emit, int& stop_v, int& stop_u) {
   for (int v = v_begin; v < v_end; v += m.step) {
     const float* row = f.depth + v * f.stride;
     const float yn = (static_cast<float>(v) - f.cy) * m.inv_fy;
@@ -440,6 +440,7 @@ bool march_rows(const FrameT& f, const MarchSetup& m, int v_begin, int u_begin, 
         stop_u = u;
         return true;
       }
+      ++rays;
       for (int c = 0; c < max_cells; ++c) {
         if (static_cast<unsigned>(cell[0]) < static_cast<unsigned>(m.side_blocks) &&
             static_cast<unsigned>(cell[1]) < static_cast<unsigned>(m.side_blocks) &&
@@ -499,7 +500,7 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
     int stop_u = 0;
     const std::size_t capacity = band_capacity_;
     if (march_rows(
-            f, m, band_v(task, false), 0, band_v(task, true), seen, tally.outside,
+            f, m, band_v(task, false), 0, band_v(task, true), seen, tally.outside, tally.rays,
             [&](int n) { return count + static_cast<std::size_t>(n) <= capacity; },
             [&](std::uint64_t key) { cells[count++] = key; }, stop_v, stop_u)) {
       tally.stop_row = stop_v;
@@ -542,14 +543,16 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
       push(cells[i]);
     }
     std::uint32_t outside = tally.outside;
+    std::uint32_t rays = tally.rays;
     if (tally.stop_row >= 0) {
       int unused_v = 0;
       int unused_u = 0;
       march_rows(
-          f, m, tally.stop_row, tally.stop_column, band_v(task, true), seen, outside,
+          f, m, tally.stop_row, tally.stop_column, band_v(task, true), seen, outside, rays,
           [](int) { return true; }, push, unused_v, unused_u);
     }
     report.rays_outside_cube += outside;
+    report.allocation_rays += rays;
   }
   for (std::uint64_t i = pushed > kPending ? pushed - kPending : 0; i < pushed; ++i) {
     insert_packed(pending[i % kPending]);

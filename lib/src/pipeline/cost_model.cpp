@@ -75,8 +75,8 @@ Status validate(const DeadlineConfig& config, ErrorText* error) {
       return StatusCode::invalid_argument;
     }
   }
-  for (const float f :
-       {config.min_voxel_fraction, config.min_raycast_fraction, config.min_free_space_fraction}) {
+  for (const float f : {config.min_voxel_fraction, config.min_voxel_fraction_deep,
+                        config.min_raycast_fraction, config.min_free_space_fraction}) {
     if (!(f >= 0.0f && f <= 1.0f)) {
       err.set("deadline floor fractions must be in [0, 1]");
       return StatusCode::invalid_argument;
@@ -97,10 +97,16 @@ const char* deadline_step_name(DeadlineStep step) {
       return "icp";
     case DeadlineStep::voxel_updates:
       return "voxel_updates";
+    case DeadlineStep::raycast_half:
+      return "raycast_half";
+    case DeadlineStep::allocation_half:
+      return "allocation_half";
     case DeadlineStep::raycast:
       return "raycast";
     case DeadlineStep::free_space:
       return "free_space";
+    case DeadlineStep::voxel_updates_deep:
+      return "voxel_updates_deep";
   }
   return "unknown";
 }
@@ -118,6 +124,7 @@ void DeadlineController::reset(const DeadlineConfig& config,
     level_pixels_[level] =
         static_cast<double>(width >> level) * static_cast<double>(height >> level);
   }
+  half_pixels_ = static_cast<double>((width + 1) / 2) * static_cast<double>((height + 1) / 2);
   icp_fit_ = integrate_fit_ = raycast_fit_ = free_space_fit_ = Regression{};
   have_demand_ = false;
   voxel_demand_ = 0.0;
@@ -147,6 +154,7 @@ DeadlineReport DeadlineController::plan() const {
   r.free_space_demand = free_space_used_ ? free_space_demand_ : 0.0;
   const double growth = static_cast<double>(config_.demand_growth);
   double voxels = std::max(voxel_demand_ * growth, kMinVoxelDemand);
+  const double voxels_full = voxels;
   double steps = std::max(raycast_demand_ * growth, level_pixels_[0]);
   double visits = free_space_used_ ? std::max(free_space_demand_ * growth, kMinVisitDemand) : 0.0;
   const double icp_rate = icp_used_ ? model_.icp.ms_per_munit * 1e-6 : 0.0;
@@ -154,9 +162,9 @@ DeadlineReport DeadlineController::plan() const {
   const double step_rate = model_.raycast.ms_per_munit * 1e-6;
   const double visit_rate = free_space_used_ ? model_.free_space.ms_per_munit * 1e-6 : 0.0;
   // What every frame pays whatever its budgets.
-  const double fixed_ms = model_.fixed_ms + (icp_used_ ? model_.icp.fixed_ms : 0.0) +
-                          model_.integrate.fixed_ms + model_.raycast.fixed_ms +
-                          (free_space_used_ ? model_.free_space.fixed_ms : 0.0);
+  double fixed_ms = model_.fixed_ms + (icp_used_ ? model_.icp.fixed_ms : 0.0) +
+                    model_.integrate.fixed_ms + model_.raycast.fixed_ms +
+                    (free_space_used_ ? model_.free_space.fixed_ms : 0.0);
   auto stages_ms = [&](const int iterations[kPyramidLevels], double v, double s, double f) {
     return icp_rate * icp_units(iterations) + voxel_rate * v + step_rate * s + visit_rate * f;
   };
@@ -177,8 +185,9 @@ DeadlineReport DeadlineController::plan() const {
     }
   }
   // (4), (6), (7): each down to its floor before the next.
+  // Every budget keeps at least one unit (below), so no cut goes under one either.
   auto cut = [&](double& units, float floor_fraction, double rate, DeadlineStep step) {
-    const double room = units * (1.0 - static_cast<double>(floor_fraction));
+    const double room = units - std::max(units * static_cast<double>(floor_fraction), 1.0);
     if (over_ms <= kNegligible_ms || room <= 0.0 || rate <= 0.0) return;
     const double removed = std::min(room, over_ms / rate);
     units -= removed;
@@ -186,9 +195,37 @@ DeadlineReport DeadlineController::plan() const {
     r.deepest = step;
   };
   cut(voxels, config_.min_voxel_fraction, voxel_rate, DeadlineStep::voxel_updates);
+  // Half resolution: a quarter of the rays, so (about) a quarter of the steps.
+  if (over_ms > kNegligible_ms && config_.raycast_half_resolution && step_rate > 0.0) {
+    const double half = steps * (half_pixels_ / level_pixels_[0]);
+    over_ms -= (steps - half) * step_rate;
+    steps = half;
+    r.raycast_half = true;
+    r.deepest = DeadlineStep::raycast_half;
+  }
+  // Allocation at every other pixel: its march, the integration's fixed part, at that share.
+  if (over_ms > kNegligible_ms && config_.allocation_half) {
+    const double saved_ms = model_.integrate.fixed_ms * (1.0 - half_pixels_ / level_pixels_[0]);
+    over_ms -= saved_ms;
+    fixed_ms -= saved_ms;
+    r.allocation_half = true;
+    r.deepest = DeadlineStep::allocation_half;
+  }
   cut(steps, config_.min_raycast_fraction, step_rate, DeadlineStep::raycast);
   if (free_space_used_) {
     cut(visits, config_.min_free_space_fraction, visit_rate, DeadlineStep::free_space);
+  }
+  // Voxel updates once more, to the deeper floor (a fraction of the demand, as the first).
+  if (config_.min_voxel_fraction_deep < config_.min_voxel_fraction) {
+    const double floor =
+        std::max(voxels_full * static_cast<double>(config_.min_voxel_fraction_deep), 1.0);
+    const double room = voxels - floor;
+    if (over_ms > kNegligible_ms && room > 0.0 && voxel_rate > 0.0) {
+      const double removed = std::min(room, over_ms / voxel_rate);
+      voxels -= removed;
+      over_ms -= removed * voxel_rate;
+      r.deepest = DeadlineStep::voxel_updates_deep;
+    }
   }
   r.infeasible = over_ms > kNegligible_ms;
   // Whole units, rounded down but for the rounding of the subtractions above (a millionth of a
@@ -220,8 +257,11 @@ void DeadlineController::learn(Regression& f, StageCost& cost, double units, dou
   if (f.weight > 2.5 && mean_u > 0.0 && var_u > spread * spread) {
     rate = (f.units_ms / f.weight - mean_u * mean_ms) / var_u;
   }
-  // A line through the mean with a positive slope and a fixed part >= 0.
-  if (!(rate > 0.0) && mean_u > 0.0) rate = mean_ms / mean_u;
+  // A line through the mean with a positive slope and a fixed part >= 0. A slope that comes out
+  // <= 0 (a burst of load on frames of few units) keeps the last one: a line through the origin
+  // instead prices a stage held at one unit (free space at its floor) at its whole time per unit,
+  // which kept it at its floor for good.
+  if (!(rate > 0.0)) rate = cost.ms_per_munit;
   double fixed = mean_ms - rate * mean_u;
   if (fixed < 0.0 && mean_u > 0.0) {
     rate = mean_ms / mean_u;
@@ -246,7 +286,11 @@ void DeadlineController::observe(const FrameObservation& frame, const DeadlineRe
   if (!config_.adapt || !frame.timed) return;
   if (frame.icp.ran) learn(icp_fit_, model_.icp, frame.icp.units, frame.icp.ms);
   if (frame.integrate.ran) {
-    learn(integrate_fit_, model_.integrate, frame.integrate.units, frame.integrate.ms);
+    double integrate_ms = frame.integrate.ms;
+    if (plan.allocation_half) {
+      integrate_ms += model_.integrate.fixed_ms * (1.0 - half_pixels_ / level_pixels_[0]);
+    }
+    learn(integrate_fit_, model_.integrate, frame.integrate.units, integrate_ms);
   }
   if (frame.raycast.ran) learn(raycast_fit_, model_.raycast, frame.raycast.units, frame.raycast.ms);
   if (frame.free_space.ran) {

@@ -390,7 +390,10 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
     return ok_status();
   }
   // The old reference was seen from elsewhere: ray-cast what the map shows from here, whole.
-  if (deadline_.active()) raycaster_.set_step_budget(config_.budget.raycast_steps);
+  if (deadline_.active()) {
+    raycaster_.set_step_budget(config_.budget.raycast_steps);
+    raycaster_.set_pixel_stride(1);
+  }
   const Result<RaycastStats> raycast = raycaster_.raycast(map_, working_camera_, T_W_C_, team_);
   if (!raycast.ok()) return raycast.status();
   T_W_Cref_ = T_W_C_;
@@ -481,6 +484,10 @@ void Pipeline<VoxelT>::apply_deadline(const DeadlineReport& plan) {
     return configured == 0 ? planned : std::min(configured, planned);
   };
   raycaster_.set_step_budget(bounded(config_.budget.raycast_steps, plan.raycast_steps));
+  raycaster_.set_pixel_stride(plan.raycast_half ? 2 : 1);
+  const int allocation_step = config_.fusion.allocation_pixel_step;
+  integrator_.set_allocation_pixel_step(plan.allocation_half ? 2 * allocation_step
+                                                             : allocation_step);
   if (free_space_.reserved()) {
     free_space_.set_visit_budget(static_cast<std::uint32_t>(
         bounded(config_.free_space.max_node_visits, plan.free_space_visits)));
@@ -527,14 +534,19 @@ FrameObservation Pipeline<VoxelT>::observe_frame(const FrameStats& stats, bool i
   }
   if (raycast_done) {
     o.raycast.ran = true;
-    o.raycast.budget_hit = stats.raycast.budget_hit();
-    o.raycast.units = static_cast<double>(stats.raycast.steps);
-    o.raycast.ms = stats.times.raycast_ms;
-    // The pixels left invalid would have marched as the others did.
     const double pixels =
         static_cast<double>(working_camera_.width) * static_cast<double>(working_camera_.height);
+    const double marched = static_cast<double>(stats.raycast.marched_pixels);
+    // At half resolution the full cast's demand is not known either.
+    o.raycast.budget_hit = stats.raycast.budget_hit() || marched < pixels;
+    o.raycast.units = static_cast<double>(stats.raycast.steps);
+    o.raycast.ms = stats.times.raycast_ms;
+    // The pixels left invalid would have marched as the others did, and at half resolution
+    // each unmarched pixel as the marched ones.
     const double reached = pixels - static_cast<double>(stats.raycast.budget_cut_pixels);
-    if (reached > 0.0) o.raycast.demand = o.raycast.units * pixels / reached;
+    if (reached > 0.0 && marched > 0.0) {
+      o.raycast.demand = o.raycast.units * (pixels / reached) * (pixels / marched);
+    }
   }
   return o;
 }

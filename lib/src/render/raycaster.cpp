@@ -606,86 +606,131 @@ struct RowJob {
     for (std::size_t row = task * kRowsPerTask; row < end; ++row) march_row(row, cache);
   }
 
+  // Marches pixel (x, y) into the outputs; true when the step budget left it invalid.
+  bool march_pixel(int x, int y, RowCache<VoxelT>& cache, float voxel_m, std::uint64_t& steps_left,
+                   RaycastStats& stats) const {
+    ++stats.marched_pixels;
+    // Read before it is overwritten: whether this pixel's ray hit in the previous cast.
+    const bool missed_before = scale(x, y) == kNoScale;
+    surface_W.vertices(x, y) = Eigen::Vector3f::Zero();
+    surface_W.normals(x, y) = Eigen::Vector3f::Zero();
+    scale(x, y) = kNoScale;
+    if (steps_left == 0) {
+      ++stats.budget_cut_pixels;
+      return true;
+    }
+    const TileDepthRange& range = ranges(x / kRangeTile_px, y / kRangeTile_px);
+    if (range.empty()) return false;  // nothing allocated along this ray
+    const Eigen::Vector3f dir_C =
+        camera->back_project(static_cast<float>(x), static_cast<float>(y), 1.0f);
+    // Depth limits along z become distances along the unit ray.
+    const float length = dir_C.norm();
+    Ray ray{t_W_C, R_W_C * (dir_C / length)};
+    VoxelRay ray_v;
+    ray_v.origin_v = origin_v;
+    ray_v.dir_v = ray.dir_W / voxel_m;
+    for (int a = 0; a < 3; ++a) {
+      ray_v.inv_dir_v[a] =
+          ray_v.dir_v[a] != 0.0f ? 1.0f / ray_v.dir_v[a] : std::numeric_limits<float>::infinity();
+    }
+    const float t_near = range.z_min_m * length;
+    const float t_far = range.z_max_m * length;
+    // Start a guided ray in the band in front of the guide depth.
+    float t_start = t_near;
+    if (!guide_depth_m.empty()) {
+      const float z_guide_m = guide_depth_m(x, y);
+      // Also rejects NaN and no-data zeros.
+      if (z_guide_m >= range.z_min_m && z_guide_m <= range.z_max_m) {
+        t_start = z_guide_m * length - kGuideMargin_mu * config->mu_m;
+      }
+    }
+    const bool guided = t_start > t_near;
+    // Rays without a guide cost several times a guided one and mostly find nothing (regions
+    // the sensor never measures: out of range, dark or shiny surfaces), so one that found
+    // nothing last time waits for its turn.
+    if (!guided && skip_repeated_misses && missed_before &&
+        (static_cast<std::uint32_t>(x + y) + cast_index) % kMissRetryPeriod != 0) {
+      ++stats.miss_skipped_pixels;
+      return false;
+    }
+    PixelHit hit;
+    MarchResult r = march(*map, *config, ray, t_near, t_far, t_start, guided, cache, ray_v,
+                          steps_left, stats.steps, hit);
+    if (guided) {
+      ++stats.guided_pixels;
+      if (r == MarchResult::rejected) {
+        ++stats.guide_fallback_pixels;
+        r = march(*map, *config, ray, t_near, t_far, t_near, false, cache, ray_v, steps_left,
+                  stats.steps, hit);
+      }
+    }
+    if (r == MarchResult::out_of_steps) {
+      ++stats.budget_cut_pixels;
+      return true;
+    }
+    if (r != MarchResult::hit) {
+      if (guided) ++stats.guided_misses;
+      return false;
+    }
+    // The hit must be in front of the camera (z > 0), a check a reference omitted.
+    const Eigen::Vector3f p_C = R_W_C.transpose() * (hit.p_W - t_W_C);
+    if (!(p_C.z() > 0.0f)) return false;
+    surface_W.vertices(x, y) = hit.p_W;
+    surface_W.normals(x, y) = hit.n_W;
+    scale(x, y) = static_cast<std::uint8_t>(hit.scale);
+    ++stats.valid_pixels;
+    ++stats.scale_pixels[hit.scale];
+    return false;
+  }
+
+  // Half resolution: an odd row copies the even row above it, which the same task marched just
+  // before (tasks start at even rows), and so its counts.
+  void copy_row_above(int y) const {
+    for (int x = 0; x < config->width; ++x) {
+      surface_W.vertices(x, y) = surface_W.vertices(x, y - 1);
+      surface_W.normals(x, y) = surface_W.normals(x, y - 1);
+      scale(x, y) = scale(x, y - 1);
+    }
+    const RaycastStats& above = row_stats[y - 1];
+    RaycastStats& stats = row_stats[y];
+    stats = RaycastStats{};
+    stats.valid_pixels = above.valid_pixels;
+    stats.budget_cut_pixels = above.budget_cut_pixels;
+    for (int s = 0; s < 4; ++s) stats.scale_pixels[s] = above.scale_pixels[s];
+  }
+
   void march_row(std::size_t row, RowCache<VoxelT>& cache) const {
     const int y = static_cast<int>(row);
+    const int stride = config->pixel_stride;
+    if (stride == 2 && (y & 1) != 0) {
+      copy_row_above(y);
+      return;
+    }
     RaycastStats& stats = row_stats[row];
     stats = RaycastStats{};
     const std::uint64_t budget = config->step_budget;
-    const std::uint64_t rows = static_cast<std::uint64_t>(config->height);
+    // The marched rows share the budget: every row, or the even ones at half resolution.
+    const std::uint64_t rows = stride == 2 ? static_cast<std::uint64_t>(config->height + 1) / 2
+                                           : static_cast<std::uint64_t>(config->height);
+    const std::uint64_t share_index = row / static_cast<std::uint64_t>(stride);
     std::uint64_t steps_left = std::numeric_limits<std::uint64_t>::max();
-    if (budget != 0) steps_left = budget / rows + (row < budget % rows ? 1u : 0u);
+    if (budget != 0) steps_left = budget / rows + (share_index < budget % rows ? 1u : 0u);
     const float voxel_m = map->voxel_size_m();
-    for (int x = 0; x < config->width; ++x) {
-      // Read before it is overwritten: whether this pixel's ray hit in the previous cast.
-      const bool missed_before = scale(x, y) == kNoScale;
-      surface_W.vertices(x, y) = Eigen::Vector3f::Zero();
-      surface_W.normals(x, y) = Eigen::Vector3f::Zero();
-      scale(x, y) = kNoScale;
-      if (steps_left == 0) {
-        ++stats.budget_cut_pixels;
-        continue;
-      }
-      const TileDepthRange& range = ranges(x / kRangeTile_px, y / kRangeTile_px);
-      if (range.empty()) continue;  // nothing allocated along this ray
-      const Eigen::Vector3f dir_C =
-          camera->back_project(static_cast<float>(x), static_cast<float>(y), 1.0f);
-      // Depth limits along z become distances along the unit ray.
-      const float length = dir_C.norm();
-      Ray ray{t_W_C, R_W_C * (dir_C / length)};
-      VoxelRay ray_v;
-      ray_v.origin_v = origin_v;
-      ray_v.dir_v = ray.dir_W / voxel_m;
-      for (int a = 0; a < 3; ++a) {
-        ray_v.inv_dir_v[a] =
-            ray_v.dir_v[a] != 0.0f ? 1.0f / ray_v.dir_v[a] : std::numeric_limits<float>::infinity();
-      }
-      const float t_near = range.z_min_m * length;
-      const float t_far = range.z_max_m * length;
-      // Start a guided ray in the band in front of the guide depth.
-      float t_start = t_near;
-      if (!guide_depth_m.empty()) {
-        const float z_guide_m = guide_depth_m(x, y);
-        // Also rejects NaN and no-data zeros.
-        if (z_guide_m >= range.z_min_m && z_guide_m <= range.z_max_m) {
-          t_start = z_guide_m * length - kGuideMargin_mu * config->mu_m;
+    for (int x = 0; x < config->width; x += stride) {
+      const bool cut = march_pixel(x, y, cache, voxel_m, steps_left, stats);
+      if (stride == 2 && x + 1 < config->width) {
+        // The right neighbour copies the marched pixel (as do its counts).
+        surface_W.vertices(x + 1, y) = surface_W.vertices(x, y);
+        surface_W.normals(x + 1, y) = surface_W.normals(x, y);
+        scale(x + 1, y) = scale(x, y);
+        const std::uint8_t s = scale(x, y);
+        if (s != kNoScale) {
+          ++stats.valid_pixels;
+          ++stats.scale_pixels[s];
+        } else if (cut) {
+          ++stats.budget_cut_pixels;
         }
       }
-      const bool guided = t_start > t_near;
-      // Rays without a guide cost several times a guided one and mostly find nothing (regions
-      // the sensor never measures: out of range, dark or shiny surfaces), so one that found
-      // nothing last time waits for its turn.
-      if (!guided && skip_repeated_misses && missed_before &&
-          (static_cast<std::uint32_t>(x + y) + cast_index) % kMissRetryPeriod != 0) {
-        ++stats.miss_skipped_pixels;
-        continue;
-      }
-      PixelHit hit;
-      MarchResult r = march(*map, *config, ray, t_near, t_far, t_start, guided, cache, ray_v,
-                            steps_left, stats.steps, hit);
-      if (guided) {
-        ++stats.guided_pixels;
-        if (r == MarchResult::rejected) {
-          ++stats.guide_fallback_pixels;
-          r = march(*map, *config, ray, t_near, t_far, t_near, false, cache, ray_v, steps_left,
-                    stats.steps, hit);
-        }
-      }
-      if (r == MarchResult::out_of_steps) {
-        ++stats.budget_cut_pixels;
-        continue;
-      }
-      if (r != MarchResult::hit) {
-        if (guided) ++stats.guided_misses;
-        continue;
-      }
-      // The hit must be in front of the camera (z > 0), a check a reference omitted.
-      const Eigen::Vector3f p_C = R_W_C.transpose() * (hit.p_W - t_W_C);
-      if (!(p_C.z() > 0.0f)) continue;
-      surface_W.vertices(x, y) = hit.p_W;
-      surface_W.normals(x, y) = hit.n_W;
-      scale(x, y) = static_cast<std::uint8_t>(hit.scale);
-      ++stats.valid_pixels;
-      ++stats.scale_pixels[hit.scale];
     }
   }
 };
@@ -698,6 +743,7 @@ Status validate(const RaycastConfig& config) {
     return StatusCode::invalid_argument;
   }
   if (!(config.mu_m > 0.0f) || !std::isfinite(config.mu_m)) return StatusCode::invalid_argument;
+  if (config.pixel_stride != 1 && config.pixel_stride != 2) return StatusCode::invalid_argument;
   return ok_status();
 }
 
@@ -739,6 +785,7 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
     total.steps += row.steps;
     total.valid_pixels += row.valid_pixels;
     total.budget_cut_pixels += row.budget_cut_pixels;
+    total.marched_pixels += row.marched_pixels;
     total.guided_pixels += row.guided_pixels;
     total.guide_fallback_pixels += row.guide_fallback_pixels;
     total.miss_skipped_pixels += row.miss_skipped_pixels;

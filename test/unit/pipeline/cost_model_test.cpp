@@ -106,33 +106,91 @@ TEST_CASE("a small overrun is taken from ICP's finest level first") {
   CHECK_FALSE(r.infeasible);
 }
 
-TEST_CASE("a larger overrun takes ICP to its floors, voxels to theirs, then ray-cast steps") {
+TEST_CASE("a larger overrun takes ICP and voxels to their floors, then ray-casts at half size") {
   // 14.875 ms over 13 available: ICP gives 3 + 1 + 0.5 ms at floors 1, 1, 2; voxel updates
-  // give 7.5 ms down to a quarter; 2.875 ms remain for the ray-cast: 57500 of its steps.
+  // give 7.5 ms down to a quarter; the 2.875 ms left cost a half-resolution ray-cast, which
+  // marches a quarter of the rays: 50000 steps, 7.5 ms less.
   const DeadlineReport r = plan_for(15.0);
   REQUIRE(r.planned);
-  CHECK(r.deepest == DeadlineStep::raycast);
+  CHECK(r.deepest == DeadlineStep::raycast_half);
   CHECK(r.icp_iterations[0] == 1);
   CHECK(r.icp_iterations[1] == 1);
   CHECK(r.icp_iterations[2] == 2);
   CHECK(r.icp_iterations_given_up == 15);
   CHECK(r.max_voxel_updates == 250000);
-  CHECK(r.raycast_steps == 142500);
+  CHECK(r.raycast_half);
+  CHECK(r.raycast_steps == 50000);
   CHECK(r.free_space_visits == 10000);
-  CHECK(r.predicted_ms == Approx(15.0).margin(1e-3));
+  CHECK(r.predicted_ms == Approx(10.375).margin(1e-9));
   CHECK_FALSE(r.infeasible);
+}
+
+TEST_CASE("without half resolution, allocation and then the ray-cast's steps come next") {
+  // As above, 2.875 ms over after the voxels: allocation at every other pixel gives 0.1875 ms
+  // (three quarters of integration's fixed part), the full ray-cast's steps the other 2.6875 ms,
+  // 53750 of them.
+  DeadlineConfig config = hand_config(15.0);
+  config.raycast_half_resolution = false;
+  DeadlineController controller;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  const DeadlineReport r = controller.plan();
+  REQUIRE(r.planned);
+  CHECK(r.deepest == DeadlineStep::raycast);
+  CHECK_FALSE(r.raycast_half);
+  CHECK(r.allocation_half);
+  CHECK(r.max_voxel_updates == 250000);
+  CHECK(r.raycast_steps == 146250);
+  CHECK(r.predicted_ms == Approx(15.0).margin(1e-3));
+
+  config.allocation_half = false;  // and without either, all 2.875 ms from the steps
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  const DeadlineReport steps_only = controller.plan();
+  CHECK(steps_only.deepest == DeadlineStep::raycast);
+  CHECK_FALSE(steps_only.allocation_half);
+  CHECK(steps_only.raycast_steps == 142500);
+}
+
+TEST_CASE("then allocation at every other pixel, the half-resolution steps, free-space visits") {
+  // 20.875 ms over 7 available: ICP and voxels at their floors and the half-resolution cast
+  // leave 1.375 ms over; allocation at every other pixel gives 0.1875 ms of it and 23750 of
+  // the 50000 steps the rest.
+  const DeadlineReport r = plan_for(9.0);
+  REQUIRE(r.planned);
+  CHECK(r.deepest == DeadlineStep::raycast);
+  CHECK(r.raycast_half);
+  CHECK(r.allocation_half);
+  CHECK(r.raycast_steps == 26250);
+  CHECK(r.free_space_visits == 10000);
+  CHECK(r.predicted_ms == Approx(9.0).margin(1e-3));
+  CHECK_FALSE(r.infeasible);
+}
+
+TEST_CASE("after free space, voxel updates are cut again to their deeper floor") {
+  // 2 - 0.1875 (allocation) + 1.375 (ICP at 1, 1, 2) + 2.5 + 0.625 + 0.0002 ms at the floors
+  // before this step: 0.3127 ms over 6, 31270 voxel updates.
+  const DeadlineReport r = plan_for(6.0);
+  REQUIRE(r.planned);
+  CHECK_FALSE(r.infeasible);
+  CHECK(r.deepest == DeadlineStep::voxel_updates_deep);
+  CHECK(r.free_space_visits == 1);
+  CHECK(static_cast<double>(r.max_voxel_updates) == Approx(218730.0).margin(1.0));
+  CHECK(r.predicted_ms == Approx(6.0).margin(1e-3));
 }
 
 TEST_CASE("below the floors the plan says infeasible and keeps the floors") {
   const DeadlineReport r = plan_for(5.0);
   REQUIRE(r.planned);
   CHECK(r.infeasible);
-  CHECK(r.deepest == DeadlineStep::free_space);
-  CHECK(r.max_voxel_updates == 250000);
-  CHECK(r.raycast_steps == 50000);
+  CHECK(r.deepest == DeadlineStep::voxel_updates_deep);
+  CHECK(r.max_voxel_updates == 125000);  // an eighth of the demand
+  CHECK(r.raycast_half);
+  CHECK(r.allocation_half);
+  CHECK(r.raycast_steps == 12500);  // a quarter of the half-resolution 50000
   CHECK(r.free_space_visits == 1);
-  // 2 + 1.375 (ICP at 1, 1, 2) + 2.5 + 2.5 + 0.0002 ms.
-  CHECK(r.predicted_ms == Approx(8.3752).margin(1e-9));
+  // 2 - 0.1875 (allocation) + 1.375 (ICP at 1, 1, 2) + 1.25 + 0.625 + 0.0002 ms.
+  CHECK(r.predicted_ms == Approx(5.0627).margin(1e-9));
 }
 
 TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
@@ -149,11 +207,21 @@ TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
       CHECK(r.icp_iterations[1] == 1);
       CHECK(r.icp_iterations[2] == 2);
     }
-    if (step > static_cast<int>(DeadlineStep::voxel_updates)) CHECK(r.max_voxel_updates == 250000);
-    if (step > static_cast<int>(DeadlineStep::raycast)) CHECK(r.raycast_steps == 50000);
+    if (step > static_cast<int>(DeadlineStep::voxel_updates) &&
+        step < static_cast<int>(DeadlineStep::voxel_updates_deep)) {
+      CHECK(r.max_voxel_updates == 250000);
+    }
+    if (step == static_cast<int>(DeadlineStep::voxel_updates_deep)) {
+      CHECK(r.max_voxel_updates < 250000);
+      CHECK(r.max_voxel_updates >= 125000);
+      CHECK(r.free_space_visits == 1);
+    }
+    CHECK(r.raycast_half == (step >= static_cast<int>(DeadlineStep::raycast_half)));
+    CHECK(r.allocation_half == (step >= static_cast<int>(DeadlineStep::allocation_half)));
+    if (step > static_cast<int>(DeadlineStep::raycast)) CHECK(r.raycast_steps == 12500);
     if (!r.infeasible) CHECK(r.predicted_ms <= deadline_ms + kTolerance_ms);
   }
-  CHECK(previous == static_cast<int>(DeadlineStep::free_space));
+  CHECK(previous == static_cast<int>(DeadlineStep::voxel_updates_deep));
 }
 
 TEST_CASE("an adapting model learns each stage's line from times that follow the work") {
@@ -201,6 +269,55 @@ TEST_CASE("an adapting model learns each stage's line from times that follow the
   }
   CHECK(steady.model().raycast.ms_per_munit == 50.0);
   CHECK(steady.model().raycast.fixed_ms == Approx(2.0));
+}
+
+TEST_CASE("frames with allocation halved still teach the full march's line") {
+  // Integration's fixed part is its allocation march: at every other pixel a quarter of it.
+  DeadlineConfig config = hand_config(1000.0);
+  config.adapt = true;
+  DeadlineController controller;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  const StageCost voxels{3.0, 5.0};
+  for (int frame = 0; frame < 400; ++frame) {
+    DeadlineReport plan = controller.plan();
+    plan.allocation_half = frame % 2 == 1;
+    const double units = 1e6 * (1.0 + 0.25 * static_cast<double>(frame % 4));
+    FrameObservation o = demand_frame();
+    o.timed = true;
+    o.integrate = {true, false, units, voxels.ms(units)};
+    if (plan.allocation_half) o.integrate.ms -= 0.75 * voxels.fixed_ms;
+    controller.observe(o, plan);
+  }
+  CHECK(controller.model().integrate.fixed_ms == Approx(voxels.fixed_ms).epsilon(1e-3));
+  CHECK(controller.model().integrate.ms_per_munit == Approx(voxels.ms_per_munit).epsilon(1e-3));
+}
+
+TEST_CASE("a stage held at one unit keeps a sane rate through a burst of load") {
+  // Free space at its floor (one visit) for long after it last carved, a frame slowed by load,
+  // then one of 64 visits as quick as the rest: the slope through the recent frames comes out
+  // negative. The rate stays the last one, not the frames' time per unit (75 000 ms per million
+  // visits here), which would keep the stage at its floor for good.
+  DeadlineConfig config = hand_config(1000.0);
+  config.adapt = true;
+  DeadlineController controller;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  auto carve = [&](double visits, double ms) {
+    FrameObservation o;
+    o.timed = true;
+    o.total_ms = ms;
+    o.free_space = {true, false, visits, ms};
+    controller.observe(o, controller.plan());
+  };
+  for (int i = 0; i < 20; ++i) carve(1e4, 2.1);  // 0.1 ms and 200 ms per million visits
+  for (int i = 0; i < 300; ++i) carve(1.0, 0.1);
+  carve(1.0, 4.1);
+  carve(1.0, 0.1);
+  carve(1.0, 0.1);
+  carve(64.0, 0.1);
+  for (int i = 0; i < 20; ++i) carve(1.0, 0.1);
+  CHECK(controller.model().free_space.ms_per_munit < 1000.0);
+  CHECK(controller.model().free_space.ms_per_munit > 50.0);
+  CHECK(validate(controller.model()).ok());
 }
 
 TEST_CASE("a frozen model reads no time; overruns raise an adapting model's safety factor") {

@@ -300,6 +300,67 @@ TEST_CASE("the step budget is respected and cuts pixels; a loose budget changes 
   REQUIRE(full->valid_pixels == unbounded->valid_pixels);
 }
 
+TEST_CASE("at half resolution a quarter of the rays march and fill their 2 x 2 squares") {
+  const Eigen::Vector3f centre_W(0.0f, 0.0f, 1.0f);
+  auto sdf = [&](const Eigen::Vector3f& p_W) { return (p_W - centre_W).norm() - 0.35f; };
+  test::OwnedMap<MultiresVoxel> owned(test_map_config());
+  test::fill_band(owned.map, kMu_m, sdf,
+                  [](const Eigen::Vector3i& b) { return (b.x() + b.y()) % 3; });
+  const WorkerTeam team(2);
+  OwnedRaycaster<MultiresVoxel> full_rc(test_raycast_config());
+  RaycastConfig half = test_raycast_config();
+  half.pixel_stride = 2;
+  OwnedRaycaster<MultiresVoxel> half_rc(half);
+  const Result<RaycastStats> full =
+      full_rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  const Result<RaycastStats> quarter =
+      half_rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(full.ok());
+  REQUIRE(quarter.ok());
+  CHECK(full->marched_pixels == 64u * 48u);
+  CHECK(quarter->marched_pixels == 32u * 24u);
+  // The sphere fills much of the view, so its rays' steps dominate: about a quarter of them.
+  INFO("steps: full " << full->steps << ", half resolution " << quarter->steps);
+  CHECK(quarter->steps * 3 < full->steps);
+  CHECK(quarter->steps * 5 > full->steps);
+  // A marched pixel is the full cast's, bit for bit; the other three of its square copy it.
+  const SurfaceMap a = full_rc.raycaster.surface_W();
+  const SurfaceMap b = half_rc.raycaster.surface_W();
+  const ImageView<const std::uint8_t> scale_a = full_rc.raycaster.scale_image();
+  const ImageView<const std::uint8_t> scale_b = half_rc.raycaster.scale_image();
+  std::uint32_t valid = 0;
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) {
+      const int xm = x & ~1;
+      const int ym = y & ~1;
+      REQUIRE(b.vertices(x, y) == a.vertices(xm, ym));
+      REQUIRE(b.normals(x, y) == a.normals(xm, ym));
+      REQUIRE(scale_b(x, y) == scale_a(xm, ym));
+      if (b.valid(x, y)) ++valid;
+    }
+  }
+  CHECK(valid == quarter->valid_pixels);
+  CHECK(valid > 64u * 48u / 4);
+  CHECK(quarter->scale_pixels[0] + quarter->scale_pixels[1] + quarter->scale_pixels[2] +
+            quarter->scale_pixels[3] ==
+        valid);
+
+  // The step budget goes to the marched rows; cut pixels leave their squares invalid.
+  half_rc.raycaster.set_step_budget(quarter->steps / 3);
+  const Result<RaycastStats> cut =
+      half_rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team);
+  REQUIRE(cut.ok());
+  CHECK(cut->steps <= quarter->steps / 3);
+  CHECK(cut->budget_hit());
+  std::uint32_t invalid = 0;
+  for (int y = 0; y < 48; ++y) {
+    for (int x = 0; x < 64; ++x) invalid += b.valid(x, y) ? 0u : 1u;
+  }
+  CHECK(cut->budget_cut_pixels % 4 == 0);
+  CHECK(cut->budget_cut_pixels <= invalid);
+  CHECK(cut->valid_pixels + invalid == 64u * 48u);
+}
+
 TEST_CASE("1 and 2 workers give bit-identical images, and a ray-cast allocates nothing") {
   const Eigen::Vector3f centre_W(0.0f, 0.0f, 1.0f);
   auto sdf = [&](const Eigen::Vector3f& p_W) { return (p_W - centre_W).norm() - 0.35f; };

@@ -69,6 +69,7 @@ struct IntegrationReport {
   std::uint32_t finest_refusals = 0;    // of those, finest levels (the block stayed at scale 1)
   std::uint32_t keys_dropped = 0;       // blocks beyond max_blocks_per_frame
   std::uint32_t rays_outside_cube = 0;  // band samples that left the map's cube
+  std::uint32_t allocation_rays = 0;    // pixels whose band the allocation marched
   std::uint32_t budget_blocks_not_allocated = 0;
   std::uint32_t budget_blocks_coarsened = 0;
   std::uint32_t budget_blocks_skipped = 0;

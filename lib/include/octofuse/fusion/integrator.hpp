@@ -69,6 +69,7 @@ inline constexpr std::size_t kCollectTasks = 8;
 struct CollectTally {
   std::uint32_t count = 0;       // cells listed
   std::uint32_t outside = 0;     // band samples outside the cube, up to the stop
+  std::uint32_t rays = 0;        // rays marched, up to the stop
   std::int32_t stop_row = -1;    // >= 0: the list filled up at this row (in pixel steps) ...
   std::int32_t stop_column = 0;  // ... and pixel column; the merge marches the rest
 };
@@ -169,6 +170,9 @@ class Integrator {
                               const WorkerTeam& team);
 
   const FusionConfig& config() const { return config_; }
+  // Between frames (a frame deadline's step): allocation marches every step-th pixel's ray in x
+  // and y; below 1 is 1. Blocks only the skipped rays cross are not integrated that frame.
+  void set_allocation_pixel_step(int step) { config_.allocation_pixel_step = step > 1 ? step : 1; }
 
  private:
   struct Frame;

@@ -6,8 +6,18 @@
 //   (1) ICP iterations, the finest level first, down to min_icp_iterations;
 //   (4) voxel updates (far blocks one scale coarser, then skipped), down to min_voxel_fraction
 //       of the demand;
-//   (6) ray-cast steps (the rows' last pixels stay invalid), down to min_raycast_fraction;
-//   (7) free-space node visits, down to min_free_space_fraction.
+//   then, the deadline's own step, the reference ray-cast at half resolution (a quarter of the
+//       rays, each filling its 2 x 2 pixels; raycaster.hpp) when raycast_half_resolution allows:
+//       it costs ICP less than the empty row ends of the next step;
+//   then integration's allocation march at every other pixel in x and y (allocation_half;
+//       integrator.hpp): the stage's fixed part, which is that march, is then modelled at the
+//       share of the rays it marches (a quarter); blocks only the skipped rays cross wait for
+//       a later frame;
+//   (6) ray-cast steps (the rows' last pixels stay invalid), down to min_raycast_fraction of
+//       the (half-resolution) demand;
+//   (7) free-space node visits, down to min_free_space_fraction;
+//   last, voxel updates again, down to min_voxel_fraction_deep of the demand (about every block
+//       one scale coarser, the near ones included, before far ones are skipped).
 // Eviction (2) answers memory, not time, and is left as configured; new blocks (3) and the
 // integrated-block count (5) are inside the voxel-update budget, which bounds their cost.
 //
@@ -69,8 +79,11 @@ struct DeadlineConfig {
   // above the configured budget is the configured budget.
   int min_icp_iterations[kPyramidLevels] = {2, 2, 4};
   float min_voxel_fraction = 0.25f;
+  float min_voxel_fraction_deep = 0.125f;  // the last step's floor; above min_voxel_fraction: off
   float min_raycast_fraction = 0.5f;
   float min_free_space_fraction = 0.0f;  // at least one visit stays
+  bool raycast_half_resolution = true;   // false: the ray-cast always marches every pixel
+  bool allocation_half = true;           // false: allocation always marches every pixel's ray
   // A stage that is not cut gets its demand times this as its budget, so a view that asks for a
   // little more than the last one is served whole.
   float demand_growth = 1.25f;
@@ -80,13 +93,18 @@ struct DeadlineConfig {
 // fractions in [0, 1], demand_growth in [1, 4].
 Status validate(const DeadlineConfig& config, ErrorText* error = nullptr);
 
-// Degradation steps a deadline plan cuts (pipeline.hpp's numbering).
+// Degradation steps a deadline plan cuts, numbered in the order it cuts them (pipeline.hpp's
+// steps (1), (4), (6) and (7), with the half-resolution ray-cast and allocation before (6) and
+// a deeper cut of (4) after (7)).
 enum class DeadlineStep : std::uint8_t {
   none = 0,
   icp = 1,
-  voxel_updates = 4,
-  raycast = 6,
-  free_space = 7,
+  voxel_updates = 2,
+  raycast_half = 3,
+  allocation_half = 4,
+  raycast = 5,
+  free_space = 6,
+  voxel_updates_deep = 7,
 };
 const char* deadline_step_name(DeadlineStep step);
 
@@ -103,6 +121,8 @@ struct DeadlineReport {
   int icp_iterations_given_up = 0;                 // below the configured budget, all levels
   std::uint64_t max_voxel_updates = 0;  // 0 where not cut (the configured budget applies)
   std::uint64_t raycast_steps = 0;
+  bool raycast_half = false;     // the reference ray-cast at half resolution
+  bool allocation_half = false;  // allocation marched every other pixel's ray in x and y
   std::uint32_t free_space_visits = 0;
   // Demand estimates the plan started from (units).
   double voxel_demand = 0.0;
@@ -117,8 +137,9 @@ struct StageObservation {
   double units = 0.0;
   double ms = 0.0;
   // With budget_hit: the units it would have done unbounded, as far as the stage's report shows
-  // (the ray-cast's steps scaled by the pixels it reached, integration's units plus the most
-  // its coarsened and skipped blocks could have cost); 0 where unknown.
+  // (the ray-cast's steps scaled by the pixels it reached and, at half resolution, by the
+  // pixels over the rays it marched; integration's units plus the most its coarsened and
+  // skipped blocks could have cost); 0 where unknown.
   double demand = 0.0;
 };
 struct FrameObservation {
@@ -138,7 +159,9 @@ class DeadlineController {
   // The next frame's budgets (see DeadlineReport); configured ones before any observation.
   DeadlineReport plan() const;
   // Learns from a finished frame: demand estimates from its work counts; with adapt and a
-  // timed observation, the model's rates, fixed part and safety factor too.
+  // timed observation, the model's rates, fixed part and safety factor too (a frame whose
+  // allocation was halved adds the modelled saving back to its integration time first, so the
+  // line stays that of a full march).
   void observe(const FrameObservation& frame, const DeadlineReport& plan);
   const CostModel& model() const { return model_; }
   const DeadlineConfig& config() const { return config_; }
@@ -159,6 +182,7 @@ class DeadlineController {
   int icp_iterations_[kPyramidLevels] = {0, 0, 0};
   int icp_floor_[kPyramidLevels] = {0, 0, 0};
   double level_pixels_[kPyramidLevels] = {0.0, 0.0, 0.0};
+  double half_pixels_ = 0.0;  // the rays a half-resolution ray-cast marches
   bool icp_used_ = true;
   bool free_space_used_ = true;
   bool have_demand_ = false;

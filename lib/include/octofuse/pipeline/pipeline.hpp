@@ -45,8 +45,10 @@
 // Frame deadline (PipelineConfig::deadline, pipeline/cost_model.hpp): with deadline_ms > 0 the
 // budgets of steps (1), (4), (6) and (7) are derived before each frame from a cost model of the
 // machine, learnt from the previous frames' stage times (or frozen), so that the modelled frame
-// time stays within the deadline; they are cut in that order and never above the configured
-// ones. FrameStats::deadline says what the frame gave up. Off (0, the default), nothing changes.
+// time stays within the deadline; they are cut in that order, with the reference ray-cast at
+// half resolution (raycaster.hpp) and allocation at every other pixel (integrator.hpp) before
+// (6) and a deeper voxel-update floor after (7), and never above the configured ones.
+// FrameStats::deadline says what the frame gave up. Off (0, the default), nothing changes.
 //
 // Bounded memory (EvictionConfig): before a frame is integrated, when the block pool holds more
 // than high_water of its capacity, blocks are evicted until it holds at most low_water (their

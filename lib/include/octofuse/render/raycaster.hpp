@@ -23,6 +23,11 @@
 // row gets a fixed share of the budget (budget / height, the remainder to the first rows), so the
 // result does not depend on the worker count. When a row's share runs out, its remaining pixels
 // stay invalid and the stats say how many.
+//
+// Half resolution (pixel_stride 2, a frame deadline's step): only pixels with even x and y are
+// marched, a quarter of the rays, and each fills its 2 x 2 square (the pixel right of it and the
+// row below copy it), so the model stays dense for ICP's point-to-plane pairs, whose plane barely
+// changes over a pixel. The step budget is then shared by the marched rows.
 
 #include <cstddef>
 #include <cstdint>
@@ -48,12 +53,14 @@ struct RaycastConfig {
   float far_m = 4.0f;
   float mu_m = 0.08f;             // truncation distance the map was fused with
   std::uint64_t step_budget = 0;  // march steps per frame over all pixels; 0 = unbounded
+  int pixel_stride = 1;           // 1: every pixel; 2: half resolution (see above)
 };
 
 struct RaycastStats {
   std::uint64_t steps = 0;  // march steps taken (samples and empty-space jumps)
   std::uint32_t valid_pixels = 0;
   std::uint32_t budget_cut_pixels = 0;      // left invalid because their row's step share ran out
+  std::uint32_t marched_pixels = 0;         // pixels marched or skipped (not filled from another)
   std::uint32_t scale_pixels[4] = {};       // valid pixels per interpolation scale
   std::uint32_t guided_pixels = 0;          // rays started at their guide depth
   std::uint32_t guide_fallback_pixels = 0;  // of those, marched again from the near end
@@ -76,7 +83,8 @@ struct TileDepthRange {
   bool empty() const { return !(z_min_m <= z_max_m); }
 };
 
-// ok, or invalid_argument for a non-positive size, near/far not 0 < near < far, mu not > 0.
+// ok, or invalid_argument for a non-positive size, near/far not 0 < near < far, mu not > 0, a
+// pixel_stride other than 1 or 2.
 Status validate(const RaycastConfig& config);
 
 template <typename VoxelT>
@@ -151,6 +159,8 @@ class Raycaster {
   const RaycastConfig& config() const { return config_; }
   // Changes the per-frame step budget between frames (0 = unbounded; a frame deadline sets it).
   void set_step_budget(std::uint64_t steps) { config_.step_budget = steps; }
+  // Between frames: 1 (every pixel) or 2 (half resolution, see above); other values are 1.
+  void set_pixel_stride(int stride) { config_.pixel_stride = stride == 2 ? 2 : 1; }
   // Valid until the next raycast().
   SurfaceMap surface_W() const { return surface_W_; }
   ImageView<const std::uint8_t> scale_image() const { return scale_; }

@@ -72,15 +72,15 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m,
     std::uint8_t* in_row = invalid + static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
     // NaN and infinities fail the test too.
     for (int x = 0; x < width_; ++x)
-      lo_row[x] = (row[x] > 0.0f) & (row[x] < kNoDepth) ? row[x] : kNoDepth;
+      lo_row[x] = ((row[x] > 0.0f) & (row[x] < kNoDepth)) ? row[x] : kNoDepth;
     for (int x = 0; x < width_; ++x)
-      hi_row[x] = (row[x] > 0.0f) & (row[x] < kNoDepth) ? row[x] : 0.0f;
+      hi_row[x] = ((row[x] > 0.0f) & (row[x] < kNoDepth)) ? row[x] : 0.0f;
     for (int x = 0; x < width_; ++x) in_row[x] = lo_row[x] < kNoDepth ? 0 : 1;
     if (beyond_range.empty()) continue;
     // Seen free out to the range's end; no surface there (hi stays 0).
     const std::uint8_t* beyond_row = beyond_range.row(y);
     for (int x = 0; x < width_; ++x) {
-      lo_row[x] = (in_row[x] != 0) & (beyond_row[x] != 0) ? beyond_free_m : lo_row[x];
+      lo_row[x] = ((in_row[x] != 0) & (beyond_row[x] != 0)) ? beyond_free_m : lo_row[x];
     }
     for (int x = 0; x < width_; ++x) {
       in_row[x] = static_cast<std::uint8_t>(in_row[x] & (beyond_row[x] == 0 ? 1 : 0));

@@ -87,8 +87,6 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m,
     }
   }
   // Aligned tiles of the levels the range table holds are its entries at multiples of the side.
-  const std::size_t level_size =
-      static_cast<std::size_t>(width_) * static_cast<std::size_t>(height_);
   build_range_table();
   for (int level = 1; level < level_count_; ++level) {
     const int w = level_width_[level];
@@ -97,15 +95,17 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m,
     float* chi = depth_max_ + level_offset_[level];
     std::uint8_t* cin = depth_invalid_ + level_offset_[level];
     if (level < table_levels_) {
-      const std::size_t offset = static_cast<std::size_t>(level - 1) * level_size;
+      const float* tlo = table_min(level);
+      const float* thi = table_max(level);
+      const std::uint8_t* tin = table_invalid(level);
       for (int y = 0; y < h; ++y) {
         const std::size_t row =
             (static_cast<std::size_t>(y) << level) * static_cast<std::size_t>(width_);
         for (int x = 0; x < w; ++x) {
-          const std::size_t i = offset + row + (static_cast<std::size_t>(x) << level);
-          clo[y * w + x] = table_min_[i];
-          chi[y * w + x] = table_max_[i];
-          cin[y * w + x] = table_invalid_[i];
+          const std::size_t i = row + (static_cast<std::size_t>(x) << level);
+          clo[y * w + x] = tlo[i];
+          chi[y * w + x] = thi[i];
+          cin[y * w + x] = tin[i];
         }
       }
       continue;
@@ -142,19 +142,14 @@ void FreeSpace::build_pyramid(ImageView<const float> depth_m,
 void FreeSpace::build_range_table() {
   // The range table: each level merges four squares of the one below, offset by half a side
   // (clamped to the last row / column, which then lies inside the square anyway).
-  const std::size_t level_size =
-      static_cast<std::size_t>(width_) * static_cast<std::size_t>(height_);
   for (int t = 1; t < table_levels_; ++t) {
     const int half = 1 << (t - 1);
-    const float* plo =
-        t == 1 ? depth_min_ : table_min_ + static_cast<std::size_t>(t - 2) * level_size;
-    const float* phi =
-        t == 1 ? depth_max_ : table_max_ + static_cast<std::size_t>(t - 2) * level_size;
-    const std::uint8_t* pin =
-        t == 1 ? depth_invalid_ : table_invalid_ + static_cast<std::size_t>(t - 2) * level_size;
-    float* clo = table_min_ + static_cast<std::size_t>(t - 1) * level_size;
-    float* chi = table_max_ + static_cast<std::size_t>(t - 1) * level_size;
-    std::uint8_t* cin = table_invalid_ + static_cast<std::size_t>(t - 1) * level_size;
+    const float* plo = table_min(t - 1);
+    const float* phi = table_max(t - 1);
+    const std::uint8_t* pin = table_invalid(t - 1);
+    float* clo = table_min(t);
+    float* chi = table_max(t);
+    std::uint8_t* cin = table_invalid(t);
     const int x_split = std::max(width_ - half, 0);
     for (int y = 0; y < height_; ++y) {
       const std::size_t r0 = static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
@@ -197,26 +192,18 @@ FreeSpace::PixelRange FreeSpace::pixel_range(int u0, int v0, int u1, int v1) con
   u1 = std::min(u1, width_ - 1);
   v1 = std::min(v1, height_ - 1);
   if (u0 > u1 || v0 > v1) return out;
-  TileRange range;
-  rect_range(u0, v0, u1, v1, range);
-  out.lo_m = range.lo;
-  out.hi_m = range.hi;
-  out.any_invalid = range.any_invalid;
-  return out;
+  return rect_range(u0, v0, u1, v1);
 }
 
-void FreeSpace::rect_range(int u0, int v0, int u1, int v1, TileRange& range) const {
+FreeSpace::PixelRange FreeSpace::rect_range(int u0, int v0, int u1, int v1) const {
   const int rect_w = u1 - u0 + 1;
   const int rect_h = v1 - v0 + 1;
   const int t =
       std::min(floor_log2(static_cast<std::uint32_t>(std::min(rect_w, rect_h))), table_levels_ - 1);
   const int s = 1 << t;
-  const std::size_t level_size =
-      static_cast<std::size_t>(width_) * static_cast<std::size_t>(height_);
-  const std::size_t offset = t == 0 ? 0 : static_cast<std::size_t>(t - 1) * level_size;
-  const float* plo = t == 0 ? depth_min_ : table_min_ + offset;
-  const float* phi = t == 0 ? depth_max_ : table_max_ + offset;
-  const std::uint8_t* pin = t == 0 ? depth_invalid_ : table_invalid_ + offset;
+  const float* plo = table_min(t);
+  const float* phi = table_max(t);
+  const std::uint8_t* pin = table_invalid(t);
   // Squares at u0, u0 + s, ... and the last one flush with u1 (overlaps change no min or max).
   const int x_last = u1 - s + 1;
   const int y_last = v1 - s + 1;
@@ -235,9 +222,11 @@ void FreeSpace::rect_range(int u0, int v0, int u1, int v1, TileRange& range) con
     }
     if (y >= y_last) break;
   }
-  range.lo = lo;
-  range.hi = hi;
+  PixelRange range;
+  range.lo_m = lo;
+  range.hi_m = hi;
   range.any_invalid = invalid != 0;
+  return range;
 }
 
 bool FreeSpace::any_tile_in_zone(int level, int u0, int v0, int u1, int v1, float zone_lo,
@@ -357,21 +346,21 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   // needed).
   int zone_level = -1;
   // The footprint's exact range decides, but for the silhouette test tile by tile.
-  auto classify_range = [&](const TileRange& range) {
-    if (room_m != nullptr) *room_m = range.hi - z_min;
+  auto classify_range = [&](const PixelRange& range) {
+    if (room_m != nullptr) *room_m = range.hi_m - z_min;
     // Nothing measured in the footprint: this frame says nothing about the octant.
-    if (range.lo >= kNoDepth) return Seen::not_seen;
-    if (z_max < range.lo - clearance_m_) {
+    if (range.lo_m >= kNoDepth) return Seen::not_seen;
+    if (z_max < range.lo_m - clearance_m_) {
       // Every depth measured in the footprint lies beyond the octant: free when the footprint
       // is wholly measured, else nothing contradicts it but parts were not seen.
       return inside && !range.any_invalid ? Seen::free : Seen::clear;
     }
     // No surface measured in the footprint, only rays that went beyond the range: the part in
     // front of their end may be free (descend without clearing), the rest is not seen.
-    if (range.hi <= 0.0f) return z_min < range.lo - clearance_m_ ? Seen::clear : Seen::not_seen;
+    if (range.hi_m <= 0.0f) return z_min < range.lo_m - clearance_m_ ? Seen::clear : Seen::not_seen;
     // Too far behind the farthest surface measured: not seen.
-    if (z_min > range.hi + occlusion_clear_m_) return Seen::not_seen;
-    if (z_min > range.hi) return Seen::occluded;
+    if (z_min > range.hi_m + occlusion_clear_m_) return Seen::not_seen;
+    if (z_min > range.hi_m) return Seen::occluded;
     // Some rays are blocked well in front of the octant (a nearer object's silhouette), the
     // others see through it, and no tile's depths could lie within it: nothing here contradicts
     // free space, but not all of it was seen.
@@ -379,15 +368,14 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     if (!any_tile_in_zone(zone_level, u0, v0, u1, v1, zone_lo, zone_hi)) return Seen::clear;
     return Seen::partial;
   };
-  TileRange range;
-  rect_range(u0, v0, u1, v1, range);
+  const PixelRange range = rect_range(u0, v0, u1, v1);
   const Seen seen = classify_range(range);
   if (look == Look::coarse) return seen;
   if (!config_.exact_silhouettes || seen != Seen::partial) return seen;
   // The window's nearest or farthest depth lies in the zone: a surface in or at the octant
   // (or just beside it, which only makes the answer cautious).
-  const bool extreme_in_zone =
-      (range.hi >= zone_lo && range.hi <= zone_hi) || (range.lo >= zone_lo && range.lo <= zone_hi);
+  const bool extreme_in_zone = (range.hi_m >= zone_lo && range.hi_m <= zone_hi) ||
+                               (range.lo_m >= zone_lo && range.lo_m <= zone_hi);
   if (extreme_in_zone) return seen;
   // Depths in front of the zone and behind it: settled from tiles of up to 8 x 8, most of them
   // wholly inside the footprint.

@@ -310,15 +310,20 @@ class FreeSpace {
                      float beyond_free_m);
   // Levels 1 .. table_levels_ - 1 of the range table, from the pyramid's level 0.
   void build_range_table();
-  struct TileRange {
-    float lo = 0.0f;  // least depth seen free to (kNoDepth: none); beyond-range pixels included
-    float hi = 0.0f;  // greatest measured surface depth (0: none); beyond-range pixels excluded
-    bool any_invalid = false;
-  };
+  // Level t of the range table, a full image each (level 0 is the pyramid's level 0).
+  float* table_min(int t) const { return t == 0 ? depth_min_ : table_min_ + table_offset(t); }
+  float* table_max(int t) const { return t == 0 ? depth_max_ : table_max_ + table_offset(t); }
+  std::uint8_t* table_invalid(int t) const {
+    return t == 0 ? depth_invalid_ : table_invalid_ + table_offset(t);
+  }
+  std::size_t table_offset(int t) const {
+    return static_cast<std::size_t>(t - 1) * static_cast<std::size_t>(width_) *
+           static_cast<std::size_t>(height_);
+  }
   // The depth range of exactly the pixels [u0, u1] x [v0, v1] (inside the image), from at most
   // a few overlapping squares of the range table (ceil(w / s) x ceil(h / s) reads, s the largest
   // tabled power of two not above the shorter side; 4 for a square-ish footprint).
-  void rect_range(int u0, int v0, int u1, int v1, TileRange& range) const;
+  PixelRange rect_range(int u0, int v0, int u1, int v1) const;
   // Whether one of those tiles' ranges overlaps [zone_lo, zone_hi]: a surface may lie within
   // the octant, or the octant just behind one.
   bool any_tile_in_zone(int level, int u0, int v0, int u1, int v1, float zone_lo,

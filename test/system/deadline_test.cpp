@@ -187,6 +187,15 @@ double deadline_for(const Run& unbounded) {
   return 0.85 * totals[totals.size() / 2];
 }
 
+// One worker, deadline_ms, the built-in calibration frozen (no time is read into the plan).
+PipelineConfig frozen_config(const sim::SimSource& source, double deadline_ms) {
+  PipelineConfig config = small_config(source, 1);
+  config.deadline.deadline_ms = deadline_ms;
+  config.deadline.model = machine();
+  config.deadline.adapt = false;
+  return config;
+}
+
 TEST_CASE("derived budgets keep the modelled frame time within the deadline, in order") {
   sim::SimSource probe(small_sim(kSimFrames));
   REQUIRE(probe.open().ok());
@@ -308,10 +317,7 @@ TEST_CASE("a frozen calibration gives bit-identical results for 1 and 3 workers,
   sim::SimSource probe(small_sim(kSimFrames));
   REQUIRE(probe.open().ok());
   const double deadline_ms = deadline_for(run(small_config(probe, 1), ClockKind::model));
-  PipelineConfig one = small_config(probe, 1);
-  one.deadline.deadline_ms = deadline_ms;
-  one.deadline.model = machine();
-  one.deadline.adapt = false;
+  const PipelineConfig one = frozen_config(probe, deadline_ms);
   PipelineConfig three = one;
   three.workers = 3;
   // The frozen budgets read no time: a modelled clock, none and the real one all agree.
@@ -347,10 +353,7 @@ TEST_CASE(
   const Run unbounded = run(small_config(probe, 1), ClockKind::model);
   // Tighter than above: ICP and the voxel updates at their floors do not fit.
   const double deadline_ms = kHalfResolutionShare * deadline_for(unbounded);
-  PipelineConfig config = small_config(probe, 1);
-  config.deadline.deadline_ms = deadline_ms;
-  config.deadline.model = machine();
-  config.deadline.adapt = false;
+  const PipelineConfig config = frozen_config(probe, deadline_ms);
   const Run a = run(config, ClockKind::model);
   int half = 0;
   for (std::size_t i = 1; i < a.stats.size(); ++i) {
@@ -400,10 +403,7 @@ TEST_CASE("deeper still, allocation marches every other pixel's ray, determinist
   REQUIRE(probe.open().ok());
   const Run unbounded = run(small_config(probe, 1), ClockKind::model);
   const double deadline_ms = kAllocationHalfShare * deadline_for(unbounded);
-  PipelineConfig config = small_config(probe, 1);
-  config.deadline.deadline_ms = deadline_ms;
-  config.deadline.model = machine();
-  config.deadline.adapt = false;
+  const PipelineConfig config = frozen_config(probe, deadline_ms);
   const Run a = run(config, ClockKind::model);
   int halved = 0;
   for (std::size_t i = 1; i < a.stats.size(); ++i) {
@@ -443,10 +443,7 @@ TEST_CASE("deepest, voxel updates fall to their deeper floor, deterministically"
   REQUIRE(probe.open().ok());
   const Run unbounded = run(small_config(probe, 1), ClockKind::model);
   const double deadline_ms = kVoxelDeepShare * deadline_for(unbounded);
-  PipelineConfig config = small_config(probe, 1);
-  config.deadline.deadline_ms = deadline_ms;
-  config.deadline.model = machine();
-  config.deadline.adapt = false;
+  const PipelineConfig config = frozen_config(probe, deadline_ms);
   const Run a = run(config, ClockKind::model);
   int deep = 0;
   for (std::size_t i = 1; i < a.stats.size(); ++i) {

@@ -64,15 +64,15 @@ struct LiveServer::Connection {
   SteadyClock::time_point deadline;
 };
 
-std::unique_ptr<LiveServer> LiveServer::start(const std::string& spec,
-                                              const LiveServerLimits& limits, std::string* error) {
+bool parse_serve_address(const std::string& spec, std::string* host_out, std::string* port_out,
+                         std::string* error) {
   std::string host = "127.0.0.1";
   std::string port_text = spec;
   if (!spec.empty() && spec[0] == '[') {
     const std::size_t close = spec.find("]:");
     if (close == std::string::npos) {
-      *error = "--serve needs [ADDR]:PORT, not '" + spec + "'";
-      return nullptr;
+      *error = "needs [ADDR]:PORT, not '" + spec + "'";
+      return false;
     }
     host = spec.substr(1, close - 1);
     port_text = spec.substr(close + 2);
@@ -84,10 +84,35 @@ std::unique_ptr<LiveServer> LiveServer::start(const std::string& spec,
   }
   int port = 0;
   if (!parse_port(port_text, &port) || host.empty()) {
-    *error =
-        "--serve needs PORT, ADDR:PORT or [ADDR]:PORT with a numeric address, not '" + spec + "'";
+    *error = "needs PORT, ADDR:PORT or [ADDR]:PORT with a numeric address, not '" + spec + "'";
+    return false;
+  }
+  addrinfo hints;
+  std::memset(&hints, 0, sizeof(hints));
+  hints.ai_family = AF_UNSPEC;
+  hints.ai_socktype = SOCK_STREAM;
+  hints.ai_flags = AI_NUMERICHOST | AI_NUMERICSERV | AI_PASSIVE;
+  addrinfo* found = nullptr;
+  if (::getaddrinfo(host.c_str(), port_text.c_str(), &hints, &found) != 0 || found == nullptr) {
+    *error = "needs a numeric IPv4 or IPv6 address, not '" + host + "'";
+    return false;
+  }
+  ::freeaddrinfo(found);
+  *host_out = host;
+  *port_out = port_text;
+  return true;
+}
+
+std::unique_ptr<LiveServer> LiveServer::start(const std::string& spec,
+                                              const LiveServerLimits& limits, std::string* error) {
+  std::string host;
+  std::string port_text;
+  std::string why;
+  if (!parse_serve_address(spec, &host, &port_text, &why)) {
+    *error = "--serve " + why;
     return nullptr;
   }
+  int port = 0;
   addrinfo hints;
   std::memset(&hints, 0, sizeof(hints));
   hints.ai_family = AF_UNSPEC;

@@ -41,6 +41,12 @@ struct LiveServerLimits {
   std::size_t max_request_bytes = 8192;
 };
 
+// Splits --serve's PORT, ADDR:PORT or [ADDR]:PORT (a numeric address; localhost is 127.0.0.1)
+// into host and port; false with a one-line reason in *error when it is malformed. Checked when
+// the option is read, so a bad address is a bad command line (exit 2), not a failed run.
+bool parse_serve_address(const std::string& spec, std::string* host, std::string* port,
+                         std::string* error);
+
 class LiveServer {
  public:
   // `spec`: "PORT" (loopback 127.0.0.1), "ADDR:PORT" or "[ADDR]:PORT" with a numeric IPv4 or IPv6

@@ -9,6 +9,7 @@
 
 #include "cli.hpp"
 #include "config_file.hpp"
+#include "live_server.hpp"
 
 namespace octofuse::examples {
 
@@ -619,6 +620,8 @@ const RunOption kRunOptions[] = {
     {"serve", true,
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs PORT or ADDR:PORT");
+       std::string host, port, why;
+       if (!parse_serve_address(v, &host, &port, &why)) return " " + why;
        o.serve = v;
        return std::string();
      },

@@ -6,9 +6,11 @@
 #include <algorithm>
 #include <cerrno>
 #include <chrono>
+#include <climits>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <memory>
 #include <utility>
 
@@ -17,6 +19,7 @@
 #include "live_server.hpp"
 #include "looping_source.hpp"
 #include "octofuse/mesh/mesher.hpp"
+#include "octofuse/ports/host/atomic_file.hpp"
 #include "octofuse/ports/host/json_writer.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/ply.hpp"
@@ -61,6 +64,99 @@ bool make_dir(const std::string& path) {
 int error_exit(const std::string& message) {
   std::fprintf(stderr, "error: %s\n", message.c_str());
   return 1;
+}
+
+// The files the run writes into out_dir.
+std::vector<std::string> out_dir_files(const RunOptions& options) {
+  std::vector<std::string> names = {"trajectory.txt", "render.png", "stats.json",
+                                    "stage_times.svg"};
+  if (options.write_mesh) names.emplace_back("mesh.ply");
+  if (!options.query_points_path.empty()) names.emplace_back("queries.txt");
+  if (!options.odometry.empty()) names.emplace_back("odometry.txt");
+  return names;
+}
+
+// `path` with its folder resolved (and the file, when it exists or is a link), so that two
+// spellings of one file compare equal; `path` itself when its folder does not resolve.
+std::string resolved_path(const std::string& path) {
+  char resolved[PATH_MAX];
+  if (::realpath(path.c_str(), resolved) != nullptr) return resolved;
+  const std::size_t slash = path.rfind('/');
+  const std::string folder = slash == std::string::npos ? "." : path.substr(0, slash + 1);
+  if (::realpath(folder.c_str(), resolved) == nullptr) return path;
+  std::string out = resolved;
+  if (out.empty() || out.back() != '/') out += '/';
+  return out + (slash == std::string::npos ? path : path.substr(slash + 1));
+}
+
+// Checks, before the first frame, every file the run will write: each can be created where it
+// goes (AtomicFile's rules: absent or a regular file, in a folder that takes files), and no two
+// outputs, nor an output and an input, are one file. Leaves nothing behind (an output folder it
+// had to create for the check is removed again). False with the reason in *error.
+bool check_outputs(const RunOptions& options, std::string* error) {
+  struct Output {
+    std::string path;
+    std::string what;
+  };
+  std::vector<Output> outputs;
+  bool created_out_dir = false;
+  if (!options.out_dir.empty()) {
+    struct stat st;
+    if (::stat(options.out_dir.c_str(), &st) == 0) {
+      if (!S_ISDIR(st.st_mode)) {
+        *error = options.out_dir + ": --out names something that is not a folder";
+        return false;
+      }
+    } else if (::mkdir(options.out_dir.c_str(), 0755) == 0) {
+      created_out_dir = true;
+    } else {
+      *error = "cannot create output folder " + options.out_dir + " (" + std::strerror(errno) + ")";
+      return false;
+    }
+    for (const std::string& name : out_dir_files(options)) {
+      outputs.push_back({join(options.out_dir, name.c_str()), "--out's " + name});
+    }
+    const std::string frames_dir = join(options.out_dir, "frames");
+    if (options.write_frames && ::stat(frames_dir.c_str(), &st) == 0 && !S_ISDIR(st.st_mode)) {
+      *error = frames_dir + ": not a folder (--write-frames writes into it)";
+      if (created_out_dir) ::rmdir(options.out_dir.c_str());
+      return false;
+    }
+  }
+  if (!options.save_map_path.empty()) outputs.push_back({options.save_map_path, "--save-map"});
+  if (options.deadline_ms > 0.0 && !options.deadline_calibration.empty() &&
+      !options.deadline_freeze) {
+    outputs.push_back({options.deadline_calibration, "--deadline-calibration"});
+  }
+  std::vector<Output> inputs;
+  const bool odometry_sim = options.odometry == "sim" || options.odometry.rfind("sim:", 0) == 0;
+  if (!options.odometry.empty() && !odometry_sim) {
+    inputs.push_back({options.odometry, "--odometry"});
+  }
+  if (!options.query_points_path.empty()) {
+    inputs.push_back({options.query_points_path, "--query-points"});
+  }
+  bool ok = true;
+  for (std::size_t i = 0; ok && i < outputs.size(); ++i) {
+    ErrorText why;
+    if (!host::check_writable(outputs[i].path.c_str(), &why).ok()) {
+      *error = outputs[i].what + ": " + why.c_str();
+      ok = false;
+      break;
+    }
+    const std::string resolved = resolved_path(outputs[i].path);
+    for (std::size_t k = 0; ok && k < i + inputs.size(); ++k) {
+      const Output& other = k < i ? outputs[k] : inputs[k - i];
+      if (resolved_path(other.path) == resolved) {
+        *error = outputs[i].what + " " + outputs[i].path + " is the file of " + other.what +
+                 "; refusing to overwrite it";
+        ok = false;
+      }
+    }
+  }
+  // Made again when the first frame's pose is written: a run that fails before leaves nothing.
+  if (created_out_dir) ::rmdir(options.out_dir.c_str());
+  return ok;
 }
 
 void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
@@ -419,6 +515,8 @@ void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, 
 template <typename VoxelT>
 int run_typed(const RunOptions& options, RunSummary* summary) {
   std::string error;
+  // Every output path checked first: one found wrong after the last frame loses the whole run.
+  if (!check_outputs(options, &error)) return error_exit(error);
   // The deadline's starting model: the calibration file when there is one (frozen: it must be).
   CostModel deadline_model;
   if (!options.deadline_calibration.empty()) {
@@ -606,15 +704,9 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
   }
   Se3d T_W_O = Se3d::Identity();
 
-  if (!options.out_dir.empty() && !make_dir(options.out_dir)) {
-    return error_exit("cannot create output folder " + options.out_dir);
-  }
+  // Opened with the first frame's pose: a run that fails before it (a port in use, an odometry
+  // that starts late, no memory for the map) leaves no output.
   std::unique_ptr<host::TumTrajectoryWriter> trajectory_file;
-  if (!options.out_dir.empty()) {
-    trajectory_file = std::make_unique<host::TumTrajectoryWriter>();
-    const std::string path = join(options.out_dir, "trajectory.txt");
-    if (!trajectory_file->open(path.c_str()).ok()) return error_exit(trajectory_file->last_error());
-  }
 
   std::unique_ptr<LiveServer> server;
   LiveSnapshot snapshot;
@@ -758,6 +850,16 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     pose.timestamp_s = static_cast<double>(frame.timestamp_us) * 1e-6;
     pose.T_W_C = pipeline.T_W_C();
     if (options.keep_frame_records) summary->trajectory.push_back(pose);
+    if (!options.out_dir.empty() && trajectory_file == nullptr) {
+      if (!make_dir(options.out_dir)) {
+        return error_exit("cannot create output folder " + options.out_dir);
+      }
+      trajectory_file = std::make_unique<host::TumTrajectoryWriter>();
+      const std::string path = join(options.out_dir, "trajectory.txt");
+      if (!trajectory_file->open(path.c_str()).ok()) {
+        return error_exit(trajectory_file->last_error());
+      }
+    }
     if (trajectory_file != nullptr && !trajectory_file->append(pose).ok()) {
       return error_exit(trajectory_file->last_error());
     }
@@ -833,9 +935,19 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
                  static_cast<unsigned long long>(server->refused()),
                  static_cast<unsigned long long>(server->timed_out()));
   }
+  // From here on a write that fails is reported and the run goes on to write every other
+  // output; the exit status is then 1.
+  int late_failures = 0;
+  auto late_failure = [&late_failures](const std::string& message) {
+    std::fprintf(stderr, "error: %s\n", message.c_str());
+    ++late_failures;
+  };
   if (trajectory_file != nullptr) {
-    if (!trajectory_file->close().ok()) return error_exit(trajectory_file->last_error());
-    summary->files_written.push_back("trajectory.txt");
+    if (trajectory_file->close().ok()) {
+      summary->files_written.push_back("trajectory.txt");
+    } else {
+      late_failure(trajectory_file->last_error());
+    }
   }
   source->close();
   summary->wall_s =
@@ -848,24 +960,24 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     if (!options.deadline_calibration.empty() && !options.deadline_freeze &&
         !write_deadline_calibration(options.deadline_calibration, summary->deadline_model,
                                     &error)) {
-      return error_exit(error);
+      late_failure(error);
     }
   }
   if (options.free_space) summary->free_space_bytes = pipeline.free_space().bytes_used();
   if constexpr (std::is_same_v<VoxelT, MultiresVoxel>) {
     if (options.inspect_final_map) options.inspect_final_map(pipeline.query());
   }
-  if (!options.query_points_path.empty() && !options.out_dir.empty() &&
-      !write_query_answers(pipeline.query(), query_points, join(options.out_dir, "queries.txt"),
-                           &error)) {
-    return error_exit(error);
-  }
   if (!options.query_points_path.empty() && !options.out_dir.empty()) {
-    summary->files_written.push_back("queries.txt");
+    if (write_query_answers(pipeline.query(), query_points, join(options.out_dir, "queries.txt"),
+                            &error)) {
+      summary->files_written.push_back("queries.txt");
+    } else {
+      late_failure(error);
+    }
   }
   if (!options.save_map_path.empty()) {
     std::string save_error;
-    if (!save_map_now(options, pipeline, summary, &save_error)) return error_exit(save_error);
+    if (!save_map_now(options, pipeline, summary, &save_error)) late_failure(save_error);
   }
 
   if (summary->ground_truth.size() >= 3 &&
@@ -893,15 +1005,19 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     ErrorText odometry_error;
     const std::string path = join(options.out_dir, "odometry.txt");
     if (!host::write_tum_trajectory(path.c_str(), summary->odometry, &odometry_error).ok()) {
-      return error_exit(odometry_error.c_str());
+      late_failure(odometry_error.c_str());
     }
   }
 
   // mesh.ply
   const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
-  if (write_mesh_file || options.keep_mesh) {
-    VectorMeshSink sink;
-    if (!extract_mesh(pipeline, options, &sink)) return error_exit("cannot reserve the mesher");
+  VectorMeshSink sink;
+  const bool meshed =
+      (write_mesh_file || options.keep_mesh) && extract_mesh(pipeline, options, &sink);
+  if ((write_mesh_file || options.keep_mesh) && !meshed) {
+    late_failure("mesh.ply not written: cannot reserve the mesher");
+  }
+  if (meshed) {
     host::MeshView mesh;
     mesh.vertices = sink.positions.data();
     mesh.vertex_count = sink.positions.size();
@@ -911,10 +1027,11 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     if (write_mesh_file) {
       ErrorText ply_error;
       const std::string path = join(options.out_dir, "mesh.ply");
-      if (!host::write_ply(path.c_str(), mesh, &ply_error).ok()) {
-        return error_exit(ply_error.c_str());
+      if (host::write_ply(path.c_str(), mesh, &ply_error).ok()) {
+        summary->files_written.push_back("mesh.ply");
+      } else {
+        late_failure(ply_error.c_str());
       }
-      summary->files_written.push_back("mesh.ply");
     }
     summary->mesh_vertices = mesh.vertex_count;
     summary->mesh_triangles = mesh.triangle_count;
@@ -940,15 +1057,16 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
                        std::to_string(summary->frames_processed) + " frames)";
   }
 
-  if (options.out_dir.empty()) return 0;
+  if (options.out_dir.empty()) return late_failures == 0 ? 0 : 1;
 
   // render.png: the last ray-cast, shaded and coloured by interpolation scale.
   {
     ErrorText png_error;
-    if (!write_render(pipeline, join(options.out_dir, "render.png"), &png_error)) {
-      return error_exit(png_error.c_str());
+    if (write_render(pipeline, join(options.out_dir, "render.png"), &png_error)) {
+      summary->files_written.push_back("render.png");
+    } else {
+      late_failure(png_error.c_str());
     }
-    summary->files_written.push_back("render.png");
   }
 
   // stats.json
@@ -1049,8 +1167,11 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.end_object();
     ErrorText json_error;
     const std::string path = join(options.out_dir, "stats.json");
-    if (!json.write_file(path.c_str(), &json_error).ok()) return error_exit(json_error.c_str());
-    summary->files_written.push_back("stats.json");
+    if (json.write_file(path.c_str(), &json_error).ok()) {
+      summary->files_written.push_back("stats.json");
+    } else {
+      late_failure(json_error.c_str());
+    }
 
     const std::vector<plot::StageSeries> series = {
         {"pre-process", "#7f7f7f", preprocess},
@@ -1059,12 +1180,13 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
         {"ray-cast", "#d62728", raycast},
     };
     const std::string plot_path = join(options.out_dir, "stage_times.svg");
-    if (!plot::write_stacked_svg(plot_path, options.source_spec + " stage times", series)) {
-      return error_exit("cannot write " + plot_path);
+    if (plot::write_stacked_svg(plot_path, options.source_spec + " stage times", series)) {
+      summary->files_written.push_back("stage_times.svg");
+    } else {
+      late_failure("cannot write " + plot_path);
     }
-    summary->files_written.push_back("stage_times.svg");
   }
-  return 0;
+  return late_failures == 0 ? 0 : 1;
 }
 
 }  // namespace

@@ -12,6 +12,7 @@ set -euo pipefail
 
 build_dir=${1:?usage: count-instructions.sh BUILD_DIR [FRAMES] [args...]}
 frames=${2:-20}
+[[ "${frames}" =~ ^[1-9][0-9]*$ ]] || { echo "error: FRAMES must be a positive integer, not '${frames}'" >&2; exit 2; }
 shift $(( $# >= 2 ? 2 : 1 ))
 replay="${build_dir}/examples/octofuse-replay/octofuse-replay"
 [[ -x "${replay}" ]] || { echo "error: ${replay} not built" >&2; exit 1; }
@@ -33,7 +34,10 @@ for symbol in "Pipeline<.*>::process" "DepthPreprocessor::process" "IcpTracker::
               "Integrator<.*>::integrate" "FreeSpace::carve" "Raycaster<.*>::raycast" \
               "SimSource::next" \
               "ReplaySource::next"; do
-  count=$(grep -E "octofuse::${symbol}\(" "${work}/annotated" | head -1 | awk '{gsub(",","",$1); print $1}')
+  # A stage the run never entered (no ICP on a one-frame run, no sim port for a recording) is
+  # absent from the profile: grep finds nothing, which must not end the script under pipefail.
+  count=$( { grep -E "octofuse::${symbol}\(" "${work}/annotated" || true; } | head -1 |
+    awk '{gsub(",","",$1); print $1}')
   [[ -n "${count}" ]] || continue
   printf '%-34s %16s %14d\n' "${symbol}" "${count}" $(( count / frames ))
 done

@@ -1,6 +1,12 @@
 // octofuse-replay on bad input: each case ends with a clear one-line "error:" and a non-zero exit,
 // or is skipped with a warning and counted; exit 0 only when the run produced what it claims.
 // Recordings are written here from the noiseless sim:desk (VGA, millimetres, exact poses).
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <catch2/catch.hpp>
 #include <cstdio>
 #include <string>
@@ -133,6 +139,123 @@ TEST_CASE("octofuse-replay: bad command lines end before any output", "[programs
           "error: " + calibration + ":2: safety needs a number in [1, 16], not '1e400'");
     CHECK_FALSE(test::file_exists(dir + "/out"));
   }
+}
+
+TEST_CASE("octofuse-replay: output paths are checked before the first frame", "[programs]") {
+  const std::string dir = test::make_test_dir("replay-outputs");
+  const std::string log = dir + "/log.txt";
+  const std::string out = dir + "/out";
+  // Each case: one error line naming the option, exit 1, and nothing written, not even --out.
+  auto expect_refused = [&](std::vector<std::string> args, const std::string& what) {
+    for (const char* a : {"--frames", "2", "--voxel-size", "0.04", "--quiet", "--out"}) {
+      args.push_back(a);
+    }
+    args.push_back(out);
+    const test::RunResult run = test::run_replay(args, log);
+    INFO(run.output);
+    CHECK(run.exit_status == 1);
+    CHECK(has(error_line(run), what));
+    CHECK_FALSE(test::file_exists(out));
+  };
+  SECTION("a map in a missing folder, over a folder, in /proc, over a device") {
+    expect_refused({"--save-map", dir + "/missing/m.ofmap"}, "--save-map: ");
+    expect_refused({"--save-map", dir}, "is a folder, not a regular file");
+    expect_refused({"--save-map", "/proc/octofuse.ofmap"}, "--save-map: /proc/octofuse.ofmap");
+    expect_refused({"--save-map", "/dev/full"}, "is a character device, not a regular file");
+    struct stat st;
+    REQUIRE(::stat("/dev/full", &st) == 0);
+    CHECK(S_ISCHR(st.st_mode));
+    CHECK_FALSE(test::file_exists("/dev/full.tmp"));
+  }
+  SECTION("a deadline calibration in a missing folder") {
+    expect_refused({"--deadline-ms", "30", "--deadline-calibration", dir + "/missing/c.cal"},
+                   "--deadline-calibration: ");
+  }
+  SECTION("a map over one of the run's own inputs or outputs") {
+    const std::string odometry = dir + "/odometry.txt";
+    write_text(odometry, "0 0 0 0 0 0 0 1\n");
+    expect_refused({"--odometry", odometry, "--save-map", odometry}, "is the file of --odometry");
+    CHECK(test::read_file(odometry) == "0 0 0 0 0 0 0 1\n");
+    REQUIRE(::mkdir(out.c_str(), 0755) == 0);
+    write_text(out + "/trajectory.txt", "kept\n");
+    const test::RunResult run = test::run_replay(
+        {"--frames", "2", "--quiet", "--out", out, "--save-map", out + "/../out/trajectory.txt"},
+        log);
+    CHECK(run.exit_status == 1);
+    CHECK(has(error_line(run), "is the file of --out's trajectory.txt"));
+    CHECK(test::read_file(out + "/trajectory.txt") == "kept\n");
+  }
+  SECTION("--out naming a file") {
+    write_text(dir + "/plain", "x");
+    const test::RunResult run =
+        test::run_replay({"--frames", "2", "--quiet", "--out", dir + "/plain"}, log);
+    CHECK(run.exit_status == 1);
+    CHECK(has(error_line(run), "not a folder"));
+  }
+}
+
+TEST_CASE("octofuse-replay: a run that fails before its first frame leaves no output",
+          "[programs]") {
+  const std::string dir = test::make_test_dir("replay-early");
+  const std::string log = dir + "/log.txt";
+  const std::string out = dir + "/out";
+  SECTION("a malformed --serve address is a bad command line") {
+    for (const char* spec : {"abc", "[::1]80", "127.0.0.1:99999", "host.example:80"}) {
+      const test::RunResult run =
+          test::run_replay({"--serve", spec, "--frames", "2", "--out", out}, log);
+      INFO(spec << ": " << run.output);
+      CHECK(run.exit_status == 2);
+      CHECK(has(error_line(run), "--serve needs"));
+      CHECK_FALSE(test::file_exists(out));
+    }
+  }
+  SECTION("a port in use") {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    REQUIRE(fd >= 0);
+    sockaddr_in address{};
+    address.sin_family = AF_INET;
+    address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    REQUIRE(::bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof(address)) == 0);
+    REQUIRE(::listen(fd, 1) == 0);
+    socklen_t length = sizeof(address);
+    REQUIRE(::getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length) == 0);
+    const std::string port = std::to_string(ntohs(address.sin_port));
+    const test::RunResult run = test::run_replay(
+        {"--serve", "127.0.0.1:" + port, "--frames", "2", "--quiet", "--out", out}, log);
+    ::close(fd);
+    INFO(run.output);
+    CHECK(run.exit_status == 1);
+    CHECK(has(error_line(run), "--serve"));
+    CHECK_FALSE(test::file_exists(out));
+  }
+  SECTION("an odometry that starts after the first frame") {
+    const std::string odometry = dir + "/late.txt";
+    write_text(odometry, "100 0 0 0 0 0 0 1\n101 0 0 0 0 0 0 1\n");
+    const test::RunResult run =
+        test::run_replay({"--odometry", odometry, "--frames", "2", "--quiet", "--out", out}, log);
+    INFO(run.output);
+    CHECK(run.exit_status == 1);
+    CHECK(has(error_line(run), "does not cover the first frame"));
+    CHECK_FALSE(test::file_exists(out));
+  }
+}
+
+TEST_CASE("octofuse-replay: maps saved at fine voxel sizes load back", "[programs]") {
+  // 5 mm picks 16-voxel free-space octants, which the loader once refused.
+  const std::string dir = test::make_test_dir("replay-fine-map");
+  const std::string log = dir + "/log.txt";
+  const std::string map = dir + "/fine.ofmap";
+  const test::RunResult saved =
+      test::run_replay({"--frames", "2", "--gt-poses", "--voxel-size", "0.005", "--quiet",
+                        "--no-mesh", "--save-map", map, "--out", dir + "/saved"},
+                       log);
+  INFO(saved.output);
+  REQUIRE(saved.exit_status == 0);
+  const test::RunResult loaded = test::run_replay(
+      {"--frames", "1", "--quiet", "--no-mesh", "--load-map", map, "--out", dir + "/out"}, log);
+  INFO(loaded.output);
+  CHECK(loaded.exit_status == 0);
+  CHECK(test::lines_starting(loaded.output, "error: ").empty());
 }
 
 TEST_CASE("octofuse-replay: bad 7-Scenes recordings", "[programs]") {

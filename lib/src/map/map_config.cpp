@@ -16,13 +16,15 @@ MapConfig MapConfig::centred(const Eigen::Vector3f& centre_W, float voxel_size_m
 }
 
 Status validate(const MapConfig& config) {
-  if (!std::isfinite(config.voxel_size_m) || !(config.voxel_size_m > 0.0f)) {
-    return StatusCode::invalid_argument;
+  if (!(config.voxel_size_m >= kMinVoxelSize_m) || !(config.voxel_size_m <= kMaxVoxelSize_m)) {
+    return StatusCode::invalid_argument;  // also NaN
   }
   if (config.voxel_depth < kMinVoxelDepth || config.voxel_depth > kMaxVoxelDepth) {
     return StatusCode::invalid_argument;
   }
-  if (!config.origin_W.allFinite()) return StatusCode::invalid_argument;
+  if (!config.origin_W.allFinite() || !(config.origin_W.cwiseAbs().maxCoeff() <= kMaxOrigin_m)) {
+    return StatusCode::invalid_argument;
+  }
   if (config.block_capacity == 0 || config.block_capacity > (1u << 30)) {
     return StatusCode::invalid_argument;
   }

@@ -397,6 +397,79 @@ void write_header_record(RecordWriter& w, const MapFileHeader& h) {
   w.end_record();
 }
 
+// Whether every field of `h` lies in a range this library can hold; else false with the field
+// and its range in `why`. The loader checks every file's header with it, and save_map() the header
+// it is about to write, so a map that saves always loads back.
+bool header_fields_ok(const MapFileHeader& h, char* why, std::size_t why_size) {
+#define HEADER_FIELD_BAD(...) (std::snprintf(why, why_size, __VA_ARGS__), false)
+  if (h.version == 0 || h.version > kMapFormatVersion) {
+    return HEADER_FIELD_BAD("format version %u not in [1, %u]", static_cast<unsigned>(h.version),
+                            static_cast<unsigned>(kMapFormatVersion));
+  }
+  if (h.voxel_type != MapVoxelType::single_res && h.voxel_type != MapVoxelType::multires &&
+      h.voxel_type != MapVoxelType::multires16) {
+    return HEADER_FIELD_BAD("unknown voxel type %u", static_cast<unsigned>(h.voxel_type));
+  }
+  if (!(h.voxel_size_m >= kMinVoxelSize_m) || !(h.voxel_size_m <= kMaxVoxelSize_m)) {
+    return HEADER_FIELD_BAD("voxel size %g m not in [%g, %g]", static_cast<double>(h.voxel_size_m),
+                            static_cast<double>(kMinVoxelSize_m),
+                            static_cast<double>(kMaxVoxelSize_m));
+  }
+  if (!(h.mu_m > 0.0f) || !(h.mu_m <= kMaxSavedMu_m)) {
+    return HEADER_FIELD_BAD("truncation distance mu %g m not in (0, %g]",
+                            static_cast<double>(h.mu_m), static_cast<double>(kMaxSavedMu_m));
+  }
+  if (h.voxel_depth < kMinVoxelDepth || h.voxel_depth > kMaxVoxelDepth) {
+    return HEADER_FIELD_BAD("voxel depth %d not in [%d, %d]", h.voxel_depth, kMinVoxelDepth,
+                            kMaxVoxelDepth);
+  }
+  if (!h.origin_W.allFinite() || !(h.origin_W.cwiseAbs().maxCoeff() <= kMaxOrigin_m)) {
+    return HEADER_FIELD_BAD("origin (%g, %g, %g) m not finite or beyond %g m",
+                            static_cast<double>(h.origin_W.x()),
+                            static_cast<double>(h.origin_W.y()),
+                            static_cast<double>(h.origin_W.z()), static_cast<double>(kMaxOrigin_m));
+  }
+  if (h.node_count == 0 || h.node_count > (1u << 31) || h.block_count > (1u << 30) ||
+      h.finest_count > h.block_count ||
+      (h.voxel_type == MapVoxelType::single_res && h.finest_count != 0)) {
+    return HEADER_FIELD_BAD("inconsistent node, block or finest-level counts (%u, %u, %u)",
+                            static_cast<unsigned>(h.node_count),
+                            static_cast<unsigned>(h.block_count),
+                            static_cast<unsigned>(h.finest_count));
+  }
+  if (h.frames > kMaxSavedFrames) {
+    return HEADER_FIELD_BAD("frame count %llu above %llu",
+                            static_cast<unsigned long long>(h.frames),
+                            static_cast<unsigned long long>(kMaxSavedFrames));
+  }
+  const bool no_free_space = h.free_node_count == 0 && float_bits(h.free_margin_m) == 0 &&
+                             h.free_octant_voxels == 0 && h.free_max_count == 0;
+  if (no_free_space) return true;
+  if (h.free_node_count < 1 || h.free_node_count > (1u << 31)) {
+    return HEADER_FIELD_BAD("free-space node count %u not in [1, 2^31]",
+                            static_cast<unsigned>(h.free_node_count));
+  }
+  if (!(h.free_margin_m > 0.0f) || !(h.free_margin_m <= kMaxSavedMu_m)) {
+    return HEADER_FIELD_BAD("free-space margin %g m not in (0, %g]",
+                            static_cast<double>(h.free_margin_m),
+                            static_cast<double>(kMaxSavedMu_m));
+  }
+  const int octant = h.free_octant_voxels;
+  const int block_level = h.voxel_depth - kBlockSideLog2;
+  if (octant < 2 || octant > 64 || (octant & (octant - 1)) != 0 ||
+      free_leaf_level(block_level, octant) < 1) {
+    return HEADER_FIELD_BAD(
+        "free-space octants of %d voxels (2 to 64, a power of two, below the root's "
+        "children)",
+        octant);
+  }
+  if (h.free_max_count < 1 || h.free_max_count > 255) {
+    return HEADER_FIELD_BAD("free-space count cap %d not in [1, 255]", h.free_max_count);
+  }
+  return true;
+#undef HEADER_FIELD_BAD
+}
+
 Result<MapFileHeader> read_header_record(RecordReader& r) {
   r.begin_record(nullptr, -1);  // a file without the magic is not told of a header
   std::uint8_t magic[sizeof(kMagic)];
@@ -441,27 +514,9 @@ Result<MapFileHeader> read_header_record(RecordReader& r) {
   }
   h.voxel_type = static_cast<MapVoxelType>(type);
   h.voxel_depth = depth;
-  MapConfig geometry = map_config_for(h);
-  geometry.node_capacity = geometry.block_capacity = geometry.finest_capacity = 1;
-  if (!validate(geometry).ok() || !(h.voxel_size_m <= 1e3f) || !(h.mu_m > 0.0f) ||
-      !(h.mu_m <= 1e3f) || !(h.origin_W.cwiseAbs().maxCoeff() <= 1e9f)) {
-    r.fail(StatusCode::data_loss, "voxel size, mu, depth or origin out of range");
-    return r.status();
-  }
-  if (h.node_count == 0 || h.node_count > (1u << 31) || h.block_count > (1u << 30) ||
-      h.finest_count > h.block_count ||
-      (h.voxel_type == MapVoxelType::single_res && h.finest_count != 0)) {
-    r.fail(StatusCode::data_loss, "inconsistent node, block or finest-level counts");
-    return r.status();
-  }
-  const bool no_free_space = h.free_node_count == 0 && float_bits(h.free_margin_m) == 0 &&
-                             free_octant == 0 && free_cap == 0;
-  const bool free_space_ok = h.free_node_count >= 1 && h.free_node_count <= (1u << 31) &&
-                             h.free_margin_m > 0.0f && h.free_margin_m <= 1e3f &&
-                             (free_octant == 2 || free_octant == 4 || free_octant == 8) &&
-                             free_cap >= 1;
-  if (!no_free_space && !free_space_ok) {
-    r.fail(StatusCode::data_loss, "free-space count or settings out of range");
+  char why[160];
+  if (!header_fields_ok(h, why, sizeof(why))) {
+    r.fail(StatusCode::data_loss, "%s", why);
     return r.status();
   }
   return h;
@@ -553,65 +608,82 @@ bool same_bits(float a, float b) {
   return float_bits(a) == float_bits(b);
 }
 
+// A block record's fields before its voxels.
+struct BlockFields {
+  std::uint64_t morton = 0;
+  std::uint32_t last_updated = 0;
+  std::int8_t current = 0;
+  std::int8_t min_scale = 0;
+  std::int8_t mip = 0;
+  bool has_finest = false;
+  float summary[4] = {};
+};
+
+// Reads a block record up to its voxels and checks what needs no map: the tag, the key
+// (block-aligned, inside a cube of `depth`), the scales, the flags and the summary.
 template <typename VoxelT>
-bool read_block_record(RecordReader& r, Octree<VoxelT>& map, std::uint32_t index,
-                       std::uint32_t& finest_loaded, std::uint32_t finest_expected) {
+bool read_block_fields(RecordReader& r, int depth, BlockFields& out) {
   using Block = VoxelBlock<VoxelT>;
   std::uint8_t tag = 0;
   if (!r.u8(tag)) return false;
   if (tag != kBlockTag) return r.fail(StatusCode::data_loss, "wrong record tag");
-  std::uint64_t morton = 0;
-  std::uint32_t last_updated = 0;
   std::uint8_t current = 0, min_scale = 0, mip = 0, flags = 0;
-  float summary[4];
-  if (!r.u64(morton) || !r.u32(last_updated) || !r.u8(current) || !r.u8(min_scale) || !r.u8(mip) ||
-      !r.u8(flags) || !r.f32(summary[0]) || !r.f32(summary[1]) || !r.f32(summary[2]) ||
-      !r.f32(summary[3])) {
+  if (!r.u64(out.morton) || !r.u32(out.last_updated) || !r.u8(current) || !r.u8(min_scale) ||
+      !r.u8(mip) || !r.u8(flags) || !r.f32(out.summary[0]) || !r.f32(out.summary[1]) ||
+      !r.f32(out.summary[2]) || !r.f32(out.summary[3])) {
     return false;
   }
-  // The key: block-aligned, inside the cube, its parent node present, not a duplicate.
-  const int depth = map.voxel_depth();
   const std::uint64_t aligned_mask = (std::uint64_t{1} << (3 * kBlockSideLog2)) - 1;
-  if ((morton & aligned_mask) != 0 || (morton >> (3 * depth)) != 0) {
+  if ((out.morton & aligned_mask) != 0 || (out.morton >> (3 * depth)) != 0) {
     return r.fail(StatusCode::data_loss, "block key outside the cube or not block-aligned");
   }
-  const Key key{morton, static_cast<std::uint8_t>(map.block_level())};
+  out.current = static_cast<std::int8_t>(current);
+  out.min_scale = static_cast<std::int8_t>(min_scale);
+  out.mip = static_cast<std::int8_t>(mip);
+  const bool integrated = out.min_scale != kNeverIntegrated;
+  const bool state_ok = out.current >= 0 && out.current <= kMaxBlockScale &&
+                        (integrated ? (out.min_scale >= 0 && out.min_scale <= out.current &&
+                                       out.mip >= out.current && out.mip <= kMaxBlockScale)
+                                    : out.mip == kNeverIntegrated);
+  if (!state_ok) return r.fail(StatusCode::data_loss, "block scales inconsistent");
+  if ((flags & ~kHasFinestFlag) != 0 || (!Block::kSplitFinest && flags != 0)) {
+    return r.fail(StatusCode::data_loss, "unknown block flags");
+  }
+  out.has_finest = Block::kSplitFinest ? (flags & kHasFinestFlag) != 0 : true;
+  if (Block::kSplitFinest && integrated && out.current == 0 && !out.has_finest) {
+    return r.fail(StatusCode::data_loss, "block at scale 0 without its finest level");
+  }
+  if (!tsdf_ok(out.summary[0]) || !tsdf_ok(out.summary[1]) || !tsdf_ok(out.summary[2]) ||
+      !weight_ok(out.summary[3])) {
+    return r.fail(StatusCode::data_loss, "block summary out of range");
+  }
+  return true;
+}
+
+template <typename VoxelT>
+bool read_block_record(RecordReader& r, Octree<VoxelT>& map, std::uint32_t index,
+                       std::uint32_t& finest_loaded, std::uint32_t finest_expected) {
+  using Block = VoxelBlock<VoxelT>;
+  BlockFields fields;
+  if (!read_block_fields<VoxelT>(r, map.voxel_depth(), fields)) return false;
+  // The key's parent node present, not a duplicate.
+  const Key key{fields.morton, static_cast<std::uint8_t>(map.block_level())};
   AllocationCounts counts;
   const Status allocated = map.allocate(&key, 1, &counts);
   if (counts.new_nodes != 0 || counts.new_blocks != 1 || !allocated.ok() ||
       map.block_count() != index + 1) {
     return r.fail(StatusCode::data_loss, "block without its parent node, or a duplicate");
   }
-  const auto s_current = static_cast<std::int8_t>(current);
-  const auto s_min = static_cast<std::int8_t>(min_scale);
-  const auto s_mip = static_cast<std::int8_t>(mip);
-  const bool integrated = s_min != kNeverIntegrated;
-  const bool state_ok = s_current >= 0 && s_current <= kMaxBlockScale &&
-                        (integrated ? (s_min >= 0 && s_min <= s_current && s_mip >= s_current &&
-                                       s_mip <= kMaxBlockScale)
-                                    : s_mip == kNeverIntegrated);
-  if (!state_ok) return r.fail(StatusCode::data_loss, "block scales inconsistent");
-  if ((flags & ~kHasFinestFlag) != 0 || (!Block::kSplitFinest && flags != 0)) {
-    return r.fail(StatusCode::data_loss, "unknown block flags");
-  }
-  const bool has_finest = Block::kSplitFinest ? (flags & kHasFinestFlag) != 0 : true;
-  if (Block::kSplitFinest && integrated && s_current == 0 && !has_finest) {
-    return r.fail(StatusCode::data_loss, "block at scale 0 without its finest level");
-  }
-  if (!tsdf_ok(summary[0]) || !tsdf_ok(summary[1]) || !tsdf_ok(summary[2]) ||
-      !weight_ok(summary[3])) {
-    return r.fail(StatusCode::data_loss, "block summary out of range");
-  }
   Block& block = map.block(index);
-  block.last_updated_frame = last_updated;
-  block.current_scale = s_current;
-  block.min_scale = s_min;
-  block.mip_scale = s_mip;
-  block.tsdf_min = summary[0];
-  block.tsdf_max = summary[1];
-  block.tsdf_mean = summary[2];
-  block.weight_mean = summary[3];
-  if (Block::kSplitFinest && has_finest) {
+  block.last_updated_frame = fields.last_updated;
+  block.current_scale = fields.current;
+  block.min_scale = fields.min_scale;
+  block.mip_scale = fields.mip;
+  block.tsdf_min = fields.summary[0];
+  block.tsdf_max = fields.summary[1];
+  block.tsdf_mean = fields.summary[2];
+  block.weight_mean = fields.summary[3];
+  if (Block::kSplitFinest && fields.has_finest) {
     if (finest_loaded == finest_expected) {
       return r.fail(StatusCode::data_loss, "more finest levels than the header says");
     }
@@ -620,9 +692,57 @@ bool read_block_record(RecordReader& r, Octree<VoxelT>& map, std::uint32_t index
     }
     ++finest_loaded;
   }
-  if (has_finest && !r.voxels(block.scale_begin(0), kBlockFinestVoxelCount)) return false;
+  if (fields.has_finest && !r.voxels(block.scale_begin(0), kBlockFinestVoxelCount)) return false;
   if (!r.voxels(block.scale_begin(1), kBlockVoxelCount - kBlockFinestVoxelCount)) return false;
   return r.end_record();
+}
+
+// The block records of a map of voxel type VoxelT, checked as read_block_record() does but into
+// a small scratch buffer instead of a map.
+template <typename VoxelT>
+bool check_block_records(RecordReader& r, const MapFileHeader& h) {
+  VoxelT scratch[kVoxelChunk];
+  std::uint32_t finest_seen = 0;
+  for (std::uint32_t i = 0; i < h.block_count; ++i) {
+    r.begin_record("block record", i);
+    BlockFields fields;
+    if (!read_block_fields<VoxelT>(r, h.voxel_depth, fields)) return false;
+    int count = kBlockVoxelCount - kBlockFinestVoxelCount;
+    if (VoxelBlock<VoxelT>::kSplitFinest && fields.has_finest) {
+      if (finest_seen == h.finest_count) {
+        return r.fail(StatusCode::data_loss, "more finest levels than the header says");
+      }
+      ++finest_seen;
+    }
+    if (fields.has_finest) count = kBlockVoxelCount;
+    for (int start = 0; start < count; start += kVoxelChunk) {
+      if (!r.voxels(scratch, count - start < kVoxelChunk ? count - start : kVoxelChunk)) {
+        return false;
+      }
+    }
+    if (!r.end_record()) return false;
+  }
+  if (VoxelBlock<VoxelT>::kSplitFinest && finest_seen != h.finest_count) {
+    return r.fail(StatusCode::data_loss, "fewer finest levels than the header says");
+  }
+  return true;
+}
+
+// Reads the end record and checks it against the header, and that nothing follows.
+bool read_end_record(RecordReader& r, const MapFileHeader& h) {
+  r.begin_record("end record", -1);
+  std::uint8_t tag = 0;
+  std::uint32_t nodes = 0;
+  std::uint32_t blocks = 0;
+  std::uint32_t free_nodes = 0;
+  if (!r.u8(tag) || !r.u32(nodes) || !r.u32(blocks) || !r.u32(free_nodes) || !r.end_record()) {
+    return false;
+  }
+  if (tag != kEndTag || nodes != h.node_count || blocks != h.block_count ||
+      free_nodes != h.free_node_count) {
+    return r.fail(StatusCode::data_loss, "end record does not match the header");
+  }
+  return true;
 }
 
 }  // namespace
@@ -676,18 +796,29 @@ bool same_geometry(const MapConfig& a, const MapConfig& b) {
 
 template <typename VoxelT>
 Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const MapSaveInfo& info,
-                ByteSink& sink) {
-  if (!map.reserved()) return StatusCode::failed_precondition;
-  if (!(info.mu_m > 0.0f) || !(info.mu_m <= 1e3f)) return StatusCode::invalid_argument;
+                ByteSink& sink, ErrorText* error) {
+  auto refuse = [&](Status status, const char* why) {
+    if (error != nullptr) error->set("%s", why);
+    return status;
+  };
+  if (!map.reserved()) return refuse(StatusCode::failed_precondition, "the map is not reserved");
+  if (!(info.mu_m > 0.0f) || !(info.mu_m <= kMaxSavedMu_m)) {
+    return refuse(StatusCode::invalid_argument, "mu is not in (0, 1000] m");
+  }
   if (free_space != nullptr) {
-    if (!free_space->reserved()) return StatusCode::failed_precondition;
+    if (!free_space->reserved()) {
+      return refuse(StatusCode::failed_precondition, "the free space is not reserved");
+    }
     if (!same_geometry(free_space->map_config(), map.config())) {
-      return StatusCode::invalid_argument;
+      return refuse(StatusCode::invalid_argument, "the free space's geometry is not the map's");
     }
     // What the loader checks: a file this writes always loads.
     for (std::uint32_t i = 0; i < free_space->node_count(); ++i) {
       const std::uint32_t frame = free_space->node(i).free_frame;
-      if (frame != 0 && frame >= info.frames) return StatusCode::invalid_argument;
+      if (frame != 0 && frame >= info.frames) {
+        return refuse(StatusCode::invalid_argument,
+                      "a free-space node's frame is not before the frame count");
+      }
     }
   }
   const MapMemory memory = map.memory();
@@ -707,6 +838,13 @@ Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const Ma
     h.free_octant_voxels = free_space->config().finest_octant_voxels;
     h.free_max_count = free_space->config().max_free_count;
   }
+  // The loader checks every header field against these ranges: refuse here what it would
+  // refuse there, before a byte is written.
+  char why[160];
+  if (!header_fields_ok(h, why, sizeof(why))) {
+    if (error != nullptr) error->set("cannot be saved: %s", why);
+    return StatusCode::invalid_argument;
+  }
   RecordWriter w(sink);
   write_header_record(w, h);
   for (std::uint32_t i = 0; i < map.node_count(); ++i) write_node_record(w, map.node(i));
@@ -717,7 +855,9 @@ Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const Ma
   w.u32(h.block_count);
   w.u32(h.free_node_count);
   w.end_record();
-  return w.finish();
+  const Status written = w.finish();
+  if (!written.ok() && error != nullptr) error->set("not written (%s)", written.name());
+  return written;
 }
 
 Result<MapFileHeader> read_map_header(ByteSource& source, ErrorText* error) {
@@ -827,19 +967,7 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeSpace* free_space,
     if (!read_block_record(r, map, i, finest_loaded, h.finest_count)) return failed();
   }
   if (!read_free_space(r, h, block_level, free_space)) return failed();
-  r.begin_record("end record", -1);
-  std::uint8_t tag = 0;
-  std::uint32_t nodes = 0;
-  std::uint32_t blocks = 0;
-  std::uint32_t free_nodes = 0;
-  if (!r.u8(tag) || !r.u32(nodes) || !r.u32(blocks) || !r.u32(free_nodes) || !r.end_record()) {
-    return failed();
-  }
-  if (tag != kEndTag || nodes != h.node_count || blocks != h.block_count ||
-      free_nodes != h.free_node_count) {
-    r.fail(StatusCode::data_loss, "end record does not match the header");
-    return failed();
-  }
+  if (!read_end_record(r, h)) return failed();
   if (finest_loaded != h.finest_count) {
     r.fail(StatusCode::data_loss, "fewer finest levels than the header says");
     return failed();
@@ -852,16 +980,61 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeSpace* free_space,
   return ok_status();
 }
 
-template Status save_map(const Octree<TsdfVoxel>&, const FreeSpace*, const MapSaveInfo&, ByteSink&);
+Status validate_map_header(const MapFileHeader& header, ErrorText* error) {
+  char why[160];
+  if (header_fields_ok(header, why, sizeof(why))) return ok_status();
+  if (error != nullptr) error->set("%s", why);
+  return StatusCode::data_loss;
+}
+
+Status check_map(ByteSource& source, MapFileHeader* header_out, ErrorText* error) {
+  RecordReader r(source, error);
+  const Result<MapFileHeader> header = read_header_record(r);
+  if (!header.ok()) return header.status();
+  const MapFileHeader& h = header.value();
+  const int block_level = h.voxel_depth - kBlockSideLog2;
+  for (std::uint32_t i = 0; i < h.node_count; ++i) {
+    r.begin_record("node record", i);
+    NodeRecord node;
+    if (!read_node_record(r, node)) return r.status();
+    const bool root = node.key.level == 0 && node.key.morton == 0;
+    const bool level_ok = node.key.level >= 1 && node.key.level < block_level;
+    const int below = level_ok ? 3 * (h.voxel_depth - node.key.level) : 0;
+    if (i == 0 ? !root
+               : (!level_ok || (node.key.morton & ((std::uint64_t{1} << below) - 1)) != 0 ||
+                  (node.key.morton >> (3 * h.voxel_depth)) != 0)) {
+      r.fail(StatusCode::data_loss, i == 0 ? "the first node is not the root"
+                                           : "node key outside the cube, not aligned or at a "
+                                             "bad level");
+      return r.status();
+    }
+  }
+  const bool blocks_ok =
+      h.voxel_type == MapVoxelType::single_res   ? check_block_records<TsdfVoxel>(r, h)
+      : h.voxel_type == MapVoxelType::multires16 ? check_block_records<Multires16Voxel>(r, h)
+                                                 : check_block_records<MultiresVoxel>(r, h);
+  if (!blocks_ok || !read_free_space(r, h, block_level, nullptr) || !read_end_record(r, h)) {
+    return r.status();
+  }
+  if (!r.at_end()) {
+    if (r.ok()) r.fail(StatusCode::data_loss, "extra bytes after the end");
+    return r.status();
+  }
+  if (header_out != nullptr) *header_out = h;
+  return ok_status();
+}
+
+template Status save_map(const Octree<TsdfVoxel>&, const FreeSpace*, const MapSaveInfo&, ByteSink&,
+                         ErrorText*);
 template Status save_map(const Octree<MultiresVoxel>&, const FreeSpace*, const MapSaveInfo&,
-                         ByteSink&);
+                         ByteSink&, ErrorText*);
 template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
                          ErrorText*);
 template Status save_map(const Octree<Multires16Voxel>&, const FreeSpace*, const MapSaveInfo&,
-                         ByteSink&);
+                         ByteSink&, ErrorText*);
 template Status load_map(ByteSource&, Octree<Multires16Voxel>&, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeSpace*, MapFileHeader*,
                          ErrorText*);

@@ -67,20 +67,54 @@ Status save_map_file(const char* path, const Octree<VoxelT>& map, const FreeSpac
     return opened;
   }
   FileSink sink(file);
-  const Status saved = save_map(map, free_space, info, sink);
+  ErrorText reason;
+  const Status saved = save_map(map, free_space, info, sink, &reason);
   if (!saved.ok()) {
     if (error != nullptr) {
       if (file.last_error()[0] != '\0') {
         error->set("%s", file.last_error());
       } else {
-        error->set("%s: not written (%s)", path, saved.name());
+        error->set("%s: %s", path, reason.c_str());
       }
     }
     return saved;  // the temporary goes with `file`
   }
-  const Status committed = file.commit();
-  if (!committed.ok() && error != nullptr) error->set("%s", file.last_error());
-  return committed;
+  const Status finished = file.finish_writing();
+  if (!finished.ok()) {
+    if (error != nullptr) error->set("%s", file.last_error());
+    return finished;
+  }
+  // Read back what reached the disk, every record, before it replaces the previous file: a map
+  // this reports saved loads.
+  {
+    OpenFile written(file.temporary_path());
+    if (written.file == nullptr) {
+      const Status status = cannot_open(file.temporary_path(), error);
+      file.abandon();
+      return status;
+    }
+    FileSource source(written.file);
+    const Status checked = check_map(source, nullptr, &reason);
+    if (!checked.ok()) {
+      if (error != nullptr)
+        error->set("%s: not saved, the written file does not read back (%s)", path, reason.c_str());
+      file.abandon();
+      return StatusCode::data_loss;
+    }
+  }
+  const Status published = file.publish();
+  if (!published.ok() && error != nullptr) error->set("%s", file.last_error());
+  return published;
+}
+
+Status check_map_file(const char* path, MapFileHeader* header, ErrorText* error) {
+  OpenFile in(path);
+  if (in.file == nullptr) return cannot_open(path, error);
+  FileSource source(in.file);
+  ErrorText reason;
+  const Status checked = check_map(source, header, &reason);
+  if (!checked.ok()) prefix_path(path, reason, error);
+  return checked;
 }
 
 Result<MapFileHeader> read_map_file_header(const char* path, ErrorText* error) {

@@ -79,16 +79,63 @@ TEST_CASE("AtomicFile: bad paths and calls in the wrong state get a Status",
   CHECK(exists(dir + "/a"));
 }
 
-TEST_CASE("AtomicFile: a destination that cannot be replaced keeps its content",
+TEST_CASE("AtomicFile: a destination that is not a regular file is never replaced",
           "[host][atomic_file]") {
   const std::string dir = octofuse::test::make_test_dir("atomic_dir");
-  // A non-empty folder in the way: rename() cannot replace it.
-  const std::string path = dir + "/taken";
-  REQUIRE(std::system(("mkdir -p " + path + "/inside").c_str()) == 0);
+  // A folder, a FIFO and a device: refused at open, before anything is written, and left as
+  // they were (rename() would have turned the FIFO or the device into a regular file).
+  const std::string folder = dir + "/taken";
+  const std::string fifo = dir + "/fifo";
+  REQUIRE(std::system(("mkdir -p " + folder + "/inside").c_str()) == 0);
+  REQUIRE(std::system(("mkfifo " + fifo).c_str()) == 0);
+  for (const std::string& path : {folder, fifo, std::string("/dev/null")}) {
+    INFO(path);
+    AtomicFile out;
+    CHECK(out.open(path.c_str()).code() == StatusCode::invalid_argument);
+    CHECK(std::string(out.last_error()).find("not a regular file") != std::string::npos);
+    CHECK(octofuse::host::check_writable(path.c_str(), nullptr).code() ==
+          StatusCode::invalid_argument);
+    CHECK_FALSE(exists(path + ".tmp"));
+  }
+  CHECK(exists(folder + "/inside"));
+  CHECK(std::system(("test -p " + fifo).c_str()) == 0);
+  CHECK(std::system("test -c /dev/null") == 0);
+
+  // A temporary's name taken by a FIFO: refused too (opening it would block).
+  const std::string blocked = dir + "/blocked";
+  REQUIRE(std::system(("mkfifo " + blocked + ".tmp").c_str()) == 0);
   AtomicFile out;
-  REQUIRE(out.open(path.c_str()).ok());
-  REQUIRE(out.write("data", 4).ok());
-  CHECK(out.commit().code() == StatusCode::data_loss);
-  CHECK_FALSE(exists(path + ".tmp"));
-  CHECK(exists(path + "/inside"));
+  CHECK(out.open(blocked.c_str()).code() == StatusCode::invalid_argument);
+  CHECK_FALSE(exists(blocked));
+}
+
+TEST_CASE("AtomicFile: a link is followed, the file it names replaced", "[host][atomic_file]") {
+  const std::string dir = octofuse::test::make_test_dir("atomic_link");
+  write_whole(dir + "/target", "old");
+  REQUIRE(std::system(("ln -s target " + dir + "/link").c_str()) == 0);
+  write_whole(dir + "/link", "new");
+  CHECK(read_all(dir + "/target") == "new");
+  CHECK(std::system(("test -L " + dir + "/link").c_str()) == 0);
+  // A link to nothing names no file to replace.
+  REQUIRE(std::system(("ln -s missing " + dir + "/dangling").c_str()) == 0);
+  AtomicFile out;
+  CHECK(out.open((dir + "/dangling").c_str()).code() == StatusCode::invalid_argument);
+}
+
+TEST_CASE("check_writable: folders that do not exist or cannot hold files", "[host][atomic_file]") {
+  using octofuse::host::check_writable;
+  const std::string dir = octofuse::test::make_test_dir("atomic_check");
+  CHECK(check_writable((dir + "/new.bin").c_str(), nullptr).ok());
+  CHECK_FALSE(exists(dir + "/new.bin"));
+  CHECK_FALSE(exists(dir + "/new.bin.tmp"));
+  octofuse::ErrorText error;
+  CHECK(check_writable((dir + "/missing/new.bin").c_str(), &error).code() ==
+        StatusCode::unavailable);
+  CHECK(std::string(error.c_str()).find("missing/new.bin.tmp: cannot create") != std::string::npos);
+  CHECK(check_writable("/proc/octofuse-map.bin", nullptr).code() == StatusCode::unavailable);
+  CHECK(check_writable("", nullptr).code() == StatusCode::invalid_argument);
+  // An existing file is left as it was.
+  write_whole(dir + "/old.bin", "kept");
+  CHECK(check_writable((dir + "/old.bin").c_str(), nullptr).ok());
+  CHECK(read_all(dir + "/old.bin") == "kept");
 }

@@ -552,6 +552,9 @@ TEST_CASE("truncation anywhere is data_loss and leaves the map empty") {
     REQUIRE(s.code() == StatusCode::data_loss);
     REQUIRE(empty(target.map));
     REQUIRE(std::strstr(error.c_str(), "truncated") != nullptr);
+    // The check a save runs on what it wrote refuses it the same way.
+    MemorySource checked(part.data(), part.size());
+    REQUIRE(check_map(checked).code() == StatusCode::data_loss);
     ++tried;
   }
   CHECK(tried > 300);
@@ -579,8 +582,140 @@ TEST_CASE("a flipped bit anywhere is caught and leaves the map empty") {
       REQUIRE(!s.ok());
       REQUIRE(empty(target.map));
       if (at >= 12) REQUIRE(s.code() == StatusCode::data_loss);
+      MemorySource checked(bad.data(), bad.size());
+      REQUIRE(check_map(checked).code() == s.code());
     }
   }
+}
+
+// Fuses `frames` into a pipeline of `config`, saves it, checks the bytes (check_map) and loads
+// them into a second pipeline of the same config, which must then save the same bytes.
+template <typename VoxelT>
+void expect_saved_map_loads(const PipelineConfig& config, const Frames& frames) {
+  Mapper<VoxelT> mapper(config);
+  mapper.run(frames, 0, frames.count());
+  const bool with_free = config.free_space.enabled;
+  const FreeSpace* free_space = with_free ? &mapper.pipeline.free_space() : nullptr;
+  MapSaveInfo info;
+  info.frames = mapper.pipeline.frame_count();
+  info.mu_m = config.fusion.mu_m;
+  VectorSink sink;
+  ErrorText error;
+  REQUIRE(save_map(mapper.pipeline.map(), free_space, info, sink, &error).ok());
+  INFO(error.c_str());
+  MemorySource checked(sink.data.data(), sink.data.size());
+  MapFileHeader header;
+  REQUIRE(check_map(checked, &header, &error).ok());
+  CHECK(header.block_count == mapper.pipeline.map().block_count());
+  Mapper<VoxelT> target(config);
+  MemorySource source(sink.data.data(), sink.data.size());
+  REQUIRE(load_map(source, target.pipeline.map(),
+                   with_free ? &target.pipeline.free_space() : nullptr, nullptr, &error)
+              .ok());
+  VectorSink again;
+  REQUIRE(save_map(target.pipeline.map(), with_free ? &target.pipeline.free_space() : nullptr, info,
+                   again)
+              .ok());
+  CHECK(again.data == sink.data);
+}
+
+TEST_CASE(
+    "every map a pipeline can save loads back: voxel types and sizes, cubes, free space, "
+    "full pools") {
+  // Each voxel size picks its own free-space octants (8 voxels at 1 cm and up, 16 at 5 mm, 32 at
+  // 2 mm, 64 at 1 mm); pools of 64 blocks fill on the first frame.
+  const Frames frames(3);
+  int cases = 0;
+  for (float voxel_m : {0.001f, 0.002f, 0.005f, 0.01f, 0.02f, 0.05f, 0.2f}) {
+    for (int depth : {7, 11}) {
+      for (bool free_space : {true, false}) {
+        for (std::uint32_t blocks : {64u, 2048u}) {
+          INFO("voxel " << voxel_m << " m, depth " << depth << ", free space " << free_space << ", "
+                        << blocks << " blocks");
+          PipelineConfig c = config_for<MultiresVoxel>(voxel_m);
+          c.map = MapConfig::centred(Eigen::Vector3f(0, 0, 1), voxel_m, depth, blocks, blocks);
+          c.map.finest_capacity = blocks / 2;
+          c.free_space.enabled = free_space;
+          expect_saved_map_loads<MultiresVoxel>(c, frames);
+          c.map_kind = map_kind_of<Multires16Voxel>();
+          expect_saved_map_loads<Multires16Voxel>(c, frames);
+          c.map_kind = map_kind_of<TsdfVoxel>();
+          expect_saved_map_loads<TsdfVoxel>(c, frames);
+          cases += 3;
+        }
+      }
+    }
+  }
+  // Free-space octants chosen by hand, from 2 voxels up.
+  for (int octant : {2, 4, 8, 16, 32, 64}) {
+    INFO(octant << "-voxel octants");
+    PipelineConfig c = config_for<MultiresVoxel>(0.01f);
+    c.map = MapConfig::centred(Eigen::Vector3f(0, 0, 1), 0.01f, 10, 2048, 2048);
+    c.free_space.finest_octant_voxels = octant;
+    expect_saved_map_loads<MultiresVoxel>(c, frames);
+    ++cases;
+  }
+  CHECK(cases == 7 * 2 * 2 * 2 * 3 + 6);
+}
+
+TEST_CASE("header fields out of range are refused by name, on load and before a save") {
+  MapFileHeader good;
+  good.voxel_size_m = 0.01f;
+  good.mu_m = 0.08f;
+  good.voxel_depth = 10;
+  good.node_count = 1;
+  REQUIRE(validate_map_header(good).ok());
+  struct Case {
+    const char* what;
+    void (*spoil)(MapFileHeader&);
+  };
+  const Case cases[] = {
+      {"voxel size", [](MapFileHeader& h) { h.voxel_size_m = 1e-9f; }},
+      {"voxel size", [](MapFileHeader& h) { h.voxel_size_m = std::nanf(""); }},
+      {"voxel size", [](MapFileHeader& h) { h.voxel_size_m = 1e6f; }},
+      {"mu", [](MapFileHeader& h) { h.mu_m = 0.0f; }},
+      {"mu", [](MapFileHeader& h) { h.mu_m = std::numeric_limits<float>::infinity(); }},
+      {"voxel depth", [](MapFileHeader& h) { h.voxel_depth = 30; }},
+      {"origin", [](MapFileHeader& h) { h.origin_W.x() = 1e30f; }},
+      {"origin", [](MapFileHeader& h) { h.origin_W.z() = std::nanf(""); }},
+      {"frame count", [](MapFileHeader& h) { h.frames = ~std::uint64_t{0}; }},
+      {"counts", [](MapFileHeader& h) { h.node_count = 0; }},
+      {"free-space octants",
+       [](MapFileHeader& h) {
+         h.free_node_count = 1;
+         h.free_margin_m = 0.01f;
+         h.free_max_count = 8;
+         h.free_octant_voxels = 128;
+       }},
+  };
+  for (const Case& c : cases) {
+    MapFileHeader h = good;
+    c.spoil(h);
+    ErrorText error;
+    CHECK(validate_map_header(h, &error).code() == StatusCode::data_loss);
+    INFO(error.c_str());
+    CHECK(std::string(error.c_str()).find(c.what) != std::string::npos);
+  }
+
+  // A save whose header would be refused writes nothing and says why.
+  const PipelineConfig config = config_for<MultiresVoxel>();
+  Mapper<MultiresVoxel> mapper(config);
+  mapper.run(Frames(1), 0, 1);
+  MapSaveInfo info;
+  info.mu_m = config.fusion.mu_m;
+  info.frames = kMaxSavedFrames + 1;
+  VectorSink sink;
+  ErrorText error;
+  CHECK(save_map(mapper.pipeline.map(), info, sink).code() == StatusCode::invalid_argument);
+  CHECK(save_map(mapper.pipeline.map(), nullptr, info, sink, &error).code() ==
+        StatusCode::invalid_argument);
+  CHECK(std::string(error.c_str()).find("frame count") != std::string::npos);
+  CHECK(sink.data.empty());
+  // At the bound it saves, checks and loads.
+  info.frames = kMaxSavedFrames;
+  REQUIRE(save_map(mapper.pipeline.map(), nullptr, info, sink, &error).ok());
+  MemorySource source(sink.data.data(), sink.data.size());
+  CHECK(check_map(source, nullptr, &error).ok());
 }
 
 TEST_CASE("foreign, newer, other-type, mismatched and oversized files are told apart") {
@@ -1003,7 +1138,8 @@ TEST_CASE("damaged free-space records are data_loss and leave map and free space
       bad = file;
       bad[at] = at == kFreeOctantAt ? 3 : 0;
       reseal(bad, 0, header_end);
-      expect_refused(bad, StatusCode::data_loss, "free-space count or settings");
+      expect_refused(bad, StatusCode::data_loss,
+                     at == kFreeOctantAt ? "free-space octants of 3 voxels" : "count cap 0");
     }
     const float bad_margins[] = {std::numeric_limits<float>::quiet_NaN(), -0.01f, 0.0f};
     for (float margin : bad_margins) {
@@ -1012,7 +1148,7 @@ TEST_CASE("damaged free-space records are data_loss and leave map and free space
       bad = file;
       put_u32(bad, kFreeMarginAt, bits);
       reseal(bad, 0, header_end);
-      expect_refused(bad, StatusCode::data_loss, "free-space count or settings");
+      expect_refused(bad, StatusCode::data_loss, "free-space margin");
     }
     bad = file;
     put_u32(bad, records[records.size() - 2] + 9, count - 1);  // the end record's free count

@@ -18,6 +18,12 @@ inline constexpr int kMaxBlockScale = 3;
 // Morton keys hold 21 bits per axis, which bounds the depth.
 inline constexpr int kMinVoxelDepth = 4;
 inline constexpr int kMaxVoxelDepth = 21;
+// Finest voxel edges a map may have: 0.1 mm (below, float positions in a cube of any useful size
+// lose the voxel) to 1 km.
+inline constexpr float kMinVoxelSize_m = 1e-4f;
+inline constexpr float kMaxVoxelSize_m = 1e3f;
+// Largest |coordinate| of the cube's origin, in metres.
+inline constexpr float kMaxOrigin_m = 1e9f;
 
 struct MapConfig {
   float voxel_size_m = 0.01f;  // finest voxel edge
@@ -45,9 +51,10 @@ struct MapConfig {
                            std::uint32_t block_capacity, std::uint32_t node_capacity);
 };
 
-// ok, or invalid_argument when the voxel size is not finite and positive, the depth is outside
-// [kMinVoxelDepth, kMaxVoxelDepth], the origin is not finite, or a capacity is zero (or the
-// node capacity is above 2^31, the block or finest capacity above 2^30).
+// ok, or invalid_argument when the voxel size is outside [kMinVoxelSize_m, kMaxVoxelSize_m], the
+// depth is outside [kMinVoxelDepth, kMaxVoxelDepth], the origin is not finite or a coordinate's
+// magnitude is above kMaxOrigin_m, or a capacity is zero (or the node capacity is above 2^31, the
+// block or finest capacity above 2^30).
 Status validate(const MapConfig& config);
 
 }  // namespace octofuse

@@ -41,7 +41,8 @@
 // node's and block's key (canonical, inside the cube, parent present, not a duplicate), block
 // states and every float (finite; TSDF values in [-1, 1], weights in [0, kMaxSavedWeight]; a
 // multires16 TSDF step in [-16384, 16384]).
-// Free space: the settings (margin finite and positive, octants of 2, 4 or 8 voxels, cap >= 1),
+// Header fields: validate_map_header(). Free space: the settings (margin finite and positive,
+// octants of 2 to 64 voxels, a power of two, cap >= 1),
 // each node's count (at most the cap), frame (before the header's frame count, or 0) and
 // children (after their parent, below the count); loaded into a FreeSpace, also the tree: each
 // node but the root the child of exactly one earlier node, none below the finest octant level.
@@ -70,6 +71,10 @@ class FreeSpace;  // query/free_space.hpp
 inline constexpr std::uint32_t kMapFormatVersion = 2;
 // Largest weight a saved voxel or summary may hold (2^24: integers stay exact in a float).
 inline constexpr float kMaxSavedWeight = 16777216.0f;
+// Largest truncation distance and free-space margin a file may hold, in metres.
+inline constexpr float kMaxSavedMu_m = 1e3f;
+// Largest frame count a file may hold: records keep frame indices in 32 bits (136 years at 1 kHz).
+inline constexpr std::uint64_t kMaxSavedFrames = 0xFFFFFFFFu;
 
 // Where save_map() writes. write() returns ok or the sink's own error (unavailable, data_loss...),
 // which save_map() passes on.
@@ -168,13 +173,15 @@ struct MapSaveInfo {
 };
 
 // Writes `map` (reserved) and, when `free_space` is not null, its free space to `sink`. ok;
-// invalid_argument when info.mu_m is not finite and positive, the free space's geometry is not
-// the map's or a free node's frame is not before info.frames; failed_precondition when the map
-// or the free space is not reserved; or the sink's error (what was written before it is
-// incomplete: the host port writes a temporary and renames it only on success).
+// invalid_argument, before anything is written, when a header field would be out of the range
+// the loader accepts (validate_map_header(): info.mu_m not in (0, kMaxSavedMu_m], info.frames
+// above kMaxSavedFrames...), the free space's geometry is not the map's or a free node's frame is
+// not before info.frames; failed_precondition when the map or the free space is not reserved; or
+// the sink's error (what was written before it is incomplete: the host port writes a temporary
+// and renames it only once check_map() has read it back whole). `error` (optional) says why.
 template <typename VoxelT>
 Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const MapSaveInfo& info,
-                ByteSink& sink);
+                ByteSink& sink, ErrorText* error = nullptr);
 // The map alone (a file without free space).
 template <typename VoxelT>
 Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink) {
@@ -185,6 +192,24 @@ Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& si
 // out_of_range: a newer format version; data_loss: truncated, checksum mismatch or a field out
 // of range; or the source's error. `error` (optional) says what is wrong in one line.
 Result<MapFileHeader> read_map_header(ByteSource& source, ErrorText* error = nullptr);
+
+// ok, or data_loss with the field and its range in `error` (optional): every field of `header`
+// in the range a map of this library can have (version, voxel type, voxel size in
+// [kMinVoxelSize_m, kMaxVoxelSize_m], mu in (0, kMaxSavedMu_m], depth, origin, counts, frames at
+// most kMaxSavedFrames, free-space settings as FreeSpace accepts them). The loader checks every
+// file's header with it and save_map() the header it is about to write, so whatever saves loads.
+Status validate_map_header(const MapFileHeader& header, ErrorText* error = nullptr);
+
+// Reads a whole map from `source` and checks every record as load_map() does, without a map to
+// load into: the header's fields, each record's tag, checksum and values (keys in the cube and
+// aligned, block scales and flags, every voxel and summary in range, free-space records), the
+// end record against the header and that nothing follows. Not checked (they need the map): that
+// each node's and block's parent precedes it, duplicates, and the free-space tree's shape. ok
+// (and the header in `header_out`, optional) or load_map()'s codes with a one-line reason. The
+// host port runs it on every map file it writes, reading back what reached the disk, before the
+// file replaces the previous one.
+Status check_map(ByteSource& source, MapFileHeader* header_out = nullptr,
+                 ErrorText* error = nullptr);
 
 // The MapConfig a map file needs (geometry from the header, pools exactly as large as its
 // counts, at least 1). Callers usually raise the capacities before reserving.
@@ -212,9 +237,9 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeSpace* free_space,
                 MapFileHeader* header_out, ErrorText* error);
 
 extern template Status save_map(const Octree<TsdfVoxel>&, const FreeSpace*, const MapSaveInfo&,
-                                ByteSink&);
+                                ByteSink&, ErrorText*);
 extern template Status save_map(const Octree<MultiresVoxel>&, const FreeSpace*, const MapSaveInfo&,
-                                ByteSink&);
+                                ByteSink&, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*,
@@ -222,7 +247,7 @@ extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, Map
 extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
                                 ErrorText*);
 extern template Status save_map(const Octree<Multires16Voxel>&, const FreeSpace*,
-                                const MapSaveInfo&, ByteSink&);
+                                const MapSaveInfo&, ByteSink&, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<Multires16Voxel>&, MapFileHeader*, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeSpace*, MapFileHeader*,
                                 ErrorText*);

@@ -8,6 +8,11 @@
 //   OCTOFUSE_TRY(out.open("out/mesh.ply"));
 //   std::fwrite(bytes, 1, n, out.file());
 //   OCTOFUSE_TRY(out.commit());          // or let it go out of scope: the temporary is removed
+//
+// The destination must be a regular file or absent (a symbolic link is followed to one): a
+// device, FIFO, socket or folder is never replaced (`--save-map /dev/full` is refused, not
+// turned into a regular file). A writer that checks what it wrote calls finish_writing(), reads
+// temporary_path() back, then publish().
 
 #include <cstddef>
 #include <cstdio>
@@ -25,9 +30,10 @@ class AtomicFile {
   // Abandons an uncommitted file: the temporary is removed, the destination untouched.
   ~AtomicFile();
 
-  // Creates the temporary. invalid_argument: empty path or one of kMaxPath bytes or more;
-  // unavailable: it cannot be created
-  // (missing folder, no permission); failed_precondition: already open.
+  // Creates the temporary. invalid_argument: empty path or one of kMaxPath bytes or more, or the
+  // destination (or the temporary's name) is taken by something that is not a regular file;
+  // unavailable: it cannot be created (missing folder, no permission, a read-only or virtual
+  // file system); failed_precondition: already open.
   Status open(const char* path);
   // The temporary's stream, for fprintf/fwrite; nullptr when not open.
   std::FILE* file() const { return file_; }
@@ -37,6 +43,12 @@ class AtomicFile {
   // when any of that fails (the temporary is removed, the destination untouched);
   // failed_precondition when not open. A stream error seen earlier on file() fails it too.
   Status commit();
+  // commit() in two steps: flush, sync and close the temporary (data_loss on failure, the
+  // temporary removed), then rename it over the destination and sync the folder.
+  Status finish_writing();
+  Status publish();
+  // The temporary's name ("<path>.tmp"; the destination's after following a link).
+  const char* temporary_path() const { return temporary_; }
   // Closes and removes the temporary; the destination stays as it was.
   void abandon();
 
@@ -45,12 +57,19 @@ class AtomicFile {
 
  private:
   std::FILE* file_ = nullptr;
+  bool finished_ = false;  // finish_writing() done, publish() not yet
   // Fixed buffers: std::string would pull exception machinery into this port.
   static constexpr std::size_t kMaxPath = 4096;
   char path_[kMaxPath] = {};
   char temporary_[kMaxPath + 4] = {};
   ErrorText error_;
 };
+
+// Whether `path` can be written as an AtomicFile, checked without touching the destination: it is
+// absent or a regular file (or a link to one), its folder exists, and the temporary can be
+// created there (it is created and removed). ok, or open()'s codes with a one-line reason in
+// `error`. Programs check every output this way before their first frame.
+Status check_writable(const char* path, ErrorText* error);
 
 // fsyncs the folder holding `path`, so a rename or a new file in it survives a power cut.
 // unavailable when the folder cannot be opened or synced.

@@ -13,8 +13,10 @@
 
 namespace octofuse::host {
 
-// ok; unavailable: the file cannot be created; data_loss: a write or the sync failed (the
-// destination is untouched); invalid_argument, failed_precondition: see save_map. With
+// ok; unavailable: the file cannot be created; data_loss: a write or the sync failed, or the
+// written file, read back whole (check_map()), does not check (the destination is untouched);
+// invalid_argument: the destination is not a regular file (AtomicFile), or see save_map, as
+// failed_precondition. With
 // `free_space` (may be null) the file holds the free space too.
 template <typename VoxelT>
 Status save_map_file(const char* path, const Octree<VoxelT>& map, const FreeSpace* free_space,
@@ -24,6 +26,10 @@ Status save_map_file(const char* path, const Octree<VoxelT>& map, const MapSaveI
                      ErrorText* error) {
   return save_map_file(path, map, static_cast<const FreeSpace*>(nullptr), info, error);
 }
+
+// Reads the whole file and checks every record (check_map()): unavailable when it cannot be
+// opened, else check_map()'s codes; the header in `header` (optional) when ok.
+Status check_map_file(const char* path, MapFileHeader* header, ErrorText* error);
 
 // The header of a map file (see read_map_header): unavailable when the file cannot be opened.
 Result<MapFileHeader> read_map_file_header(const char* path, ErrorText* error);

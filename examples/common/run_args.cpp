@@ -851,9 +851,10 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
   }
   if (!options.odometry.empty()) {
     std::printf(
-        "odometry: %llu frames without it, %llu fused at it after ICP was lost, %llu "
-        "after ICP disagreed",
+        "odometry: %llu frames without it, %llu dropped as implausible, %llu fused at it after "
+        "ICP was lost, %llu after ICP disagreed",
         static_cast<unsigned long long>(summary.frames_without_odometry),
+        static_cast<unsigned long long>(summary.priors_dropped),
         static_cast<unsigned long long>(summary.frames_prior_lost),
         static_cast<unsigned long long>(summary.frames_prior_gate));
     if (summary.have_odometry_ate) {

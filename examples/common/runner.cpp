@@ -167,6 +167,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("tracked").value(s.result == FrameResult::tracked || s.result == FrameResult::first);
   json.key("pose").value(pose_origin_name(s.pose_origin));
   json.key("prior").value(s.has_prior);
+  if (s.prior_dropped) json.key("prior_dropped").value(true);
   if (s.has_prediction && s.track_attempted) {
     json.key("prior_gap_m").value(s.prior_gap_m);
     json.key("prior_gap_rad").value(s.prior_gap_rad);
@@ -701,6 +702,35 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       return error_exit(odometry_error.c_str());
     }
     if (odometry_O.empty()) return error_exit(options.odometry + ": no poses");
+    // The same bounds the pipeline holds each prior to, checked over the whole file first.
+    const PriorMotionLimits limits = prior_motion_limits(PipelineConfig());
+    for (std::size_t i = 0; i < odometry_O.size(); ++i) {
+      const host::TimedPose& pose = odometry_O[i];
+      double moved_m = 0.0;
+      double turned_rad = 0.0;
+      const bool far = prior_position_implausible(pose.T_W_C, limits);
+      if (far || (i > 0 && prior_motion_implausible(
+                               odometry_O[i - 1].T_W_C, pose.T_W_C,
+                               pose.timestamp_s - odometry_O[i - 1].timestamp_s, limits,
+                               &moved_m, &turned_rad))) {
+        char text[320];
+        if (far) {
+          std::snprintf(text, sizeof(text),
+                        ": pose %zu (t = %.6f s): position (%g, %g, %g) m is beyond %g m", i + 1,
+                        pose.timestamp_s, pose.T_W_C.translation().x(),
+                        pose.T_W_C.translation().y(), pose.T_W_C.translation().z(),
+                        limits.max_coordinate_m);
+        } else {
+          std::snprintf(text, sizeof(text),
+                        ": pose %zu (t = %.6f s): moves %g m and turns %g rad in %g s since the "
+                        "one before (at most %g m/s and %g rad/s, plus %g m and %g rad)",
+                        i + 1, pose.timestamp_s, moved_m, turned_rad,
+                        pose.timestamp_s - odometry_O[i - 1].timestamp_s, limits.max_speed_mps,
+                        limits.max_rate_radps, limits.slack_m, limits.slack_rad);
+        }
+        return error_exit(options.odometry + text);
+      }
+    }
   }
   Se3d T_W_O = Se3d::Identity();
 
@@ -830,6 +860,13 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     if (stats.result == FrameResult::nearly_empty) ++summary->frames_nearly_empty;
     if (stats.pose_origin == PoseOrigin::prior_gate) ++summary->frames_prior_gate;
     if (stats.pose_origin == PoseOrigin::prior_lost) ++summary->frames_prior_lost;
+    if (stats.prior_dropped && ++summary->priors_dropped <= 5) {
+      std::fprintf(stderr,
+                   "warning: frame %lu: the odometry's pose is implausibly far or fast; not "
+                   "used%s\n",
+                   static_cast<unsigned long>(stats.frame_index),
+                   summary->priors_dropped == 5 ? " (further such frames are not reported)" : "");
+    }
     if (!status.ok() && status.code() != StatusCode::resource_exhausted &&
         status.code() != StatusCode::data_loss && stats.result != FrameResult::lost) {
       return error_exit(std::string("frame processing failed: ") + status.name());
@@ -1102,6 +1139,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       json.key("frames_without_odometry").value(summary->frames_without_odometry);
       json.key("frames_prior_gate").value(summary->frames_prior_gate);
       json.key("frames_prior_lost").value(summary->frames_prior_lost);
+      json.key("priors_dropped").value(summary->priors_dropped);
       if (summary->have_odometry_ate) {
         json.key("odometry_ate_rmse_m").value(summary->odometry_ate_rmse_m);
       }

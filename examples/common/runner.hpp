@@ -100,6 +100,7 @@ struct RunSummary {
   std::uint64_t frames_without_odometry = 0;  // outside the odometry's time span
   std::uint64_t frames_prior_gate = 0;        // PoseOrigin::prior_gate
   std::uint64_t frames_prior_lost = 0;        // PoseOrigin::prior_lost
+  std::uint64_t priors_dropped = 0;           // implausible priors the pipeline did not use
   bool have_odometry_ate = false;
   double odometry_ate_rmse_m = 0.0;
   bool have_ate = false;

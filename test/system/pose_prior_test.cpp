@@ -194,6 +194,75 @@ TEST_CASE("external_prior: a corrupted prior trips the gate and the frame says s
   }
 }
 
+TEST_CASE("an implausibly far or fast prior is dropped; the frame goes on without it") {
+  sim::SimSource probe(small_sim(300));
+  REQUIRE(probe.open().ok());
+  for (PoseSource mode : {PoseSource::external_prior, PoseSource::external}) {
+    CAPTURE(static_cast<int>(mode));
+    const PipelineConfig config = small_config(probe, mode);
+    const Run r = run(
+        12, config,
+        [](int index, const Se3d& truth, Se3d* prior, void*) {
+          *prior = truth;
+          // A jump of 1000 km on frame 4, coordinates of 1e300 on frame 8, and a 90-degree turn
+          // within one frame on frame 10: corrupt or unit-confused odometry.
+          if (index == 4) prior->translation() += Eigen::Vector3d(1e6, 0.0, 0.0);
+          if (index == 8) prior->translation().x() = 1e300;
+          if (index == 10) {
+            prior->linear() =
+                prior->linear() * Eigen::AngleAxisd(1.6, Eigen::Vector3d::UnitY()).toRotationMatrix();
+          }
+          return true;
+        },
+        nullptr, 300);
+    int dropped = 0;
+    for (int i = 0; i < 12; ++i) {
+      CAPTURE(i);
+      const bool bad = i == 4 || i == 8 || i == 10;
+      REQUIRE(r.stats[i].prior_dropped == bad);
+      REQUIRE(r.stats[i].has_prior == !bad);
+      REQUIRE(r.stats[i].result != FrameResult::rejected);
+      dropped += r.stats[i].prior_dropped ? 1 : 0;
+      if (mode == PoseSource::external_prior || !bad) {
+        // Tracked (or fused at the prior) near the truth; never at the corrupt pose.
+        REQUIRE((r.poses[i].translation() - r.truth[i].translation()).norm() < 0.02);
+      } else {
+        // Odometry only, no usable prior: lost, the pose stays where it was.
+        REQUIRE(r.stats[i].result == FrameResult::lost);
+      }
+    }
+    REQUIRE(dropped == 3);
+  }
+}
+
+TEST_CASE("the prior's motion limits") {
+  const PriorMotionLimits limits = prior_motion_limits(PipelineConfig());
+  const Se3d origin = Se3d::Identity();
+  Se3d moved = Se3d::Identity();
+  moved.translation() = Eigen::Vector3d(3.0, 0.0, 0.0);
+  // 100 m/s plus 0.1 m: 3 m in 1/30 s is plausible (3.43 m allowed), in 1/60 s not (1.77 m).
+  CHECK_FALSE(prior_motion_implausible(origin, moved, 1.0 / 30.0, limits));
+  CHECK(prior_motion_implausible(origin, moved, 1.0 / 60.0, limits));
+  // No time between the two (or time going back): the slack alone.
+  moved.translation() = Eigen::Vector3d(0.09, 0.0, 0.0);
+  CHECK_FALSE(prior_motion_implausible(origin, moved, -1.0, limits));
+  moved.translation() = Eigen::Vector3d(0.11, 0.0, 0.0);
+  CHECK(prior_motion_implausible(origin, moved, 0.0, limits));
+  double moved_m = 0.0;
+  double turned_rad = 0.0;
+  Se3d turned = Se3d::Identity();
+  turned.linear() = Eigen::AngleAxisd(1.0, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  // 30 rad/s plus 0.2 rad: 1 rad in 1/30 s is plausible (1.2 rad allowed), in 1/100 s not.
+  CHECK_FALSE(prior_motion_implausible(origin, turned, 1.0 / 30.0, limits, &moved_m, &turned_rad));
+  CHECK(turned_rad == Approx(1.0));
+  CHECK(prior_motion_implausible(origin, turned, 0.01, limits));
+  Se3d far = Se3d::Identity();
+  far.translation() = Eigen::Vector3d(0.0, -2e6, 0.0);
+  CHECK(prior_position_implausible(far, limits));
+  far.translation() = Eigen::Vector3d(0.0, -9e5, 0.0);
+  CHECK_FALSE(prior_position_implausible(far, limits));
+}
+
 TEST_CASE("external_prior: a frame ICP loses is fused at the prior, not lost") {
   sim::SimSource probe(small_sim(10));
   REQUIRE(probe.open().ok());
@@ -446,6 +515,9 @@ TEST_CASE("init names the setting that is wrong") {
        [](PipelineConfig& c) { c.prior_icp_pixels_per_sample = 0.0; }},
       {"prior_information_t", [](PipelineConfig& c) { c.prior_information_t = -1.0; }},
       {"prior_gap_rate", [](PipelineConfig& c) { c.prior_gap_rate = 1.5; }},
+      {"prior_max_", [](PipelineConfig& c) { c.prior_max_speed_mps = 0.0; }},
+      {"prior_max_", [](PipelineConfig& c) { c.prior_max_coordinate_m = std::nan(""); }},
+      {"prior_motion_slack_", [](PipelineConfig& c) { c.prior_motion_slack_rad = -1.0; }},
       {"input_camera", [](PipelineConfig& c) { c.input_camera.fx = 0.0f; }},
   };
   for (const Case& c : cases) {

@@ -169,7 +169,42 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
   if (!(config.prior_gap_rate >= 0.0 && config.prior_gap_rate <= 1.0)) {
     return bad("prior_gap_rate must be in [0, 1]");
   }
+  if (!positive_finite(config.prior_max_coordinate_m) ||
+      !positive_finite(config.prior_max_speed_mps) ||
+      !positive_finite(config.prior_max_rate_radps) ||
+      !(config.prior_motion_slack_m >= 0.0 && std::isfinite(config.prior_motion_slack_m)) ||
+      !(config.prior_motion_slack_rad >= 0.0 && std::isfinite(config.prior_motion_slack_rad))) {
+    return bad("prior_max_* must be finite and > 0, prior_motion_slack_* finite and >= 0");
+  }
   return ok_status();
+}
+
+PriorMotionLimits prior_motion_limits(const PipelineConfig& config) {
+  PriorMotionLimits limits;
+  limits.max_coordinate_m = config.prior_max_coordinate_m;
+  limits.max_speed_mps = config.prior_max_speed_mps;
+  limits.max_rate_radps = config.prior_max_rate_radps;
+  limits.slack_m = config.prior_motion_slack_m;
+  limits.slack_rad = config.prior_motion_slack_rad;
+  return limits;
+}
+
+bool prior_position_implausible(const Se3d& T_W_C, const PriorMotionLimits& limits) {
+  return T_W_C.translation().cwiseAbs().maxCoeff() > limits.max_coordinate_m;
+}
+
+bool prior_motion_implausible(const Se3d& from, const Se3d& to, double dt_s,
+                              const PriorMotionLimits& limits, double* moved_m,
+                              double* turned_rad) {
+  const double dt = dt_s > 0.0 ? dt_s : 0.0;
+  const double moved = (to.translation() - from.translation()).norm();
+  const Eigen::Matrix3d R = from.linear().transpose() * to.linear();
+  const double cos_angle = std::max(-1.0, std::min(1.0, 0.5 * (R.trace() - 1.0)));
+  const double turned = std::acos(cos_angle);
+  if (moved_m != nullptr) *moved_m = moved;
+  if (turned_rad != nullptr) *turned_rad = turned;
+  return !(moved <= limits.max_speed_mps * dt + limits.slack_m) ||
+         !(turned <= limits.max_rate_radps * dt + limits.slack_rad);
 }
 
 namespace {
@@ -330,6 +365,8 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   frame_index_ = 0;
   frames_lost_ = 0;
   priors_rejected_ = 0;
+  priors_dropped_ = 0;
+  have_last_prior_ = false;
   map_version_ = 0;
   initialised_ = true;
   return ok_status();
@@ -367,6 +404,7 @@ Status Pipeline<VoxelT>::reset() {
   T_W_Cref_ = T_W_C_;
   T_Cprev_C_ = Se3d::Identity();
   have_prior_prev_ = false;
+  have_last_prior_ = false;
   restart_prior_statistics();
   have_reference_ = false;
   pose_set_ = false;
@@ -633,6 +671,25 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   };
   if (valid.code() == StatusCode::data_loss) return finish(FrameResult::nearly_empty, valid);
   if (!valid.ok()) return finish(FrameResult::rejected, valid);
+  // An implausible prior (far away, or too fast since the last one) is dropped, not trusted:
+  // the frame goes on as if it had none. The next prior is judged against the last kept one.
+  bool prior_valid = prior.valid;
+  if (prior_valid) {
+    const Se3d candidate = rigid_from(prior.T_W_C);
+    const PriorMotionLimits limits = prior_motion_limits(config_);
+    const double dt_s = static_cast<double>(frame.timestamp_us - last_prior_time_us_) * 1e-6;
+    if (prior_position_implausible(candidate, limits) ||
+        (have_last_prior_ &&
+         prior_motion_implausible(last_prior_T_W_C_, candidate, dt_s, limits))) {
+      prior_valid = false;
+      stats.prior_dropped = true;
+      ++priors_dropped_;
+    } else {
+      last_prior_T_W_C_ = candidate;
+      last_prior_time_us_ = frame.timestamp_us;
+      have_last_prior_ = true;
+    }
+  }
 
   // 2. Pre-process: working resolution, pyramid of depth, vertices, normals.
   OCTOFUSE_TRY(preprocessor_.process(input_depth_m_, config_.input_camera, team_));
@@ -643,10 +700,10 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   Se3d ground_truth = Se3d::Identity();
   if (frame.has_ground_truth) ground_truth = rigid_from(frame.T_W_C_ground_truth);
   Se3d prior_T_W_C = Se3d::Identity();
-  if (prior.valid) prior_T_W_C = rigid_from(prior.T_W_C);
-  const bool use_prior = prior.valid && (config_.pose_source == PoseSource::external ||
+  if (prior_valid) prior_T_W_C = rigid_from(prior.T_W_C);
+  const bool use_prior = prior_valid && (config_.pose_source == PoseSource::external ||
                                          config_.pose_source == PoseSource::external_prior);
-  stats.has_prior = prior.valid;
+  stats.has_prior = prior_valid;
   FrameResult result = FrameResult::tracked;
   if (!have_reference_) {
     result = FrameResult::first;
@@ -663,7 +720,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     T_Cprev_C_ = rigid_from((T_W_C_.inverse() * ground_truth).matrix());
     T_W_C_ = ground_truth;
   } else if (config_.pose_source == PoseSource::external) {
-    if (!prior.valid) {
+    if (!prior_valid) {
       // Nothing to fuse at: lost until a prior comes.
       T_Cprev_C_ = Se3d::Identity();
       ++frames_lost_;

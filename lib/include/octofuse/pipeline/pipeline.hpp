@@ -198,6 +198,18 @@ struct PipelineConfig {
   double prior_icp_noise_floor_m = 0.0005;
   double prior_icp_pixels_per_sample = 1.0;
   double prior_gap_rate = 0.1;  // in [0, 1]; 0: ICP's normal equations only
+  // A prior is implausible, and dropped for its frame (FrameStats::prior_dropped; the frame is
+  // tracked as if it had none), when a coordinate's magnitude is above prior_max_coordinate_m,
+  // or when since the last frame's prior it moved more than prior_max_speed_mps times the time
+  // between the two frames plus prior_motion_slack_m, or turned more than prior_max_rate_radps
+  // times it plus prior_motion_slack_rad (PriorMotionLimits). The defaults are far beyond any
+  // robot a depth camera maps from (360 km/h, 1700 degrees/s) and catch corrupt or unit-confused
+  // odometry: a jump of kilometres, coordinates of 1e300.
+  double prior_max_coordinate_m = 1e6;
+  double prior_max_speed_mps = 100.0;
+  double prior_max_rate_radps = 30.0;
+  double prior_motion_slack_m = 0.1;
+  double prior_motion_slack_rad = 0.2;
   bool prior_fixed_information = false;
   double prior_information_t = 300.0;  // per m^2, with prior_fixed_information
   double prior_information_r = 300.0;  // per rad^2, with prior_fixed_information
@@ -265,6 +277,7 @@ struct FrameStats {
   Se3d T_W_C = Se3d::Identity();
   PoseOrigin pose_origin = PoseOrigin::none;
   bool has_prior = false;       // the frame came with a valid PosePrior
+  bool prior_dropped = false;   // ... which was implausible (PipelineConfig::prior_max_*) and unused
   bool has_prediction = false;  // external_prior: a prediction from the prior was formed
   double prior_gap_m = 0.0;     // |ICP - prediction| translation, when both exist
   double prior_gap_rad = 0.0;   // and rotation angle
@@ -273,6 +286,24 @@ struct FrameStats {
            raycast.budget_hit() || free_space.budget_hit;
   }
 };
+
+// The motion a pose prior may plausibly make between two frames (PipelineConfig::prior_max_*).
+struct PriorMotionLimits {
+  double max_coordinate_m = 1e6;
+  double max_speed_mps = 100.0;
+  double max_rate_radps = 30.0;
+  double slack_m = 0.1;
+  double slack_rad = 0.2;
+};
+PriorMotionLimits prior_motion_limits(const PipelineConfig& config);
+// Whether a coordinate of `T_W_C`'s position is beyond the limit (false for a NaN: is_rigid()
+// catches those).
+bool prior_position_implausible(const Se3d& T_W_C, const PriorMotionLimits& limits);
+// Whether going from `from` to `to` in `dt_s` seconds (< 0 counts as 0) moves or turns faster
+// than the limits allow; *moved_m and *turned_rad (optional) get the motion.
+bool prior_motion_implausible(const Se3d& from, const Se3d& to, double dt_s,
+                              const PriorMotionLimits& limits, double* moved_m = nullptr,
+                              double* turned_rad = nullptr);
 
 template <typename VoxelT>
 class Pipeline {
@@ -293,7 +324,8 @@ class Pipeline {
   }
   // The same with the vehicle's pose for this frame (used by the external pose sources; ignored
   // by track and ground_truth). A prior that is not finite and rigid rejects the frame
-  // (invalid_argument, nothing changes).
+  // (invalid_argument, nothing changes); one that is implausibly far or fast is dropped (the
+  // frame goes on without it, stats->prior_dropped).
   Status process(const DepthFrame& frame, const PosePrior& prior, FrameStats* stats);
 
   // Forgets the map and starts over: the next frame is a first frame. Memory stays reserved,
@@ -342,6 +374,8 @@ class Pipeline {
   // a frame was processed.
   Status resume_frame_count(std::uint64_t frames);
   std::uint64_t frames_rejected() const { return validator_.frames_rejected() + priors_rejected_; }
+  // Priors dropped as implausible (PipelineConfig::prior_max_*); their frames were processed.
+  std::uint64_t priors_dropped() const { return priors_dropped_; }
   std::size_t bytes_used() const { return arena_.bytes_used(); }
 
  private:
@@ -406,6 +440,11 @@ class Pipeline {
   std::uint64_t frame_index_ = 0;
   std::uint64_t frames_lost_ = 0;
   std::uint64_t priors_rejected_ = 0;
+  std::uint64_t priors_dropped_ = 0;
+  // The last frame's prior and timestamp, for the plausibility of the next one's motion.
+  Se3d last_prior_T_W_C_ = Se3d::Identity();
+  std::int64_t last_prior_time_us_ = 0;
+  bool have_last_prior_ = false;
   ErrorText error_;
   bool own_error_ = false;  // last_error() is error_ rather than the validator's
   bool initialised_ = false;

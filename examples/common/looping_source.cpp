@@ -19,6 +19,7 @@ NextFrame LoopingSource::fail(Status why, const char* context) {
 Status LoopingSource::open() {
   close();
   error_.clear();
+  dropped_before_pass_ = 0;
   if (inner_ == nullptr) {
     error_.set("loop: no source to loop");
     return StatusCode::invalid_argument;
@@ -79,6 +80,7 @@ NextFrame LoopingSource::next(DepthFrame& frame) {
       return NextFrame::failed(StatusCode::data_loss);
     }
     if (loop_ == 0) frames_in_first_loop_ = frames_in_loop_;
+    dropped_before_pass_ += inner_->frames_dropped();
     inner_->close();
     const Status reopened = inner_->open();
     if (!reopened.ok()) {

@@ -37,6 +37,10 @@ class LoopingSource final : public DepthSource {
   PinholeCamera intrinsics() const override { return camera_; }
   SourceCapabilities capabilities() const override { return capabilities_; }
   const char* last_error() const override { return error_.c_str(); }
+  // Over every pass so far.
+  std::uint64_t frames_dropped() const override {
+    return dropped_before_pass_ + (inner_ != nullptr ? inner_->frames_dropped() : 0);
+  }
 
   // The pass the last delivered frame belongs to (0: the first).
   int loop() const { return loop_; }
@@ -50,6 +54,7 @@ class LoopingSource final : public DepthSource {
   NextFrame fail(Status why, const char* context);
 
   std::unique_ptr<DepthSource> inner_;
+  std::uint64_t dropped_before_pass_ = 0;  // the inner source's drops in earlier passes
   ErrorText error_;
   bool open_ = false;
   PinholeCamera camera_;  // the inner source's, as first opened

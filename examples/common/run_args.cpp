@@ -817,6 +817,10 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
       static_cast<unsigned long long>(summary.frames_rejected),
       static_cast<unsigned long long>(summary.frames_skipped_by_source), summary.wall_s,
       total.median, total.p99);
+  if (summary.frames_dropped_by_source > 0) {
+    std::printf("source: %llu frames dropped, never read (the loop was late for them)\n",
+                static_cast<unsigned long long>(summary.frames_dropped_by_source));
+  }
   std::printf("map: %u blocks of %u (%.1f MB used, %.1f MB reserved)\n",
               summary.map_memory.blocks_used, summary.map_memory.block_capacity,
               static_cast<double>(summary.map_memory.bytes_used) / 1048576.0,

@@ -709,17 +709,16 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       double moved_m = 0.0;
       double turned_rad = 0.0;
       const bool far = prior_position_implausible(pose.T_W_C, limits);
-      if (far || (i > 0 && prior_motion_implausible(
-                               odometry_O[i - 1].T_W_C, pose.T_W_C,
-                               pose.timestamp_s - odometry_O[i - 1].timestamp_s, limits,
-                               &moved_m, &turned_rad))) {
+      if (far ||
+          (i > 0 && prior_motion_implausible(odometry_O[i - 1].T_W_C, pose.T_W_C,
+                                             pose.timestamp_s - odometry_O[i - 1].timestamp_s,
+                                             limits, &moved_m, &turned_rad))) {
         char text[320];
         if (far) {
-          std::snprintf(text, sizeof(text),
-                        ": pose %zu (t = %.6f s): position (%g, %g, %g) m is beyond %g m", i + 1,
-                        pose.timestamp_s, pose.T_W_C.translation().x(),
-                        pose.T_W_C.translation().y(), pose.T_W_C.translation().z(),
-                        limits.max_coordinate_m);
+          std::snprintf(
+              text, sizeof(text), ": pose %zu (t = %.6f s): position (%g, %g, %g) m is beyond %g m",
+              i + 1, pose.timestamp_s, pose.T_W_C.translation().x(), pose.T_W_C.translation().y(),
+              pose.T_W_C.translation().z(), limits.max_coordinate_m);
         } else {
           std::snprintf(text, sizeof(text),
                         ": pose %zu (t = %.6f s): moves %g m and turns %g rad in %g s since the "
@@ -986,6 +985,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       late_failure(trajectory_file->last_error());
     }
   }
+  summary->frames_dropped_by_source = source->frames_dropped();
   source->close();
   summary->wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
@@ -1132,6 +1132,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     json.key("frames_lost").value(summary->frames_lost);
     json.key("frames_rejected").value(summary->frames_rejected);
     json.key("frames_skipped_by_source").value(summary->frames_skipped_by_source);
+    json.key("frames_dropped_by_source").value(summary->frames_dropped_by_source);
     json.key("frames_nearly_empty").value(summary->frames_nearly_empty);
     json.key("frames_unfused").value(summary->frames_unfused);
     if (!options.odometry.empty()) {

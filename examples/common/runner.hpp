@@ -93,6 +93,7 @@ struct RunSummary {
   std::vector<host::TimedPose> trajectory;     // one per processed frame
   std::vector<host::TimedPose> ground_truth;   // where the source had it
   std::uint64_t frames_skipped_by_source = 0;  // FrameOutcome::skip
+  std::uint64_t frames_dropped_by_source = 0;  // DepthSource::frames_dropped(): never delivered
   std::uint64_t frames_rejected = 0;
   std::uint64_t frames_lost = 0;
   std::uint64_t frames_nearly_empty = 0;

@@ -70,6 +70,9 @@ class ScriptedSource final : public DepthSource {
   }
   SourceCapabilities capabilities() const override { return SourceCapabilities(); }
   const char* last_error() const override { return error_.c_str(); }
+  // Each pass drops `dropped_per_pass` frames (counted from open(), as a real source does).
+  std::uint64_t frames_dropped() const override { return opens > 0 ? dropped_per_pass : 0; }
+  std::uint64_t dropped_per_pass = 0;
 
  private:
   template <typename T>
@@ -148,6 +151,22 @@ TEST_CASE("a 3-frame sim looped to 10 frames repeats its frames with time runnin
     CHECK(validator.validate(frame, depth_view, &report).ok());
   }
   CHECK(looping.frames_in_first_loop() == 3);
+}
+
+TEST_CASE("the looped source's dropped frames add up over its passes") {
+  Scripted s;
+  s.script->passes = {{FrameOutcome::frame, FrameOutcome::frame}};
+  s.script->dropped_per_pass = 3;
+  CHECK(s.looping->frames_dropped() == 0);
+  REQUIRE(s.looping->open().ok());
+  DepthFrame frame;
+  // Two passes whole and the first frame of a third: three opens of the inner source.
+  for (int n = 0; n < 5; ++n) REQUIRE(s.looping->next(frame).outcome == FrameOutcome::frame);
+  CHECK(s.script->opens == 3);
+  CHECK(s.looping->frames_dropped() == 9);
+  // Opened again: counted afresh.
+  REQUIRE(s.looping->open().ok());
+  CHECK(s.looping->frames_dropped() == 3);
 }
 
 TEST_CASE("the looped source's open and next errors pass through") {

@@ -209,8 +209,8 @@ TEST_CASE("an implausibly far or fast prior is dropped; the frame goes on withou
           if (index == 4) prior->translation() += Eigen::Vector3d(1e6, 0.0, 0.0);
           if (index == 8) prior->translation().x() = 1e300;
           if (index == 10) {
-            prior->linear() =
-                prior->linear() * Eigen::AngleAxisd(1.6, Eigen::Vector3d::UnitY()).toRotationMatrix();
+            prior->linear() = prior->linear() *
+                              Eigen::AngleAxisd(1.6, Eigen::Vector3d::UnitY()).toRotationMatrix();
           }
           return true;
         },

@@ -547,6 +547,7 @@ Status ReplaySource::open_raw() {
   }
   raw_file_size_ = static_cast<std::uint64_t>(info.st_size);
   std::uint64_t offset = 0;
+  std::uint64_t frame_bytes = 0;  // the last whole frame's size
   while (offset < raw_file_size_) {
     if (frame_count_ == static_cast<std::size_t>(config_.max_frames)) {
       error_.set("%s: more than %d frames (raise max_frames)", file, config_.max_frames);
@@ -557,8 +558,10 @@ Status ReplaySource::open_raw() {
     entry.timestamp_us = synthetic_timestamp_us(frame_count_);
     entry.file_offset = offset;
     ++frame_count_;
-    // A frame that cannot be parsed ends the index: nothing after it can be located. It stays as a
-    // bad entry so next() reports it (skip) before end_of_stream.
+    // A frame that cannot be parsed stays as a bad entry, so next() reports it (skip). The format
+    // has no markers to find the next frame by; a recording's frames all have one size, so the
+    // index goes on one frame's size further, each slot that does not parse counted as a frame
+    // skipped. Without a whole frame before it, nothing after it can be located.
     std::uint8_t depth_header[8], rgb_header[8];
     RawFrameLayout layout;
     ErrorText scratch;
@@ -572,8 +575,11 @@ Status ReplaySource::open_raw() {
                                 config_.max_height, &layout, file, &scratch)
              .ok()) {
       entry.bad = true;
-      break;
+      if (frame_bytes == 0) break;
+      offset = raw_file_size_ - offset > frame_bytes ? offset + frame_bytes : raw_file_size_;
+      continue;
     }
+    frame_bytes = layout.next_offset - offset;
     offset = layout.next_offset;
   }
   if (frame_count_ == 0) {

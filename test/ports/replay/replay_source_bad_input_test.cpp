@@ -299,6 +299,35 @@ TEST_CASE(".raw with a short last frame or absurd sizes", "[replay][bad]") {
     CHECK(has(replayed.skips[0].c_str(), "2147483647x4"));
     CHECK(replayed.ended);
   }
+  SECTION("a corrupt header mid-file: that frame skipped, the ones after it still read") {
+    std::string third = fx::raw_frame_bytes(5, 4, 2);
+    third[0] = '\xff';
+    third[1] = '\xff';
+    third[2] = '\xff';
+    third[3] = '\x7f';
+    const std::string path = dir + "/middle.raw";
+    fx::write_text(path, two + third + fx::raw_frame_bytes(5, 4, 3) + fx::raw_frame_bytes(5, 4, 4));
+    ReplaySource source(config_for("raw:" + path));
+    REQUIRE(source.open().ok());
+    CHECK(source.frame_count() == 5);
+    const Replayed replayed = replay_all(source);
+    CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1, 3, 4});
+    REQUIRE(replayed.skips.size() == 1);
+    CHECK(has(replayed.skips[0].c_str(), "middle.raw: frame at byte"));
+    CHECK(replayed.ended);
+  }
+  SECTION("garbage after two frames: each frame-sized slot counted as a skipped frame") {
+    const std::size_t frame_size = fx::raw_frame_bytes(5, 4, 0).size();
+    const std::string path = dir + "/garbage.raw";
+    fx::write_text(path, two + std::string(2 * frame_size + 5, '\xee'));
+    ReplaySource source(config_for("raw:" + path));
+    REQUIRE(source.open().ok());
+    CHECK(source.frame_count() == 5);
+    const Replayed replayed = replay_all(source);
+    CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1});
+    CHECK(replayed.skips.size() == 3);
+    CHECK(replayed.ended);
+  }
   SECTION("absurd RGB size") {
     std::string first = fx::raw_frame_bytes(5, 4, 0);
     const std::size_t rgb_header = 8 + 5 * 4 * 2;

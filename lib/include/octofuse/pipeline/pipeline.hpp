@@ -276,8 +276,8 @@ struct FrameStats {
   MapMemory memory;
   Se3d T_W_C = Se3d::Identity();
   PoseOrigin pose_origin = PoseOrigin::none;
-  bool has_prior = false;       // the frame came with a valid PosePrior
-  bool prior_dropped = false;   // ... which was implausible (PipelineConfig::prior_max_*) and unused
+  bool has_prior = false;      // the frame came with a valid PosePrior
+  bool prior_dropped = false;  // ... which was implausible (PipelineConfig::prior_max_*) and unused
   bool has_prediction = false;  // external_prior: a prediction from the prior was formed
   double prior_gap_m = 0.0;     // |ICP - prediction| translation, when both exist
   double prior_gap_rad = 0.0;   // and rotation angle

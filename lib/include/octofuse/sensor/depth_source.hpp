@@ -56,6 +56,11 @@ class DepthSource {
 
   // Human-readable cause of the last failure or skip ("depth/000012.png: truncated"); never null.
   virtual const char* last_error() const = 0;
+
+  // Frames the source had but never delivered nor reported as skipped, since open(): a live
+  // camera's frames overwritten before they were read, a real-time replay's frames passed over
+  // while the reader was late. With the delivered and skipped ones, every frame is accounted for.
+  virtual std::uint64_t frames_dropped() const { return 0; }
 };
 
 }  // namespace octofuse

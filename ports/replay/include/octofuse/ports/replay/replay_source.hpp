@@ -95,7 +95,7 @@ class ReplaySource final : public DepthSource {
   static std::size_t bytes_required(const ReplayConfig& config);
 
   std::size_t frame_count() const { return frame_count_; }
-  std::uint64_t frames_dropped() const { return frames_dropped_; }
+  std::uint64_t frames_dropped() const override { return frames_dropped_; }
   // real_time: gaps between timestamps longer than kMaxRealTimeWait_us replayed as no gap.
   std::uint64_t gaps_shortened() const { return gaps_shortened_; }
   float metres_per_unit() const { return metres_per_unit_; }

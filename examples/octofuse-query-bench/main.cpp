@@ -37,6 +37,11 @@ struct Figures {
   long points = 0;
   long reported_free = 0;
   long unsafe_points = 0;  // reported free, within one voxel of a surface or inside
+  // Reported free with a distance above the exact one + 1 cm (the bound must hold).
+  long over_bound_points = 0;
+  double worst_over_bound = 0.0;   // the most a free point's distance exceeded the exact one
+  double free_distance_sum = 0.0;  // reported distances of the free points (how tight the bound is)
+  double free_exact_sum = 0.0;     // their exact distances
   long truly_free_in_view = 0;
   long truly_free_in_view_reported_free = 0;
   long truly_free_in_view_free_or_near = 0;  // free, or near with a positive distance
@@ -169,6 +174,24 @@ int run_scene(const std::string& name, long frames, long sample_points, float vo
                        p_W.x(), p_W.y(), p_W.z(), sdf, o.free, o.level, o.free_frame,
                        block != nullptr, block != nullptr ? block->last_updated_frame : 0u,
                        static_cast<double>(a.distance_m));
+        }
+        const double over = static_cast<double>(a.distance_m) - sdf;
+        f->free_distance_sum += static_cast<double>(a.distance_m);
+        f->free_exact_sum += sdf;
+        f->worst_over_bound = std::max(f->worst_over_bound, over);
+        if (over > 0.01) {
+          if (f->over_bound_points < 20) {
+            const octofuse::FreeOctant o =
+                query.free_space() != nullptr
+                    ? query.free_space()->find(map.point_to_voxel(p_W.cast<float>()))
+                    : octofuse::FreeOctant();
+            std::fprintf(stderr,
+                         "over bound: %.4f %.4f %.4f exact distance %.4f m, reported %.4f m, "
+                         "free octant level %d side %d voxels (frame %u)\n",
+                         p_W.x(), p_W.y(), p_W.z(), sdf, static_cast<double>(a.distance_m), o.level,
+                         o.size_voxels, o.free_frame);
+          }
+          ++f->over_bound_points;
         }
       }
       if (a.state == PointState::near && std::abs(sdf) < mu) {
@@ -383,6 +406,14 @@ int main(int argc, char** argv) {
         "  sim:%s near points within mu, |signed-distance error| median / p90 / p99: %.1f / "
         "%.1f / %.1f mm\n",
         name.c_str(), near_error.median * 1000.0, near_error.p90 * 1000.0, near_error.p99 * 1000.0);
+    std::printf(
+        "  sim:%s free points whose distance exceeds the exact one by more than 1 cm: %ld (of %ld; "
+        "worst excess %.1f mm); mean distance reported %.1f mm, exact %.1f mm\n",
+        name.c_str(), f.over_bound_points, f.reported_free, f.worst_over_bound * 1000.0,
+        f.reported_free > 0 ? f.free_distance_sum * 1000.0 / static_cast<double>(f.reported_free)
+                            : 0.0,
+        f.reported_free > 0 ? f.free_exact_sum * 1000.0 / static_cast<double>(f.reported_free)
+                            : 0.0);
     std::printf(
         "  sim:%s truly free in view, as reported: outside %ld, unknown %ld, free %ld, near %ld, "
         "inside %ld\n",

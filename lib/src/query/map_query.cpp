@@ -154,10 +154,90 @@ PointAnswer MapQuery<VoxelT>::point_unguarded(const Eigen::Vector3f& p_W) const 
         lo + Eigen::Vector3f::Constant(static_cast<float>(octant.size_voxels));
     const float inner = std::min((q - lo).minCoeff(), (hi - q).minCoeff());
     out.state = PointState::free;
-    out.distance_m = free_->margin_m() + std::max(inner, 0.0f) * voxel_m;
+    // A frame whose rays all missed a thin object (thinner than the ray spacing) carves through
+    // it, and that octant is newer than the object's blocks; the blocks still bound the distance.
+    const float bound = free_->margin_m() / voxel_m + std::max(inner, 0.0f);
+    out.distance_m = surface_clearance_voxels(q, bound) * voxel_m;
     return out;
   }
   return out;
+}
+
+template <typename VoxelT>
+float MapQuery<VoxelT>::surface_clearance_voxels(const Eigen::Vector3f& q, float limit) const {
+  // Blocks that may hold a surface: an observed voxel at or behind one (tsdf <= 0). Each is grown
+  // by one voxel of its scale, for a surface whose voxels behind it lie across the block's face.
+  struct Entry {
+    std::uint32_t node;
+    int level;
+    Eigen::Vector3i min_voxel;
+  };
+  // At most 7 pending per level above the blocks, and 8 from the last.
+  constexpr int kCapacity = 8 * (kMaxVoxelDepth + 2);
+  Entry stack[kCapacity];
+  const int depth = map_->voxel_depth();
+  const int block_level = map_->block_level();
+  // The most any block is grown (a voxel of the coarsest scale).
+  const float max_grow = static_cast<float>(kBlockSide);
+  float best = limit;
+  // Start at the deepest node holding every voxel within reach (most of the walk otherwise).
+  const float reach = limit + max_grow + 1.0f;
+  const int n = map_->voxels_per_side();
+  Eigen::Vector3i r0;
+  Eigen::Vector3i r1;
+  for (int a = 0; a < 3; ++a) {
+    r0[a] = std::max(0, static_cast<int>(std::floor(q[a] - reach)));
+    r1[a] = std::min(n - 1, static_cast<int>(std::floor(q[a] + reach)));
+  }
+  std::uint32_t start = Octree<VoxelT>::root_index();
+  int start_level = 0;
+  Eigen::Vector3i start_min = Eigen::Vector3i::Zero();
+  while (start_level + 1 < block_level) {
+    const int bit = depth - start_level - 1;
+    if ((r0.x() >> bit) != (r1.x() >> bit) || (r0.y() >> bit) != (r1.y() >> bit) ||
+        (r0.z() >> bit) != (r1.z() >> bit)) {
+      break;
+    }
+    const int c =
+        ((r0.x() >> bit) & 1) | (((r0.y() >> bit) & 1) << 1) | (((r0.z() >> bit) & 1) << 2);
+    const std::uint32_t next = map_->node(start).children[c];
+    if (next == kNoIndex) return best;  // no block anywhere within reach
+    start_min = child_min_voxel(start_min, c, 1 << bit);
+    start = next;
+    ++start_level;
+  }
+  int top = 0;
+  stack[top++] = Entry{start, start_level, start_min};
+  while (top > 0) {
+    const Entry e = stack[--top];
+    const int half = 1 << (depth - e.level - 1);
+    const bool blocks = e.level + 1 == block_level;
+    const OctreeNode& node = map_->node(e.node);
+    for (int c = 0; c < 8; ++c) {
+      const std::uint32_t child = node.children[c];
+      if (child == kNoIndex) continue;
+      const Eigen::Vector3i child_min = child_min_voxel(e.min_voxel, c, half);
+      const Eigen::Vector3f lo = child_min.cast<float>();
+      float grow = max_grow;
+      if (blocks) {
+        const VoxelBlock<VoxelT>& b = map_->block(child);
+        if (!b.integrated() || !(b.tsdf_min <= 0.0f)) continue;
+        grow = static_cast<float>(1 << b.current_scale);
+      }
+      const Eigen::Vector3f g = Eigen::Vector3f::Constant(grow);
+      const float d2 = squared_distance_to_box(
+          q, lo - g, lo + Eigen::Vector3f::Constant(static_cast<float>(half)) + g);
+      if (!(d2 < best * best)) continue;
+      if (blocks) {
+        best = std::sqrt(d2);
+      } else if (top < kCapacity) {
+        stack[top++] = Entry{child, e.level + 1, child_min};
+      } else {
+        return 0.0f;  // cannot happen (8 per level); cautious
+      }
+    }
+  }
+  return best;
 }
 
 template <typename VoxelT>

@@ -1,7 +1,9 @@
 #pragma once
-// Exact depth images of simple scenes for fusion tests: planes, spheres and capped cylinders,
-// rendered by ray-primitive intersection (depth = z in the camera frame of the first hit).
+// Exact depth images of simple scenes for fusion tests: planes, spheres, capped cylinders and
+// oriented boxes, rendered by ray-primitive intersection (depth = z in the camera frame of the
+// first hit).
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <limits>
@@ -31,9 +33,16 @@ struct AnalyticScene {
     double y_min;
     double y_max;
   };
+  // Points centre + R q with |q_i| <= half_i.
+  struct Box {
+    Eigen::Vector3d centre;
+    Eigen::Vector3d half;
+    Eigen::Matrix3d R;  // box axes in world coordinates (columns)
+  };
   std::vector<Plane> planes;
   std::vector<Sphere> spheres;
   std::vector<CylinderY> cylinders;
+  std::vector<Box> boxes;
 
   // Smallest t > 0 with o + t d on a primitive, or +inf.
   double intersect(const Eigen::Vector3d& o, const Eigen::Vector3d& d) const {
@@ -66,6 +75,24 @@ struct AnalyticScene {
       const double t = (-b - std::sqrt(disc)) / a;
       const double y = o.y() + t * d.y();
       if (t > 0.0 && t < best && y >= cy.y_min && y <= cy.y_max) best = t;
+    }
+    for (const Box& box : boxes) {
+      // Slabs in the box frame.
+      const Eigen::Vector3d ob = box.R.transpose() * (o - box.centre);
+      const Eigen::Vector3d db = box.R.transpose() * d;
+      double t_in = -std::numeric_limits<double>::infinity();
+      double t_out = std::numeric_limits<double>::infinity();
+      for (int a = 0; a < 3; ++a) {
+        if (std::abs(db[a]) < 1e-15) {
+          if (std::abs(ob[a]) > box.half[a]) t_out = -1.0;
+          continue;
+        }
+        const double t0 = (-box.half[a] - ob[a]) / db[a];
+        const double t1 = (box.half[a] - ob[a]) / db[a];
+        t_in = std::max(t_in, std::min(t0, t1));
+        t_out = std::min(t_out, std::max(t0, t1));
+      }
+      if (t_in <= t_out && t_in > 0.0 && t_in < best) best = t_in;
     }
     return best;
   }

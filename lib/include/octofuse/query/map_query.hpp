@@ -18,7 +18,10 @@
 //   4. otherwise `unknown`. Unknown is never free.
 // For `free` the distance is a lower bound on the distance to the nearest surface seen: the
 // free-space margin plus the distance to the free octant's faces (0 when only the TSDF says
-// free: the projective TSDF bounds no Euclidean distance).
+// free: the projective TSDF bounds no Euclidean distance), but no more than the distance to the
+// nearest block holding an observed voxel at or behind a surface (grown by a voxel of its scale):
+// a frame whose rays all pass beside an object thinner than their spacing (a bar a few mm across,
+// metres away) carves through it, and that octant is newer than the object's blocks.
 //
 // Regions (box, sphere, swept sphere) are `free` only when every part is: a walk over the free
 // octree visits the octants the shape touches (a leaf's free halves count where the shape touches
@@ -29,7 +32,8 @@
 // and `unknown` elsewhere (as are parts outside the cube). Blocked wins over unknown.
 //
 // Work per call: a point query walks at most voxel_depth free-octree levels and reads the 8
-// voxels of one trilinear cell (and their blocks). A region query visits free octants, blocks and
+// voxels of one trilinear cell (and their blocks); a free one also walks the TSDF octree's nodes
+// within its distance bound. A region query visits free octants, blocks and
 // voxels, counting each as one unit; at QueryLimits::max_visits it stops and answers `unknown`
 // with budget_hit set, so that limit is the worst case (default 2^16 units; a 0.5 m box in the sim
 // scenes took up to 50 000).
@@ -107,6 +111,9 @@ class MapQuery {
  private:
   struct Shape;
   PointAnswer point_unguarded(const Eigen::Vector3f& p_W) const;
+  // min(limit, distance from q to the nearest block that may hold a surface), in finest voxels
+  // (cube coordinates).
+  float surface_clearance_voxels(const Eigen::Vector3f& q, float limit) const;
   RegionAnswer region(const Shape& shape, const QueryLimits& limits) const;
 
   const Octree<VoxelT>* map_;

@@ -864,6 +864,10 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
     if (summary.have_odometry_ate) {
       std::printf("; odometry alone ATE RMSE %.2f cm", summary.odometry_ate_rmse_m * 100.0);
     }
+    if (!options.odometry_only) {
+      std::printf("; weighed as %.2f mm and %.2f mrad of noise per frame",
+                  summary.odometry_noise_m * 1e3, summary.odometry_noise_rad * 1e3);
+    }
     std::printf("\n");
   }
 }

@@ -991,6 +991,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
   if (buffer == nullptr) return error_exit(options.source_spec + ": no usable frame");
   summary->frames_lost = pipeline.frames_lost();
+  summary->odometry_noise_m = pipeline.prior_noise_m();
+  summary->odometry_noise_rad = pipeline.prior_noise_rad();
   summary->map_memory = pipeline.map().memory();
   if (options.deadline_ms > 0.0) {
     summary->deadline_model = pipeline.cost_model();
@@ -1141,6 +1143,8 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
       json.key("frames_prior_gate").value(summary->frames_prior_gate);
       json.key("frames_prior_lost").value(summary->frames_prior_lost);
       json.key("priors_dropped").value(summary->priors_dropped);
+      json.key("odometry_noise_m").value(summary->odometry_noise_m);
+      json.key("odometry_noise_rad").value(summary->odometry_noise_rad);
       if (summary->have_odometry_ate) {
         json.key("odometry_ate_rmse_m").value(summary->odometry_ate_rmse_m);
       }

@@ -102,6 +102,10 @@ struct RunSummary {
   std::uint64_t frames_prior_gate = 0;        // PoseOrigin::prior_gate
   std::uint64_t frames_prior_lost = 0;        // PoseOrigin::prior_lost
   std::uint64_t priors_dropped = 0;           // implausible priors the pipeline did not use
+  // The odometry's noise per frame that weighed the prior at the end: the stated one or, when
+  // larger, what the odometry's jitter showed (Pipeline::prior_noise_m/_rad).
+  double odometry_noise_m = 0.0;
+  double odometry_noise_rad = 0.0;
   bool have_odometry_ate = false;
   double odometry_ate_rmse_m = 0.0;
   bool have_ate = false;

@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "octofuse/pipeline/pipeline.hpp"
@@ -233,6 +234,52 @@ TEST_CASE("an implausibly far or fast prior is dropped; the frame goes on withou
     }
     REQUIRE(dropped == 3);
   }
+}
+
+// The noise that weighs the prior after `frames` frames of an odometry with `noise` (m and rad)
+// of white noise per pose and no drift.
+std::pair<double, double> seen_noise(double noise, int estimate_frames, int frames = 60) {
+  // The default path's speed (300 frames): its own third differences are far below a millimetre.
+  sim::SimSource source(small_sim(300));
+  REQUIRE(source.open().ok());
+  PipelineConfig config = small_config(source, PoseSource::external_prior);
+  config.prior_noise_estimate_frames = estimate_frames;
+  Buffer buffer(bytes_required(config));
+  Pipeline<MultiresVoxel> pipeline;
+  REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+  sim::OdometryDriftConfig odometry_config;
+  odometry_config.drift_per_m = 0.0;
+  odometry_config.drift_rad_per_m = 0.0;
+  odometry_config.noise_m = noise;
+  odometry_config.noise_rad = noise;
+  sim::DriftingOdometry odometry(odometry_config);
+  DepthFrame frame;
+  for (int i = 0; i < frames && source.next(frame).outcome == FrameOutcome::frame; ++i) {
+    Se3d truth = Se3d::Identity();
+    truth.matrix() = frame.T_W_C_ground_truth;
+    PosePrior prior;
+    prior.valid = true;
+    prior.T_W_C = odometry.next(truth).matrix();
+    FrameStats stats;
+    const Status status = pipeline.process(frame, prior, &stats);
+    REQUIRE((status.ok() || stats.result == FrameResult::lost));
+  }
+  return {pipeline.prior_noise_m(), pipeline.prior_noise_rad()};
+}
+
+TEST_CASE("an odometry noisier than stated is weighed by the noise it shows, never less") {
+  const PipelineConfig defaults;
+  // 4 mm and 4 mrad per pose: 5.7 mm and 5.7 mrad on one frame's motion, against 1.5 stated.
+  const auto noisy = seen_noise(0.004, 20);
+  CHECK(noisy.first == Approx(0.004 * std::sqrt(2.0)).epsilon(0.3));
+  CHECK(noisy.second == Approx(0.004 * std::sqrt(2.0)).epsilon(0.3));
+  // Quieter than stated: the stated noise stands.
+  const auto quiet = seen_noise(0.0002, 20);
+  CHECK(quiet.first == defaults.prior_noise_m);
+  CHECK(quiet.second == defaults.prior_noise_rad);
+  // Estimation off, or too few frames seen: the stated noise.
+  CHECK(seen_noise(0.004, 0).first == defaults.prior_noise_m);
+  CHECK(seen_noise(0.004, 100, 40).first == defaults.prior_noise_m);
 }
 
 TEST_CASE("the prior's motion limits") {
@@ -518,6 +565,8 @@ TEST_CASE("init names the setting that is wrong") {
       {"prior_max_", [](PipelineConfig& c) { c.prior_max_speed_mps = 0.0; }},
       {"prior_max_", [](PipelineConfig& c) { c.prior_max_coordinate_m = std::nan(""); }},
       {"prior_motion_slack_", [](PipelineConfig& c) { c.prior_motion_slack_rad = -1.0; }},
+      {"prior_noise_estimate_frames",
+       [](PipelineConfig& c) { c.prior_noise_estimate_frames = -1; }},
       {"input_camera", [](PipelineConfig& c) { c.input_camera.fx = 0.0f; }},
   };
   for (const Case& c : cases) {

@@ -195,6 +195,12 @@ struct PipelineConfig {
   // at all; the prediction is then only ICP's starting point and the gate's reference).
   double prior_noise_m = 0.0015;
   double prior_noise_rad = 0.0015;
+  // The odometry's noise as it shows, estimated online: a path a camera follows is smooth over
+  // four frames, so the third difference of successive priors' positions (and the second of
+  // their rotation increments) is their white noise (20 times its variance). Once
+  // prior_noise_estimate_frames frames have been seen, the larger of the stated and the seen noise
+  // weighs the prior: an odometry noisier than stated cannot outweigh ICP. 0: off.
+  int prior_noise_estimate_frames = 20;
   double prior_icp_noise_floor_m = 0.0005;
   double prior_icp_pixels_per_sample = 1.0;
   double prior_gap_rate = 0.1;  // in [0, 1]; 0: ICP's normal equations only
@@ -376,6 +382,11 @@ class Pipeline {
   std::uint64_t frames_rejected() const { return validator_.frames_rejected() + priors_rejected_; }
   // Priors dropped as implausible (PipelineConfig::prior_max_*); their frames were processed.
   std::uint64_t priors_dropped() const { return priors_dropped_; }
+  // The odometry's error per axis over one frame of relative motion that weighs the prior now:
+  // the stated prior_noise_m / prior_noise_rad, or what the priors' own jitter shows when that is
+  // larger (PipelineConfig::prior_noise_estimate_frames).
+  double prior_noise_m() const;
+  double prior_noise_rad() const;
   std::size_t bytes_used() const { return arena_.bytes_used(); }
 
  private:
@@ -434,6 +445,15 @@ class Pipeline {
   // external_prior: running mean square of ICP's gap to the prediction per camera axis, and the
   // last tracked frame's RMS residual (0: none yet).
   double prior_gap_sq_C_[6] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+  // The odometry's white noise as it shows (PipelineConfig::prior_noise_estimate_frames): the last
+  // kept priors and their times (newest last), the running mean of their third differences' norm.
+  Se3d prior_history_[4];
+  std::int64_t prior_history_us_[4] = {0, 0, 0, 0};
+  int prior_history_size_ = 0;
+  double prior_jitter_t_m_ = 0.0;
+  double prior_jitter_rad_ = 0.0;
+  int prior_jitter_samples_ = 0;
+  void observe_prior_noise(const Se3d& prior_T_W_C, std::int64_t time_us);
   double last_icp_rms_m_ = 0.0;
   bool have_reference_ = false;
   bool pose_set_ = false;  // set_pose() before the first frame: the first frame keeps it

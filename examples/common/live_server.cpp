@@ -64,6 +64,21 @@ struct LiveServer::Connection {
   SteadyClock::time_point deadline;
 };
 
+namespace {
+// The passive TCP address of a numeric host and port (no name lookup); null when either is not
+// numeric. The caller frees it with freeaddrinfo().
+addrinfo* resolve_numeric(const std::string& host, const std::string& port) {
+  addrinfo hints;
+  std::memset(&hints, 0, sizeof(hints));
+  hints.ai_family = AF_UNSPEC;
+  hints.ai_socktype = SOCK_STREAM;
+  hints.ai_flags = AI_NUMERICHOST | AI_NUMERICSERV | AI_PASSIVE;
+  addrinfo* found = nullptr;
+  if (::getaddrinfo(host.c_str(), port.c_str(), &hints, &found) != 0) return nullptr;
+  return found;
+}
+}  // namespace
+
 bool parse_serve_address(const std::string& spec, std::string* host_out, std::string* port_out,
                          std::string* error) {
   std::string host = "127.0.0.1";
@@ -87,13 +102,8 @@ bool parse_serve_address(const std::string& spec, std::string* host_out, std::st
     *error = "needs PORT, ADDR:PORT or [ADDR]:PORT with a numeric address, not '" + spec + "'";
     return false;
   }
-  addrinfo hints;
-  std::memset(&hints, 0, sizeof(hints));
-  hints.ai_family = AF_UNSPEC;
-  hints.ai_socktype = SOCK_STREAM;
-  hints.ai_flags = AI_NUMERICHOST | AI_NUMERICSERV | AI_PASSIVE;
-  addrinfo* found = nullptr;
-  if (::getaddrinfo(host.c_str(), port_text.c_str(), &hints, &found) != 0 || found == nullptr) {
+  addrinfo* found = resolve_numeric(host, port_text);
+  if (found == nullptr) {
     *error = "needs a numeric IPv4 or IPv6 address, not '" + host + "'";
     return false;
   }
@@ -113,13 +123,8 @@ std::unique_ptr<LiveServer> LiveServer::start(const std::string& spec,
     return nullptr;
   }
   int port = 0;
-  addrinfo hints;
-  std::memset(&hints, 0, sizeof(hints));
-  hints.ai_family = AF_UNSPEC;
-  hints.ai_socktype = SOCK_STREAM;
-  hints.ai_flags = AI_NUMERICHOST | AI_NUMERICSERV | AI_PASSIVE;
-  addrinfo* found = nullptr;
-  if (::getaddrinfo(host.c_str(), port_text.c_str(), &hints, &found) != 0 || found == nullptr) {
+  addrinfo* found = resolve_numeric(host, port_text);
+  if (found == nullptr) {
     *error = "--serve: '" + host + "' is not a numeric IPv4 or IPv6 address";
     return nullptr;
   }

@@ -548,7 +548,10 @@ Status ReplaySource::open_raw() {
   raw_file_size_ = static_cast<std::uint64_t>(info.st_size);
   std::uint64_t offset = 0;
   std::uint64_t frame_bytes = 0;  // the last whole frame's size
+  bool resyncing = false;         // the last entry did not parse
   while (offset < raw_file_size_) {
+    // A damaged tail longer than the index: its last slot stands for the rest of the file.
+    if (resyncing && frame_count_ == static_cast<std::size_t>(config_.max_frames)) break;
     if (frame_count_ == static_cast<std::size_t>(config_.max_frames)) {
       error_.set("%s: more than %d frames (raise max_frames)", file, config_.max_frames);
       return StatusCode::resource_exhausted;
@@ -575,10 +578,12 @@ Status ReplaySource::open_raw() {
                                 config_.max_height, &layout, file, &scratch)
              .ok()) {
       entry.bad = true;
+      resyncing = true;
       if (frame_bytes == 0) break;
       offset = raw_file_size_ - offset > frame_bytes ? offset + frame_bytes : raw_file_size_;
       continue;
     }
+    resyncing = false;
     frame_bytes = layout.next_offset - offset;
     offset = layout.next_offset;
   }

@@ -327,6 +327,12 @@ TEST_CASE(".raw with a short last frame or absurd sizes", "[replay][bad]") {
     CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1});
     CHECK(replayed.skips.size() == 3);
     CHECK(replayed.ended);
+    // A damaged tail longer than the index holds: it opens, its last slot standing for the rest.
+    ReplayConfig small = config_for("raw:" + path);
+    small.max_frames = 4;
+    ReplaySource capped(small);
+    REQUIRE(capped.open().ok());
+    CHECK(capped.frame_count() == 4);
   }
   SECTION("absurd RGB size") {
     std::string first = fx::raw_frame_bytes(5, 4, 0);

@@ -66,6 +66,11 @@ int error_exit(const std::string& message) {
   return 1;
 }
 
+// Whether --odometry names the simulated odometry rather than a file.
+bool odometry_is_sim(const RunOptions& options) {
+  return options.odometry == "sim" || options.odometry.rfind("sim:", 0) == 0;
+}
+
 // The files the run writes into out_dir.
 std::vector<std::string> out_dir_files(const RunOptions& options) {
   std::vector<std::string> names = {"trajectory.txt", "render.png", "stats.json",
@@ -129,34 +134,34 @@ bool check_outputs(const RunOptions& options, std::string* error) {
     outputs.push_back({options.deadline_calibration, "--deadline-calibration"});
   }
   std::vector<Output> inputs;
-  const bool odometry_sim = options.odometry == "sim" || options.odometry.rfind("sim:", 0) == 0;
-  if (!options.odometry.empty() && !odometry_sim) {
+  if (!options.odometry.empty() && !odometry_is_sim(options)) {
     inputs.push_back({options.odometry, "--odometry"});
   }
   if (!options.query_points_path.empty()) {
     inputs.push_back({options.query_points_path, "--query-points"});
   }
-  bool ok = true;
-  for (std::size_t i = 0; ok && i < outputs.size(); ++i) {
-    ErrorText why;
-    if (!host::check_writable(outputs[i].path.c_str(), &why).ok()) {
-      *error = outputs[i].what + ": " + why.c_str();
-      ok = false;
-      break;
-    }
-    const std::string resolved = resolved_path(outputs[i].path);
-    for (std::size_t k = 0; ok && k < i + inputs.size(); ++k) {
-      const Output& other = k < i ? outputs[k] : inputs[k - i];
-      if (resolved_path(other.path) == resolved) {
-        *error = outputs[i].what + " " + outputs[i].path + " is the file of " + other.what +
+  // Each output against the outputs before it and every input.
+  auto first_problem = [&]() -> std::string {
+    for (std::size_t i = 0; i < outputs.size(); ++i) {
+      ErrorText why;
+      if (!host::check_writable(outputs[i].path.c_str(), &why).ok()) {
+        return outputs[i].what + ": " + why.c_str();
+      }
+      const std::string resolved = resolved_path(outputs[i].path);
+      for (std::size_t k = 0; k < i + inputs.size(); ++k) {
+        const Output& other = k < i ? outputs[k] : inputs[k - i];
+        if (resolved_path(other.path) == resolved) {
+          return outputs[i].what + " " + outputs[i].path + " is the file of " + other.what +
                  "; refusing to overwrite it";
-        ok = false;
+        }
       }
     }
-  }
+    return std::string();
+  };
+  *error = first_problem();
   // Made again when the first frame's pose is written: a run that fails before leaves nothing.
   if (created_out_dir) ::rmdir(options.out_dir.c_str());
-  return ok;
+  return error->empty();
 }
 
 void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
@@ -681,7 +686,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
 
   // The vehicle's odometry, mapped so the first frame's pose anchors the world:
   // T_W_C(t) = T_W_C0 * inverse(T_O_C0) * T_O_C(t).
-  const bool odometry_sim = options.odometry == "sim" || options.odometry.rfind("sim:", 0) == 0;
+  const bool odometry_sim = odometry_is_sim(options);
   std::vector<host::TimedPose> odometry_O;
 #if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
   sim::OdometryDriftConfig drift_config;
@@ -703,7 +708,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
     }
     if (odometry_O.empty()) return error_exit(options.odometry + ": no poses");
     // The same bounds the pipeline holds each prior to, checked over the whole file first.
-    const PriorMotionLimits limits = prior_motion_limits(PipelineConfig());
+    const PriorMotionLimits limits = PipelineConfig().prior_motion;
     for (std::size_t i = 0; i < odometry_O.size(); ++i) {
       const host::TimedPose& pose = odometry_O[i];
       double moved_m = 0.0;

@@ -283,7 +283,7 @@ TEST_CASE("an odometry noisier than stated is weighed by the noise it shows, nev
 }
 
 TEST_CASE("the prior's motion limits") {
-  const PriorMotionLimits limits = prior_motion_limits(PipelineConfig());
+  const PriorMotionLimits limits = PipelineConfig().prior_motion;
   const Se3d origin = Se3d::Identity();
   Se3d moved = Se3d::Identity();
   moved.translation() = Eigen::Vector3d(3.0, 0.0, 0.0);
@@ -562,9 +562,10 @@ TEST_CASE("init names the setting that is wrong") {
        [](PipelineConfig& c) { c.prior_icp_pixels_per_sample = 0.0; }},
       {"prior_information_t", [](PipelineConfig& c) { c.prior_information_t = -1.0; }},
       {"prior_gap_rate", [](PipelineConfig& c) { c.prior_gap_rate = 1.5; }},
-      {"prior_max_", [](PipelineConfig& c) { c.prior_max_speed_mps = 0.0; }},
-      {"prior_max_", [](PipelineConfig& c) { c.prior_max_coordinate_m = std::nan(""); }},
-      {"prior_motion_slack_", [](PipelineConfig& c) { c.prior_motion_slack_rad = -1.0; }},
+      {"prior_motion.max_", [](PipelineConfig& c) { c.prior_motion.max_speed_mps = 0.0; }},
+      {"prior_motion.max_",
+       [](PipelineConfig& c) { c.prior_motion.max_coordinate_m = std::nan(""); }},
+      {"prior_motion.slack_", [](PipelineConfig& c) { c.prior_motion.slack_rad = -1.0; }},
       {"prior_noise_estimate_frames",
        [](PipelineConfig& c) { c.prior_noise_estimate_frames = -1; }},
       {"input_camera", [](PipelineConfig& c) { c.input_camera.fx = 0.0f; }},

@@ -354,6 +354,25 @@ bool read_node_record(RecordReader& r, NodeRecord& out) {
   return true;
 }
 
+// Checks node record `index`'s key in a cube of `depth`: the root first, every later node at a
+// level above the blocks, aligned to its octant and inside the cube.
+bool check_node_key(RecordReader& r, const Key& key, std::uint32_t index, int depth) {
+  if (index == 0) {
+    if (key.level != 0 || key.morton != 0) {
+      return r.fail(StatusCode::data_loss, "the first node is not the root");
+    }
+    return true;
+  }
+  const bool level_ok = key.level >= 1 && key.level < depth - kBlockSideLog2;
+  const int below = level_ok ? 3 * (depth - key.level) : 0;
+  if (!level_ok || (key.morton & ((std::uint64_t{1} << below) - 1)) != 0 ||
+      (key.morton >> (3 * depth)) != 0) {
+    return r.fail(StatusCode::data_loss,
+                  "node key outside the cube, not aligned or at a bad level");
+  }
+  return true;
+}
+
 template <typename VoxelT>
 void write_block_record(RecordWriter& w, const VoxelBlock<VoxelT>& b) {
   w.u8(kBlockTag);
@@ -802,9 +821,6 @@ Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const Ma
     return status;
   };
   if (!map.reserved()) return refuse(StatusCode::failed_precondition, "the map is not reserved");
-  if (!(info.mu_m > 0.0f) || !(info.mu_m <= kMaxSavedMu_m)) {
-    return refuse(StatusCode::invalid_argument, "mu is not in (0, 1000] m");
-  }
   if (free_space != nullptr) {
     if (!free_space->reserved()) {
       return refuse(StatusCode::failed_precondition, "the free space is not reserved");
@@ -939,19 +955,8 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeSpace* free_space,
     r.begin_record("node record", i);
     NodeRecord node;
     if (!read_node_record(r, node)) return failed();
-    if (i == 0) {
-      if (node.key.level != 0 || node.key.morton != 0) {
-        r.fail(StatusCode::data_loss, "the first node is not the root");
-        return failed();
-      }
-    } else {
-      const bool level_ok = node.key.level >= 1 && node.key.level < block_level;
-      const int below = level_ok ? 3 * (depth - node.key.level) : 0;
-      if (!level_ok || (node.key.morton & ((std::uint64_t{1} << below) - 1)) != 0 ||
-          (node.key.morton >> (3 * depth)) != 0) {
-        r.fail(StatusCode::data_loss, "node key outside the cube, not aligned or at a bad level");
-        return failed();
-      }
+    if (!check_node_key(r, node.key, i, depth)) return failed();
+    if (i > 0) {
       AllocationCounts counts;
       const Status allocated = map.allocate(&node.key, 1, &counts);
       if (!allocated.ok() || counts.new_nodes != 1 || map.node_count() != i + 1) {
@@ -996,16 +1001,7 @@ Status check_map(ByteSource& source, MapFileHeader* header_out, ErrorText* error
   for (std::uint32_t i = 0; i < h.node_count; ++i) {
     r.begin_record("node record", i);
     NodeRecord node;
-    if (!read_node_record(r, node)) return r.status();
-    const bool root = node.key.level == 0 && node.key.morton == 0;
-    const bool level_ok = node.key.level >= 1 && node.key.level < block_level;
-    const int below = level_ok ? 3 * (h.voxel_depth - node.key.level) : 0;
-    if (i == 0 ? !root
-               : (!level_ok || (node.key.morton & ((std::uint64_t{1} << below) - 1)) != 0 ||
-                  (node.key.morton >> (3 * h.voxel_depth)) != 0)) {
-      r.fail(StatusCode::data_loss, i == 0 ? "the first node is not the root"
-                                           : "node key outside the cube, not aligned or at a "
-                                             "bad level");
+    if (!read_node_record(r, node) || !check_node_key(r, node.key, i, h.voxel_depth)) {
       return r.status();
     }
   }

@@ -172,24 +172,14 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
   if (config.prior_noise_estimate_frames < 0 || config.prior_noise_estimate_frames > 100000) {
     return bad("prior_noise_estimate_frames must be in [0, 100000]");
   }
-  if (!positive_finite(config.prior_max_coordinate_m) ||
-      !positive_finite(config.prior_max_speed_mps) ||
-      !positive_finite(config.prior_max_rate_radps) ||
-      !(config.prior_motion_slack_m >= 0.0 && std::isfinite(config.prior_motion_slack_m)) ||
-      !(config.prior_motion_slack_rad >= 0.0 && std::isfinite(config.prior_motion_slack_rad))) {
-    return bad("prior_max_* must be finite and > 0, prior_motion_slack_* finite and >= 0");
+  const PriorMotionLimits& motion = config.prior_motion;
+  if (!positive_finite(motion.max_coordinate_m) || !positive_finite(motion.max_speed_mps) ||
+      !positive_finite(motion.max_rate_radps) ||
+      !(motion.slack_m >= 0.0 && std::isfinite(motion.slack_m)) ||
+      !(motion.slack_rad >= 0.0 && std::isfinite(motion.slack_rad))) {
+    return bad("prior_motion.max_* must be finite and > 0, prior_motion.slack_* finite and >= 0");
   }
   return ok_status();
-}
-
-PriorMotionLimits prior_motion_limits(const PipelineConfig& config) {
-  PriorMotionLimits limits;
-  limits.max_coordinate_m = config.prior_max_coordinate_m;
-  limits.max_speed_mps = config.prior_max_speed_mps;
-  limits.max_rate_radps = config.prior_max_rate_radps;
-  limits.slack_m = config.prior_motion_slack_m;
-  limits.slack_rad = config.prior_motion_slack_rad;
-  return limits;
 }
 
 bool prior_position_implausible(const Se3d& T_W_C, const PriorMotionLimits& limits) {
@@ -201,9 +191,8 @@ bool prior_motion_implausible(const Se3d& from, const Se3d& to, double dt_s,
                               double* turned_rad) {
   const double dt = dt_s > 0.0 ? dt_s : 0.0;
   const double moved = (to.translation() - from.translation()).norm();
-  const Eigen::Matrix3d R = from.linear().transpose() * to.linear();
-  const double cos_angle = std::max(-1.0, std::min(1.0, 0.5 * (R.trace() - 1.0)));
-  const double turned = std::acos(cos_angle);
+  const double turned =
+      Eigen::AngleAxisd(Eigen::Matrix3d(from.linear().transpose() * to.linear())).angle();
   if (moved_m != nullptr) *moved_m = moved;
   if (turned_rad != nullptr) *turned_rad = turned;
   return !(moved <= limits.max_speed_mps * dt + limits.slack_m) ||
@@ -761,7 +750,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   bool prior_valid = prior.valid;
   if (prior_valid) {
     const Se3d candidate = rigid_from(prior.T_W_C);
-    const PriorMotionLimits limits = prior_motion_limits(config_);
+    const PriorMotionLimits& limits = config_.prior_motion;
     const double dt_s = static_cast<double>(frame.timestamp_us - last_prior_time_us_) * 1e-6;
     if (prior_position_implausible(candidate, limits) ||
         (have_last_prior_ &&

@@ -86,21 +86,13 @@ Status save_map_file(const char* path, const Octree<VoxelT>& map, const FreeSpac
   }
   // Read back what reached the disk, every record, before it replaces the previous file: a map
   // this reports saved loads.
-  {
-    OpenFile written(file.temporary_path());
-    if (written.file == nullptr) {
-      const Status status = cannot_open(file.temporary_path(), error);
-      file.abandon();
-      return status;
+  const Status checked = check_map_file(file.temporary_path(), nullptr, &reason);
+  if (!checked.ok()) {
+    if (error != nullptr) {
+      error->set("%s: not saved, the written file does not read back (%s)", path, reason.c_str());
     }
-    FileSource source(written.file);
-    const Status checked = check_map(source, nullptr, &reason);
-    if (!checked.ok()) {
-      if (error != nullptr)
-        error->set("%s: not saved, the written file does not read back (%s)", path, reason.c_str());
-      file.abandon();
-      return StatusCode::data_loss;
-    }
+    file.abandon();
+    return checked.code() == StatusCode::unavailable ? checked : Status(StatusCode::data_loss);
   }
   const Status published = file.publish();
   if (!published.ok() && error != nullptr) error->set("%s", file.last_error());

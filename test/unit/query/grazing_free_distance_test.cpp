@@ -77,13 +77,7 @@ double exact_distance(const AnalyticScene& scene, const Eigen::Vector3d& p) {
 }
 
 PinholeCamera input_camera() {
-  PinholeCamera c;
-  c.width = kWidth;
-  c.height = kHeight;
-  c.fx = c.fy = 262.5f;
-  c.cx = (kWidth - 1) * 0.5f;
-  c.cy = (kHeight - 1) * 0.5f;
-  return c;
+  return test::test_camera(kWidth, kHeight, 262.5f);
 }
 
 struct Violations {

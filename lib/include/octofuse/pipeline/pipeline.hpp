@@ -148,6 +148,20 @@ struct EvictionReport {
   bool budget_hit = false;    // max_evictions stopped it above the low-water mark
 };
 
+// Where a pose prior may plausibly be, and how far it may move between two frames
+// (PipelineConfig::prior_motion): no coordinate's magnitude above max_coordinate_m; since the last
+// frame's prior at most max_speed_mps times the time between the two frames plus slack_m, and a
+// turn of at most max_rate_radps times it plus slack_rad. The defaults are far beyond any robot a
+// depth camera maps from (360 km/h, 1700 degrees/s) and catch corrupt or unit-confused odometry:
+// a jump of kilometres, coordinates of 1e300.
+struct PriorMotionLimits {
+  double max_coordinate_m = 1e6;
+  double max_speed_mps = 100.0;
+  double max_rate_radps = 30.0;
+  double slack_m = 0.1;
+  double slack_rad = 0.2;
+};
+
 struct PipelineConfig {
   PinholeCamera input_camera;  // the source's native intrinsics and size
   MapKind map_kind = MapKind::multires;
@@ -204,18 +218,9 @@ struct PipelineConfig {
   double prior_icp_noise_floor_m = 0.0005;
   double prior_icp_pixels_per_sample = 1.0;
   double prior_gap_rate = 0.1;  // in [0, 1]; 0: ICP's normal equations only
-  // A prior is implausible, and dropped for its frame (FrameStats::prior_dropped; the frame is
-  // tracked as if it had none), when a coordinate's magnitude is above prior_max_coordinate_m,
-  // or when since the last frame's prior it moved more than prior_max_speed_mps times the time
-  // between the two frames plus prior_motion_slack_m, or turned more than prior_max_rate_radps
-  // times it plus prior_motion_slack_rad (PriorMotionLimits). The defaults are far beyond any
-  // robot a depth camera maps from (360 km/h, 1700 degrees/s) and catch corrupt or unit-confused
-  // odometry: a jump of kilometres, coordinates of 1e300.
-  double prior_max_coordinate_m = 1e6;
-  double prior_max_speed_mps = 100.0;
-  double prior_max_rate_radps = 30.0;
-  double prior_motion_slack_m = 0.1;
-  double prior_motion_slack_rad = 0.2;
+  // A prior beyond these is implausible and dropped for its frame (FrameStats::prior_dropped;
+  // the frame is tracked as if it had none).
+  PriorMotionLimits prior_motion;
   bool prior_fixed_information = false;
   double prior_information_t = 300.0;  // per m^2, with prior_fixed_information
   double prior_information_r = 300.0;  // per rad^2, with prior_fixed_information
@@ -282,8 +287,8 @@ struct FrameStats {
   MapMemory memory;
   Se3d T_W_C = Se3d::Identity();
   PoseOrigin pose_origin = PoseOrigin::none;
-  bool has_prior = false;      // the frame came with a valid PosePrior
-  bool prior_dropped = false;  // ... which was implausible (PipelineConfig::prior_max_*) and unused
+  bool has_prior = false;       // the frame came with a valid PosePrior
+  bool prior_dropped = false;   // ... which was implausible (PipelineConfig::prior_motion), unused
   bool has_prediction = false;  // external_prior: a prediction from the prior was formed
   double prior_gap_m = 0.0;     // |ICP - prediction| translation, when both exist
   double prior_gap_rad = 0.0;   // and rotation angle
@@ -293,15 +298,6 @@ struct FrameStats {
   }
 };
 
-// The motion a pose prior may plausibly make between two frames (PipelineConfig::prior_max_*).
-struct PriorMotionLimits {
-  double max_coordinate_m = 1e6;
-  double max_speed_mps = 100.0;
-  double max_rate_radps = 30.0;
-  double slack_m = 0.1;
-  double slack_rad = 0.2;
-};
-PriorMotionLimits prior_motion_limits(const PipelineConfig& config);
 // Whether a coordinate of `T_W_C`'s position is beyond the limit (false for a NaN: is_rigid()
 // catches those).
 bool prior_position_implausible(const Se3d& T_W_C, const PriorMotionLimits& limits);
@@ -380,7 +376,7 @@ class Pipeline {
   // a frame was processed.
   Status resume_frame_count(std::uint64_t frames);
   std::uint64_t frames_rejected() const { return validator_.frames_rejected() + priors_rejected_; }
-  // Priors dropped as implausible (PipelineConfig::prior_max_*); their frames were processed.
+  // Priors dropped as implausible (PipelineConfig::prior_motion); their frames were processed.
   std::uint64_t priors_dropped() const { return priors_dropped_; }
   // The odometry's error per axis over one frame of relative motion that weighs the prior now:
   // the stated prior_noise_m / prior_noise_rad, or what the priors' own jitter shows when that is

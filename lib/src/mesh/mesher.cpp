@@ -1,7 +1,7 @@
 #include "octofuse/mesh/mesher.hpp"
 
+#include "octofuse/map/interpolation.hpp"
 #include "octofuse/mesh/marching_cubes.hpp"
-#include "octofuse/render/interpolation.hpp"
 
 namespace octofuse {
 

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "octofuse/render/interpolation.hpp"
+#include "octofuse/map/interpolation.hpp"
 
 namespace octofuse {
 

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <limits>
 
-#include "octofuse/render/interpolation.hpp"
+#include "octofuse/map/interpolation.hpp"
 
 namespace octofuse {
 namespace {

@@ -5,7 +5,7 @@
 #include <cstdio>
 #include <cstring>
 
-#include "octofuse/query/free_space.hpp"
+#include "octofuse/map/free_octree.hpp"
 
 namespace octofuse {
 
@@ -571,7 +571,7 @@ bool read_free_record(RecordReader& r, const MapFileHeader& h, std::uint32_t ind
     return r.fail(StatusCode::data_loss, "free frame not before the map's frame count");
   }
   for (std::uint32_t child : out.children) {
-    if (child != FreeSpace::kNoNode && (child <= index || child >= h.free_node_count)) {
+    if (child != FreeOctree::kNoNode && (child <= index || child >= h.free_node_count)) {
       return r.fail(StatusCode::data_loss, "free-space child index out of range");
     }
   }
@@ -583,7 +583,7 @@ bool read_free_record(RecordReader& r, const MapFileHeader& h, std::uint32_t ind
 // node, and no node below the finest octant level. Until its own record is read, a node's slot
 // holds its parent in children[0] and its level in free_frame.
 bool read_free_space(RecordReader& r, const MapFileHeader& h, int block_level,
-                     FreeSpace* free_space) {
+                     FreeOctree* free_space) {
   const int octant = h.free_octant_voxels;
   if (h.free_node_count > 0 && octant != 2 && octant != 4 && octant != 8 && octant != 16 &&
       octant != 32 && octant != 64) {
@@ -598,7 +598,7 @@ bool read_free_space(RecordReader& r, const MapFileHeader& h, int block_level,
     FreeNode& slot = free_space->restore_node(i);
     std::uint32_t level = 0;
     if (i > 0) {
-      if (slot.children[0] == FreeSpace::kNoNode) {
+      if (slot.children[0] == FreeOctree::kNoNode) {
         return r.fail(StatusCode::data_loss, "free-space node without a parent");
       }
       level = slot.free_frame;
@@ -607,12 +607,12 @@ bool read_free_space(RecordReader& r, const MapFileHeader& h, int block_level,
       return r.fail(StatusCode::data_loss, "free sub-cells on a node above the finest octants");
     }
     for (std::uint32_t child : node.children) {
-      if (child == FreeSpace::kNoNode) continue;
+      if (child == FreeOctree::kNoNode) continue;
       if (static_cast<int>(level) >= leaf_level) {
         return r.fail(StatusCode::data_loss, "free-space node below the finest octant level");
       }
       FreeNode& below = free_space->restore_node(child);
-      if (below.children[0] != FreeSpace::kNoNode) {
+      if (below.children[0] != FreeOctree::kNoNode) {
         return r.fail(StatusCode::data_loss, "free-space node with two parents");
       }
       below.children[0] = i;
@@ -814,7 +814,7 @@ bool same_geometry(const MapConfig& a, const MapConfig& b) {
 }  // namespace
 
 template <typename VoxelT>
-Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const MapSaveInfo& info,
+Status save_map(const Octree<VoxelT>& map, const FreeOctree* free_space, const MapSaveInfo& info,
                 ByteSink& sink, ErrorText* error) {
   auto refuse = [&](Status status, const char* why) {
     if (error != nullptr) error->set("%s", why);
@@ -888,7 +888,7 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_o
 }
 
 template <typename VoxelT>
-Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeSpace* free_space,
+Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeOctree* free_space,
                 MapFileHeader* header_out, ErrorText* error) {
   if (!map.reserved()) return StatusCode::failed_precondition;
   if (free_space != nullptr && !free_space->reserved()) return StatusCode::failed_precondition;
@@ -1020,19 +1020,19 @@ Status check_map(ByteSource& source, MapFileHeader* header_out, ErrorText* error
   return ok_status();
 }
 
-template Status save_map(const Octree<TsdfVoxel>&, const FreeSpace*, const MapSaveInfo&, ByteSink&,
+template Status save_map(const Octree<TsdfVoxel>&, const FreeOctree*, const MapSaveInfo&, ByteSink&,
                          ErrorText*);
-template Status save_map(const Octree<MultiresVoxel>&, const FreeSpace*, const MapSaveInfo&,
+template Status save_map(const Octree<MultiresVoxel>&, const FreeOctree*, const MapSaveInfo&,
                          ByteSink&, ErrorText*);
 template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
-template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*, ErrorText*);
-template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
+template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeOctree*, MapFileHeader*, ErrorText*);
+template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeOctree*, MapFileHeader*,
                          ErrorText*);
-template Status save_map(const Octree<Multires16Voxel>&, const FreeSpace*, const MapSaveInfo&,
+template Status save_map(const Octree<Multires16Voxel>&, const FreeOctree*, const MapSaveInfo&,
                          ByteSink&, ErrorText*);
 template Status load_map(ByteSource&, Octree<Multires16Voxel>&, MapFileHeader*, ErrorText*);
-template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeSpace*, MapFileHeader*,
+template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeOctree*, MapFileHeader*,
                          ErrorText*);
 
 }  // namespace octofuse

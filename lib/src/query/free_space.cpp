@@ -5,43 +5,6 @@
 
 namespace octofuse {
 
-Status validate(const FreeSpaceConfig& config) {
-  const bool finite = std::isfinite(config.margin_m) && std::isfinite(config.clearance_m) &&
-                      std::isfinite(config.occlusion_clear_m) && std::isfinite(config.near_m) &&
-                      std::isfinite(config.prune_radius_m);
-  if (!finite || config.margin_m < 0.0f || config.clearance_m < 0.0f ||
-      config.occlusion_clear_m < 0.0f || config.near_m < 0.0f || config.prune_radius_m < 0.0f) {
-    return StatusCode::invalid_argument;
-  }
-  const int octant = config.finest_octant_voxels;
-  if (octant != 0 && octant != 2 && octant != 4 && octant != 8 && octant != 16 && octant != 32 &&
-      octant != 64) {
-    return StatusCode::invalid_argument;
-  }
-  if (config.max_free_count == 0 || config.max_node_visits == 0) {
-    return StatusCode::invalid_argument;
-  }
-  return ok_status();
-}
-
-void FreeSpace::clear() {
-  OCTOFUSE_CHECK(reserved_);
-  nodes_.reset();
-  const Result<std::uint32_t> root = nodes_.allocate();
-  OCTOFUSE_CHECK(root.ok() && root.value() == 0);
-}
-
-Status FreeSpace::begin_restore(std::uint32_t count) {
-  if (!reserved_) return StatusCode::failed_precondition;
-  clear();
-  if (count == 0 || count > nodes_.capacity()) return StatusCode::resource_exhausted;
-  for (std::uint32_t i = 1; i < count; ++i) {
-    const Result<std::uint32_t> fresh = nodes_.allocate();
-    OCTOFUSE_CHECK(fresh.ok() && fresh.value() == i);
-  }
-  return ok_status();
-}
-
 namespace {
 // floor(log2(x)) for x > 0.
 int floor_log2(std::uint32_t x) {
@@ -59,187 +22,9 @@ int clamped_floor(float f) {
 }
 }  // namespace
 
-void FreeSpace::build_pyramid(ImageView<const float> depth_m,
-                              ImageView<const std::uint8_t> beyond_range, float beyond_free_m) {
-  float* lo = depth_min_;
-  float* hi = depth_max_;
-  std::uint8_t* invalid = depth_invalid_;
-  // One output per loop, branch-free, so that each is vectorised.
-  for (int y = 0; y < height_; ++y) {
-    const float* row = depth_m.row(y);
-    float* lo_row = lo + static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
-    float* hi_row = hi + static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
-    std::uint8_t* in_row = invalid + static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
-    // NaN and infinities fail the test too.
-    for (int x = 0; x < width_; ++x)
-      lo_row[x] = ((row[x] > 0.0f) & (row[x] < kNoDepth)) ? row[x] : kNoDepth;
-    for (int x = 0; x < width_; ++x)
-      hi_row[x] = ((row[x] > 0.0f) & (row[x] < kNoDepth)) ? row[x] : 0.0f;
-    for (int x = 0; x < width_; ++x) in_row[x] = lo_row[x] < kNoDepth ? 0 : 1;
-    if (beyond_range.empty()) continue;
-    // Seen free out to the range's end; no surface there (hi stays 0).
-    const std::uint8_t* beyond_row = beyond_range.row(y);
-    for (int x = 0; x < width_; ++x) {
-      lo_row[x] = ((in_row[x] != 0) & (beyond_row[x] != 0)) ? beyond_free_m : lo_row[x];
-    }
-    for (int x = 0; x < width_; ++x) {
-      in_row[x] = static_cast<std::uint8_t>(in_row[x] & (beyond_row[x] == 0 ? 1 : 0));
-    }
-  }
-  // Aligned tiles of the levels the range table holds are its entries at multiples of the side.
-  build_range_table();
-  for (int level = 1; level < level_count_; ++level) {
-    const int w = level_width_[level];
-    const int h = level_height_[level];
-    float* clo = depth_min_ + level_offset_[level];
-    float* chi = depth_max_ + level_offset_[level];
-    std::uint8_t* cin = depth_invalid_ + level_offset_[level];
-    if (level < table_levels_) {
-      const float* tlo = table_min(level);
-      const float* thi = table_max(level);
-      const std::uint8_t* tin = table_invalid(level);
-      for (int y = 0; y < h; ++y) {
-        const std::size_t row =
-            (static_cast<std::size_t>(y) << level) * static_cast<std::size_t>(width_);
-        for (int x = 0; x < w; ++x) {
-          const std::size_t i = row + (static_cast<std::size_t>(x) << level);
-          clo[y * w + x] = tlo[i];
-          chi[y * w + x] = thi[i];
-          cin[y * w + x] = tin[i];
-        }
-      }
-      continue;
-    }
-    const int pw = level_width_[level - 1];
-    const int ph = level_height_[level - 1];
-    const float* plo = depth_min_ + level_offset_[level - 1];
-    const float* phi = depth_max_ + level_offset_[level - 1];
-    const std::uint8_t* pin = depth_invalid_ + level_offset_[level - 1];
-    for (int y = 0; y < h; ++y) {
-      for (int x = 0; x < w; ++x) {
-        float a = kNoDepth;
-        float b = 0.0f;
-        std::uint8_t c = 0;
-        for (int dy = 0; dy < 2; ++dy) {
-          const int py = 2 * y + dy;
-          if (py >= ph) break;
-          for (int dx = 0; dx < 2; ++dx) {
-            const int px = 2 * x + dx;
-            if (px >= pw) break;
-            a = std::min(a, plo[py * pw + px]);
-            b = std::max(b, phi[py * pw + px]);
-            c = static_cast<std::uint8_t>(c | pin[py * pw + px]);
-          }
-        }
-        clo[y * w + x] = a;
-        chi[y * w + x] = b;
-        cin[y * w + x] = c;
-      }
-    }
-  }
-}
-
-void FreeSpace::build_range_table() {
-  // The range table: each level merges four squares of the one below, offset by half a side
-  // (clamped to the last row / column, which then lies inside the square anyway).
-  for (int t = 1; t < table_levels_; ++t) {
-    const int half = 1 << (t - 1);
-    const float* plo = table_min(t - 1);
-    const float* phi = table_max(t - 1);
-    const std::uint8_t* pin = table_invalid(t - 1);
-    float* clo = table_min(t);
-    float* chi = table_max(t);
-    std::uint8_t* cin = table_invalid(t);
-    const int x_split = std::max(width_ - half, 0);
-    for (int y = 0; y < height_; ++y) {
-      const std::size_t r0 = static_cast<std::size_t>(y) * static_cast<std::size_t>(width_);
-      const std::size_t r1 = static_cast<std::size_t>(std::min(y + half, height_ - 1)) *
-                             static_cast<std::size_t>(width_);
-      const float* a_lo = plo + r0;
-      const float* b_lo = plo + r1;
-      const float* a_hi = phi + r0;
-      const float* b_hi = phi + r1;
-      const std::uint8_t* a_in = pin + r0;
-      const std::uint8_t* b_in = pin + r1;
-      float* o_lo = clo + r0;
-      float* o_hi = chi + r0;
-      std::uint8_t* o_in = cin + r0;
-      // One output per loop, so that each is vectorised.
-      for (int x = 0; x < x_split; ++x) {
-        o_lo[x] = std::min(std::min(a_lo[x], a_lo[x + half]), std::min(b_lo[x], b_lo[x + half]));
-      }
-      for (int x = 0; x < x_split; ++x) {
-        o_hi[x] = std::max(std::max(a_hi[x], a_hi[x + half]), std::max(b_hi[x], b_hi[x + half]));
-      }
-      for (int x = 0; x < x_split; ++x) {
-        o_in[x] = static_cast<std::uint8_t>(a_in[x] | a_in[x + half] | b_in[x] | b_in[x + half]);
-      }
-      const int last = width_ - 1;
-      for (int x = x_split; x < width_; ++x) {
-        o_lo[x] = std::min(std::min(a_lo[x], a_lo[last]), std::min(b_lo[x], b_lo[last]));
-        o_hi[x] = std::max(std::max(a_hi[x], a_hi[last]), std::max(b_hi[x], b_hi[last]));
-        o_in[x] = static_cast<std::uint8_t>(a_in[x] | a_in[last] | b_in[x] | b_in[last]);
-      }
-    }
-  }
-}
-
 FreeSpace::PixelRange FreeSpace::pixel_range(int u0, int v0, int u1, int v1) const {
-  PixelRange out;
-  if (!reserved_) return out;
-  u0 = std::max(u0, 0);
-  v0 = std::max(v0, 0);
-  u1 = std::min(u1, width_ - 1);
-  v1 = std::min(v1, height_ - 1);
-  if (u0 > u1 || v0 > v1) return out;
-  return rect_range(u0, v0, u1, v1);
-}
-
-FreeSpace::PixelRange FreeSpace::rect_range(int u0, int v0, int u1, int v1) const {
-  const int rect_w = u1 - u0 + 1;
-  const int rect_h = v1 - v0 + 1;
-  const int t =
-      std::min(floor_log2(static_cast<std::uint32_t>(std::min(rect_w, rect_h))), table_levels_ - 1);
-  const int s = 1 << t;
-  const float* plo = table_min(t);
-  const float* phi = table_max(t);
-  const std::uint8_t* pin = table_invalid(t);
-  // Squares at u0, u0 + s, ... and the last one flush with u1 (overlaps change no min or max).
-  const int x_last = u1 - s + 1;
-  const int y_last = v1 - s + 1;
-  float lo = kNoDepth;
-  float hi = 0.0f;
-  std::uint8_t invalid = 0;
-  for (int y = v0;; y += s) {
-    const int yy = std::min(y, y_last);
-    const std::size_t row = static_cast<std::size_t>(yy) * static_cast<std::size_t>(width_);
-    for (int x = u0;; x += s) {
-      const std::size_t i = row + static_cast<std::size_t>(std::min(x, x_last));
-      lo = std::min(lo, plo[i]);
-      hi = std::max(hi, phi[i]);
-      invalid = static_cast<std::uint8_t>(invalid | pin[i]);
-      if (x >= x_last) break;
-    }
-    if (y >= y_last) break;
-  }
-  PixelRange range;
-  range.lo_m = lo;
-  range.hi_m = hi;
-  range.any_invalid = invalid != 0;
-  return range;
-}
-
-bool FreeSpace::any_tile_in_zone(int level, int u0, int v0, int u1, int v1, float zone_lo,
-                                 float zone_hi) const {
-  const int w = level_width_[level];
-  const float* plo = depth_min_ + level_offset_[level];
-  const float* phi = depth_max_ + level_offset_[level];
-  for (int y = v0 >> level; y <= (v1 >> level); ++y) {
-    for (int x = u0 >> level; x <= (u1 >> level); ++x) {
-      if (plo[y * w + x] <= zone_hi && phi[y * w + x] >= zone_lo) return true;
-    }
-  }
-  return false;
+  if (!reserved()) return PixelRange();
+  return ranges_.range(u0, v0, u1, v1);
 }
 
 FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look,
@@ -333,10 +118,11 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   // (floor(a / k) - floor(b / k) >= floor((a - b) / k)), so the search starts there.
   const int span = std::max(u1 - u0, v1 - v0);
   const int span_log2 = span > 0 ? floor_log2(static_cast<std::uint32_t>(span)) : 0;
+  const int level_count = ranges_.level_count();
   auto window_level = [&](int tiles) {
     int level = std::max(
-        0, std::min(span_log2 - floor_log2(static_cast<std::uint32_t>(tiles)), level_count_ - 1));
-    while (level + 1 < level_count_ &&
+        0, std::min(span_log2 - floor_log2(static_cast<std::uint32_t>(tiles)), level_count - 1));
+    while (level + 1 < level_count &&
            (((u1 >> level) - (u0 >> level)) >= tiles || ((v1 >> level) - (v0 >> level)) >= tiles)) {
       ++level;
     }
@@ -365,10 +151,10 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
     // others see through it, and no tile's depths could lie within it: nothing here contradicts
     // free space, but not all of it was seen.
     zone_level = window_level(look == Look::leaf ? 8 : 3);
-    if (!any_tile_in_zone(zone_level, u0, v0, u1, v1, zone_lo, zone_hi)) return Seen::clear;
+    if (!ranges_.any_tile_in_zone(zone_level, u0, v0, u1, v1, zone_lo, zone_hi)) return Seen::clear;
     return Seen::partial;
   };
-  const PixelRange range = rect_range(u0, v0, u1, v1);
+  const PixelRange range = ranges_.rect_range(u0, v0, u1, v1);
   const Seen seen = classify_range(range);
   if (look == Look::coarse) return seen;
   if (!config_.exact_silhouettes || seen != Seen::partial) return seen;
@@ -399,17 +185,16 @@ FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, i
   int top = 0;
   // First the tiles wholly inside the footprint: one whose farthest surface lies in the zone
   // settles it (a surface running through the view of the octant, the common case).
-  const int w = level_width_[level];
-  const std::size_t offset = level_offset_[level];
+  const int w = ranges_.level_width(level);
+  const float* level_max = ranges_.level_max(level);
   const int side = 1 << level;
   for (int y = v0 >> level; y <= (v1 >> level); ++y) {
     const bool rows_inside = y * side >= v0 && y * side + side - 1 <= v1;
     for (int x = u0 >> level; x <= (u1 >> level); ++x) {
       stack[top++] = Tile{level, x, y};
       if (!rows_inside || x * side < u0 || x * side + side - 1 > u1) continue;
-      const float hi =
-          depth_max_[offset + static_cast<std::size_t>(y) * static_cast<std::size_t>(w) +
-                     static_cast<std::size_t>(x)];
+      const float hi = level_max[static_cast<std::size_t>(y) * static_cast<std::size_t>(w) +
+                                 static_cast<std::size_t>(x)];
       if (hi >= zone_lo && hi <= zone_hi && hi > 0.0f) return Seen::partial;
     }
   }
@@ -419,12 +204,11 @@ FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, i
   while (top > 0) {
     const Tile t = stack[--top];
     const std::size_t i =
-        level_offset_[t.level] +
-        static_cast<std::size_t>(t.y) * static_cast<std::size_t>(level_width_[t.level]) +
+        static_cast<std::size_t>(t.y) * static_cast<std::size_t>(ranges_.level_width(t.level)) +
         static_cast<std::size_t>(t.x);
-    const float lo = depth_min_[i];
-    const float hi = depth_max_[i];
-    const bool tile_invalid = depth_invalid_[i] != 0;
+    const float lo = ranges_.level_min(t.level)[i];
+    const float hi = ranges_.level_max(t.level)[i];
+    const bool tile_invalid = ranges_.level_invalid(t.level)[i] != 0;
     // Every pixel measured and seeing through (a superset of the footprint's part is too).
     if (lo > zone_hi && !tile_invalid) {
       any_through = true;
@@ -461,7 +245,10 @@ FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, i
       const int cx1 = cx0 + (1 << child.level) - 1;
       const int cy1 = cy0 + (1 << child.level) - 1;
       if (cx1 < u0 || cy1 < v0 || cx0 > u1 || cy0 > v1) continue;
-      if (child.x >= level_width_[child.level] || child.y >= level_height_[child.level]) continue;
+      if (child.x >= ranges_.level_width(child.level) ||
+          child.y >= ranges_.level_height(child.level)) {
+        continue;
+      }
       stack[top++] = child;
     }
   }
@@ -602,12 +389,12 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
                                  const Se3d& T_W_C, std::uint32_t frame,
                                  ImageView<const std::uint8_t> beyond_range, float beyond_free_m) {
   FreeSpaceReport report;
-  if (!reserved_ || depth_m.width != width_ || depth_m.height != height_) return report;
+  if (!reserved() || depth_m.width != width_ || depth_m.height != height_) return report;
   if (!beyond_range.empty() && (beyond_range.width != width_ || beyond_range.height != height_ ||
                                 !(beyond_free_m > 0.0f && beyond_free_m < kNoDepth))) {
     beyond_range = ImageView<const std::uint8_t>();
   }
-  build_pyramid(depth_m, beyond_range, beyond_free_m);
+  ranges_.build(depth_m, beyond_range, beyond_free_m);
   const Se3f T_C_W = T_W_C.inverse().cast<float>();
   R_C_W_ = T_C_W.linear();
   t_C_W_ = T_C_W.translation();
@@ -742,128 +529,6 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
   report.nodes_used = nodes_.used();
   report.bytes_used = bytes_used();
   return report;
-}
-
-std::uint32_t FreeSpace::walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m,
-                                     bool mark) {
-  if (mark) {
-    for (std::uint32_t i = 0; i < nodes_.used(); ++i) remap_[i] = 0;
-    remap_[0] = 1;
-  }
-  // A depth-first walk that does not enter octants wholly beyond the radius; every node has one
-  // parent, so the nodes entered (and the root) are the ones that stay.
-  struct Entry {
-    std::uint32_t node;
-    int level;
-    Eigen::Vector3i min_voxel;
-  };
-  Entry stack[kStackCapacity];
-  int top = 0;
-  stack[top++] = Entry{0, 0, Eigen::Vector3i::Zero()};
-  const int depth = map_.voxel_depth;
-  const float voxel = map_.voxel_size_m;
-  const float radius_sq = keep_radius_m * keep_radius_m;
-  std::uint32_t kept = 1;
-  while (top > 0) {
-    const Entry e = stack[--top];
-    const int half = 1 << (depth - e.level - 1);
-    for (int c = 0; c < 8; ++c) {
-      const std::uint32_t child = nodes_[e.node].children[c];
-      if (child == kNoNode) continue;
-      const Eigen::Vector3i child_min = child_min_voxel(e.min_voxel, c, half);
-      const Eigen::Vector3f lo_W = map_.origin_W + child_min.cast<float>() * voxel;
-      const Eigen::Vector3f hi_W =
-          lo_W + Eigen::Vector3f::Constant(static_cast<float>(half) * voxel);
-      const Eigen::Vector3f nearest = centre_W.cwiseMax(lo_W).cwiseMin(hi_W);
-      if (!((nearest - centre_W).squaredNorm() <= radius_sq)) continue;
-      ++kept;
-      if (mark) remap_[child] = 1;
-      if (e.level + 1 < leaf_level_) stack[top++] = Entry{child, e.level + 1, child_min};
-    }
-  }
-  return kept;
-}
-
-std::uint32_t FreeSpace::prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
-                                  float min_radius_m) {
-  if (!reserved_ || nodes_.used() <= max_nodes) return 0;
-  // The largest radius (to 1 %) that keeps at most max_nodes, but not below min_radius_m.
-  float lo = min_radius_m;
-  float hi = 2.0f * map_.size_m();
-  if (walk_within(centre_W, lo, false) > max_nodes) return prune(centre_W, lo);
-  for (int step = 0; step < 24 && hi - lo > 0.01f * hi; ++step) {
-    const float mid = 0.5f * (lo + hi);
-    if (walk_within(centre_W, mid, false) <= max_nodes) {
-      lo = mid;
-    } else {
-      hi = mid;
-    }
-  }
-  return prune(centre_W, lo);
-}
-
-std::uint32_t FreeSpace::prune(const Eigen::Vector3f& centre_W, float keep_radius_m) {
-  if (!reserved_) return 0;
-  const std::uint32_t count = nodes_.used();
-  walk_within(centre_W, keep_radius_m, true);
-  // New indices in the old order, then move each kept node down (never up: new <= old).
-  std::uint32_t kept = 0;
-  for (std::uint32_t i = 0; i < count; ++i) remap_[i] = remap_[i] != 0 ? kept++ : kNoNode;
-  for (std::uint32_t i = 0; i < count; ++i) {
-    if (remap_[i] == kNoNode) continue;
-    FreeNode node = nodes_[i];
-    for (std::uint32_t& child : node.children) {
-      if (child != kNoNode) child = remap_[child];
-    }
-    nodes_[remap_[i]] = node;
-  }
-  for (std::uint32_t i = kept; i < count; ++i) nodes_.pop_back();
-  return count - kept;
-}
-
-FreeOctant FreeSpace::find(const Eigen::Vector3i& voxel) const {
-  FreeOctant out;
-  if (!reserved_) return out;
-  const int depth = map_.voxel_depth;
-  const int n = 1 << depth;
-  if (voxel.x() < 0 || voxel.y() < 0 || voxel.z() < 0 || voxel.x() >= n || voxel.y() >= n ||
-      voxel.z() >= n) {
-    return out;
-  }
-  const int leaf = leaf_level();
-  std::uint32_t index = 0;
-  for (int level = 0;; ++level) {
-    const FreeNode& node = nodes_[index];
-    if (node.free_count > 0) {
-      const int size = 1 << (depth - level);
-      out.free = true;
-      out.free_frame = node.free_frame;
-      out.level = level;
-      out.size_voxels = size;
-      out.min_voxel = Eigen::Vector3i(voxel.x() & ~(size - 1), voxel.y() & ~(size - 1),
-                                      voxel.z() & ~(size - 1));
-      return out;
-    }
-    if (level == leaf) {
-      if (node.sub_free == 0) return out;
-      const int leaf_size = 1 << (depth - level);
-      const Eigen::Vector3i in_leaf(voxel.x() & (leaf_size - 1), voxel.y() & (leaf_size - 1),
-                                    voxel.z() & (leaf_size - 1));
-      const Eigen::Vector3i cell = in_leaf / sub_cell_voxels_;
-      if (((node.sub_free >> (cell.x() + 2 * cell.y() + 4 * cell.z())) & 1u) == 0) return out;
-      out.free = true;
-      out.free_frame = node.free_frame;
-      out.level = level + 1;
-      out.size_voxels = sub_cell_voxels_;
-      out.min_voxel = (voxel - in_leaf) + cell * sub_cell_voxels_;
-      return out;
-    }
-    const int bit = depth - level - 1;
-    const int child = ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
-                      (((voxel.z() >> bit) & 1) << 2);
-    index = node.children[child];
-    if (index == kNoNode) return out;
-  }
 }
 
 }  // namespace octofuse

@@ -1,4 +1,4 @@
-#include "octofuse/render/interpolation.hpp"
+#include "octofuse/map/interpolation.hpp"
 
 #include <catch2/catch.hpp>
 #include <cmath>

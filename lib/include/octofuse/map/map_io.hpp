@@ -31,7 +31,7 @@
 // block after its parent node, so a loader that allocates them in file order rebuilds the same
 // pool indices, hash and tree: the loaded map meshes, ray-casts and keeps fusing exactly as the
 // saved one would (not only the same surface: the same bytes). The same map always gives the
-// same file. The free-space octree (query/free_space.hpp) is saved the same way: its nodes in
+// same file. The free-space octree (map/free_octree.hpp) is saved the same way: its nodes in
 // pool order with their child indices, so a loaded one is the same bytes and answers every query
 // as the saved one did. Not saved: the finest-level pool's slot numbers (a block's data does not
 // depend on them), refusal counters and summary-pass scratch, which start afresh.
@@ -44,7 +44,7 @@
 // Header fields: validate_map_header(). Free space: the settings (margin finite and positive,
 // octants of 2 to 64 voxels, a power of two, cap >= 1),
 // each node's count (at most the cap), frame (before the header's frame count, or 0) and
-// children (after their parent, below the count); loaded into a FreeSpace, also the tree: each
+// children (after their parent, below the count); loaded into a FreeOctree, also the tree: each
 // node but the root the child of exactly one earlier node, none below the finest octant level.
 //
 // Voxel type 3 (multires16) adds no field, so the version stays 2: a build that predates it
@@ -66,7 +66,7 @@
 
 namespace octofuse {
 
-class FreeSpace;  // query/free_space.hpp
+class FreeOctree;  // map/free_octree.hpp
 
 inline constexpr std::uint32_t kMapFormatVersion = 2;
 // Largest weight a saved voxel or summary may hold (2^24: integers stay exact in a float).
@@ -156,9 +156,9 @@ struct MapFileHeader {
   std::uint32_t block_count = 0;
   std::uint32_t finest_count = 0;  // multires blocks holding a finest level
   std::uint64_t frames = 0;        // frames processed when saved (the next frame's index)
-  // Free space (0 nodes: saved without). Loading it needs a FreeSpace with the same settings.
+  // Free space (0 nodes: saved without). Loading it needs a FreeOctree with the same settings.
   std::uint32_t free_node_count = 0;
-  float free_margin_m = 0.0f;  // FreeSpace::margin_m(): the distance bound depends on it
+  float free_margin_m = 0.0f;  // FreeOctree::margin_m(): the distance bound depends on it
   int free_octant_voxels = 0;  // FreeSpaceConfig::finest_octant_voxels
   int free_max_count = 0;      // FreeSpaceConfig::max_free_count
 };
@@ -180,12 +180,12 @@ struct MapSaveInfo {
 // the sink's error (what was written before it is incomplete: the host port writes a temporary
 // and renames it only once check_map() has read it back whole). `error` (optional) says why.
 template <typename VoxelT>
-Status save_map(const Octree<VoxelT>& map, const FreeSpace* free_space, const MapSaveInfo& info,
+Status save_map(const Octree<VoxelT>& map, const FreeOctree* free_space, const MapSaveInfo& info,
                 ByteSink& sink, ErrorText* error = nullptr);
 // The map alone (a file without free space).
 template <typename VoxelT>
 Status save_map(const Octree<VoxelT>& map, const MapSaveInfo& info, ByteSink& sink) {
-  return save_map(map, static_cast<const FreeSpace*>(nullptr), info, sink);
+  return save_map(map, static_cast<const FreeOctree*>(nullptr), info, sink);
 }
 
 // Reads and checks the header record only. ok; invalid_argument: not a map file (magic);
@@ -196,8 +196,9 @@ Result<MapFileHeader> read_map_header(ByteSource& source, ErrorText* error = nul
 // ok, or data_loss with the field and its range in `error` (optional): every field of `header`
 // in the range a map of this library can have (version, voxel type, voxel size in
 // [kMinVoxelSize_m, kMaxVoxelSize_m], mu in (0, kMaxSavedMu_m], depth, origin, counts, frames at
-// most kMaxSavedFrames, free-space settings as FreeSpace accepts them). The loader checks every
-// file's header with it and save_map() the header it is about to write, so whatever saves loads.
+// most kMaxSavedFrames, free-space settings as validate(FreeSpaceConfig) accepts them). The loader
+// checks every file's header with it and save_map() the header it is about to write, so whatever
+// saves loads.
 Status validate_map_header(const MapFileHeader& header, ErrorText* error = nullptr);
 
 // Reads a whole map from `source` and checks every record as load_map() does, without a map to
@@ -233,23 +234,23 @@ Status load_map(ByteSource& source, Octree<VoxelT>& map, MapFileHeader* header_o
 // cap); resource_exhausted when its pool is too small; data_loss for a free-space record that
 // is damaged or does not fit in the tree. On any error both are left cleared.
 template <typename VoxelT>
-Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeSpace* free_space,
+Status load_map(ByteSource& source, Octree<VoxelT>& map, FreeOctree* free_space,
                 MapFileHeader* header_out, ErrorText* error);
 
-extern template Status save_map(const Octree<TsdfVoxel>&, const FreeSpace*, const MapSaveInfo&,
+extern template Status save_map(const Octree<TsdfVoxel>&, const FreeOctree*, const MapSaveInfo&,
                                 ByteSink&, ErrorText*);
-extern template Status save_map(const Octree<MultiresVoxel>&, const FreeSpace*, const MapSaveInfo&,
+extern template Status save_map(const Octree<MultiresVoxel>&, const FreeOctree*, const MapSaveInfo&,
                                 ByteSink&, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, MapFileHeader*, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, MapFileHeader*, ErrorText*);
-extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeSpace*, MapFileHeader*,
+extern template Status load_map(ByteSource&, Octree<TsdfVoxel>&, FreeOctree*, MapFileHeader*,
                                 ErrorText*);
-extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeSpace*, MapFileHeader*,
+extern template Status load_map(ByteSource&, Octree<MultiresVoxel>&, FreeOctree*, MapFileHeader*,
                                 ErrorText*);
-extern template Status save_map(const Octree<Multires16Voxel>&, const FreeSpace*,
+extern template Status save_map(const Octree<Multires16Voxel>&, const FreeOctree*,
                                 const MapSaveInfo&, ByteSink&, ErrorText*);
 extern template Status load_map(ByteSource&, Octree<Multires16Voxel>&, MapFileHeader*, ErrorText*);
-extern template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeSpace*, MapFileHeader*,
+extern template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeOctree*, MapFileHeader*,
                                 ErrorText*);
 
 }  // namespace octofuse

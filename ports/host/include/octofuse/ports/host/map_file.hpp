@@ -10,6 +10,7 @@
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/core/result.hpp"
 #include "octofuse/map/map_io.hpp"
+#include "octofuse/query/free_space.hpp"
 
 namespace octofuse::host {
 

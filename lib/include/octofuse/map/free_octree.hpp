@@ -1,0 +1,214 @@
+#pragma once
+// The free-space octree: a second, sparse octree over the map's cube that records which octants
+// frames saw wholly free, at the coarsest octant that was (one node for a metre of empty air).
+// It is the data a saved map keeps and a query reads; FreeSpace (query/free_space.hpp) carves
+// it from each frame's depth. lib/README.md ("Free space") describes the design.
+
+#include <cstddef>
+#include <cstdint>
+#include <type_traits>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/core/pool.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/map/map_config.hpp"
+
+namespace octofuse {
+
+// The smallest octant the automatic choice of FreeSpaceConfig::finest_octant_voxels takes.
+inline constexpr float kAutoFreeOctant_m = 0.05f;
+
+struct FreeSpaceConfig {
+  bool enabled = true;
+  // Nodes in the free-space pool (the root included); 0 = the TSDF map's node_capacity.
+  std::uint32_t node_capacity = 0;
+  std::uint32_t max_node_visits = 1u << 18;  // per frame
+  std::uint32_t max_new_nodes = 1u << 16;    // per frame
+  // Each octant is grown by this much before it is tested (0 = one finest voxel).
+  float margin_m = 0.0f;
+  // An octant is free only when it lies this far in front of the observed depth (0 = half the
+  // TSDF truncation, set by the pipeline): depth noise must not carve into the surface.
+  float clearance_m = 0.0f;
+  // Free octants less than this behind the observed depth are cleared although the frame does
+  // not see into them (0 = 4 mu, set by the pipeline): an object that appears where free space
+  // was recorded clears it this deep behind its visible surface. Deeper parts of such an object
+  // stay free until seen from elsewhere (a known limit).
+  float occlusion_clear_m = 0.0f;
+  std::uint8_t max_free_count = 8;
+  // Side of the smallest octant carved, in finest voxels: 8 (a block), 4 or 2; or 16, 32 or 64
+  // (2^3, 4^3, 8^3 blocks). Smaller octants fit more of the view's edges and the air just in front
+  // of surfaces, for more node visits. 0: the smallest of 8, 16, 32 and 64 that spans at least
+  // kAutoFreeOctant_m (8 voxels at 1 cm, 32 at 2 mm, where 8-voxel octants would make carving
+  // cost more than the rest of the frame).
+  int finest_octant_voxels = 0;
+  // Leaves and sub-cells whose view holds depths both well in front of them (a nearer object's
+  // silhouette, a slanted floor) and behind them are settled pixel by pixel before they are
+  // cleared: more of the air beside silhouettes reads free, for a costlier stage.
+  bool exact_silhouettes = false;
+  // Octants nearer than this to the camera plane are not tested (projection degenerates).
+  float near_m = 0.05f;
+  // When a frame leaves the pool more than 15/16 full, the pipeline forgets the free space
+  // farthest from the camera (prune_to()) until the pool is at most 3/4 full, so that a long
+  // mission keeps carving where the robot is; never within this distance of the camera (0 = a
+  // quarter of the fusion's far_m). A pool too small for the air around the camera still refuses
+  // nodes.
+  float prune_radius_m = 0.0f;
+};
+
+// ok, or invalid_argument for a negative or non-finite margin/clearance/occlusion/near/prune
+// radius, max_free_count 0, finest_octant_voxels not 0, 2, 4, 8, 16, 32 or 64, or a zero visit
+// budget.
+Status validate(const FreeSpaceConfig& config);
+
+// Octree level of the finest free-space octants, of side `octant_voxels` (2 .. 64, a power of
+// two), in a map whose blocks (8 voxels) sit at `block_level`.
+constexpr int free_leaf_level(int block_level, int octant_voxels) {
+  int level = block_level + 3;
+  for (int side = 1; side < octant_voxels; side *= 2) --level;
+  return level;
+}
+
+// FreeSpaceConfig::finest_octant_voxels with 0 resolved for `map`: the smallest of 8, 16, 32 and
+// 64 voxels that spans kAutoFreeOctant_m, and whose octants are below the root's children.
+inline int resolve_finest_octant_voxels(int requested, const MapConfig& map) {
+  if (requested != 0) return requested;
+  const int block_level = map.block_level();
+  int side = 8;
+  while (side < 64 && static_cast<float>(side) * map.voxel_size_m < kAutoFreeOctant_m &&
+         free_leaf_level(block_level, 2 * side) >= 1) {
+    side *= 2;
+  }
+  return side;
+}
+
+// The finest-voxel corner of child `child` (bit 0: +x, bit 1: +y, bit 2: +z, as FreeNode's
+// children and sub_free bits) of the octant at `min_voxel` whose children have side `half`.
+inline Eigen::Vector3i child_min_voxel(const Eigen::Vector3i& min_voxel, int child, int half) {
+  return min_voxel +
+         Eigen::Vector3i((child & 1) ? half : 0, (child & 2) ? half : 0, (child & 4) ? half : 0);
+}
+
+struct FreeNode {
+  std::uint32_t children[8] = {0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu,
+                               0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu, 0xFFFFFFFFu};
+  std::uint32_t free_frame = 0;  // frame index of the last frame that saw the octant free
+  std::uint8_t free_count = 0;   // frames that saw it free, capped; 0 = not known free
+  // Leaves with free_count 0 only: bit x + 2 y + 4 z says the leaf's half-size sub-cell (x, y, z)
+  // is wholly free, as of free_frame.
+  std::uint8_t sub_free = 0;
+  std::uint8_t padding_[2] = {};
+};
+
+// The free octant containing a point, as found by FreeOctree::find().
+struct FreeOctant {
+  bool free = false;
+  std::uint32_t free_frame = 0;
+  int level = -1;                                       // tree level (root 0)
+  Eigen::Vector3i min_voxel = Eigen::Vector3i::Zero();  // finest-voxel corner
+  int size_voxels = 0;
+};
+
+// Node 0 is the root; a node's children are node indices (kNoNode where absent), allocated after
+// their parent, so the pool's first node_count() nodes are the whole state. Reserved (and
+// written) by FreeSpace; read by queries and the map I/O.
+class FreeOctree {
+ public:
+  static constexpr std::uint32_t kNoNode = 0xFFFFFFFFu;
+  // A walk's stack: at most 8 pending siblings per level.
+  static constexpr int kStackCapacity = 8 * (kMaxVoxelDepth + 2);
+
+  bool reserved() const { return reserved_; }
+  // Nothing known free: the root alone.
+  void clear();
+
+  // Forgets every octant lying wholly farther than `keep_radius_m` from `centre_W` (its subtree
+  // with it: what was free there reads unknown again) and compacts the pool in place, keeping
+  // the order of the nodes that stay (children after their parents). Returns the nodes dropped.
+  // O(node_count()), no allocation; the root always stays.
+  std::uint32_t prune(const Eigen::Vector3f& centre_W, float keep_radius_m);
+  // prune() with the largest radius, to 1 %, that leaves at most `max_nodes`, but no less than
+  // `min_radius_m` (then more may stay). Nothing when at most `max_nodes` are used. Up to 25
+  // walks over the pool.
+  std::uint32_t prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
+                         float min_radius_m);
+
+  // The free octant containing finest voxel `voxel` (inside the cube), or free = false.
+  FreeOctant find(const Eigen::Vector3i& voxel) const;
+
+  const FreeSpaceConfig& config() const { return config_; }
+  const MapConfig& map_config() const { return map_; }
+  float margin_m() const { return margin_m_; }
+  // Level of the smallest octants (the blocks' level for finest_octant_voxels 8).
+  int leaf_level() const { return leaf_level_; }
+  // A leaf's 2 x 2 x 2 sub-cells, each of sub_cell_voxels() finest voxels on a side.
+  int sub_cell_voxels() const { return sub_cell_voxels_; }
+  std::uint32_t node_count() const { return nodes_.used(); }
+  std::uint32_t node_capacity() const { return nodes_.capacity(); }
+  const FreeNode& node(std::uint32_t index) const { return nodes_[index]; }
+  std::size_t bytes_used() const { return sizeof(FreeNode) * nodes_.used(); }
+  std::size_t bytes_reserved() const { return bytes_reserved_; }
+
+  // For the map loader (map/map_io.hpp), which rebuilds a saved free space in pool order:
+  // clear(), then `count` empty nodes (the root included) for restore_node() to fill. Children
+  // must get higher indices than their parents, as carving allocates them. failed_precondition
+  // when not reserved; resource_exhausted when the pool holds fewer (it is left cleared).
+  Status begin_restore(std::uint32_t count);
+  FreeNode& restore_node(std::uint32_t index) { return nodes_[index]; }
+
+ protected:
+  // FreeSpace::reserve() carves, in this order: the node pool (reserve_nodes()), its own scratch,
+  // the prune scratch (reserve_prune_scratch()); then finish_reserve().
+  template <typename Arena>
+  Status reserve_nodes(Arena& arena, const FreeSpaceConfig& config, const MapConfig& map);
+  template <typename Arena>
+  Status reserve_prune_scratch(Arena& arena);
+  template <typename Arena>
+  void finish_reserve(Arena& arena, std::size_t start);
+
+  static constexpr std::uint8_t kAllSubCells = 0xFF;
+
+  FreeSpaceConfig config_;
+  MapConfig map_;
+  IndexPool<FreeNode> nodes_;
+  float margin_m_ = 0.0f;
+  int leaf_level_ = 0;
+  int sub_cell_voxels_ = 4;
+
+ private:
+  // Nodes within keep_radius_m of centre_W (the root and every node whose octant comes that close
+  // and whose parent stays); with `mark`, remap_[i] = 1 for those, 0 for the others.
+  std::uint32_t walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m, bool mark);
+
+  std::uint32_t* remap_ = nullptr;  // prune(): old node index -> new one
+  std::size_t bytes_reserved_ = 0;
+  bool reserved_ = false;
+};
+
+template <typename Arena>
+Status FreeOctree::reserve_nodes(Arena& arena, const FreeSpaceConfig& config,
+                                 const MapConfig& map) {
+  const std::uint32_t capacity =
+      config.node_capacity != 0 ? config.node_capacity : map.node_capacity;
+  return nodes_.reserve(arena, capacity);
+}
+
+template <typename Arena>
+Status FreeOctree::reserve_prune_scratch(Arena& arena) {
+  Result<std::uint32_t*> remap = arena.template allocate_array<std::uint32_t>(nodes_.capacity());
+  OCTOFUSE_TRY(remap);
+  remap_ = remap.value();
+  return ok_status();
+}
+
+template <typename Arena>
+void FreeOctree::finish_reserve(Arena& arena, std::size_t start) {
+  bytes_reserved_ = arena.bytes_used() - start;
+  if constexpr (!std::is_same_v<Arena, ArenaSizer>) {
+    reserved_ = true;
+    clear();
+  }
+}
+
+}  // namespace octofuse

@@ -157,10 +157,7 @@ class Octree {
 
   bool reserved() const { return reserved_; }
   // Forgets every block and node (keeps the root); memory stays reserved.
-  void clear() {
-    OCTOFUSE_CHECK(reserved_);
-    reset_contents(/*clear_hash=*/true);
-  }
+  void clear();
 
   const MapConfig& config() const { return config_; }
   int voxel_depth() const { return config_.voxel_depth; }
@@ -229,28 +226,10 @@ class Octree {
   // Returns ok; resource_exhausted when a pool refused at least one key (those keys are skipped,
   // everything else is allocated and existing data is untouched); out_of_range when some key
   // lay outside the cube or below block_level (skipped) and nothing was refused.
-  Status allocate(const Key* keys, std::size_t count, AllocationCounts* counts = nullptr) {
-    OCTOFUSE_CHECK(reserved_);
-    AllocationCounts local;
-    AllocationPath path;
-    for (std::size_t i = 0; i < count; ++i) allocate_one(keys[i], local, path);
-    if (counts != nullptr) *counts = local;
-    if (local.refused > 0) return StatusCode::resource_exhausted;
-    if (local.rejected > 0) return StatusCode::out_of_range;
-    return ok_status();
-  }
+  Status allocate(const Key* keys, std::size_t count, AllocationCounts* counts = nullptr);
   // The block at `block_coords`, allocated if needed: its index, or out_of_range (outside the
   // cube) / resource_exhausted (pool full).
-  Result<std::uint32_t> allocate_block(const Eigen::Vector3i& block_coords) {
-    if (!contains_block(block_coords)) return StatusCode::out_of_range;
-    const std::uint32_t found = find_block_index(block_coords);
-    if (found != kNoIndex) return found;
-    AllocationCounts local;
-    AllocationPath path;
-    allocate_one(block_key(block_coords), local, path);
-    if (local.refused > 0) return StatusCode::resource_exhausted;
-    return find_block_index(block_coords);
-  }
+  Result<std::uint32_t> allocate_block(const Eigen::Vector3i& block_coords);
 
   // --- Finest levels (multires). Gives `block` its finest level if it has none, initialised
   // unobserved: ok (also when it had one, and always for single-res maps), or resource_exhausted
@@ -408,64 +387,18 @@ class Octree {
   // --- Summaries.
   // Recomputes a block's header summary (tsdf_min/max/mean, weight_mean) over the observed
   // voxels at its current scale.
-  static void update_block_summary(Block& block) {
-    const int scale = block.current_scale;
-    const VoxelT* v = block.scale_begin(scale);
-    float lo = 1.0f;
-    float hi = -1.0f;
-    float sum = 0.0f;
-    float sum_weight = 0.0f;
-    int observed = 0;
-    for (int i = 0; i < block_scale_count(scale); ++i) {
-      if (!voxel_observed(v[i])) continue;
-      const float t = voxel_tsdf(v[i]);
-      lo = t < lo ? t : lo;
-      hi = t > hi ? t : hi;
-      sum += t;
-      sum_weight += voxel_weight(v[i]);
-      ++observed;
-    }
-    block.tsdf_min = lo;
-    block.tsdf_max = hi;
-    if (observed > 0) {
-      block.tsdf_mean = sum / static_cast<float>(observed);
-      block.weight_mean = std::ceil(sum_weight / static_cast<float>(observed));
-    }
-  }
+  static void update_block_summary(Block& block);
   // Refreshes the summaries of every inner node above the given blocks, bottom-up to the root
   // (each node once). A block contributes its header summary (tsdf_mean, weight_mean,
   // tsdf_min/max); a node contributes its summary. Means are over observed children only; a node
   // whose children are all unobserved keeps its summary.
-  void propagate_summaries(const std::uint32_t* block_indices, std::size_t count) {
-    ++stamp_;
-    std::size_t current_count = 0;
-    // Blocks and nodes are scattered over large pools: load headers 2d entries ahead, and d ahead
-    // (once the header has arrived) the node it points to.
-    constexpr std::size_t d = kSummaryPrefetchDistance;
-    for (std::size_t i = 0; i < count; ++i) {
-      if (i + 2 * d < count) __builtin_prefetch(&blocks_[block_indices[i + 2 * d]].parent_node);
-      if (i + d < count) __builtin_prefetch(&nodes_[blocks_[block_indices[i + d]].parent_node]);
-      add_summary_node(blocks_[block_indices[i]].parent_node, current_count);
-    }
-    propagate_node_summaries(current_count);
-  }
+  void propagate_summaries(const std::uint32_t* block_indices, std::size_t count);
   // The same, given the blocks' parent nodes (their parent_node, in the same order; kNoIndex
   // entries are skipped): callers that have read the headers already save a pass over them.
   // Wide levels are summarised in fixed tasks over `team` (each node only reads its children and
   // writes its own summary, so the result does not depend on the worker count).
   void propagate_summaries_from_parents(const std::uint32_t* parent_nodes, std::size_t count,
-                                        const WorkerTeam& team = WorkerTeam()) {
-    ++stamp_;
-    std::size_t current_count = 0;
-    constexpr std::size_t d = kSummaryPrefetchDistance;
-    for (std::size_t i = 0; i < count; ++i) {
-      if (i + d < count && parent_nodes[i + d] != kNoIndex) {
-        __builtin_prefetch(&nodes_[parent_nodes[i + d]]);
-      }
-      if (parent_nodes[i] != kNoIndex) add_summary_node(parent_nodes[i], current_count);
-    }
-    propagate_node_summaries(current_count, &team);
-  }
+                                        const WorkerTeam& team = WorkerTeam());
 
   // --- Eviction (bounded memory over unbounded areas). Removes the blocks at the given pool
   // indices (distinct, each < block_count(); the array is sorted in place): their space reads as
@@ -476,118 +409,23 @@ class Octree {
   // the order given). Inner nodes stay, empty, for the blocks that come back; they are small
   // beside blocks and the node pool is sized for the blocks the cube can hold at once.
   // Not thread-safe, like allocate().
-  void evict_blocks(std::uint32_t* indices, std::size_t count) {
-    OCTOFUSE_CHECK(reserved_);
-    if (count == 0) return;
-    std::sort(indices, indices + count, [](std::uint32_t a, std::uint32_t b) { return a > b; });
-    ++stamp_;
-    std::size_t parents = 0;
-    const int depth = voxel_depth();
-    const int leaf = block_level();
-    for (std::size_t i = 0; i < count; ++i) {
-      const std::uint32_t index = indices[i];
-      OCTOFUSE_CHECK(index < blocks_.used() && (i == 0 || index < indices[i - 1]));
-      Block& block = blocks_[index];
-      if constexpr (kSplitFinest) {
-        if (block.finest != nullptr) finest_.release(finest_.index_of(block.finest));
-      }
-      const bool erased = hash_.erase(morton_encode(block.coords));
-      OCTOFUSE_CHECK(erased);
-      OctreeNode& parent = nodes_[block.parent_node];
-      const int child = child_index(Key{block.morton, static_cast<std::uint8_t>(leaf)}, depth);
-      OCTOFUSE_CHECK(parent.children[child] == index);
-      parent.children[child] = kNoIndex;
-      add_summary_node(block.parent_node, parents);
-      const std::uint32_t last = blocks_.used() - 1;
-      if (index != last) {
-        Block& moved = blocks_[last];
-        OctreeNode& moved_parent = nodes_[moved.parent_node];
-        const int moved_child =
-            child_index(Key{moved.morton, static_cast<std::uint8_t>(leaf)}, depth);
-        OCTOFUSE_CHECK(moved_parent.children[moved_child] == last);
-        moved_parent.children[moved_child] = index;
-        const bool moved_ok = hash_.set_index(morton_encode(moved.coords), index);
-        OCTOFUSE_CHECK(moved_ok);
-        block = moved;
-      }
-      blocks_.pop_back();
-    }
-    propagate_node_summaries(parents, nullptr, /*reset_unobserved=*/true);
-    evicted_ += count;
-  }
+  void evict_blocks(std::uint32_t* indices, std::size_t count);
   // Multires: gives the finest levels of the blocks at the given pool indices back to the finest
   // pool, keeping the blocks at scale 1 (scale 1 is brought up to date from scale 0 first, the
   // block summaries and the node summaries above are recomputed). A block refines again, by
   // down-propagation, when it next integrates at scale 0 and the pool lends it a level. Blocks
   // without a finest level are left alone; single-res maps: nothing happens. Not thread-safe.
-  void release_finest(const std::uint32_t* indices, std::size_t count) {
-    OCTOFUSE_CHECK(reserved_);
-    if constexpr (kSplitFinest) {
-      ++stamp_;
-      std::size_t parents = 0;
-      for (std::size_t i = 0; i < count; ++i) {
-        Block& block = blocks_[indices[i]];
-        if (block.finest == nullptr) continue;
-        if (block.integrated() && block.current_scale == 0) {
-          if (block.mip_scale < 1) {
-            propagate_block_up(block, 0, 1);
-            block.mip_scale = 1;
-          }
-          block.current_scale = 1;
-          update_block_summary(block);
-          add_summary_node(block.parent_node, parents);
-        }
-        finest_.release(finest_.index_of(block.finest));
-        block.finest = nullptr;
-      }
-      propagate_node_summaries(parents, nullptr, /*reset_unobserved=*/true);
-    } else {
-      (void)indices;
-      (void)count;
-    }
-  }
+  void release_finest(const std::uint32_t* indices, std::size_t count);
 
   // Blocks removed by evict_blocks() since reserve()/clear().
   std::uint64_t evicted() const { return evicted_; }
 
   // --- Memory.
-  MapMemory memory() const {
-    MapMemory m;
-    m.bytes_reserved = bytes_reserved_;
-    m.bytes_per_block = sizeof(Block);
-    m.blocks_used = blocks_.used();
-    m.block_capacity = blocks_.capacity();
-    m.nodes_used = nodes_.used();
-    m.node_capacity = nodes_.capacity();
-    m.bytes_used = sizeof(Block) * m.blocks_used + sizeof(OctreeNode) * m.nodes_used;
-    if constexpr (kSplitFinest) {
-      m.bytes_per_finest = sizeof(Finest);
-      m.finest_used = finest_.used();
-      m.finest_capacity = finest_.capacity();
-      m.bytes_used += sizeof(Finest) * m.finest_used;
-    }
-    m.refusals = refusals_;
-    m.finest_refusals = finest_refusals_;
-    m.evicted = evicted_;
-    return m;
-  }
+  MapMemory memory() const;
   std::uint64_t refusals() const { return refusals_; }
 
  private:
-  void reset_contents(bool clear_hash) {
-    nodes_.reset();
-    blocks_.reset();
-    finest_.reset();
-    if (clear_hash) hash_.clear();
-    refusals_ = 0;
-    finest_refusals_ = 0;
-    evicted_ = 0;
-    stamp_ = 0;
-    Result<std::uint32_t> root = nodes_.allocate();
-    OCTOFUSE_CHECK(root.ok() && root.value() == 0);
-    nodes_[0].level = 0;
-    nodes_[0].morton = 0;
-  }
+  void reset_contents(bool clear_hash);
 
   // The inner nodes on the way to the last key allocate_one() walked to: node[l] is the node of
   // level l containing `morton`, for l < levels. Sorted keys share most of their way, so the next
@@ -598,190 +436,19 @@ class Octree {
     int levels = 1;  // the root contains every key
   };
 
-  void allocate_one(const Key& key, AllocationCounts& counts, AllocationPath& path) {
-    const int depth = voxel_depth();
-    const int leaf = block_level();
-    const Eigen::Vector3i corner = key_corner_voxel(key);
-    if (key.level > leaf || !contains_voxel(corner)) {
-      ++counts.rejected;
-      return;
-    }
-    if (key.level == leaf && hash_.find(morton_encode(voxel_to_block(corner))) != kNoIndex) {
-      ++counts.already_allocated;
-      return;
-    }
-    if (key.level == 0) {
-      ++counts.already_allocated;
-      return;
-    }
-    // The deepest known node containing the key, above its level.
-    int start = std::min(path.levels, static_cast<int>(key.level)) - 1;
-    while (start > 0 &&
-           (key.morton >> (3 * (depth - start))) != (path.morton >> (3 * (depth - start)))) {
-      --start;
-    }
-    std::uint32_t node = path.node[start];
-    path.morton = key.morton;
-    path.levels = start + 1;
-    for (int level = start + 1; level <= key.level; ++level) {
-      const Key here = parent_key_at(key, level, depth);
-      const int child = child_index(here, depth);
-      const std::uint32_t existing = nodes_[node].children[child];
-      if (existing != kNoIndex) {
-        if (level == key.level) ++counts.already_allocated;
-        node = existing;
-        if (level < leaf) {
-          path.node[level] = node;
-          path.levels = level + 1;
-        }
-        continue;
-      }
-      if (level == leaf) {
-        Result<std::uint32_t> b = blocks_.allocate();
-        if (!b.ok()) {
-          ++counts.refused;
-          ++refusals_;
-          return;
-        }
-        Block& block = blocks_[b.value()];
-        block.coords = voxel_to_block(corner);
-        block.morton = here.morton;
-        block.parent_node = node;
-        const Status inserted = hash_.insert(morton_encode(block.coords), b.value());
-        OCTOFUSE_CHECK(inserted.ok());  // the hash holds as many entries as the pool
-        nodes_[node].children[child] = b.value();
-        ++counts.new_blocks;
-        return;
-      }
-      Result<std::uint32_t> n = nodes_.allocate();
-      if (!n.ok()) {
-        ++counts.refused;
-        ++refusals_;
-        return;
-      }
-      OctreeNode& fresh = nodes_[n.value()];
-      fresh.parent = node;
-      fresh.morton = here.morton;
-      fresh.level = static_cast<std::uint8_t>(level);
-      nodes_[node].children[child] = n.value();
-      ++counts.new_nodes;
-      node = n.value();
-      path.node[level] = node;
-      path.levels = level + 1;
-    }
-  }
+  void allocate_one(const Key& key, AllocationCounts& counts, AllocationPath& path);
 
   // Appends node p to the first level of a summary pass unless this pass has it already.
-  void add_summary_node(std::uint32_t p, std::size_t& current_count) {
-    if (nodes_[p].visit_stamp == stamp_) return;
-    nodes_[p].visit_stamp = stamp_;
-    scratch_a_[current_count++] = p;
-  }
+  void add_summary_node(std::uint32_t p, std::size_t& current_count);
   // Summarises the nodes in scratch_a_ (parents of blocks), then their parents, up to the root.
   // reset_unobserved: a node with nothing observed below reads unobserved (after eviction)
   // instead of keeping its summary.
   void propagate_node_summaries(std::size_t current_count, const WorkerTeam* team = nullptr,
-                                bool reset_unobserved = false) {
-    constexpr std::size_t d = kSummaryPrefetchDistance;
-    std::uint32_t* current = scratch_a_;
-    std::uint32_t* next = scratch_b_;
-    bool children_are_blocks = true;
-    while (current_count > 0) {
-      const bool parallel = team != nullptr && current_count >= kParallelSummaryNodes;
-      if (parallel) {
-        const std::uint32_t* level = current;
-        const std::size_t level_count = current_count;
-        const bool blocks = children_are_blocks;
-        auto summarise_task = [&](std::size_t task) {
-          const TaskRange r = task_range(level_count, task, kSummaryTasks);
-          for (std::size_t i = r.begin; i < r.end; ++i) {
-            if (i + 2 * d < r.end) __builtin_prefetch(&nodes_[level[i + 2 * d]]);
-            if (i + d < r.end) prefetch_children(nodes_[level[i + d]], blocks);
-            summarise_node(nodes_[level[i]], blocks, reset_unobserved);
-          }
-        };
-        team->for_each_task(kSummaryTasks, summarise_task);
-      }
-      // The next level, in first-seen order (serially: the order must not depend on the tasks).
-      std::size_t next_count = 0;
-      for (std::size_t i = 0; i < current_count; ++i) {
-        OctreeNode& n = nodes_[current[i]];
-        if (!parallel) {
-          // Same for the nodes of this level and, d ahead, the children they summarise.
-          if (i + 2 * d < current_count) __builtin_prefetch(&nodes_[current[i + 2 * d]]);
-          if (i + d < current_count) prefetch_children(nodes_[current[i + d]], children_are_blocks);
-          summarise_node(n, children_are_blocks, reset_unobserved);
-        } else if (i + d < current_count) {
-          __builtin_prefetch(&nodes_[current[i + d]].parent);
-        }
-        if (n.parent == kNoIndex) continue;
-        OctreeNode& p = nodes_[n.parent];
-        if (p.visit_stamp == stamp_) continue;
-        p.visit_stamp = stamp_;
-        next[next_count++] = n.parent;
-      }
-      std::uint32_t* swap = current;
-      current = next;
-      next = swap;
-      current_count = next_count;
-      children_are_blocks = false;
-    }
-  }
+                                bool reset_unobserved = false);
 
-  void prefetch_children(const OctreeNode& n, bool children_are_blocks) const {
-    for (int c = 0; c < 8; ++c) {
-      const std::uint32_t child = n.children[c];
-      if (child == kNoIndex) continue;
-      if (children_are_blocks) {
-        __builtin_prefetch(&blocks_[child].tsdf_min);
-      } else {
-        __builtin_prefetch(&nodes_[child].summary);
-      }
-    }
-  }
+  void prefetch_children(const OctreeNode& n, bool children_are_blocks) const;
 
-  void summarise_node(OctreeNode& n, bool children_are_blocks, bool reset_unobserved) {
-    float sum_tsdf = 0.0f;
-    float sum_weight = 0.0f;
-    float lo = 1.0f;
-    float hi = -1.0f;
-    int observed = 0;
-    for (int c = 0; c < 8; ++c) {
-      const std::uint32_t child = n.children[c];
-      if (child == kNoIndex) continue;
-      float mean;
-      float weight;
-      float child_lo;
-      float child_hi;
-      if (children_are_blocks) {
-        const Block& b = blocks_[child];
-        mean = b.tsdf_mean;
-        weight = b.weight_mean;
-        child_lo = b.tsdf_min;
-        child_hi = b.tsdf_max;
-      } else {
-        const NodeSummary& s = nodes_[child].summary;
-        mean = s.tsdf_mean;
-        weight = s.weight_mean;
-        child_lo = s.tsdf_min;
-        child_hi = s.tsdf_max;
-      }
-      if (!(weight > 0.0f)) continue;
-      ++observed;
-      sum_tsdf += mean;
-      sum_weight += weight;
-      lo = child_lo < lo ? child_lo : lo;
-      hi = child_hi > hi ? child_hi : hi;
-    }
-    if (observed == 0) {
-      if (reset_unobserved) n.summary = NodeSummary();
-      return;
-    }
-    n.summary.tsdf_mean = sum_tsdf / static_cast<float>(observed);
-    n.summary.weight_mean = std::ceil(sum_weight / static_cast<float>(observed));
-    n.summary.tsdf_min = lo;
-    n.summary.tsdf_max = hi;
-  }
+  void summarise_node(OctreeNode& n, bool children_are_blocks, bool reset_unobserved);
 
   MapConfig config_;
   IndexPool<OctreeNode> nodes_;

@@ -4,8 +4,8 @@
 #include <cmath>
 #include <type_traits>
 
-#include "octofuse/fusion/propagation.hpp"
-#include "octofuse/map/mip.hpp"
+#include "octofuse/fusion/detail/propagation.hpp"
+#include "octofuse/map/detail/mip.hpp"
 
 namespace octofuse {
 

@@ -1,4 +1,4 @@
-#include "octofuse/fusion/propagation.hpp"
+#include "octofuse/fusion/detail/propagation.hpp"
 
 #include <algorithm>
 

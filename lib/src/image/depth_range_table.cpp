@@ -1,4 +1,4 @@
-#include "octofuse/image/depth_range_table.hpp"
+#include "octofuse/image/detail/depth_range_table.hpp"
 
 #include <algorithm>
 

@@ -9,7 +9,7 @@
 
 #include <catch2/catch.hpp>
 
-#include "octofuse/map/mip.hpp"
+#include "octofuse/map/detail/mip.hpp"
 #include "support/alloc_counter.hpp"
 #include "unit/fusion/analytic_scene.hpp"
 #include "unit/map/arena_buffer.hpp"

@@ -1,11 +1,11 @@
-#include "octofuse/fusion/propagation.hpp"
+#include "octofuse/fusion/detail/propagation.hpp"
 
 #include <algorithm>
 #include <cmath>
 
 #include <catch2/catch.hpp>
 
-#include "octofuse/map/mip.hpp"
+#include "octofuse/map/detail/mip.hpp"
 
 namespace octofuse {
 namespace {

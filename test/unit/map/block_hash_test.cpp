@@ -1,4 +1,4 @@
-#include "octofuse/map/block_hash.hpp"
+#include "octofuse/map/detail/block_hash.hpp"
 
 #include <algorithm>
 #include <cstdint>

@@ -1,4 +1,4 @@
-#include "octofuse/map/mip.hpp"
+#include "octofuse/map/detail/mip.hpp"
 
 #include <random>
 

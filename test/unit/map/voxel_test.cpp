@@ -7,7 +7,7 @@
 
 #include <catch2/catch.hpp>
 
-#include "octofuse/map/mip.hpp"
+#include "octofuse/map/detail/mip.hpp"
 #include "octofuse/map/voxel_block.hpp"
 
 namespace octofuse {

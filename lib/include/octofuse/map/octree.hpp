@@ -27,10 +27,10 @@
 #include "octofuse/core/parallel.hpp"
 #include "octofuse/core/pool.hpp"
 #include "octofuse/core/result.hpp"
-#include "octofuse/map/block_hash.hpp"
+#include "octofuse/map/detail/block_hash.hpp"
+#include "octofuse/map/detail/mip.hpp"
 #include "octofuse/map/keys.hpp"
 #include "octofuse/map/map_config.hpp"
-#include "octofuse/map/mip.hpp"
 #include "octofuse/map/voxel.hpp"
 #include "octofuse/map/voxel_block.hpp"
 

@@ -1,8 +1,8 @@
 #pragma once
 // Free-space carving: records what each frame saw through in the free-space octree
 // (map/free_octree.hpp), testing each octant against the depth range of exactly the pixels of its
-// footprint (image/depth_range_table.hpp). lib/README.md ("Free space") describes the walk, the
-// classes an octant falls in, the budgets and what it misses.
+// footprint (image/detail/depth_range_table.hpp). lib/README.md ("Free space") describes the walk,
+// the classes an octant falls in, the budgets and what it misses.
 //
 // Threading: carve(), clear() and prune() must not overlap reads (the pipeline's MapGuard orders
 // them).
@@ -14,7 +14,7 @@
 
 #include "octofuse/core/arena.hpp"
 #include "octofuse/core/result.hpp"
-#include "octofuse/image/depth_range_table.hpp"
+#include "octofuse/image/detail/depth_range_table.hpp"
 #include "octofuse/image/image_view.hpp"
 #include "octofuse/map/free_octree.hpp"
 #include "octofuse/map/map_config.hpp"

@@ -1,7 +1,7 @@
 #pragma once
 // Moving multires data between the scales of one block (paper 4.3.2-4.3.3).
 //
-// Up (eq. 4): map/mip.hpp's propagate_block_up.
+// Up (eq. 4): map/detail/mip.hpp's propagate_block_up.
 // Down (eq. 5), when a block refines from parent scale l+1 to l:
 //   observed child:   x += (x_parent - x_last_parent), clamped to [-1, 1];
 //                     y = min(y_max, y + delta_y_parent); delta_y += delta_y_parent

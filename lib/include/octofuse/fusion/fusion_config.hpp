@@ -16,10 +16,9 @@ struct FusionConfig {
   // How far behind the measured surface voxels are updated, as a share of mu in (0, 1] (but at
   // least 2.5 voxels of the block's scale). 1: the whole band. A shorter back side keeps the
   // negative half of the band from running through thin objects and onto the surfaces just
-  // behind them: on the sim scenes (1 cm, 3/8) mesh RMSE 10.4 -> 3.5 mm on the desk and
-  // 12.2 -> 8.2 mm on the room, room ATE 1.23 -> 0.71 cm, but room thin recall 0.97 -> 0.91 and
-  // 7-Scenes ATE 2.55 -> 2.65 cm (Kinect noise averages over the longer band), so the default
-  // stays 1. Points more than this behind a surface read unknown instead of inside.
+  // behind them (a smaller mesh error on the sim scenes), but loses thin objects and, on noisy
+  // depth (Kinect), the averaging over the longer band, so the default stays 1. Points more than
+  // this behind a surface read unknown instead of inside.
   float behind_mu = 1.0f;
   // Allocation marches every n-th pixel's ray in x and y (1 = every pixel).
   int allocation_pixel_step = 1;

@@ -1,57 +1,8 @@
 #pragma once
-// Saving and loading a whole map through byte sinks and sources (no file access here: the host
-// port's map_file.hpp puts them on files; a board may use flash or a socket).
-//
-// Format (version 2; version 1 files, without the sub-cell byte, still load). All integers and
-// floats little-endian, written byte by byte, so the bytes do not depend on the machine; floats are
-// their IEEE-754 bit patterns. The file is a sequence of records, each ending with the CRC-32 (IEEE
-// 802.3) of its own bytes:
-//
-//   header  "OCTOFMAP" u32 version, u8 voxel type (1 single-res, 2 multires, 3 multires16),
-//           f32 voxel_size_m,
-//           f32 mu_m (the truncation distance the TSDF is normalised by), u8 voxel_depth,
-//           3 x f32 origin_W, u32 nodes, u32 blocks, u32 finest levels, u64 frames (frames the
-//           map's pipeline had processed), u32 free nodes (0: saved without free space),
-//           f32 free margin_m, u8 free finest_octant_voxels, u8 free max_free_count (the free
-//           space's settings; all 0 without free space), crc
-//   node    u8 'N' u8 level u64 morton, 4 x f32 summary (tsdf_mean, weight_mean, tsdf_min,
-//           tsdf_max), crc                                  -- one per inner node, root first
-//   block   u8 'B' u64 morton, u32 last_updated_frame, i8 current_scale, i8 min_scale,
-//           i8 mip_scale, u8 flags (bit 0: holds a finest level), 4 x f32 summary (tsdf_min,
-//           tsdf_max, tsdf_mean, weight_mean), voxels, crc   -- one per block
-//           voxels: the finest level (512) when held (always for single-res), then scales 1-3
-//           (73); single-res: f32 tsdf, weight; multires: f32 x, x_last, y, delta_y;
-//           multires16: i16 x, x_last, u16 y, delta_y (the fixed-point steps of voxel.hpp)
-//   free    u8 'F' u8 free_count, u32 free_frame, 8 x u32 children (pool indices, 0xFFFFFFFF
-//           for none), u8 sub_free (version 2 on; only leaves may set it), crc
-//                                                         -- one per free-space node, root first
-//   end     u8 'E' u32 nodes u32 blocks u32 free nodes, crc; nothing may follow
-//
-// Nodes and blocks are written in pool index order. A node is allocated after its parent and a
-// block after its parent node, so a loader that allocates them in file order rebuilds the same
-// pool indices, hash and tree: the loaded map meshes, ray-casts and keeps fusing exactly as the
-// saved one would (not only the same surface: the same bytes). The same map always gives the
-// same file. The free-space octree (map/free_octree.hpp) is saved the same way: its nodes in
-// pool order with their child indices, so a loaded one is the same bytes and answers every query
-// as the saved one did. Not saved: the finest-level pool's slot numbers (a block's data does not
-// depend on them), refusal counters and summary-pass scratch, which start afresh.
-//
-// Loading validates every field before it is used: magic, version, voxel type, the geometry
-// against the map it is loaded into, counts against its pools, record tags and checksums, each
-// node's and block's key (canonical, inside the cube, parent present, not a duplicate), block
-// states and every float (finite; TSDF values in [-1, 1], weights in [0, kMaxSavedWeight]; a
-// multires16 TSDF step in [-16384, 16384]).
-// Header fields: validate_map_header(). Free space: the settings (margin finite and positive,
-// octants of 2 to 64 voxels, a power of two, cap >= 1),
-// each node's count (at most the cap), frame (before the header's frame count, or 0) and
-// children (after their parent, below the count); loaded into a FreeOctree, also the tree: each
-// node but the root the child of exactly one earlier node, none below the finest octant level.
-//
-// Voxel type 3 (multires16) adds no field, so the version stays 2: a build that predates it
-// rejects such a file as an unknown voxel type, and this one still loads every older file.
-//
-// Adding a field means: bump kMapFormatVersion (once a version has been released), extend the
-// record's write_*_record() / read_*_record() in map_io.cpp, and keep reading older versions.
+// Saving and loading a whole map and its free space through byte sinks and sources (no file
+// access here: the host port's map_file.hpp puts them on files). The format is versioned,
+// little-endian byte by byte, with a CRC-32 per record; the loader checks every field before it
+// is used. lib/README.md ("Map files") gives the format record by record.
 
 #include <cstddef>
 #include <cstdint>

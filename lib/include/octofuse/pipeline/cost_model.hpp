@@ -1,44 +1,8 @@
 #pragma once
 // A frame deadline: a cost model of the machine (work units -> milliseconds, per stage) and the
 // controller that derives each frame's budgets from it, so that the modelled frame time stays
-// within the deadline. When the work the last frames asked for does not fit, it cuts in the
-// pipeline's degradation order (pipeline.hpp), each step down to its floor before the next:
-//   (1) ICP iterations, the finest level first, down to min_icp_iterations;
-//   (4) voxel updates (far blocks one scale coarser, then skipped), down to min_voxel_fraction
-//       of the demand;
-//   then, the deadline's own step, the reference ray-cast at half resolution (a quarter of the
-//       rays, each filling its 2 x 2 pixels; raycaster.hpp) when raycast_half_resolution allows:
-//       it costs ICP less than the empty row ends of the next step;
-//   then integration's allocation march at every other pixel in x and y (allocation_half;
-//       integrator.hpp): the stage's fixed part, which is that march, is then modelled at the
-//       share of the rays it marches (a quarter); blocks only the skipped rays cross wait for
-//       a later frame;
-//   (6) ray-cast steps (the rows' last pixels stay invalid), down to min_raycast_fraction of
-//       the (half-resolution) demand;
-//   (7) free-space node visits, down to min_free_space_fraction;
-//   last, voxel updates again, down to min_voxel_fraction_deep of the demand (about every block
-//       one scale coarser, the near ones included, before far ones are skipped).
-// Eviction (2) answers memory, not time, and is left as configured; new blocks (3) and the
-// integrated-block count (5) are inside the voxel-update budget, which bounds their cost.
-//
-// Units per stage (the quantities the budgets bound): ICP pixel-iterations (a pyramid level's
-// pixels times its iterations, summed), integration voxel cost (block_scale_count of each
-// integrated block's scale, as FusionBudget::max_voxel_updates counts it), ray-cast march steps,
-// free-space node visits. Each stage costs a fixed part plus milliseconds per million units (the
-// ray-cast, for one, projects the map's octants and clears every pixel whatever its step budget;
-// integration marches every ray to find its blocks before it updates a voxel), and the frame a
-// fixed part of its own (validation, pre-processing).
-//
-// Once all floors are in the plan and the frame still does not fit, the plan says so
-// (infeasible) and the frame runs at the floors.
-//
-// Where determinism is lost: with `adapt` the model learns from the stage times the clock
-// measures (per stage a least-squares line through the recent frames' units and times, and a
-// safety factor raised after each frame over a deadline its plan met), so the budgets, and the
-// map and the trajectory, depend on the machine and its load. A frozen model (`adapt` false)
-// reads no time: the budgets follow from the model's numbers and the work counts of the earlier
-// frames, which are the same for any worker count and CPU, so the same model and input give
-// bit-identical results. The demand estimates come from work counts only, in both modes.
+// within the deadline. lib/README.md ("The frame deadline") gives the units, the order of the
+// cuts and where determinism is lost (only with `adapt`).
 
 #include <cstdint>
 
@@ -55,9 +19,9 @@ struct StageCost {
   double ms(double units) const { return fixed_ms + ms_per_munit * units * 1e-6; }
 };
 
-// The machine's costs (see the top of this file). `safety` (>= 1) multiplies the modelled frame
-// time before it is compared with the deadline. The defaults are rounded from 7-Scenes at 1 cm,
-// QVGA, 1 thread on a 2-core x86-64; a run calibrates them within a few frames.
+// The machine's costs (units: lib/README.md, "The frame deadline"). `safety` (>= 1) multiplies the
+// modelled frame time before it is compared with the deadline. The defaults are rounded from
+// 7-Scenes at 1 cm, QVGA, 1 thread on a 2-core x86-64; a run calibrates them within a few frames.
 struct CostModel {
   double fixed_ms = 3.5;                // validation and pre-processing, per frame
   StageCost icp = {0.5, 33.0};          // per million pixel-iterations
@@ -74,7 +38,7 @@ Status validate(const CostModel& model, ErrorText* error = nullptr);
 struct DeadlineConfig {
   double deadline_ms = 0.0;  // per frame; 0 = off (the budgets are the configured ones)
   CostModel model;           // the starting model (a calibration from an earlier run)
-  bool adapt = true;         // false: frozen model, deterministic budgets (see above)
+  bool adapt = true;         // false: frozen model, deterministic budgets (lib/README.md)
   // Floors of the cuts. ICP index 0 = finest level, as PipelineBudget::icp_iterations; a floor
   // above the configured budget is the configured budget.
   int min_icp_iterations[kPyramidLevels] = {2, 2, 4};

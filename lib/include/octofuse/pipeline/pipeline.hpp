@@ -1,8 +1,9 @@
 #pragma once
-// The per-frame loop of the paper's section 3: validate -> pre-process -> track -> integrate ->
-// carve free space -> ray-cast, over one caller-provided buffer of bytes_required(config) bytes.
-// After init(), process() performs no heap allocation and its work is bounded by the budgets in the
-// config.
+// The per-frame loop: validate -> pre-process -> pose -> integrate -> carve free space ->
+// ray-cast, over one caller-provided buffer of bytes_required(config) bytes. After init(),
+// process() performs no heap allocation and its work is bounded by the budgets in the config.
+// lib/README.md describes the loop, the pose sources, the degradation order, eviction and the
+// frame deadline.
 //
 //   PipelineConfig config = ...;
 //   std::size_t bytes = bytes_required(config);
@@ -11,63 +12,7 @@
 //   OCTOFUSE_TRY(pipeline.init(buffer, bytes, config, clock));
 //   while (source.next(frame) ...) pipeline.process(frame, &stats);
 //
-// Tracking: the first frame fixes the pose (a pose given with set_pose(), else the frame's pose
-// prior in the external modes, else the frame's ground truth when
-// config.initial_pose_from_ground_truth, else config.initial_T_W_C); later frames are tracked by
-// ICP against the ray-cast of the previous tracked pose, or take the ground truth
-// (PoseSource::ground_truth). When tracking is lost the pose stays, nothing is integrated, the
-// reference view is kept, and the next frames try again against it (recovery when the view
-// matches again).
-//
-// The vehicle's own poses (VIO, wheel or flight-controller odometry) come as a PosePrior passed
-// with each frame, separate from the ground truth datasets carry:
-//   external        the frame is fused at the prior; no ICP. A frame without a prior is lost.
-//   external_prior  ICP starts from the prediction: the prior's motion since the frame that last
-//                   set the pose, applied to that pose (T_W_C * inverse(prior_prev) * prior), so
-//                   the prior's drift does not enter the map, and is pulled towards it as far
-//                   as the two estimates' uncertainties say (prior_noise_m and the fields
-//                   after it in PipelineConfig). When ICP is lost, or its result
-//                   differs from the prediction by more than the gate (prior_gate_m or
-//                   prior_gate_rad), the frame is fused at the prediction instead; a frame
-//                   without a prediction (no prior for it or for the last posed frame) is tracked
-//                   as in `track`. FrameStats::pose_origin says which pose the frame got.
-//
-// Degradation when a budget binds, in this fixed order: (1) ICP does at most the budgeted
-// iterations per level; (2) eviction (EvictionConfig) removes at most max_evictions blocks, so a
-// pool still above its low-water mark may then refuse new blocks in (3); (3) fusion stops
-// allocating new blocks beyond max_new_blocks or a full pool (farthest first); (4) over
-// max_voxel_updates, far blocks integrate one scale coarser, then are skipped; (5) beyond
-// max_integrated_blocks the farthest blocks are skipped; (6) ray-casting leaves pixels invalid
-// when its step budget runs out; (7) free-space carving stops at its node visit and allocation
-// budgets (FreeSpaceConfig), leaving octants it did not reach as they were. Each hit is reported
-// in FrameStats.
-//
-// Frame deadline (PipelineConfig::deadline, pipeline/cost_model.hpp): with deadline_ms > 0 the
-// budgets of steps (1), (4), (6) and (7) are derived before each frame from a cost model of the
-// machine, learnt from the previous frames' stage times (or frozen), so that the modelled frame
-// time stays within the deadline; they are cut in that order, with the reference ray-cast at
-// half resolution (raycaster.hpp) and allocation at every other pixel (integrator.hpp) before
-// (6) and a deeper voxel-update floor after (7), and never above the configured ones.
-// FrameStats::deadline says what the frame gave up. Off (0, the default), nothing changes.
-//
-// Bounded memory (EvictionConfig): before a frame is integrated, when the block pool holds more
-// than high_water of its capacity, blocks are evicted until it holds at most low_water (their
-// space becomes unknown); when the finest-level pool does, blocks give their finest level back
-// and stay at scale 1 (demoted) until it holds at most low_water. Both share max_evictions and
-// the same ranking. Policy: blocks the previous frame did not
-// update go first, farthest from the camera first; then, only if that is not enough, the
-// updated ones, farthest first; ties by Morton code. Distance rather than age: a hovering or
-// turning robot sees the room around it again within seconds, and least-recently-updated would
-// evict the wall just behind it first, while the far end of a corridor it left is what it is
-// least likely to need; sparing the previous frame's blocks keeps the view ICP tracks against. The
-// ranking uses integer distances in voxels and runs on one thread, so the evicted set and the
-// pool's new layout are the same for any worker count and on any CPU.
-//
-// Queries while mapping: query() answers from any thread while process() runs on another.
-// process() holds the map's guard (query/map_guard.hpp) exclusively over integration and carving
-// only, and every query holds it shared, so an answer always reflects the map after a whole frame
-// (PointAnswer::map_version counts the frames fused), and process() waits for readers at most the
-// longest query in flight (bounded by QueryLimits::max_visits, see query/map_query.hpp).
+// Threading: query() may run on any thread while process() runs on another.
 
 #include <cstddef>
 #include <cstdint>
@@ -132,8 +77,8 @@ struct PipelineBudget {
   int icp_iterations[kPyramidLevels] = {4, 5, 10};
 };
 
-// When to evict blocks (see the top of this file). Marks are fractions of each pool's capacity,
-// 0 < low_water < high_water <= 1.
+// When to evict blocks (lib/README.md, "Bounded memory"). Marks are fractions of each pool's
+// capacity, 0 < low_water < high_water <= 1.
 struct EvictionConfig {
   bool enabled = false;
   float high_water = 0.9f;
@@ -348,7 +293,7 @@ class Pipeline {
   // For loading a saved map's free space before the first frame (map/map_io.hpp).
   FreeSpace& free_space() { return free_space_; }
   // Point and region queries over the map and its free space, safe to call from other threads
-  // while process() runs (see the top of this file). Valid while the pipeline lives.
+  // while process() runs (lib/README.md, "Queries"). Valid while the pipeline lives.
   MapQuery<VoxelT> query() const {
     return MapQuery<VoxelT>(map_, config_.free_space.enabled ? &free_space_ : nullptr,
                             config_.fusion.mu_m, &guard_, &map_version_);

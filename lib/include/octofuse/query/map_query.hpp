@@ -1,43 +1,10 @@
 #pragma once
 // What a planner asks of the map: the state of a point, and whether a box, a sphere or a sphere
-// swept along a segment (the robot's body over one path step) is free.
-//
-// Sources, in order of precedence at a point:
-//   1. outside the cube: `outside`;
-//   2. a block whose TSDF was integrated at or after the last frame that saw the point's free
-//      octant free (FreeSpace): the TSDF decides. Interpolated |tsdf| < 1: `near`, with the
-//      signed distance (metres) and its gradient; -1 (more than mu behind a surface): `inside`
-//      (with FusionConfig::behind_mu < 1 the band ends sooner, and deeper points read unknown).
-//      The TSDF holds distances along camera rays, longer than the Euclidean ones on slanted
-//      surfaces by the gradient's length, so the distance is divided by that when it exceeds 1;
-//      it stays an estimate (thin objects seen from one side read negative behind them), not a
-//      bound: collision checks use the region queries. +1 (more than mu in front along the
-//      camera rays): `free` when a free octant holds the point, else `unknown`;
-//   3. a free octant: `free` (also over a block integrated before that frame: the object there
-//      has gone);
-//   4. otherwise `unknown`. Unknown is never free.
-// For `free` the distance is a lower bound on the distance to the nearest surface seen: the
-// free-space margin plus the distance to the free octant's faces (0 when only the TSDF says
-// free: the projective TSDF bounds no Euclidean distance), but no more than the distance to the
-// nearest block holding an observed voxel at or behind a surface (grown by a voxel of its scale):
-// a frame whose rays all pass beside an object thinner than their spacing (a bar a few mm across,
-// metres away) carves through it, and that octant is newer than the object's blocks.
-//
-// Regions (box, sphere, swept sphere) are `free` only when every part is: a walk over the free
-// octree visits the octants the shape touches (a leaf's free halves count where the shape touches
-// no other half); free octants are free unless a block inside was
-// integrated after them, whose voxels are then read. A voxel the shape touches is `blocked` when
-// it is observed and its signed distance is within its half-diagonal plus one finest voxel (a
-// surface may lie in it), or it is behind a surface; otherwise it is free inside a free octant
-// and `unknown` elsewhere (as are parts outside the cube). Blocked wins over unknown.
-//
-// Work per call: a point query walks at most voxel_depth free-octree levels and reads the 8
-// voxels of one trilinear cell (and their blocks); a free one also walks the TSDF octree's nodes
-// within its distance bound. A region query visits free octants, blocks and
-// voxels, counting each as one unit; at QueryLimits::max_visits it stops and answers `unknown`
-// with budget_hit set, so that limit is the worst case (default 2^16 units; a 0.5 m box in the sim
-// scenes took up to 50 000).
-// Nothing allocates. With a MapGuard every call holds it shared for its duration.
+// swept along a segment (the robot's body over one path step) is free. The TSDF and the free
+// space answer together; unknown is never free. lib/README.md ("Queries") gives the order of
+// precedence, the distance bound of free answers and the work per call (bounded by
+// QueryLimits::max_visits). Nothing allocates. With a MapGuard every call holds it shared for
+// its duration.
 
 #include <cstdint>
 

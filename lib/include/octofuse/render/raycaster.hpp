@@ -1,33 +1,10 @@
 #pragma once
-// Ray-casting the map from a camera (paper section 4.4): per pixel, march from near to far,
-// jump over unallocated octants in one step (the octree says how big the free octant is), step
-// max(f * mu, voxel size at the interpolation scale) where the TSDF is observed and mu / 2
-// through unobserved voxels, sample by multi-resolution trilinear interpolation
-// (interpolation.hpp), find the + to - zero crossing by linear interpolation (backing off when a
-// coarse step overshoots a thin observed band) and take the normal from central differences of
-// the TSDF at the hit's scale (the trilinear cell's gradient where a neighbour is missing). Where
-// mu spans only a few voxels of the scale, a failed sample near a crossing is read from the cell's
-// observed corners, and failed samples between a positive and a negative one do not hide the
-// crossing (raycaster.cpp).
-//
-// Output, in buffers reserved at init: a SurfaceMap in the world frame (what ICP associates
-// against) and an 8-bit image of the interpolation scale per pixel (kNoScale where invalid).
-//
-// Before marching, the allocated octants (blocks at 1 cm; the nodes above them at finer voxels)
-// are projected into a coarse image of kRangeTile_px x kRangeTile_px pixel tiles holding the
-// nearest and farthest depth of anything allocated there. Each ray marches only over its tile's
-// range, so the free space in front of and behind the map costs no steps, and rays of tiles with
-// nothing allocated cost none at all. The bounds are conservative: the same surfaces are found.
-//
-// Work bound: an optional per-frame step budget. Rows are independent (tasks of 8 rows) and each
-// row gets a fixed share of the budget (budget / height, the remainder to the first rows), so the
-// result does not depend on the worker count. When a row's share runs out, its remaining pixels
-// stay invalid and the stats say how many.
-//
-// Half resolution (pixel_stride 2, a frame deadline's step): only pixels with even x and y are
-// marched, a quarter of the rays, and each fills its 2 x 2 square (the pixel right of it and the
-// row below copy it), so the model stays dense for ICP's point-to-plane pairs, whose plane barely
-// changes over a pixel. The step budget is then shared by the marched rows.
+// Ray-casting the map from a camera (paper section 4.4) into a SurfaceMap in the world frame, the
+// model ICP tracks against: each ray skips unallocated octants and the depth ranges nothing is
+// allocated in, samples by multi-resolution trilinear interpolation (map/interpolation.hpp) and
+// finds the zero crossing. Rows are independent and each gets a fixed share of the step budget,
+// so the result does not depend on the worker count. lib/README.md ("Ray-casting") describes the
+// march, the tile ranges, the budget and half resolution.
 
 #include <cstddef>
 #include <cstdint>
@@ -53,7 +30,7 @@ struct RaycastConfig {
   float far_m = 4.0f;
   float mu_m = 0.08f;             // truncation distance the map was fused with
   std::uint64_t step_budget = 0;  // march steps per frame over all pixels; 0 = unbounded
-  int pixel_stride = 1;           // 1: every pixel; 2: half resolution (see above)
+  int pixel_stride = 1;           // 1: every pixel; 2: half resolution (lib/README.md)
 };
 
 struct RaycastStats {
@@ -159,7 +136,7 @@ class Raycaster {
   const RaycastConfig& config() const { return config_; }
   // Changes the per-frame step budget between frames (0 = unbounded; a frame deadline sets it).
   void set_step_budget(std::uint64_t steps) { config_.step_budget = steps; }
-  // Between frames: 1 (every pixel) or 2 (half resolution, see above); other values are 1.
+  // Between frames: 1 (every pixel) or 2 (half resolution, lib/README.md); other values are 1.
   void set_pixel_stride(int stride) { config_.pixel_stride = stride == 2 ? 2 : 1; }
   // Valid until the next raycast().
   SurfaceMap surface_W() const { return surface_W_; }

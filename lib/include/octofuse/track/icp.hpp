@@ -41,8 +41,7 @@ struct TrackConfig {
   double convergence_norm = 1e-5;               // stop a level when |twist| falls below this
   float lost_max_rms_m = 0.02f;                 // RMS point-to-plane residual
   float lost_min_inlier_fraction = 0.15f;       // of the model's valid pixels
-  // Also of all level-0 pixels: a sliver of model lets ICP slide. 5% kept every pose it accepted
-  // within 1 cm on sim:desk with pools of 1/4 to 1/10 of the first frame's blocks; 2% did not.
+  // Also of all level-0 pixels: a sliver of model (a small block pool's map) lets ICP slide.
   float lost_min_image_fraction = 0.05f;
   // Level-0 pairs are weighted by the inverse of their expected residual variance, the model's
   // own error plus depth noise growing as z^2 (structured light, stereo): 1 / (1 + (z / knee)^4)

@@ -247,16 +247,26 @@ inline void enter_block(const Octree<VoxelT>& map, TreeCursor<VoxelT>& cursor,
   at.coords = coords;
 }
 
-// The block holding voxel coordinates q, through the cursor (null when unallocated or outside).
+// The field at voxel coordinates q (false where it fails), in the block `home` (at block
+// coordinates home_coords) or one the cursor finds. Only around a hit: out of line, so the
+// march's loop stays small.
 template <typename VoxelT>
-const VoxelBlock<VoxelT>* block_at(const Octree<VoxelT>& map, TreeCursor<VoxelT>& cursor,
-                                   const MarchBlock<VoxelT>& at, const Eigen::Vector3f& q,
-                                   float side_v) {
-  if (!inside_cube(q, side_v)) return nullptr;
-  const Eigen::Vector3i v = q.cast<int>();
-  if (voxel_to_block(v) == at.coords) return at.block;
-  const OctantLookup found = cursor.find(v);
-  return found.block == kNoIndex ? nullptr : &map.block(found.block);
+__attribute__((noinline)) bool sample_field_at(const Octree<VoxelT>& map, RowCache<VoxelT>& cache,
+                                               const VoxelBlock<VoxelT>* home,
+                                               Eigen::Vector3i home_coords,
+                                               const Eigen::Vector3f& q, TsdfSample& out) {
+  const float side_v = static_cast<float>(map.voxels_per_side());
+  const VoxelBlock<VoxelT>* block = nullptr;
+  if (inside_cube(q, side_v)) {
+    const Eigen::Vector3i v = q.cast<int>();
+    if (voxel_to_block(v) == home_coords) {
+      block = home;
+    } else {
+      const OctantLookup found = cache.cursor.find(v);
+      block = found.block == kNoIndex ? nullptr : &map.block(found.block);
+    }
+  }
+  return sample_tsdf_at_voxel_coords(map, q, block, cache.neighbourhood, out);
 }
 
 // Where the ray leaves the free octant holding `voxel` (the lookup stopped at `level`), a
@@ -496,10 +506,6 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   MarchBlock<VoxelT> at;
   TreeCursor<VoxelT>& cursor = cache.cursor;
   BlockNeighbourhood<VoxelT>& neighbourhood = cache.neighbourhood;
-  auto sample_at = [&](const Eigen::Vector3f& q, TsdfSample& out) {
-    return sample_tsdf_at_voxel_coords(map, q, block_at(map, cursor, at, q, side_v), neighbourhood,
-                                       out);
-  };
   while (t <= t1) {
     if (tally.left == 0) return MarchResult::out_of_steps;
     --tally.left;
@@ -550,6 +556,12 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       return MarchResult::rejected;
     }
     if (memory.positive_prev() && f <= 0.0f) {
+      const VoxelBlock<VoxelT>* home = at.block;
+      const Eigen::Vector3i home_coords = at.coords;
+      auto sample_at = [&map, &cache, home, home_coords](const Eigen::Vector3f& q_at,
+                                                         TsdfSample& out) {
+        return sample_field_at(map, cache, home, home_coords, q_at, out);
+      };
       return locate_hit(ray, ray_v, t, sample, memory, sample_at, hit) ? MarchResult::hit
                                                                        : no_hit();
     }

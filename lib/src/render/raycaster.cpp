@@ -19,7 +19,7 @@ constexpr float kRetreatMin_voxels = 1.5f;
 // Scales whose voxels are so large that mu spans fewer than this many of them (2 mm voxels with
 // the default mu of 8: scales 2 and 3) hold a band only a voxel or two thick. There the trilinear
 // cell around a crossing often reaches a voxel no update reached or a block never allocated, and
-// the march below treats samples near a crossing specially (at 1 cm such scales lie beyond 7 m).
+// the march below treats samples near a crossing specially.
 constexpr float kThinBand_cells = 5.0f;
 // At such scales: a negative sample after samples that failed still closes a crossing with the
 // last positive sample before them when it lies at most this far (a fraction of mu) behind it
@@ -438,9 +438,16 @@ bool surface_normal(const TsdfSample& at_hit, const Eigen::Vector3f& q_hit, Samp
 
 // The surface between the previous sample (positive) and `sample` at t (not positive); false when
 // it has no normal.
-template <typename SampleAt>
-bool locate_hit(const Ray& ray, const VoxelRay& ray_v, float t, const TsdfSample& sample,
-                MarchMemory& m, SampleAt& sample_at, PixelHit& hit) {
+template <typename VoxelT>
+bool locate_hit(const Octree<VoxelT>& map, RowCache<VoxelT>& cache, const MarchBlock<VoxelT>& at,
+                const Ray& ray, const VoxelRay& ray_v, float t, const TsdfSample& sample,
+                MarchMemory& m, PixelHit& hit) {
+  // By value: the march's state does not escape to the out-of-line samples.
+  const VoxelBlock<VoxelT>* home = at.block;
+  const Eigen::Vector3i home_coords = at.coords;
+  auto sample_at = [&map, &cache, home, home_coords](const Eigen::Vector3f& q, TsdfSample& out) {
+    return sample_field_at(map, cache, home, home_coords, q, out);
+  };
   const float f = sample.tsdf;
   if (m.prev_nearest) {
     // Interpolate between two trilinear samples: take the full sample at the previous step.
@@ -556,14 +563,8 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       return MarchResult::rejected;
     }
     if (memory.positive_prev() && f <= 0.0f) {
-      const VoxelBlock<VoxelT>* home = at.block;
-      const Eigen::Vector3i home_coords = at.coords;
-      auto sample_at = [&map, &cache, home, home_coords](const Eigen::Vector3f& q_at,
-                                                         TsdfSample& out) {
-        return sample_field_at(map, cache, home, home_coords, q_at, out);
-      };
-      return locate_hit(ray, ray_v, t, sample, memory, sample_at, hit) ? MarchResult::hit
-                                                                       : no_hit();
+      return locate_hit(map, cache, at, ray, ray_v, t, sample, memory, hit) ? MarchResult::hit
+                                                                            : no_hit();
     }
     memory.remember_sample(t, sample);
     const float cell_m = voxel_m * static_cast<float>(1 << sample.scale);

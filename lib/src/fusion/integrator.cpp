@@ -44,14 +44,12 @@ struct Integrator<VoxelT>::Frame {
 namespace {
 
 constexpr std::size_t kPrefetchDistance = 8;
-// At coarse scales mu can be as thin as a voxel or two (2 mm voxels, mu 1.6 cm: two 8 mm voxels
-// at scale 2). The trilinear cell around a zero crossing then often reaches a voxel behind the
-// surface that no update reached, and the ray-cast cannot sample the crossing. Voxels are updated
-// (to -1 past mu) at least this many voxels of their scale behind the measured depth: a cell's
-// corners lie up to sqrt(3) voxels from the surface, more along an oblique ray. 3 voxels closed
-// slightly more holes but ate into thin parts behind which the band now reached (2 mm sim:desk
-// thin recall 0.484 -> 0.440; 2.5: 0.466). At the default mu of 8 voxels this changes nothing
-// below scale 2 (at 1 cm and QVGA, 7 m and beyond).
+// At coarse scales mu can be as thin as a voxel or two. The trilinear cell around a zero crossing
+// then often reaches a voxel behind the surface that no update reached, and the ray-cast cannot
+// sample the crossing. Voxels are updated (to -1 past mu) at least this many voxels of their scale
+// behind the measured depth: a cell's corners lie up to sqrt(3) voxels from the surface, more
+// along an oblique ray. More voxels closed a few more holes but ate into thin parts behind the
+// surface. At the default mu of 8 voxels this changes nothing below scale 2.
 constexpr float kMinBehind_voxels = 2.5f;
 // Hash slots and block headers are loaded this many list entries ahead.
 constexpr std::size_t kLookAhead = 16;
@@ -589,27 +587,236 @@ bool Integrator<VoxelT>::apply_budgets(std::uint32_t count, std::uint64_t cost,
   return true;
 }
 
+namespace {
+
+// Camera z of a block centre is affine in its coordinates: z = z0 + dz_block . coords; z over
+// the pixel footprint of a voxel gives the scale.
+struct BlockDepthModel {
+  Eigen::Vector3f dz_block;
+  float z0 = 0;
+  float inv_footprint = 0;
+};
+
+// Step 2's list once the blocks that do not exist are dropped: what the budgets and step 4 need.
+struct BlockList {
+  std::uint32_t count = 0;
+  std::uint64_t cost = 0;  // voxel updates
+  int coarsest = 0;        // coarsest scale listed
+  bool any_finest = false;
+};
+
+// 2a. Each block's pool index and depth; the scale where it does not depend on the current one
+// (most far blocks: no header to read), else -1. Returns the blocks not allocated yet.
 template <typename VoxelT>
-IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<const float> depth,
-                                                const PinholeCamera& camera, const Se3d& T_W_C,
-                                                std::uint32_t frame_index,
-                                                const FusionBudget& budget,
-                                                const WorkerTeam& team) {
-  IntegrationReport report;
-  if (!reserved_ || !map.reserved()) {
-    report.status = StatusCode::failed_precondition;
-    return report;
+std::uint32_t find_blocks(const Octree<VoxelT>& map, FrameBlock* blocks, TaskRange range,
+                          const BlockDepthModel& depth, const FusionConfig& config) {
+  for (std::size_t i = range.begin; i < range.end && i < range.begin + kLookAhead; ++i) {
+    map.prefetch_block(blocks[i].morton);
   }
+  std::uint32_t missing = 0;
+  for (std::size_t i = range.begin; i < range.end; ++i) {
+    if (i + kLookAhead < range.end) map.prefetch_block(blocks[i + kLookAhead].morton);
+    FrameBlock& b = blocks[i];
+    b.block = map.find_block_index_morton(b.morton);
+    b.z_m = depth.z0 + depth.dz_block.dot(b.coords.cast<float>());
+    if (b.block == kNoIndex) ++missing;
+    b.scale = IsMultiresVoxel<VoxelT>::value && config.fixed_scale < 0
+                  ? static_cast<std::int8_t>(
+                        scale_for_any_current(b.z_m * depth.inv_footprint, config.scale_hysteresis))
+                  : std::int8_t{-1};
+  }
+  return missing;
+}
+
+// 2b. The scales find_blocks left open, from each block's current scale (blocks not yet
+// allocated have never been integrated and take the raw scale).
+template <typename VoxelT>
+void select_scales(const Octree<VoxelT>& map, FrameBlock* blocks, TaskRange range,
+                   float inv_footprint, const FusionConfig& config) {
+  for (std::size_t i = range.begin; i < range.end; ++i) {
+    FrameBlock& b = blocks[i];
+    if constexpr (IsMultiresVoxel<VoxelT>::value) {
+      if (config.fixed_scale >= 0) {
+        b.scale = static_cast<std::int8_t>(config.fixed_scale);
+        continue;
+      }
+      // Headers are scattered over the pool: load a few ahead.
+      if (i + kLookAhead < range.end) {
+        const FrameBlock& later = blocks[i + kLookAhead];
+        if (later.block != kNoIndex && later.scale < 0) {
+          __builtin_prefetch(&map.block(later.block).current_scale);
+        }
+      }
+      if (b.scale >= 0) continue;
+      int current = -1;
+      if (b.block != kNoIndex) {
+        const VoxelBlock<VoxelT>& block = map.block(b.block);
+        if (block.integrated()) current = block.current_scale;
+      }
+      b.scale = static_cast<std::int8_t>(
+          select_scale(b.z_m * inv_footprint, current, config.scale_hysteresis));
+    } else {
+      b.scale = 0;
+    }
+  }
+}
+
+// 2c. Allocates the `missing` blocks of the list, nearest first when the budget does not allow
+// them all, in Morton order so the pool's indices are deterministic. `order` and `keys` are
+// scratch for `missing` entries.
+template <typename VoxelT>
+void allocate_missing_blocks(Octree<VoxelT>& map, FrameBlock* blocks, std::uint32_t touched,
+                             std::uint32_t missing, const FusionBudget& budget,
+                             std::uint32_t* order, Key* keys, IntegrationReport& report) {
+  std::uint32_t m = 0;
+  for (std::uint32_t i = 0; i < touched; ++i) {
+    if (blocks[i].block == kNoIndex) order[m++] = i;
+  }
+  const FrameBlock* fb = blocks;
+  std::uint32_t to_allocate = missing;
+  if (missing > budget.max_new_blocks) {
+    std::sort(order, order + missing, [fb](std::uint32_t l, std::uint32_t r) {
+      return fb[l].z_m != fb[r].z_m ? fb[l].z_m < fb[r].z_m : fb[l].morton < fb[r].morton;
+    });
+    to_allocate = budget.max_new_blocks;
+    report.budget_blocks_not_allocated = missing - to_allocate;
+    report.budget_hit = true;
+  }
+  std::sort(order, order + to_allocate,
+            [fb](std::uint32_t l, std::uint32_t r) { return fb[l].morton < fb[r].morton; });
+  const int level = map.block_level();
+  for (std::uint32_t i = 0; i < to_allocate; ++i) {
+    keys[i] =
+        Key{morton_encode(block_to_voxel(fb[order[i]].coords)), static_cast<std::uint8_t>(level)};
+  }
+  AllocationCounts counts;
+  const Status allocated = map.allocate(keys, to_allocate, &counts);
+  report.blocks_allocated = counts.new_blocks;
+  report.pool_refusals = counts.refused;
+  if (allocated.code() == StatusCode::resource_exhausted) {
+    report.status = StatusCode::resource_exhausted;
+  }
+  for (std::uint32_t i = 0; i < to_allocate; ++i) {
+    FrameBlock& b = blocks[order[i]];
+    b.block = map.find_block_index_morton(b.morton);
+  }
+}
+
+// Moves the blocks that exist to the front of the list, in list order.
+BlockList keep_existing_blocks(FrameBlock* blocks, std::uint32_t touched) {
+  BlockList list;
+  for (std::uint32_t i = 0; i < touched; ++i) {
+    const FrameBlock& b = blocks[i];
+    if (b.block == kNoIndex) continue;
+    list.cost += static_cast<std::uint64_t>(block_scale_count(b.scale));
+    list.coarsest = std::max<int>(list.coarsest, b.scale);
+    list.any_finest = list.any_finest || b.scale == 0;
+    blocks[list.count++] = b;
+  }
+  return list;
+}
+
+// Finest levels for blocks about to integrate at scale 0 for the first time, serially and in
+// list order so the pool's indices do not depend on the worker count. Refused: stay at scale 1.
+template <typename VoxelT>
+void acquire_finest_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& list,
+                           IntegrationReport& report) {
+  for (std::uint32_t i = 0; i < list.count && list.any_finest; ++i) {
+    FrameBlock& b = blocks[i];
+    if (b.skip != 0 || b.scale != 0) continue;
+    VoxelBlock<VoxelT>& block = map.block(b.block);
+    if (block.has_finest()) continue;
+    if (!map.acquire_finest(block).ok()) {
+      b.scale = 1;
+      list.coarsest = std::max(list.coarsest, 1);
+      ++report.finest_refusals;
+      ++report.pool_refusals;
+      report.status = StatusCode::resource_exhausted;
+    }
+  }
+}
+
+// The coarsest scale a block integrates at: up-propagation stops there.
+int mip_target(const FrameBlock* blocks, const BlockList& list, bool budget_bound) {
+  if (!budget_bound) return list.count > 0 ? list.coarsest : 0;
+  // Blocks were coarsened or skipped: look again.
+  int target = 0;
+  for (std::uint32_t i = 0; i < list.count; ++i) {
+    if (blocks[i].skip == 0 && blocks[i].scale > target) target = blocks[i].scale;
+  }
+  return target;
+}
+
+// Step 4's list: the blocks not skipped, sorted by pool index (`order` holds 2 * capacity entries:
+// the list and the sort's scratch). Returns the sorted list; `sorted` is its length.
+const std::uint64_t* pool_order(const FrameBlock* blocks, std::uint32_t count,
+                                std::uint32_t block_count, std::uint64_t* order,
+                                std::size_t capacity, std::uint32_t& sorted) {
+  sorted = 0;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    const FrameBlock& b = blocks[i];
+    if (b.skip != 0) continue;
+    order[sorted++] = pool_entry(b.block, b.scale);
+  }
+  return sort_by_block(order, order + capacity, sorted, block_count);
+}
+
+// Fetches a later block's header early, and once it has arrived (it says where a multires
+// block's finest level is) its first voxels. Headers and levels rarely start on a cache line:
+// fetch both ends.
+template <typename VoxelT>
+inline void prefetch_later_blocks(const Octree<VoxelT>& map, const std::uint64_t* order,
+                                  std::size_t i, std::size_t end) {
+  if (i + 2 * kPrefetchDistance < end) {
+    const char* header = reinterpret_cast<const char*>(
+        &map.block(pool_entry_block(order[i + 2 * kPrefetchDistance])));
+    __builtin_prefetch(header, 1);
+    __builtin_prefetch(header + 63, 1);
+  }
+  if (i + kPrefetchDistance < end) {
+    const std::uint64_t later = order[i + kPrefetchDistance];
+    const int later_scale = pool_entry_scale(later);
+    const VoxelBlock<VoxelT>& lb = map.block(pool_entry_block(later));
+    const char* first = reinterpret_cast<const char*>(lb.scale_begin(later_scale));
+    const int bytes = block_scale_count(later_scale) * static_cast<int>(sizeof(VoxelT));
+    __builtin_prefetch(first, 1);
+    __builtin_prefetch(first + 64, 1);
+    if (bytes > 64) __builtin_prefetch(first + std::min(bytes, 192) - 1, 1);
+  }
+}
+
+void add_tallies(const TaskTally* tallies, std::size_t tasks, IntegrationReport& report) {
+  for (std::size_t t = 0; t < tasks; ++t) {
+    const TaskTally& tally = tallies[t];
+    report.voxels_updated += tally.voxels_updated;
+    for (int s = 0; s < 4; ++s) {
+      report.blocks_per_scale[s] += tally.blocks_per_scale[s];
+      report.blocks_integrated += tally.blocks_per_scale[s];
+    }
+    report.blocks_refined += tally.refined;
+    report.blocks_coarsened += tally.coarsened;
+  }
+}
+
+}  // namespace
+
+template <typename VoxelT>
+StatusCode Integrator<VoxelT>::check_inputs(const Octree<VoxelT>& map, ImageView<const float> depth,
+                                            const PinholeCamera& camera, const Se3d& T_W_C) const {
+  if (!reserved_ || !map.reserved()) return StatusCode::failed_precondition;
   if (depth.empty() || !camera.valid() || camera.width != depth.width ||
       camera.height != depth.height || !pose_ok(T_W_C)) {
-    report.status = StatusCode::invalid_argument;
-    return report;
+    return StatusCode::invalid_argument;
   }
-  if (depth.width != width_ || depth.height != height_) {
-    report.status = StatusCode::failed_precondition;
-    return report;
-  }
+  if (depth.width != width_ || depth.height != height_) return StatusCode::failed_precondition;
+  return StatusCode::ok;
+}
 
+template <typename VoxelT>
+typename Integrator<VoxelT>::Frame Integrator<VoxelT>::frame_constants(const Octree<VoxelT>& map,
+                                                                       ImageView<const float> depth,
+                                                                       const PinholeCamera& camera,
+                                                                       const Se3d& T_W_C) const {
   Frame f;
   f.depth = depth.data;
   f.stride = depth.stride;
@@ -638,199 +845,58 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   f.near_m = config_.near_m;
   f.far_m = config_.far_m;
   f.y_max = config_.y_max;
+  return f;
+}
 
-  // 1. Blocks the bands cross.
+template <typename VoxelT>
+void Integrator<VoxelT>::start_frame_set() {
   ++stamp_;
   if (stamp_ == 0) {  // wrapped: old stamps could alias, start clean
     for (std::size_t i = 0; i <= set_mask_; ++i) set_[i] = FrameSetEntry();
     stamp_ = 1;
   }
   frame_block_count_ = 0;
-  const std::uint32_t touched = collect_blocks(map, f, report, team);
-  report.blocks_touched = touched;
+}
 
-  // 2. Look the blocks up and pick their scales, in a fixed number of tasks (read-only on the map;
-  // each task writes its own list entries). Scale selection needs the block's current scale, so
-  // it runs a second sweep over the task's entries with the headers prefetched; blocks not yet
-  // allocated have never been integrated and take the raw scale.
-  // Camera z of a block centre is affine in its coordinates: z = z0 + dz . coords.
-  const Eigen::Vector3f dz_block = f.R_C_W.row(2).transpose() * (8.0f * f.voxel_size_m);
-  const float z0 =
-      f.R_C_W.row(2).dot(f.origin_W + Eigen::Vector3f::Constant(4.0f * f.voxel_size_m)) +
-      f.t_C_W.z();
-  const float inv_footprint = 1.0f / (camera.fx * map.voxel_size_m());
-  const std::size_t lookup_tasks =
+template <typename VoxelT>
+std::uint32_t Integrator<VoxelT>::look_up_blocks(const Octree<VoxelT>& map, const Frame& f,
+                                                 const PinholeCamera& camera, std::uint32_t touched,
+                                                 const WorkerTeam& team) {
+  BlockDepthModel depth;
+  depth.dz_block = f.R_C_W.row(2).transpose() * (8.0f * f.voxel_size_m);
+  depth.z0 = f.R_C_W.row(2).dot(f.origin_W + Eigen::Vector3f::Constant(4.0f * f.voxel_size_m)) +
+             f.t_C_W.z();
+  depth.inv_footprint = 1.0f / (camera.fx * map.voxel_size_m());
+  const std::size_t tasks =
       std::min<std::size_t>(static_cast<std::size_t>(config_.task_count), touched);
-  for (std::size_t t = 0; t < lookup_tasks; ++t) tallies_[t] = TaskTally();
-  auto lookup_fn = [&](std::size_t task) {
-    const TaskRange range = task_range(touched, task, lookup_tasks);
-    for (std::size_t i = range.begin; i < range.end && i < range.begin + kLookAhead; ++i) {
-      map.prefetch_block(frame_blocks_[i].morton);
-    }
-    std::uint32_t task_missing = 0;
-    for (std::size_t i = range.begin; i < range.end; ++i) {
-      if (i + kLookAhead < range.end) map.prefetch_block(frame_blocks_[i + kLookAhead].morton);
-      FrameBlock& b = frame_blocks_[i];
-      b.block = map.find_block_index_morton(b.morton);
-      b.z_m = z0 + dz_block.dot(b.coords.cast<float>());
-      if (b.block == kNoIndex) ++task_missing;
-      // Blocks whose scale does not depend on their current one (most far blocks): no header to
-      // read. -1: select below.
-      b.scale = kMultires && config_.fixed_scale < 0
-                    ? static_cast<std::int8_t>(
-                          scale_for_any_current(b.z_m * inv_footprint, config_.scale_hysteresis))
-                    : std::int8_t{-1};
-    }
-    tallies_[task].missing = task_missing;
-    for (std::size_t i = range.begin; i < range.end; ++i) {
-      FrameBlock& b = frame_blocks_[i];
-      if constexpr (kMultires) {
-        if (config_.fixed_scale >= 0) {
-          b.scale = static_cast<std::int8_t>(config_.fixed_scale);
-          continue;
-        }
-        // Headers are scattered over the pool: load a few ahead.
-        if (i + kLookAhead < range.end) {
-          const FrameBlock& later = frame_blocks_[i + kLookAhead];
-          if (later.block != kNoIndex && later.scale < 0) {
-            __builtin_prefetch(&map.block(later.block).current_scale);
-          }
-        }
-        if (b.scale >= 0) continue;
-        int current = -1;
-        if (b.block != kNoIndex) {
-          const VoxelBlock<VoxelT>& block = map.block(b.block);
-          if (block.integrated()) current = block.current_scale;
-        }
-        b.scale = static_cast<std::int8_t>(
-            select_scale(b.z_m * inv_footprint, current, config_.scale_hysteresis));
-      } else {
-        b.scale = 0;
-      }
-    }
+  for (std::size_t t = 0; t < tasks; ++t) tallies_[t] = TaskTally();
+  auto look_up_task = [&](std::size_t task) {
+    const TaskRange range = task_range(touched, task, tasks);
+    tallies_[task].missing = find_blocks(map, frame_blocks_, range, depth, config_);
+    select_scales(map, frame_blocks_, range, depth.inv_footprint, config_);
   };
-  team.for_each_task(lookup_tasks, lookup_fn);
+  team.for_each_task(tasks, look_up_task);
   std::uint32_t missing = 0;
-  for (std::size_t t = 0; t < lookup_tasks; ++t) missing += tallies_[t].missing;
-  report.blocks_requested = missing;
-  if (missing > 0) {
-    // block_indices_ is free until step 5: it lists the missing blocks' positions here.
-    std::uint32_t* order = block_indices_;
-    std::uint32_t m = 0;
-    for (std::uint32_t i = 0; i < touched; ++i) {
-      if (frame_blocks_[i].block == kNoIndex) order[m++] = i;
-    }
-    const FrameBlock* fb = frame_blocks_;
-    std::uint32_t to_allocate = missing;
-    if (missing > budget.max_new_blocks) {
-      std::sort(order, order + missing, [fb](std::uint32_t l, std::uint32_t r) {
-        return fb[l].z_m != fb[r].z_m ? fb[l].z_m < fb[r].z_m : fb[l].morton < fb[r].morton;
-      });
-      to_allocate = budget.max_new_blocks;
-      report.budget_blocks_not_allocated = missing - to_allocate;
-      report.budget_hit = true;
-    }
-    std::sort(order, order + to_allocate,
-              [fb](std::uint32_t l, std::uint32_t r) { return fb[l].morton < fb[r].morton; });
-    const int level = map.block_level();
-    for (std::uint32_t i = 0; i < to_allocate; ++i) {
-      keys_[i] =
-          Key{morton_encode(block_to_voxel(fb[order[i]].coords)), static_cast<std::uint8_t>(level)};
-    }
-    AllocationCounts counts;
-    const Status allocated = map.allocate(keys_, to_allocate, &counts);
-    report.blocks_allocated = counts.new_blocks;
-    report.pool_refusals = counts.refused;
-    if (allocated.code() == StatusCode::resource_exhausted) {
-      report.status = StatusCode::resource_exhausted;
-    }
-    for (std::uint32_t i = 0; i < to_allocate; ++i) {
-      FrameBlock& b = frame_blocks_[order[i]];
-      b.block = map.find_block_index_morton(b.morton);
-    }
-  }
-  if (report.keys_dropped > 0) report.status = StatusCode::resource_exhausted;
-  // Keep only blocks that exist now; on the way, what the budgets and step 4 need to know.
-  std::uint32_t count = 0;
-  std::uint64_t cost = 0;  // voxel updates
-  int coarsest = 0;
-  bool any_finest = false;
-  for (std::uint32_t i = 0; i < touched; ++i) {
-    const FrameBlock& b = frame_blocks_[i];
-    if (b.block == kNoIndex) continue;
-    cost += static_cast<std::uint64_t>(block_scale_count(b.scale));
-    coarsest = std::max<int>(coarsest, b.scale);
-    any_finest = any_finest || b.scale == 0;
-    frame_blocks_[count++] = b;
-  }
+  for (std::size_t t = 0; t < tasks; ++t) missing += tallies_[t].missing;
+  return missing;
+}
 
-  // 3. Budgets (the scales were picked in step 2).
-  const bool budget_bound = apply_budgets(count, cost, budget, report);
-
-  // Finest levels for blocks about to integrate at scale 0 for the first time, serially and in
-  // list order so the pool's indices do not depend on the worker count. Refused: stay at 1.
-  if constexpr (kMultires) {
-    for (std::uint32_t i = 0; i < count && any_finest; ++i) {
-      FrameBlock& b = frame_blocks_[i];
-      if (b.skip != 0 || b.scale != 0) continue;
-      VoxelBlock<VoxelT>& block = map.block(b.block);
-      if (block.has_finest()) continue;
-      if (!map.acquire_finest(block).ok()) {
-        b.scale = 1;
-        coarsest = std::max(coarsest, 1);
-        ++report.finest_refusals;
-        ++report.pool_refusals;
-        report.status = StatusCode::resource_exhausted;
-      }
-    }
-  }
-
-  f.mip_target = count > 0 ? coarsest : 0;
-  if (budget_bound) {  // blocks were coarsened or skipped: look again
-    f.mip_target = 0;
-    for (std::uint32_t i = 0; i < count; ++i) {
-      if (frame_blocks_[i].skip == 0 && frame_blocks_[i].scale > f.mip_target) {
-        f.mip_target = frame_blocks_[i].scale;
-      }
-    }
-  }
-
-  // 4. Integrate in pool order, in a fixed number of tasks. Blocks are independent, so the order
-  // changes no bits; sorted, their headers and voxels are read in address order.
+template <typename VoxelT>
+std::uint32_t Integrator<VoxelT>::integrate_blocks(Octree<VoxelT>& map, const Frame& f,
+                                                   std::uint32_t count, std::uint32_t frame_index,
+                                                   const WorkerTeam& team,
+                                                   IntegrationReport& report) {
   std::uint32_t sorted = 0;
-  for (std::uint32_t i = 0; i < count; ++i) {
-    const FrameBlock& b = frame_blocks_[i];
-    if (b.skip != 0) continue;
-    pool_order_[sorted++] = pool_entry(b.block, b.scale);
-  }
-  const std::uint64_t* order = sort_by_block(
-      pool_order_, pool_order_ + config_.max_blocks_per_frame, sorted, map.block_count());
+  const std::uint64_t* order = pool_order(frame_blocks_, count, map.block_count(), pool_order_,
+                                          config_.max_blocks_per_frame, sorted);
   const std::size_t tasks =
       std::min<std::size_t>(static_cast<std::size_t>(config_.task_count), sorted);
   for (std::size_t t = 0; t < tasks; ++t) tallies_[t] = TaskTally();
-  auto task_fn = [&](std::size_t task) {
+  auto integrate_task = [&](std::size_t task) {
     const TaskRange range = task_range(sorted, task, tasks);
     TaskTally& tally = tallies_[task];
     for (std::size_t i = range.begin; i < range.end; ++i) {
-      // Fetch a later block's header early, and once it has arrived (it says where a multires
-      // block's finest level is) its first voxels. Headers and levels rarely start on a cache
-      // line (blocks are 1232 bytes): fetch both ends.
-      if (i + 2 * kPrefetchDistance < range.end) {
-        const char* header = reinterpret_cast<const char*>(
-            &map.block(pool_entry_block(order[i + 2 * kPrefetchDistance])));
-        __builtin_prefetch(header, 1);
-        __builtin_prefetch(header + 63, 1);
-      }
-      if (i + kPrefetchDistance < range.end) {
-        const std::uint64_t later = order[i + kPrefetchDistance];
-        const int later_scale = pool_entry_scale(later);
-        const VoxelBlock<VoxelT>& lb = map.block(pool_entry_block(later));
-        const char* first = reinterpret_cast<const char*>(lb.scale_begin(later_scale));
-        const int bytes = block_scale_count(later_scale) * static_cast<int>(sizeof(VoxelT));
-        __builtin_prefetch(first, 1);
-        __builtin_prefetch(first + 64, 1);
-        if (bytes > 64) __builtin_prefetch(first + std::min(bytes, 192) - 1, 1);
-      }
+      prefetch_later_blocks(map, order, i, range.end);
       VoxelBlock<VoxelT>& block = map.block(pool_entry_block(order[i]));
       integrate_block(block, pool_entry_scale(order[i]), f, tally);
       block.last_updated_frame = frame_index;
@@ -838,20 +904,49 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
       block_indices_[i] = block.parent_node;
     }
   };
-  team.for_each_task(tasks, task_fn);
-  for (std::size_t t = 0; t < tasks; ++t) {
-    const TaskTally& tally = tallies_[t];
-    report.voxels_updated += tally.voxels_updated;
-    for (int s = 0; s < 4; ++s) {
-      report.blocks_per_scale[s] += tally.blocks_per_scale[s];
-      report.blocks_integrated += tally.blocks_per_scale[s];
-    }
-    report.blocks_refined += tally.refined;
-    report.blocks_coarsened += tally.coarsened;
+  team.for_each_task(tasks, integrate_task);
+  add_tallies(tallies_, tasks, report);
+  return sorted;
+}
+
+template <typename VoxelT>
+IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<const float> depth,
+                                                const PinholeCamera& camera, const Se3d& T_W_C,
+                                                std::uint32_t frame_index,
+                                                const FusionBudget& budget,
+                                                const WorkerTeam& team) {
+  IntegrationReport report;
+  report.status = check_inputs(map, depth, camera, T_W_C);
+  if (!report.status.ok()) return report;
+  Frame f = frame_constants(map, depth, camera, T_W_C);
+
+  // 1. Blocks the bands cross.
+  start_frame_set();
+  const std::uint32_t touched = collect_blocks(map, f, report, team);
+  report.blocks_touched = touched;
+
+  // 2. Look the blocks up and pick their scales (read-only on the map), allocate the missing ones
+  // (block_indices_ is free until step 4 and lists their positions) and keep those that exist.
+  const std::uint32_t missing = look_up_blocks(map, f, camera, touched, team);
+  report.blocks_requested = missing;
+  if (missing > 0) {
+    allocate_missing_blocks(map, frame_blocks_, touched, missing, budget, block_indices_, keys_,
+                            report);
   }
+  if (report.keys_dropped > 0) report.status = StatusCode::resource_exhausted;
+  BlockList list = keep_existing_blocks(frame_blocks_, touched);
+
+  // 3. Budgets (the scales were picked in step 2), then finest levels for the blocks at scale 0.
+  const bool budget_bound = apply_budgets(list.count, list.cost, budget, report);
+  if constexpr (kMultires) acquire_finest_levels(map, frame_blocks_, list, report);
+  f.mip_target = mip_target(frame_blocks_, list, budget_bound);
+
+  // 4. Integrate in pool order, in a fixed number of tasks. Blocks are independent, so the order
+  // changes no bits; sorted, their headers and voxels are read in address order.
+  const std::uint32_t integrated = integrate_blocks(map, f, list.count, frame_index, team, report);
 
   // 5. Node summaries above the integrated blocks (their parents, listed by step 4).
-  map.propagate_summaries_from_parents(block_indices_, sorted, team);
+  map.propagate_summaries_from_parents(block_indices_, integrated, team);
   return report;
 }
 

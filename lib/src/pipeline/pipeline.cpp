@@ -72,12 +72,12 @@ PipelineConfig default_pipeline_config(const PinholeCamera& input_camera, float 
   // Nodes: at most one per 2 blocks in practice (8 children, shared upper levels); keep slack.
   const std::uint32_t node_capacity = block_capacity / 2 + 1024;
   c.map = MapConfig::centred(centre_W, voxel_size_m, voxel_depth, block_capacity, node_capacity);
-  // Recorded poses are often printed with few digits (7-Scenes: R^T R off by 4e-4); 1e-3 still
+  // Recorded poses are often printed with few digits (7-Scenes' are visibly off SO(3)); 1e-3 still
   // rejects anything that is not a rotation.
   c.validator.rigid_tolerance = 1e-3;
   c.fusion.mu_m = 8.0f * voxel_size_m;
-  // Below 5 mm a far view touches more than 2^17 distinct blocks (2 mm sim:desk: up to 146k);
-  // each extra 2^17 of per-frame capacity costs the integrator about 14 MB.
+  // Below 5 mm a far view can touch more than 2^17 distinct blocks; per-frame capacity costs the
+  // integrator memory, so only small voxels get more.
   if (voxel_size_m < kSmallVoxel_m) c.fusion.max_blocks_per_frame = 1u << 18;
   c.fusion.near_m = c.validator.near_m;
   c.fusion.far_m = c.validator.far_m;
@@ -386,9 +386,9 @@ constexpr double kJitterToFrameNoise = 0.19816;
 constexpr int kJitterMeanFrames = 100;
 // The running mean square of ICP's gaps (rate 0.1: about 10 frames) scatters by a third of its
 // value when the gaps are the odometry's noise alone, and taking that scatter for ICP's error
-// pulled ICP towards the odometry (sim:desk, 2 mm odometry noise: ATE 1.49 -> 2.21 mm). Only a
-// mean square three times the odometry's variance is taken as ICP's own error (the room's walls,
-// where ICP slides, show five times).
+// pulled ICP towards the odometry and raised the trajectory error. Only a mean square three times
+// the odometry's variance is taken as ICP's own error (where ICP slides, along walls, the gaps
+// show more than that).
 constexpr double kGapSignificance = 3.0;
 }  // namespace
 
@@ -433,8 +433,8 @@ void Pipeline<VoxelT>::observe_prior_noise(const Se3d& prior_T_W_C, std::int64_t
     jitter_r = std::min(jitter_r, 4.0 * prior_jitter_rad_);
   }
   // The plain mean over the first samples, then a running mean over about kJitterMeanFrames: a
-  // third difference's norm scatters by 42 % of its mean, so 20 frames leave the estimate 10 %
-  // off at times (an odometry 11 % noisier than it read cost the desk 13 % of ATE), 100 about 4 %.
+  // third difference's norm scatters widely, and over a few tens of frames the estimate was off
+  // by enough at times to cost trajectory error.
   const double rate =
       1.0 / static_cast<double>(std::min(prior_jitter_samples_ + 1, kJitterMeanFrames));
   prior_jitter_t_m_ += rate * (jitter_t - prior_jitter_t_m_);
@@ -690,6 +690,320 @@ void Pipeline<VoxelT>::downsample_beyond_far() {
   }
 }
 
+// process()'s state between its steps.
+template <typename VoxelT>
+struct Pipeline<VoxelT>::FrameProgress {
+  std::int64_t t_start = 0;
+  std::int64_t t_last = 0;          // the clock at the end of the last step
+  const int* icp_budget = nullptr;  // this frame's ICP iterations per pyramid level
+  bool prior_valid = false;         // a prior was given and kept as plausible
+  PoseOrigin origin = PoseOrigin::none;
+  FrameResult result = FrameResult::tracked;  // lost: the pose step ended the frame
+  bool integrated = false;
+  bool carved = false;
+  bool raycast_done = false;
+};
+
+namespace {
+// The integrator's budgets: the configured ones, the deadline's voxel updates where lower.
+FusionBudget fusion_budget(const PipelineBudget& configured, const DeadlineReport& plan) {
+  FusionBudget budget;
+  budget.max_new_blocks = configured.max_new_blocks;
+  budget.max_integrated_blocks = configured.max_integrated_blocks;
+  budget.max_voxel_updates = configured.max_voxel_updates;
+  if (plan.max_voxel_updates > 0) {
+    budget.max_voxel_updates = std::min(budget.max_voxel_updates, plan.max_voxel_updates);
+  }
+  return budget;
+}
+}  // namespace
+
+template <typename VoxelT>
+typename Pipeline<VoxelT>::FrameProgress Pipeline<VoxelT>::start_frame(const DepthFrame& frame) {
+  FrameStats& stats = current_;
+  stats = FrameStats{};
+  stats.frame_index = frame_index_;
+  stats.timestamp_us = frame.timestamp_us;
+  ++frame_index_;
+  FrameProgress progress;
+  // The frame deadline's budgets for this frame (the configured ones when it is off).
+  stats.deadline = deadline_.plan();
+  progress.icp_budget = config_.budget.icp_iterations;
+  if (deadline_.active()) apply_deadline(stats.deadline);
+  if (stats.deadline.planned) progress.icp_budget = stats.deadline.icp_iterations;
+  progress.t_start = clock_.now();
+  own_error_ = false;
+  return progress;
+}
+
+template <typename VoxelT>
+Status Pipeline<VoxelT>::validate_frame(const DepthFrame& frame, const PosePrior& prior) {
+  if (prior.valid && !is_rigid(prior.T_W_C, config_.validator.rigid_tolerance)) {
+    own_error_ = true;
+    error_.set("pose prior is not finite and rigid (tolerance %g)",
+               config_.validator.rigid_tolerance);
+    ++priors_rejected_;
+    return StatusCode::invalid_argument;
+  }
+  return validator_.validate(frame, input_depth_m_, &current_.input, input_beyond_far_);
+}
+
+// An implausible prior (far away, or too fast since the last one) is dropped, not trusted: the
+// frame goes on as if it had none. The next prior is judged against the last kept one.
+template <typename VoxelT>
+bool Pipeline<VoxelT>::keep_plausible_prior(const DepthFrame& frame, const PosePrior& prior) {
+  const Se3d candidate = rigid_from(prior.T_W_C);
+  const PriorMotionLimits& limits = config_.prior_motion;
+  const double dt_s = static_cast<double>(frame.timestamp_us - last_prior_time_us_) * 1e-6;
+  if (prior_position_implausible(candidate, limits) ||
+      (have_last_prior_ && prior_motion_implausible(last_prior_T_W_C_, candidate, dt_s, limits))) {
+    current_.prior_dropped = true;
+    ++priors_dropped_;
+    return false;
+  }
+  last_prior_T_W_C_ = candidate;
+  last_prior_time_us_ = frame.timestamp_us;
+  have_last_prior_ = true;
+  observe_prior_noise(candidate, frame.timestamp_us);
+  return true;
+}
+
+template <typename VoxelT>
+Status Pipeline<VoxelT>::estimate_pose(const DepthFrame& frame, const PosePrior& prior,
+                                       FrameProgress& progress) {
+  Se3d ground_truth = Se3d::Identity();
+  if (frame.has_ground_truth) ground_truth = rigid_from(frame.T_W_C_ground_truth);
+  Se3d prior_T_W_C = Se3d::Identity();
+  if (progress.prior_valid) prior_T_W_C = rigid_from(prior.T_W_C);
+  const bool use_prior =
+      progress.prior_valid && (config_.pose_source == PoseSource::external ||
+                               config_.pose_source == PoseSource::external_prior);
+  current_.has_prior = progress.prior_valid;
+  if (!have_reference_) {
+    progress.result = FrameResult::first;
+    progress.origin = PoseOrigin::initial;
+    if (pose_set_) {
+      // set_pose() chose it.
+    } else if (use_prior) {
+      T_W_C_ = prior_T_W_C;
+    } else if (config_.initial_pose_from_ground_truth && frame.has_ground_truth) {
+      T_W_C_ = ground_truth;
+    }
+  } else if (config_.pose_source == PoseSource::ground_truth && frame.has_ground_truth) {
+    progress.origin = PoseOrigin::ground_truth;
+    T_Cprev_C_ = rigid_from((T_W_C_.inverse() * ground_truth).matrix());
+    T_W_C_ = ground_truth;
+  } else if (config_.pose_source == PoseSource::external) {
+    if (!progress.prior_valid) {
+      // Nothing to fuse at: lost until a prior comes.
+      T_Cprev_C_ = Se3d::Identity();
+      ++frames_lost_;
+      progress.result = FrameResult::lost;
+      return ok_status();
+    }
+    progress.origin = PoseOrigin::prior;
+    T_Cprev_C_ = rigid_from((T_W_C_.inverse() * prior_T_W_C).matrix());
+    T_W_C_ = prior_T_W_C;
+  } else if (!track_pose(prior_T_W_C, use_prior, progress)) {
+    progress.result = FrameResult::lost;
+    return current_.track.status;
+  }
+  // T_W_C_ was set by this frame: its prior is the one the next prediction starts from.
+  pose_set_ = false;
+  have_prior_prev_ = use_prior;
+  if (use_prior) prior_prev_ = prior_T_W_C;
+  return ok_status();
+}
+
+// track, or external_prior: ICP from a prediction, the prior's own motion when there is one.
+template <typename VoxelT>
+bool Pipeline<VoxelT>::track_pose(const Se3d& prior_T_W_C, bool use_prior,
+                                  FrameProgress& progress) {
+  FrameStats& stats = current_;
+  const bool predict = use_prior && have_prior_prev_;
+  Se3d prediction = Se3d::Identity();
+  Se3d estimate = T_W_C_;
+  if (predict) {
+    prediction = rigid_from((T_W_C_ * prior_prev_.inverse() * prior_T_W_C).matrix());
+    estimate = prediction;
+  } else if (config_.constant_velocity_prediction) {
+    // Compositions drift off SO(3); keep the guess exactly rigid for ICP's checks.
+    estimate = rigid_from((T_W_C_ * T_Cprev_C_).matrix());
+  }
+  stats.has_prediction = predict;
+  stats.track_attempted = true;
+  const IcpPrior icp_prior = icp_prior_at(prediction);
+  const bool pull = predict && (!icp_prior.fixed_information || icp_prior.information_t > 0.0 ||
+                                icp_prior.information_r > 0.0);
+  stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
+                               T_W_Cref_, estimate, team_, pull ? &icp_prior : nullptr);
+  for (int level = 0; level < kPyramidLevels; ++level) {
+    const int budget = progress.icp_budget[level];
+    if (budget > 0 && stats.track.iterations[level] >= budget) stats.budget_icp_hit = true;
+  }
+  if (stats.track.tracked()) {
+    last_icp_rms_m_ = stats.track.rms_residual_m;
+    estimate = rigid_from(estimate.matrix());
+    progress.origin = PoseOrigin::icp;
+    if (predict) gate_on_prediction(prediction, estimate, progress.origin);
+  } else if (predict) {
+    estimate = prediction;  // lost with a prior: fused at the prior, not lost
+    progress.origin = PoseOrigin::prior_lost;
+  } else {
+    T_Cprev_C_ = Se3d::Identity();  // the motion is unknown again
+    ++frames_lost_;
+    stats.times.track_ms = elapsed_ms(progress.t_last, clock_.now());
+    return false;
+  }
+  T_Cprev_C_ = rigid_from((T_W_C_.inverse() * estimate).matrix());
+  T_W_C_ = estimate;
+  return true;
+}
+
+// What ICP is told about the prediction: the odometry's noise, and ICP's own error as it shows.
+template <typename VoxelT>
+IcpPrior Pipeline<VoxelT>::icp_prior_at(const Se3d& prediction) const {
+  IcpPrior icp_prior;
+  icp_prior.T_W_C = prediction;
+  const double noise_m = prior_noise_m();
+  const double noise_rad = prior_noise_rad();
+  icp_prior.sigma_t_m = noise_m;
+  icp_prior.sigma_rad = noise_rad;
+  icp_prior.icp_noise_floor_m = config_.prior_icp_noise_floor_m;
+  icp_prior.icp_pixels_per_sample = config_.prior_icp_pixels_per_sample;
+  icp_prior.icp_sigma_m = last_icp_rms_m_;
+  for (int a = 0; a < 6; ++a) {
+    const double sigma = a < 3 ? noise_m : noise_rad;
+    const double excess = prior_gap_sq_C_[a] - kGapSignificance * sigma * sigma;
+    icp_prior.icp_error_var_C[a] = excess > 0.0 && excess <= 1.0 ? excess : 0.0;
+  }
+  icp_prior.fixed_information = config_.prior_fixed_information;
+  icp_prior.information_t = config_.prior_information_t;
+  icp_prior.information_r = config_.prior_information_r;
+  icp_prior.gate_m = config_.prior_gate_m;
+  icp_prior.gate_rad = config_.prior_gate_rad;
+  return icp_prior;
+}
+
+// A tracked pose outside the gate around the prediction is replaced by the prediction; one
+// inside it updates the running gaps between ICP and the odometry.
+template <typename VoxelT>
+void Pipeline<VoxelT>::gate_on_prediction(const Se3d& prediction, Se3d& estimate,
+                                          PoseOrigin& origin) {
+  FrameStats& stats = current_;
+  const Se3d gap = prediction.inverse() * estimate;
+  stats.prior_gap_m = gap.translation().norm();
+  stats.prior_gap_rad = Eigen::AngleAxisd(gap.linear()).angle();
+  if (!(stats.prior_gap_m <= config_.prior_gate_m) ||
+      !(stats.prior_gap_rad <= config_.prior_gate_rad)) {
+    estimate = prediction;
+    origin = PoseOrigin::prior_gate;
+    return;
+  }
+  // How far ICP, on the data alone, and the odometry disagree per camera axis (gated frames
+  // excluded; the pulled pose would hide the disagreement it acts on).
+  const Se3d data = stats.track.has_data_estimate ? stats.track.T_W_C_data : estimate;
+  const Vector6d gap_C = se3_log(rigid_from((prediction.inverse() * data).matrix()));
+  const double rate = config_.prior_gap_rate;
+  for (int a = 0; a < 6; ++a) {
+    prior_gap_sq_C_[a] += rate * (gap_C(a) * gap_C(a) - prior_gap_sq_C_[a]);
+  }
+}
+
+// Evicts, integrates at the working resolution and carves free space, under the map's guard;
+// returns the integration's status.
+template <typename VoxelT>
+Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
+  FrameStats& stats = current_;
+  const FusionBudget budget = fusion_budget(config_.budget, stats.deadline);
+  std::int64_t t_integrated = 0;
+  std::int64_t t_carved = 0;
+  {
+    // Queries from other threads wait here, and see the map before or after this frame.
+    ExclusiveHold hold(guard_);
+    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index));
+    stats.integration =
+        integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
+                              static_cast<std::uint32_t>(stats.frame_index), budget, team_);
+    progress.integrated = true;
+    t_integrated = clock_.now();
+    const Status fused = stats.integration.status;
+    // Free space after the TSDF, which takes precedence in its band.
+    if (config_.free_space.enabled &&
+        (fused.ok() || fused.code() == StatusCode::resource_exhausted)) {
+      carve_free_space();
+      progress.carved = true;
+    }
+    ++map_version_;
+    t_carved = clock_.now();
+  }
+  stats.times.integrate_ms = elapsed_ms(progress.t_last, t_integrated);
+  stats.times.free_space_ms = elapsed_ms(t_integrated, t_carved);
+  progress.t_last = t_carved;
+  return stats.integration.status;
+}
+
+// The free space this frame saw; when its pool runs full, the free space farthest from the camera
+// is forgotten to make room for the next frames.
+template <typename VoxelT>
+void Pipeline<VoxelT>::carve_free_space() {
+  FrameStats& stats = current_;
+  ImageView<const std::uint8_t> beyond;
+  if (stats.input.beyond_far_pixels > 0) {
+    downsample_beyond_far();
+    beyond = working_beyond_far_;
+  }
+  stats.free_space = free_space_.carve(preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
+                                       static_cast<std::uint32_t>(stats.frame_index), beyond,
+                                       config_.validator.far_m);
+  const std::uint32_t capacity = free_space_.node_capacity();
+  if (free_space_.node_count() > capacity - capacity / 16) {
+    const float min_radius_m = config_.free_space.prune_radius_m > 0.0f
+                                   ? config_.free_space.prune_radius_m
+                                   : 0.25f * config_.fusion.far_m;
+    stats.free_space.pruned = free_space_.prune_to(T_W_C_.translation().cast<float>(),
+                                                   capacity - capacity / 4, min_radius_m);
+    stats.free_space.nodes_used = free_space_.node_count();
+    stats.free_space.bytes_used = free_space_.bytes_used();
+  }
+}
+
+// The reference view the next frame tracks against, guided by the depth just fused from this
+// pose: most rays start in the band in front of it.
+template <typename VoxelT>
+Status Pipeline<VoxelT>::cast_reference_view(FrameProgress& progress) {
+  const Result<RaycastStats> raycast =
+      raycaster_.raycast(map_, working_camera_, T_W_C_, team_, preprocessor_.pyramid().depth_m[0]);
+  if (raycast.ok()) {
+    current_.raycast = raycast.value();
+    progress.raycast_done = true;
+  }
+  current_.times.raycast_ms = elapsed_ms(progress.t_last, clock_.now());
+  if (!raycast.ok()) return raycast.status();
+  T_W_Cref_ = T_W_C_;
+  have_reference_ = true;
+  return ok_status();
+}
+
+template <typename VoxelT>
+Status Pipeline<VoxelT>::finish_frame(const FrameProgress& progress, FrameResult result,
+                                      Status status, FrameStats* stats_out) {
+  FrameStats& stats = current_;
+  stats.result = result;
+  stats.pose_origin = progress.origin;
+  stats.T_W_C = T_W_C_;
+  stats.memory = map_.memory();
+  stats.times.total_ms = elapsed_ms(progress.t_start, clock_.now());
+  if (deadline_.active()) {
+    stats.deadline.over = stats.times.total_ms > stats.deadline.deadline_ms;
+    deadline_.observe(
+        observe_frame(stats, progress.integrated, progress.carved, progress.raycast_done),
+        stats.deadline);
+  }
+  if (stats_out != nullptr) *stats_out = stats;
+  return status;
+}
+
 template <typename VoxelT>
 Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior,
                                  FrameStats* stats_out) {
@@ -700,260 +1014,42 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     if (stats_out != nullptr) *stats_out = stats;
     return StatusCode::failed_precondition;
   }
-  FrameStats& stats = current_;
-  stats = FrameStats{};
-  stats.frame_index = frame_index_;
-  stats.timestamp_us = frame.timestamp_us;
-  ++frame_index_;
-  // The frame deadline's budgets for this frame (the configured ones when it is off).
-  stats.deadline = deadline_.plan();
-  const int* icp_budget = config_.budget.icp_iterations;
-  if (deadline_.active()) apply_deadline(stats.deadline);
-  if (stats.deadline.planned) icp_budget = stats.deadline.icp_iterations;
-  bool integrated = false;
-  bool carved = false;
-  bool raycast_done = false;
-  const std::int64_t t_start = clock_.now();
-  own_error_ = false;
+  FrameProgress progress = start_frame(frame);
 
   // 1. Validate and convert to metres; a bad prior rejects the frame before anything changes.
-  Status valid;
-  if (prior.valid && !is_rigid(prior.T_W_C, config_.validator.rigid_tolerance)) {
-    own_error_ = true;
-    error_.set("pose prior is not finite and rigid (tolerance %g)",
-               config_.validator.rigid_tolerance);
-    ++priors_rejected_;
-    valid = StatusCode::invalid_argument;
-  } else {
-    valid = validator_.validate(frame, input_depth_m_, &stats.input, input_beyond_far_);
-  }
+  const Status valid = validate_frame(frame, prior);
   const std::int64_t t_validated = clock_.now();
-  stats.times.validate_ms = elapsed_ms(t_start, t_validated);
-  PoseOrigin origin = PoseOrigin::none;
-  auto finish = [&](FrameResult result, Status status) {
-    stats.result = result;
-    stats.pose_origin = origin;
-    stats.T_W_C = T_W_C_;
-    stats.memory = map_.memory();
-    stats.times.total_ms = elapsed_ms(t_start, clock_.now());
-    if (deadline_.active()) {
-      stats.deadline.over = stats.times.total_ms > stats.deadline.deadline_ms;
-      deadline_.observe(observe_frame(stats, integrated, carved, raycast_done), stats.deadline);
-    }
-    if (stats_out != nullptr) *stats_out = stats;
-    return status;
-  };
-  if (valid.code() == StatusCode::data_loss) return finish(FrameResult::nearly_empty, valid);
-  if (!valid.ok()) return finish(FrameResult::rejected, valid);
-  // An implausible prior (far away, or too fast since the last one) is dropped, not trusted:
-  // the frame goes on as if it had none. The next prior is judged against the last kept one.
-  bool prior_valid = prior.valid;
-  if (prior_valid) {
-    const Se3d candidate = rigid_from(prior.T_W_C);
-    const PriorMotionLimits& limits = config_.prior_motion;
-    const double dt_s = static_cast<double>(frame.timestamp_us - last_prior_time_us_) * 1e-6;
-    if (prior_position_implausible(candidate, limits) ||
-        (have_last_prior_ &&
-         prior_motion_implausible(last_prior_T_W_C_, candidate, dt_s, limits))) {
-      prior_valid = false;
-      stats.prior_dropped = true;
-      ++priors_dropped_;
-    } else {
-      last_prior_T_W_C_ = candidate;
-      last_prior_time_us_ = frame.timestamp_us;
-      have_last_prior_ = true;
-      observe_prior_noise(candidate, frame.timestamp_us);
-    }
+  current_.times.validate_ms = elapsed_ms(progress.t_start, t_validated);
+  if (valid.code() == StatusCode::data_loss) {
+    return finish_frame(progress, FrameResult::nearly_empty, valid, stats_out);
   }
+  if (!valid.ok()) return finish_frame(progress, FrameResult::rejected, valid, stats_out);
+  progress.prior_valid = prior.valid && keep_plausible_prior(frame, prior);
 
   // 2. Pre-process: working resolution, pyramid of depth, vertices, normals.
   OCTOFUSE_TRY(preprocessor_.process(input_depth_m_, config_.input_camera, team_));
-  const std::int64_t t_preprocessed = clock_.now();
-  stats.times.preprocess_ms = elapsed_ms(t_validated, t_preprocessed);
+  progress.t_last = clock_.now();
+  current_.times.preprocess_ms = elapsed_ms(t_validated, progress.t_last);
 
   // 3. Pose.
-  Se3d ground_truth = Se3d::Identity();
-  if (frame.has_ground_truth) ground_truth = rigid_from(frame.T_W_C_ground_truth);
-  Se3d prior_T_W_C = Se3d::Identity();
-  if (prior_valid) prior_T_W_C = rigid_from(prior.T_W_C);
-  const bool use_prior = prior_valid && (config_.pose_source == PoseSource::external ||
-                                         config_.pose_source == PoseSource::external_prior);
-  stats.has_prior = prior_valid;
-  FrameResult result = FrameResult::tracked;
-  if (!have_reference_) {
-    result = FrameResult::first;
-    origin = PoseOrigin::initial;
-    if (pose_set_) {
-      // set_pose() chose it.
-    } else if (use_prior) {
-      T_W_C_ = prior_T_W_C;
-    } else if (config_.initial_pose_from_ground_truth && frame.has_ground_truth) {
-      T_W_C_ = ground_truth;
-    }
-  } else if (config_.pose_source == PoseSource::ground_truth && frame.has_ground_truth) {
-    origin = PoseOrigin::ground_truth;
-    T_Cprev_C_ = rigid_from((T_W_C_.inverse() * ground_truth).matrix());
-    T_W_C_ = ground_truth;
-  } else if (config_.pose_source == PoseSource::external) {
-    if (!prior_valid) {
-      // Nothing to fuse at: lost until a prior comes.
-      T_Cprev_C_ = Se3d::Identity();
-      ++frames_lost_;
-      return finish(FrameResult::lost, ok_status());
-    }
-    origin = PoseOrigin::prior;
-    T_Cprev_C_ = rigid_from((T_W_C_.inverse() * prior_T_W_C).matrix());
-    T_W_C_ = prior_T_W_C;
-  } else {
-    // track, or external_prior: predict from the prior's own motion when there is one.
-    const bool predict = use_prior && have_prior_prev_;
-    Se3d prediction = Se3d::Identity();
-    Se3d estimate = T_W_C_;
-    if (predict) {
-      prediction = rigid_from((T_W_C_ * prior_prev_.inverse() * prior_T_W_C).matrix());
-      estimate = prediction;
-    } else if (config_.constant_velocity_prediction) {
-      // Compositions drift off SO(3); keep the guess exactly rigid for ICP's checks.
-      estimate = rigid_from((T_W_C_ * T_Cprev_C_).matrix());
-    }
-    stats.has_prediction = predict;
-    stats.track_attempted = true;
-    IcpPrior icp_prior;
-    icp_prior.T_W_C = prediction;
-    const double noise_m = prior_noise_m();
-    const double noise_rad = prior_noise_rad();
-    icp_prior.sigma_t_m = noise_m;
-    icp_prior.sigma_rad = noise_rad;
-    icp_prior.icp_noise_floor_m = config_.prior_icp_noise_floor_m;
-    icp_prior.icp_pixels_per_sample = config_.prior_icp_pixels_per_sample;
-    icp_prior.icp_sigma_m = last_icp_rms_m_;
-    for (int a = 0; a < 6; ++a) {
-      const double sigma = a < 3 ? noise_m : noise_rad;
-      const double excess = prior_gap_sq_C_[a] - kGapSignificance * sigma * sigma;
-      icp_prior.icp_error_var_C[a] = excess > 0.0 && excess <= 1.0 ? excess : 0.0;
-    }
-    icp_prior.fixed_information = config_.prior_fixed_information;
-    icp_prior.information_t = config_.prior_information_t;
-    icp_prior.information_r = config_.prior_information_r;
-    icp_prior.gate_m = config_.prior_gate_m;
-    icp_prior.gate_rad = config_.prior_gate_rad;
-    const bool pull = predict && (!icp_prior.fixed_information || icp_prior.information_t > 0.0 ||
-                                  icp_prior.information_r > 0.0);
-    stats.track = tracker_.track(preprocessor_.pyramid(), raycaster_.surface_W(), working_camera_,
-                                 T_W_Cref_, estimate, team_, pull ? &icp_prior : nullptr);
-    for (int level = 0; level < kPyramidLevels; ++level) {
-      const int budget = icp_budget[level];
-      if (budget > 0 && stats.track.iterations[level] >= budget) stats.budget_icp_hit = true;
-    }
-    if (stats.track.tracked()) {
-      last_icp_rms_m_ = stats.track.rms_residual_m;
-      estimate = rigid_from(estimate.matrix());
-      origin = PoseOrigin::icp;
-      if (predict) {
-        const Se3d gap = prediction.inverse() * estimate;
-        stats.prior_gap_m = gap.translation().norm();
-        stats.prior_gap_rad = Eigen::AngleAxisd(gap.linear()).angle();
-        if (!(stats.prior_gap_m <= config_.prior_gate_m) ||
-            !(stats.prior_gap_rad <= config_.prior_gate_rad)) {
-          estimate = prediction;
-          origin = PoseOrigin::prior_gate;
-        } else {
-          // How far ICP, on the data alone, and the odometry disagree per camera axis (gated
-          // frames excluded; the pulled pose would hide the disagreement it acts on).
-          const Se3d data = stats.track.has_data_estimate ? stats.track.T_W_C_data : estimate;
-          const Vector6d gap_C = se3_log(rigid_from((prediction.inverse() * data).matrix()));
-          const double rate = config_.prior_gap_rate;
-          for (int a = 0; a < 6; ++a) {
-            prior_gap_sq_C_[a] += rate * (gap_C(a) * gap_C(a) - prior_gap_sq_C_[a]);
-          }
-        }
-      }
-    } else if (predict) {
-      estimate = prediction;  // lost with a prior: fused at the prior, not lost
-      origin = PoseOrigin::prior_lost;
-    } else {
-      T_Cprev_C_ = Se3d::Identity();  // the motion is unknown again
-      ++frames_lost_;
-      stats.times.track_ms = elapsed_ms(t_preprocessed, clock_.now());
-      return finish(FrameResult::lost, stats.track.status);
-    }
-    T_Cprev_C_ = rigid_from((T_W_C_.inverse() * estimate).matrix());
-    T_W_C_ = estimate;
+  const Status posed = estimate_pose(frame, prior, progress);
+  if (progress.result == FrameResult::lost) {
+    return finish_frame(progress, FrameResult::lost, posed, stats_out);
   }
-  // T_W_C_ was set by this frame: its prior is the one the next prediction starts from.
-  pose_set_ = false;
-  have_prior_prev_ = use_prior;
-  if (use_prior) prior_prev_ = prior_T_W_C;
   const std::int64_t t_tracked = clock_.now();
-  stats.times.track_ms = elapsed_ms(t_preprocessed, t_tracked);
+  current_.times.track_ms = elapsed_ms(progress.t_last, t_tracked);
+  progress.t_last = t_tracked;
 
-  // 4. Integrate at the working resolution.
-  FusionBudget budget;
-  budget.max_new_blocks = config_.budget.max_new_blocks;
-  budget.max_integrated_blocks = config_.budget.max_integrated_blocks;
-  budget.max_voxel_updates = config_.budget.max_voxel_updates;
-  if (stats.deadline.max_voxel_updates > 0) {
-    budget.max_voxel_updates = std::min(budget.max_voxel_updates, stats.deadline.max_voxel_updates);
-  }
-  std::int64_t t_integrated = 0;
-  std::int64_t t_carved = 0;
-  {
-    // Queries from other threads wait here, and see the map before or after this frame.
-    ExclusiveHold hold(guard_);
-    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index));
-    stats.integration =
-        integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
-                              static_cast<std::uint32_t>(stats.frame_index), budget, team_);
-    integrated = true;
-    t_integrated = clock_.now();
-    const Status fused = stats.integration.status;
-    // 4b. Free space seen by this frame (after the TSDF, which takes precedence in its band).
-    if (config_.free_space.enabled &&
-        (fused.ok() || fused.code() == StatusCode::resource_exhausted)) {
-      ImageView<const std::uint8_t> beyond;
-      if (stats.input.beyond_far_pixels > 0) {
-        downsample_beyond_far();
-        beyond = working_beyond_far_;
-      }
-      stats.free_space = free_space_.carve(preprocessor_.pyramid().depth_m[0], working_camera_,
-                                           T_W_C_, static_cast<std::uint32_t>(stats.frame_index),
-                                           beyond, config_.validator.far_m);
-      // Room for the next frames: forget the free space farthest from the camera.
-      const std::uint32_t capacity = free_space_.node_capacity();
-      if (free_space_.node_count() > capacity - capacity / 16) {
-        const float min_radius_m = config_.free_space.prune_radius_m > 0.0f
-                                       ? config_.free_space.prune_radius_m
-                                       : 0.25f * config_.fusion.far_m;
-        stats.free_space.pruned = free_space_.prune_to(T_W_C_.translation().cast<float>(),
-                                                       capacity - capacity / 4, min_radius_m);
-        stats.free_space.nodes_used = free_space_.node_count();
-        stats.free_space.bytes_used = free_space_.bytes_used();
-      }
-      carved = true;
-    }
-    ++map_version_;
-    t_carved = clock_.now();
-  }
-  stats.times.integrate_ms = elapsed_ms(t_tracked, t_integrated);
-  stats.times.free_space_ms = elapsed_ms(t_integrated, t_carved);
-  const Status integration_status = stats.integration.status;
+  // 4. Integrate, and carve free space.
+  const Status integration_status = fuse_frame(progress);
   if (!integration_status.ok() && integration_status.code() != StatusCode::resource_exhausted) {
-    return finish(result, integration_status);
+    return finish_frame(progress, progress.result, integration_status, stats_out);
   }
 
   // 5. Ray-cast the reference view for the next frame.
-  // Guided by the depth just fused from this pose: most rays start in the band in front of it.
-  const Result<RaycastStats> raycast =
-      raycaster_.raycast(map_, working_camera_, T_W_C_, team_, preprocessor_.pyramid().depth_m[0]);
-  if (raycast.ok()) {
-    stats.raycast = raycast.value();
-    raycast_done = true;
-  }
-  stats.times.raycast_ms = elapsed_ms(t_carved, clock_.now());
-  if (!raycast.ok()) return finish(result, raycast.status());
-  T_W_Cref_ = T_W_C_;
-  have_reference_ = true;
-  return finish(result, integration_status);
+  const Status cast = cast_reference_view(progress);
+  if (!cast.ok()) return finish_frame(progress, progress.result, cast, stats_out);
+  return finish_frame(progress, progress.result, integration_status, stats_out);
 }
 
 template class Pipeline<TsdfVoxel>;

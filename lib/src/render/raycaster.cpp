@@ -19,7 +19,7 @@ constexpr float kRetreatMin_voxels = 1.5f;
 // Scales whose voxels are so large that mu spans fewer than this many of them (2 mm voxels with
 // the default mu of 8: scales 2 and 3) hold a band only a voxel or two thick. There the trilinear
 // cell around a crossing often reaches a voxel no update reached or a block never allocated, and
-// the march below treats samples near a crossing specially (at 1 cm such scales lie beyond 7 m).
+// the march below treats samples near a crossing specially.
 constexpr float kThinBand_cells = 5.0f;
 // At such scales: a negative sample after samples that failed still closes a crossing with the
 // last positive sample before them when it lies at most this far (a fraction of mu) behind it
@@ -216,6 +216,263 @@ struct RowCache {
   int thin_scale;
 };
 
+// Inside the cube q is non-negative, so truncation is floor (and NaN fails the test).
+inline bool inside_cube(const Eigen::Vector3f& q, float side_v) {
+  return q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < side_v && q.y() < side_v &&
+         q.z() < side_v;
+}
+
+// The block a march is in. Consecutive samples mostly fall in the same block: it is looked up
+// only when the block changes.
+template <typename VoxelT>
+struct MarchBlock {
+  const VoxelBlock<VoxelT>* block = nullptr;  // null: a free octant
+  int scale = 0;                              // the block's read scale ...
+  const VoxelT* level = nullptr;              // ... and that level's voxels
+  Eigen::Vector3i coords = Eigen::Vector3i::Constant(-1);
+  OctantLookup where;
+};
+
+template <typename VoxelT>
+inline void enter_block(const Octree<VoxelT>& map, TreeCursor<VoxelT>& cursor,
+                        const Eigen::Vector3i& voxel, MarchBlock<VoxelT>& at) {
+  const Eigen::Vector3i coords = voxel_to_block(voxel);
+  if (coords == at.coords) return;
+  at.where = cursor.find(voxel);
+  at.block = at.where.block == kNoIndex ? nullptr : &map.block(at.where.block);
+  if (at.block != nullptr) {
+    at.scale = block_read_scale(*at.block);
+    at.level = at.block->scale_begin(at.scale);
+  }
+  at.coords = coords;
+}
+
+// The field at voxel coordinates q (false where it fails), in the block `home` (at block
+// coordinates home_coords) or one the cursor finds. Only around a hit: out of line, so the
+// march's loop stays small.
+template <typename VoxelT>
+__attribute__((noinline)) bool sample_field_at(const Octree<VoxelT>& map, RowCache<VoxelT>& cache,
+                                               const VoxelBlock<VoxelT>* home,
+                                               Eigen::Vector3i home_coords,
+                                               const Eigen::Vector3f& q, TsdfSample& out) {
+  const float side_v = static_cast<float>(map.voxels_per_side());
+  const VoxelBlock<VoxelT>* block = nullptr;
+  if (inside_cube(q, side_v)) {
+    const Eigen::Vector3i v = q.cast<int>();
+    if (voxel_to_block(v) == home_coords) {
+      block = home;
+    } else {
+      const OctantLookup found = cache.cursor.find(v);
+      block = found.block == kNoIndex ? nullptr : &map.block(found.block);
+    }
+  }
+  return sample_tsdf_at_voxel_coords(map, q, block, cache.neighbourhood, out);
+}
+
+// Where the ray leaves the free octant holding `voxel` (the lookup stopped at `level`), a
+// little past its far face.
+template <typename VoxelT>
+inline float free_octant_exit(const Octree<VoxelT>& map, const VoxelRay& ray_v,
+                              const Eigen::Vector3i& voxel, int level, float t) {
+  const int free_level = std::min(level + 1, map.block_level());
+  const int shift = map.voxel_depth() - free_level;
+  const Eigen::Vector3i corner((voxel.x() >> shift) << shift, (voxel.y() >> shift) << shift,
+                               (voxel.z() >> shift) << shift);
+  return std::max(octant_exit(ray_v, corner, 1 << shift), t) +
+         kExitNudge_voxels * map.voxel_size_m();
+}
+
+template <typename VoxelT>
+inline const VoxelT& nearest_voxel(const MarchBlock<VoxelT>& at, const Eigen::Vector3i& voxel) {
+  const int side = block_scale_side(at.scale);
+  return at.level[((voxel.x() & (kBlockSide - 1)) >> at.scale) +
+                  ((voxel.y() & (kBlockSide - 1)) >> at.scale) * side +
+                  ((voxel.z() & (kBlockSide - 1)) >> at.scale) * side * side];
+}
+
+// A guided march's first voxel must be observed and in front of a surface. A coarse voxel's
+// centre can lie behind the start by more than the margin: there the field at the start decides.
+template <typename VoxelT>
+inline bool start_in_front(const Octree<VoxelT>& map, const VoxelT& nearest,
+                           const MarchBlock<VoxelT>& at, const Eigen::Vector3f& q,
+                           BlockNeighbourhood<VoxelT>& neighbourhood) {
+  bool accept = voxel_observed(nearest) && voxel_tsdf(nearest) > 0.0f;
+  if (!accept && at.scale > 0) {
+    TsdfSample at_start;
+    accept = sample_tsdf_at_voxel_coords(map, q, at.block, neighbourhood, at_start) &&
+             at_start.tsdf > 0.0f;
+  }
+  return accept;
+}
+
+// Far from the surface (an observed nearest voxel's value f_near above kFarTsdf): the step is
+// that value less the distance to the voxel's centre, so it cannot pass further than the field
+// says is free. False near the surface, and for NaN (corrupt voxels), which take the full sample.
+inline bool far_step(float f_near, float cell_m, float mu_m, float& step) {
+  step = f_near * mu_m - kNearestOffset_cells * cell_m;
+  return f_near > kFarTsdf && step > cell_m;
+}
+
+// What the march remembers of the samples behind t.
+struct MarchMemory {
+  bool have_prev = false;     // prev_t and prev_f are the last sample's, just behind t
+  bool prev_nearest = false;  // prev_f is a nearest-voxel read, not a trilinear sample
+  float prev_t = 0.0f;
+  float prev_f = 0.0f;
+  TsdfSample prev_sample;  // the full sample at prev_t, when have_prev_sample
+  bool have_prev_sample = false;
+  // Samples failed at a thin-band scale after a positive one, which the prev_* values (not
+  // have_prev) still hold: a negative sample within kBridge_mu of it closes the crossing.
+  bool kept_prev = false;
+  // Until a guided march takes a positive sample, a negative trilinear one means it started
+  // behind the surface. Both flags are brought up to date where have_prev is dropped (a positive
+  // prev ends confirm_start and is kept), not at every sample.
+  bool confirm_start = false;
+
+  bool positive_prev() const { return have_prev && prev_f > 0.0f; }
+  void remember_nearest(float t, float f_near) {
+    have_prev = true;
+    prev_nearest = true;
+    have_prev_sample = false;
+    prev_t = t;
+    prev_f = f_near;
+  }
+  void remember_sample(float t, const TsdfSample& sample) {
+    have_prev = true;
+    prev_nearest = false;
+    prev_t = t;
+    prev_f = sample.tsdf;
+    prev_sample = sample;
+    have_prev_sample = true;
+  }
+  // The ray crossed a free octant: nothing behind it is near the next sample.
+  void forget_at_free_octant() {
+    if (positive_prev()) confirm_start = false;
+    have_prev = false;
+    have_prev_sample = false;
+    kept_prev = false;
+  }
+};
+
+// The sample at q (`unobserved`: known to fail). At a thin-band scale, where a crossing is
+// expected, a failed sample is read again from the cell's observed corners: the cell around a
+// crossing often reaches a voxel the integrator never updated, or a block it never allocated.
+template <typename VoxelT>
+inline bool sample_near_surface(const Octree<VoxelT>& map, const Eigen::Vector3f& q,
+                                const MarchBlock<VoxelT>& at, bool unobserved, int thin_scale,
+                                const MarchMemory& memory,
+                                BlockNeighbourhood<VoxelT>& neighbourhood, TsdfSample& sample) {
+  // q is inside the cube and its block exists: the checked sample, inlined.
+  bool sampled =
+      !unobserved && detail::sample_tsdf_checked(map, q, *at.block, neighbourhood, sample);
+  const bool thin = !sampled && at.scale >= thin_scale;
+  if (thin && (memory.positive_prev() || memory.kept_prev || memory.confirm_start)) {
+    sampled = sample_tsdf_observed_at_voxel_coords(map, q, at.block, kMinObservedWeight, sample);
+  }
+  return sampled;
+}
+
+// Moves t on past a failed sample (`thin`: at a thin-band scale); false when the step vanishes
+// in float rounding.
+inline bool step_past_failed_sample(MarchMemory& m, bool thin, float voxel_m, float mu_m,
+                                    float& t) {
+  // Past a positive sample the observed band behind a surface can be thinner than a coarse
+  // step: back off towards the last good sample before giving up on it.
+  if (m.positive_prev() && t - m.prev_t > kRetreatMin_voxels * voxel_m) {
+    t = m.prev_t + 0.5f * (t - m.prev_t);
+    return true;
+  }
+  // Unobserved space inside allocated blocks: a surface is only found inside an observed band,
+  // whose positive side is mu thick, so half of mu cannot step over it.
+  const float t_next = t + std::max(kUnobservedStep_mu * mu_m, voxel_m);
+  if (!(t_next > t)) return false;
+  // prev_* and have_prev_sample are left as they are: only have_prev says they are current.
+  if (m.have_prev) {
+    if (m.prev_f > 0.0f) m.confirm_start = false;
+    m.kept_prev = thin && m.prev_f > 0.0f;
+  }
+  t = t_next;
+  m.have_prev = false;
+  return true;
+}
+
+// A negative sample f at t after failed ones: within kBridge_mu of the kept positive sample it
+// closes the crossing with it (only unobserved samples lay between); at a thin-band scale it
+// shows that a guided march started behind the surface (true: reject the march).
+inline bool bridge_or_reject(MarchMemory& m, float t, float f, int scale, int thin_scale,
+                             float mu_m) {
+  if (!m.have_prev && f <= 0.0f && (m.kept_prev || m.confirm_start)) {
+    if (m.kept_prev && t - m.prev_t <= kBridge_mu * mu_m) {
+      m.have_prev = true;
+    } else if (m.confirm_start && scale >= thin_scale) {
+      return true;
+    }
+  }
+  return false;
+}
+
+// The normal at q_hit from the gradient of at_hit's trilinear cell: no further samples. Central
+// differences of the field at the hit's scale only where that gradient vanishes. False when
+// neither gives a direction.
+template <typename SampleAt>
+bool surface_normal(const TsdfSample& at_hit, const Eigen::Vector3f& q_hit, SampleAt& sample_at,
+                    Eigen::Vector3f& n_W) {
+  const float h_voxels = static_cast<float>(1 << at_hit.scale);
+  Eigen::Vector3f gradient = at_hit.gradient;
+  Eigen::Vector3f central = Eigen::Vector3f::Zero();
+  bool complete = !(gradient.squaredNorm() > 0.0f);
+  for (int a = 0; a < 3 && complete; ++a) {
+    Eigen::Vector3f offset = Eigen::Vector3f::Zero();
+    offset[a] = h_voxels;
+    TsdfSample plus;
+    TsdfSample minus;
+    complete = sample_at(q_hit + offset, plus) && sample_at(q_hit - offset, minus);
+    central[a] = plus.tsdf - minus.tsdf;
+  }
+  if (complete && central.squaredNorm() > 0.0f) gradient = central;
+  const float norm = gradient.norm();
+  if (!(norm > 0.0f) || !std::isfinite(norm)) return false;
+  n_W = gradient / norm;
+  return true;
+}
+
+// The surface between the previous sample (positive) and `sample` at t (not positive); false when
+// it has no normal.
+template <typename VoxelT>
+bool locate_hit(const Octree<VoxelT>& map, RowCache<VoxelT>& cache, const MarchBlock<VoxelT>& at,
+                const Ray& ray, const VoxelRay& ray_v, float t, const TsdfSample& sample,
+                MarchMemory& m, PixelHit& hit) {
+  // By value: the march's state does not escape to the out-of-line samples.
+  const VoxelBlock<VoxelT>* home = at.block;
+  const Eigen::Vector3i home_coords = at.coords;
+  auto sample_at = [&map, &cache, home, home_coords](const Eigen::Vector3f& q, TsdfSample& out) {
+    return sample_field_at(map, cache, home, home_coords, q, out);
+  };
+  const float f = sample.tsdf;
+  if (m.prev_nearest) {
+    // Interpolate between two trilinear samples: take the full sample at the previous step.
+    TsdfSample before;
+    if (sample_at(ray_v.origin_v + m.prev_t * ray_v.dir_v, before) && before.tsdf > 0.0f) {
+      m.prev_f = before.tsdf;
+      m.prev_sample = before;
+      m.have_prev_sample = true;
+    }
+  }
+  // Zero crossing by linear interpolation between the last two samples.
+  const float t_hit = m.prev_t + (t - m.prev_t) * m.prev_f / (m.prev_f - f);
+  const Eigen::Vector3f q_hit = ray_v.origin_v + t_hit * ray_v.dir_v;
+  // The normal and scale come from whichever of the two samples is nearer the surface: its
+  // trilinear cell is at most a step from the hit, and a third sample would cost as much as the
+  // two did.
+  const TsdfSample& at_hit = m.have_prev_sample && m.prev_sample.tsdf < -f ? m.prev_sample : sample;
+  Eigen::Vector3f n_W;
+  if (!surface_normal(at_hit, q_hit, sample_at, n_W)) return false;
+  hit.p_W = ray.origin_W + t_hit * ray.dir_W;
+  hit.n_W = n_W;
+  hit.scale = at_hit.scale;
+  return true;
+}
+
 // Marches from t_start (>= t_near) to t_far. With `guided`, the first voxel of an allocated block
 // the ray reaches must be observed and in front of a surface, and at a thin-band scale so must the
 // first trilinear sample (a coarse voxel's centre can be in front of the surface while the start
@@ -249,211 +506,67 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
   float t = std::max(t0, t_start);
   // A guided march that never read a voxel proved nothing about its start.
   auto no_hit = [&guided] { return guided ? MarchResult::rejected : MarchResult::miss; };
-  // Until a guided march takes a positive sample, a negative trilinear one means it started
-  // behind the surface.
-  bool confirm_start = guided;
   const int thin_scale = cache.thin_scale;
-  bool have_prev = false;
-  bool prev_nearest = false;  // prev_f is a nearest-voxel read, not a trilinear sample
-  float prev_t = 0.0f;
-  float prev_f = 0.0f;
+  MarchMemory memory;
+  memory.confirm_start = guided;
   TsdfSample sample;
-  TsdfSample prev_sample;  // the full sample at prev_t, when have_prev_sample
-  bool have_prev_sample = false;
-  // Samples failed at a thin-band scale after a positive one, which the prev_* values (not
-  // have_prev) still hold: a negative sample within kBridge_mu of it closes the crossing.
-  bool kept_prev = false;
-  // Consecutive samples mostly fall in the same block: look it up only when the block changes.
-  const VoxelBlock<VoxelT>* block = nullptr;
-  // The block's read scale and that level's voxels, kept with it.
-  int block_scale = 0;
-  const VoxelT* block_level = nullptr;
-  Eigen::Vector3i block_coords(-1, -1, -1);
+  MarchBlock<VoxelT> at;
   TreeCursor<VoxelT>& cursor = cache.cursor;
   BlockNeighbourhood<VoxelT>& neighbourhood = cache.neighbourhood;
-  OctantLookup where;
-  // The block holding voxel coordinates q, through the cursor (null when unallocated or outside).
-  auto block_at = [&](const Eigen::Vector3f& q) -> const VoxelBlock<VoxelT>* {
-    if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < side_v && q.y() < side_v &&
-          q.z() < side_v)) {
-      return nullptr;
-    }
-    const Eigen::Vector3i v = q.cast<int>();
-    if (voxel_to_block(v) == block_coords) return block;
-    const OctantLookup found = cursor.find(v);
-    return found.block == kNoIndex ? nullptr : &map.block(found.block);
-  };
-  auto sample_at = [&](const Eigen::Vector3f& q, TsdfSample& out) {
-    return sample_tsdf_at_voxel_coords(map, q, block_at(q), neighbourhood, out);
-  };
   while (t <= t1) {
     if (tally.left == 0) return MarchResult::out_of_steps;
     --tally.left;
     ++tally.taken;
     const Eigen::Vector3f q = ray_v.origin_v + t * ray_v.dir_v;
-    // Inside the cube q is non-negative, so truncation is floor (and NaN fails the test).
-    if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < side_v && q.y() < side_v &&
-          q.z() < side_v)) {
-      return no_hit();
-    }
+    if (!inside_cube(q, side_v)) return no_hit();
     const Eigen::Vector3i voxel = q.cast<int>();
-    const Eigen::Vector3i coords = voxel_to_block(voxel);
-    if (coords != block_coords) {
-      where = cursor.find(voxel);
-      block = where.block == kNoIndex ? nullptr : &map.block(where.block);
-      if (block != nullptr) {
-        block_scale = block_read_scale(*block);
-        block_level = block->scale_begin(block_scale);
-      }
-      block_coords = coords;
-    }
-    if (block == nullptr) {
+    enter_block(map, cursor, voxel, at);
+    if (at.block == nullptr) {
       // Free octant: jump to its far face in one step.
-      const int free_level = std::min(where.level + 1, map.block_level());
-      const int shift = map.voxel_depth() - free_level;
-      const Eigen::Vector3i corner((voxel.x() >> shift) << shift, (voxel.y() >> shift) << shift,
-                                   (voxel.z() >> shift) << shift);
-      const float t_next =
-          std::max(octant_exit(ray_v, corner, 1 << shift), t) + kExitNudge_voxels * voxel_m;
+      const float t_next = free_octant_exit(map, ray_v, voxel, at.where.level, t);
       // Far from the origin a step can vanish in float rounding: give up rather than spin.
       if (!(t_next > t)) return no_hit();
       t = t_next;
-      if (have_prev && prev_f > 0.0f) confirm_start = false;
-      have_prev = false;
-      have_prev_sample = false;
-      kept_prev = false;
+      memory.forget_at_free_octant();
       continue;
     }
+    const VoxelT& nearest = nearest_voxel(at, voxel);
+    if (guided) {
+      if (!start_in_front(map, nearest, at, q, neighbourhood)) return MarchResult::rejected;
+      guided = false;
+    }
     bool unobserved = false;  // the sample at q is known to fail
-    {
-      // Far from the surface: step by the nearest voxel's value, less the distance to its
-      // centre, so the step cannot pass further than the field says is free.
-      const int read_scale = block_scale;
-      const int side = block_scale_side(read_scale);
-      const VoxelT& nearest =
-          block_level[((voxel.x() & (kBlockSide - 1)) >> read_scale) +
-                      ((voxel.y() & (kBlockSide - 1)) >> read_scale) * side +
-                      ((voxel.z() & (kBlockSide - 1)) >> read_scale) * side * side];
-      if (guided) {
-        bool accept = voxel_observed(nearest) && voxel_tsdf(nearest) > 0.0f;
-        if (!accept && read_scale > 0) {
-          // A coarse voxel's centre can lie behind the start by more than the margin: ask the
-          // field at the start itself.
-          TsdfSample at_start;
-          accept = sample_tsdf_at_voxel_coords(map, q, block, neighbourhood, at_start) &&
-                   at_start.tsdf > 0.0f;
-        }
-        if (!accept) return MarchResult::rejected;
-        guided = false;
-      }
-      if (voxel_observed(nearest)) {
-        const float f_near = voxel_tsdf(nearest);
-        const float cell_m = voxel_m * static_cast<float>(1 << read_scale);
-        const float step = f_near * config.mu_m - kNearestOffset_cells * cell_m;
-        // NaN (corrupt voxels) fails both tests and takes the full path below.
-        if (f_near > kFarTsdf && step > cell_m) {
-          const float t_next = t + step;
-          if (!(t_next > t)) return no_hit();
-          have_prev = true;
-          prev_nearest = true;
-          have_prev_sample = false;
-          prev_t = t;
-          prev_f = f_near;
-          t = t_next;
-          continue;
-        }
-      } else {
-        // The nearest voxel is one of the trilinear cell's corners: when the whole cell lies in
-        // this block the sample fails without a look at the neighbours (exactly what it would
-        // return), and only a cell across blocks may still be completed by a coarser neighbour.
-        unobserved = cell_inside_block(*block, q, read_scale);
-      }
-    }
-    // q is inside the cube and its block exists: the checked sample, inlined.
-    bool sampled =
-        !unobserved && detail::sample_tsdf_checked(map, q, *block, neighbourhood, sample);
-    const bool thin = !sampled && block_scale >= thin_scale;
-    if (thin && ((have_prev && prev_f > 0.0f) || kept_prev || confirm_start)) {
-      // At coarse scales the band is a voxel or two thick: the cell around a crossing often
-      // reaches a voxel the integrator never updated, or a block it never allocated.
-      sampled = sample_tsdf_observed_at_voxel_coords(map, q, block, kMinObservedWeight, sample);
-    }
-    if (!sampled) {
-      // Past a positive sample the observed band behind a surface can be thinner than a coarse
-      // step: back off towards the last good sample before giving up on it.
-      if (have_prev && prev_f > 0.0f && t - prev_t > kRetreatMin_voxels * voxel_m) {
-        t = prev_t + 0.5f * (t - prev_t);
+    if (voxel_observed(nearest)) {
+      const float f_near = voxel_tsdf(nearest);
+      float step = 0.0f;
+      if (far_step(f_near, voxel_m * static_cast<float>(1 << at.scale), config.mu_m, step)) {
+        const float t_next = t + step;
+        if (!(t_next > t)) return no_hit();
+        memory.remember_nearest(t, f_near);
+        t = t_next;
         continue;
       }
-      // Unobserved space inside allocated blocks: a surface is only found inside an observed
-      // band, whose positive side is mu thick, so half of mu cannot step over it.
-      const float t_next = t + std::max(kUnobservedStep_mu * config.mu_m, voxel_m);
-      if (!(t_next > t)) return no_hit();
-      // prev_* and have_prev_sample are left as they are: only have_prev says they are current.
-      if (have_prev) {
-        if (prev_f > 0.0f) confirm_start = false;
-        kept_prev = thin && prev_f > 0.0f;
+    } else {
+      // The nearest voxel is one of the trilinear cell's corners: when the whole cell lies in
+      // this block the sample fails without a look at the neighbours (exactly what it would
+      // return), and only a cell across blocks may still be completed by a coarser neighbour.
+      unobserved = cell_inside_block(*at.block, q, at.scale);
+    }
+    if (!sample_near_surface(map, q, at, unobserved, thin_scale, memory, neighbourhood, sample)) {
+      if (!step_past_failed_sample(memory, at.scale >= thin_scale, voxel_m, config.mu_m, t)) {
+        return no_hit();
       }
-      t = t_next;
-      have_prev = false;
       continue;
     }
     const float f = sample.tsdf;
-    // Both flags are brought up to date where have_prev is dropped (a positive prev ends
-    // confirm_start and is kept), not at every sample.
-    if (!have_prev && f <= 0.0f && (kept_prev || confirm_start)) {
-      if (kept_prev && t - prev_t <= kBridge_mu * config.mu_m) {
-        // Only unobserved samples lay between: the crossing is between the two good ones.
-        have_prev = true;
-      } else if (confirm_start && sample.scale >= thin_scale) {
-        return MarchResult::rejected;
-      }
+    if (bridge_or_reject(memory, t, f, sample.scale, thin_scale, config.mu_m)) {
+      return MarchResult::rejected;
     }
-    if (have_prev && prev_f > 0.0f && f <= 0.0f) {
-      if (prev_nearest) {
-        // Interpolate between two trilinear samples: take the full sample at the previous step.
-        TsdfSample before;
-        if (sample_at(ray_v.origin_v + prev_t * ray_v.dir_v, before) && before.tsdf > 0.0f) {
-          prev_f = before.tsdf;
-          prev_sample = before;
-          have_prev_sample = true;
-        }
-      }
-      // Zero crossing by linear interpolation between the last two samples.
-      const float t_hit = prev_t + (t - prev_t) * prev_f / (prev_f - f);
-      const Eigen::Vector3f q_hit = ray_v.origin_v + t_hit * ray_v.dir_v;
-      // The normal and scale come from whichever of the two samples is nearer the surface: its
-      // trilinear cell is at most a step from the hit, and a third sample would cost as much as
-      // the two did.
-      const TsdfSample& at_hit = have_prev_sample && prev_sample.tsdf < -f ? prev_sample : sample;
-      // Normal from the gradient of the trilinear cell at the hit: no further samples. Central
-      // differences of the field at the hit's scale only where that gradient vanishes.
-      const float h_voxels = static_cast<float>(1 << at_hit.scale);
-      Eigen::Vector3f gradient = at_hit.gradient;
-      Eigen::Vector3f central = Eigen::Vector3f::Zero();
-      bool complete = !(gradient.squaredNorm() > 0.0f);
-      for (int a = 0; a < 3 && complete; ++a) {
-        Eigen::Vector3f offset = Eigen::Vector3f::Zero();
-        offset[a] = h_voxels;
-        TsdfSample plus;
-        TsdfSample minus;
-        complete = sample_at(q_hit + offset, plus) && sample_at(q_hit - offset, minus);
-        central[a] = plus.tsdf - minus.tsdf;
-      }
-      if (complete && central.squaredNorm() > 0.0f) gradient = central;
-      const float norm = gradient.norm();
-      if (!(norm > 0.0f) || !std::isfinite(norm)) return no_hit();
-      hit.p_W = ray.origin_W + t_hit * ray.dir_W;
-      hit.n_W = gradient / norm;
-      hit.scale = at_hit.scale;
-      return MarchResult::hit;
+    if (memory.positive_prev() && f <= 0.0f) {
+      return locate_hit(map, cache, at, ray, ray_v, t, sample, memory, hit) ? MarchResult::hit
+                                                                            : no_hit();
     }
-    have_prev = true;
-    prev_nearest = false;
-    prev_t = t;
-    prev_f = f;
-    prev_sample = sample;
-    have_prev_sample = true;
+    memory.remember_sample(t, sample);
     const float cell_m = voxel_m * static_cast<float>(1 << sample.scale);
     // Corrupt (non-finite) voxels make the step NaN; stop the ray then.
     const float t_next = t + std::max(f * config.mu_m, cell_m);

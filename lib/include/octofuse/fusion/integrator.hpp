@@ -176,6 +176,20 @@ class Integrator {
 
  private:
   struct Frame;
+  // integrate()'s steps (numbered as at the top of this file).
+  StatusCode check_inputs(const Octree<VoxelT>& map, ImageView<const float> depth_m,
+                          const PinholeCamera& camera, const Se3d& T_W_C) const;
+  Frame frame_constants(const Octree<VoxelT>& map, ImageView<const float> depth_m,
+                        const PinholeCamera& camera, const Se3d& T_W_C) const;
+  void start_frame_set();
+  // Returns the blocks not allocated yet.
+  std::uint32_t look_up_blocks(const Octree<VoxelT>& map, const Frame& frame,
+                               const PinholeCamera& camera, std::uint32_t touched,
+                               const WorkerTeam& team);
+  // Returns how many blocks were integrated (their parents are in block_indices_).
+  std::uint32_t integrate_blocks(Octree<VoxelT>& map, const Frame& frame, std::uint32_t count,
+                                 std::uint32_t frame_index, const WorkerTeam& team,
+                                 IntegrationReport& report);
   std::uint32_t collect_blocks(const Octree<VoxelT>& map, const Frame& frame,
                                IntegrationReport& report, const WorkerTeam& team);
   bool insert_frame_block(std::uint64_t key, const Eigen::Vector3i& coords,

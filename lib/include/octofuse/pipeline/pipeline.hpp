@@ -341,6 +341,21 @@ class Pipeline {
   FrameObservation observe_frame(const FrameStats& stats, bool integrated, bool carved,
                                  bool raycast_done) const;
   void restart_prior_statistics();
+  // process()'s steps, in order, and the state passed between them.
+  struct FrameProgress;
+  FrameProgress start_frame(const DepthFrame& frame);
+  Status validate_frame(const DepthFrame& frame, const PosePrior& prior);
+  bool keep_plausible_prior(const DepthFrame& frame, const PosePrior& prior);
+  // progress.result lost: the frame ends here with the status returned.
+  Status estimate_pose(const DepthFrame& frame, const PosePrior& prior, FrameProgress& progress);
+  bool track_pose(const Se3d& prior_T_W_C, bool use_prior, FrameProgress& progress);
+  IcpPrior icp_prior_at(const Se3d& prediction) const;
+  void gate_on_prediction(const Se3d& prediction, Se3d& estimate, PoseOrigin& origin);
+  Status fuse_frame(FrameProgress& progress);
+  void carve_free_space();
+  Status cast_reference_view(FrameProgress& progress);
+  Status finish_frame(const FrameProgress& progress, FrameResult result, Status status,
+                      FrameStats* stats_out);
   friend std::size_t bytes_required(const PipelineConfig& config);
 
   PipelineConfig config_;

@@ -19,6 +19,7 @@
 #include "live_server.hpp"
 #include "looping_source.hpp"
 #include "octofuse/mesh/mesher.hpp"
+#include "octofuse/pipeline/steady_clock.hpp"
 #include "octofuse/ports/host/atomic_file.hpp"
 #include "octofuse/ports/host/json_writer.hpp"
 #include "octofuse/ports/host/map_file.hpp"
@@ -35,12 +36,6 @@
 
 namespace octofuse::examples {
 namespace {
-
-std::int64_t steady_now_us(void*) {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
 
 int voxel_depth_for(float map_size_m, float voxel_size_m) {
   int depth = kMinVoxelDepth;
@@ -570,7 +565,7 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
 
   Pipeline<VoxelT> pipeline;
   std::unique_ptr<AlignedBuffer> buffer;
-  const Clock clock{&steady_now_us, nullptr};
+  const Clock clock = steady_clock();
   // With --load-map: the saved map's header (its geometry replaces the one around the first
   // camera).
   const bool load_map = !options.load_map_path.empty();

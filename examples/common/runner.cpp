@@ -12,6 +12,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <memory>
+#include <thread>
 #include <utility>
 
 #include "deadline_calibration.hpp"
@@ -1233,6 +1234,11 @@ int run_typed(const RunOptions& options, RunSummary* summary) {
 }
 
 }  // namespace
+
+int default_thread_count() {
+  const unsigned cores = std::thread::hardware_concurrency();
+  return static_cast<int>(std::clamp(cores, 1u, 64u));
+}
 
 Percentiles percentiles(std::vector<double> values) {
   Percentiles p;

@@ -118,6 +118,216 @@ std::uint64_t file_size(const std::string& path) {
   return ::stat(path.c_str(), &st) == 0 ? static_cast<std::uint64_t>(st.st_size) : 0;
 }
 
+// Reports a write that failed after the frame loop; the run goes on to write every other output.
+struct LateFailures {
+  int count = 0;
+  void operator()(const std::string& message) {
+    std::fprintf(stderr, "error: %s\n", message.c_str());
+    ++count;
+  }
+};
+
+// The ATE of the trajectory and of the odometry against the ground truth, where there is enough.
+void evaluate_trajectories(RunSummary* summary) {
+  if (summary->ground_truth.size() >= 3 &&
+      summary->ground_truth.size() == summary->trajectory.size()) {
+    ErrorText ate_error;
+    const Result<host::AteResult> ate =
+        host::compute_ate(summary->trajectory, summary->ground_truth, 1e-3, &ate_error);
+    if (ate.ok()) {
+      summary->have_ate = true;
+      summary->ate_rmse_m = ate.value().translation_m.rmse;
+      summary->ate_max_m = ate.value().translation_m.max;
+    }
+  }
+
+  if (summary->odometry.size() >= 3 && !summary->ground_truth.empty()) {
+    ErrorText ate_error;
+    const Result<host::AteResult> ate =
+        host::compute_ate(summary->odometry, summary->ground_truth, 1e-3, &ate_error);
+    if (ate.ok()) {
+      summary->have_odometry_ate = true;
+      summary->odometry_ate_rmse_m = ate.value().translation_m.rmse;
+    }
+  }
+}
+
+// What the run claims: most frames gave a pose from tracking, and tracking fused new views.
+void judge_run(std::uint64_t fused_after_first, RunSummary* summary) {
+  const std::uint64_t frames_read =
+      summary->frames_processed + summary->frames_rejected + summary->frames_skipped_by_source;
+  const std::uint64_t frames_failed =
+      summary->frames_lost + summary->frames_rejected + summary->frames_skipped_by_source;
+  if (frames_read >= 2 && 2 * frames_failed > frames_read) {
+    summary->failure = std::to_string(frames_failed) + " of " + std::to_string(frames_read) +
+                       " frames lost, rejected or unreadable (" +
+                       std::to_string(summary->frames_lost) + " lost, " +
+                       std::to_string(summary->frames_rejected) + " rejected, " +
+                       std::to_string(summary->frames_skipped_by_source) + " unreadable)";
+  } else if (summary->frames_processed >= 2 && fused_after_first == 0) {
+    summary->failure = "nothing was fused after the first frame (" +
+                       std::to_string(summary->frames_processed) + " frames)";
+  }
+}
+
+// stats.json (every frame, the summary, the deadline's model) and stage_times.svg.
+void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summary,
+                 LateFailures& late_failure) {
+  host::JsonWriter json;
+  json.begin_object();
+  json.key("frames").begin_array();
+  for (const FrameStats& s : summary->frames) write_frame_json(json, s);
+  json.end_array();
+  std::vector<double> totals, track, integrate, raycast, preprocess, free_space;
+  for (const FrameStats& s : summary->frames) {
+    totals.push_back(s.times.total_ms);
+    free_space.push_back(s.times.free_space_ms);
+    track.push_back(s.times.track_ms);
+    integrate.push_back(s.times.integrate_ms);
+    raycast.push_back(s.times.raycast_ms);
+    preprocess.push_back(s.times.validate_ms + s.times.preprocess_ms);
+  }
+  const Percentiles total = percentiles(totals);
+  json.key("summary").begin_object();
+  json.key("source").value(options.source_spec.c_str());
+  json.key("map").value(map_option_name(map_kind));
+  json.key("voxel_size_m").value(static_cast<double>(options.voxel_size_m));
+  json.key("threads").value(options.threads);
+  json.key("frames").value(static_cast<std::uint64_t>(summary->frames.size()));
+  json.key("frames_lost").value(summary->frames_lost);
+  json.key("frames_rejected").value(summary->frames_rejected);
+  json.key("frames_skipped_by_source").value(summary->frames_skipped_by_source);
+  json.key("frames_dropped_by_source").value(summary->frames_dropped_by_source);
+  json.key("frames_nearly_empty").value(summary->frames_nearly_empty);
+  json.key("frames_unfused").value(summary->frames_unfused);
+  if (!options.odometry.empty()) {
+    json.key("pose_source").value(options.odometry_only ? "external" : "external_prior");
+    json.key("frames_without_odometry").value(summary->frames_without_odometry);
+    json.key("frames_prior_gate").value(summary->frames_prior_gate);
+    json.key("frames_prior_lost").value(summary->frames_prior_lost);
+    json.key("priors_dropped").value(summary->priors_dropped);
+    json.key("odometry_noise_m").value(summary->odometry_noise_m);
+    json.key("odometry_noise_rad").value(summary->odometry_noise_rad);
+    if (summary->have_odometry_ate) {
+      json.key("odometry_ate_rmse_m").value(summary->odometry_ate_rmse_m);
+    }
+  }
+  json.key("total_ms").begin_object();
+  json.key("median").value(total.median);
+  json.key("p90").value(total.p90);
+  json.key("p99").value(total.p99);
+  json.key("max").value(total.max);
+  json.end_object();
+  json.key("median_ms").begin_object();
+  json.key("preprocess").value(percentiles(preprocess).median);
+  json.key("track").value(percentiles(track).median);
+  json.key("integrate").value(percentiles(integrate).median);
+  json.key("raycast").value(percentiles(raycast).median);
+  json.key("free_space").value(percentiles(free_space).median);
+  json.end_object();
+  json.key("arena_bytes").value(static_cast<std::uint64_t>(summary->arena_bytes));
+  json.key("map_bytes_reserved")
+      .value(static_cast<std::uint64_t>(summary->map_memory.bytes_reserved));
+  json.key("map_bytes_used").value(static_cast<std::uint64_t>(summary->map_memory.bytes_used));
+  json.key("pool_blocks_used").value(static_cast<std::uint64_t>(summary->map_memory.blocks_used));
+  json.key("pool_block_capacity")
+      .value(static_cast<std::uint64_t>(summary->map_memory.block_capacity));
+  json.key("blocks_evicted").value(summary->map_memory.evicted);
+  json.key("pool_refusals").value(summary->map_memory.refusals);
+  json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
+  json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));
+  json.key("mesh_triangles").value(static_cast<std::uint64_t>(summary->mesh_triangles));
+  json.key("failure").value(summary->failure.c_str());
+  if (summary->have_ate) {
+    json.key("ate_rmse_m").value(summary->ate_rmse_m);
+    json.key("ate_max_m").value(summary->ate_max_m);
+  }
+  json.key("wall_s").value(summary->wall_s);
+  if (options.deadline_ms > 0.0) {
+    const CostModel& m = summary->deadline_model;
+    json.key("deadline").begin_object();
+    json.key("deadline_ms").value(options.deadline_ms);
+    json.key("frozen").value(options.deadline_freeze);
+    json.key("calibration_loaded").value(summary->deadline_calibration_loaded);
+    json.key("frames_over").value(summary->frames_over_deadline);
+    json.key("share_over")
+        .value(summary->frames_processed > 0 ? static_cast<double>(summary->frames_over_deadline) /
+                                                   static_cast<double>(summary->frames_processed)
+                                             : 0.0);
+    json.key("model").begin_object();
+    json.key("fixed_ms").value(m.fixed_ms);
+    json.key("icp_fixed_ms").value(m.icp.fixed_ms);
+    json.key("icp_ms_per_mpixel_iteration").value(m.icp.ms_per_munit);
+    json.key("integrate_fixed_ms").value(m.integrate.fixed_ms);
+    json.key("integrate_ms_per_mvoxel").value(m.integrate.ms_per_munit);
+    json.key("raycast_fixed_ms").value(m.raycast.fixed_ms);
+    json.key("raycast_ms_per_mstep").value(m.raycast.ms_per_munit);
+    json.key("free_space_fixed_ms").value(m.free_space.fixed_ms);
+    json.key("free_space_ms_per_mvisit").value(m.free_space.ms_per_munit);
+    json.key("safety").value(m.safety);
+    json.end_object();
+    json.end_object();
+  }
+  json.end_object();
+  json.end_object();
+  ErrorText json_error;
+  const std::string path = join(options.out_dir, "stats.json");
+  if (json.write_file(path.c_str(), &json_error).ok()) {
+    summary->files_written.push_back("stats.json");
+  } else {
+    late_failure(json_error.c_str());
+  }
+
+  const std::vector<plot::StageSeries> series = {
+      {"pre-process", "#7f7f7f", preprocess},
+      {"track", "#1f77b4", track},
+      {"integrate", "#2ca02c", integrate},
+      {"ray-cast", "#d62728", raycast},
+  };
+  const std::string plot_path = join(options.out_dir, "stage_times.svg");
+  if (plot::write_stacked_svg(plot_path, options.source_spec + " stage times", series)) {
+    summary->files_written.push_back("stage_times.svg");
+  } else {
+    late_failure("cannot write " + plot_path);
+  }
+}
+
+// mesh.ply, and the mesh kept in the summary with keep_mesh.
+template <typename VoxelT>
+void write_mesh(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
+                LateFailures& late_failure) {
+  const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
+  VectorMeshSink sink;
+  const bool meshed =
+      (write_mesh_file || options.keep_mesh) && extract_mesh(pipeline, options, &sink);
+  if ((write_mesh_file || options.keep_mesh) && !meshed) {
+    late_failure("mesh.ply not written: cannot reserve the mesher");
+  }
+  if (meshed) {
+    host::MeshView mesh;
+    mesh.vertices = sink.positions.data();
+    mesh.vertex_count = sink.positions.size();
+    mesh.indices = sink.indices.data();
+    mesh.triangle_count = sink.indices.size() / 3;
+    mesh.vertex_scale = sink.scales.data();
+    if (write_mesh_file) {
+      ErrorText ply_error;
+      const std::string path = join(options.out_dir, "mesh.ply");
+      if (host::write_ply(path.c_str(), mesh, &ply_error).ok()) {
+        summary->files_written.push_back("mesh.ply");
+      } else {
+        late_failure(ply_error.c_str());
+      }
+    }
+    summary->mesh_vertices = mesh.vertex_count;
+    summary->mesh_triangles = mesh.triangle_count;
+    if (options.keep_mesh) {
+      summary->mesh_positions = std::move(sink.positions);
+      summary->mesh_indices = std::move(sink.indices);
+    }
+  }
+}
+
 }  // namespace
 
 template <typename VoxelT>
@@ -181,24 +391,17 @@ bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,
   return true;
 }
 
+// Ends the run: closes the trajectory file and the source, and takes the pipeline's figures
+// into the summary (writing the learnt deadline calibration). Non-zero when no frame was usable.
 template <typename VoxelT>
-int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>* run,
-                  LoopResult* loop, RunSummary* summary) {
+int close_run(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>* run,
+              LoopResult* loop, RunSummary* summary, LateFailures& late_failure) {
   std::string error;
   const std::unique_ptr<DepthSource>& source = inputs->source;
-  const std::vector<Eigen::Vector3f>& query_points = inputs->query_points;
   const auto start_time = inputs->start_time;
   Pipeline<VoxelT>& pipeline = run->pipeline;
   const std::unique_ptr<AlignedBuffer>& buffer = run->buffer;
   std::unique_ptr<host::TumTrajectoryWriter>& trajectory_file = loop->trajectory_file;
-  const std::uint64_t fused_after_first = loop->fused_after_first;
-  // From here on a write that fails is reported and the run goes on to write every other
-  // output; the exit status is then 1.
-  int late_failures = 0;
-  auto late_failure = [&late_failures](const std::string& message) {
-    std::fprintf(stderr, "error: %s\n", message.c_str());
-    ++late_failures;
-  };
   if (trajectory_file != nullptr) {
     if (trajectory_file->close().ok()) {
       summary->files_written.push_back("trajectory.txt");
@@ -227,6 +430,21 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
   if constexpr (std::is_same_v<VoxelT, MultiresVoxel>) {
     if (options.inspect_final_map) options.inspect_final_map(pipeline.query());
   }
+  return 0;
+}
+
+template <typename VoxelT>
+int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>* run,
+                  LoopResult* loop, RunSummary* summary) {
+  std::string error;
+  const std::vector<Eigen::Vector3f>& query_points = inputs->query_points;
+  Pipeline<VoxelT>& pipeline = run->pipeline;
+  // From here on a write that fails is reported and the run goes on to write every other
+  // output; the exit status is then 1.
+  LateFailures late_failure;
+  if (const int rc = close_run(options, inputs, run, loop, summary, late_failure); rc != 0) {
+    return rc;
+  }
   if (!options.query_points_path.empty() && !options.out_dir.empty()) {
     if (write_query_answers(pipeline.query(), query_points, join(options.out_dir, "queries.txt"),
                             &error)) {
@@ -240,27 +458,7 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
     if (!save_map_now(options, pipeline, summary, &save_error)) late_failure(save_error);
   }
 
-  if (summary->ground_truth.size() >= 3 &&
-      summary->ground_truth.size() == summary->trajectory.size()) {
-    ErrorText ate_error;
-    const Result<host::AteResult> ate =
-        host::compute_ate(summary->trajectory, summary->ground_truth, 1e-3, &ate_error);
-    if (ate.ok()) {
-      summary->have_ate = true;
-      summary->ate_rmse_m = ate.value().translation_m.rmse;
-      summary->ate_max_m = ate.value().translation_m.max;
-    }
-  }
-
-  if (summary->odometry.size() >= 3 && !summary->ground_truth.empty()) {
-    ErrorText ate_error;
-    const Result<host::AteResult> ate =
-        host::compute_ate(summary->odometry, summary->ground_truth, 1e-3, &ate_error);
-    if (ate.ok()) {
-      summary->have_odometry_ate = true;
-      summary->odometry_ate_rmse_m = ate.value().translation_m.rmse;
-    }
-  }
+  evaluate_trajectories(summary);
   if (!options.odometry.empty() && !options.out_dir.empty()) {
     ErrorText odometry_error;
     const std::string path = join(options.out_dir, "odometry.txt");
@@ -269,55 +467,11 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
     }
   }
 
-  // mesh.ply
-  const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
-  VectorMeshSink sink;
-  const bool meshed =
-      (write_mesh_file || options.keep_mesh) && extract_mesh(pipeline, options, &sink);
-  if ((write_mesh_file || options.keep_mesh) && !meshed) {
-    late_failure("mesh.ply not written: cannot reserve the mesher");
-  }
-  if (meshed) {
-    host::MeshView mesh;
-    mesh.vertices = sink.positions.data();
-    mesh.vertex_count = sink.positions.size();
-    mesh.indices = sink.indices.data();
-    mesh.triangle_count = sink.indices.size() / 3;
-    mesh.vertex_scale = sink.scales.data();
-    if (write_mesh_file) {
-      ErrorText ply_error;
-      const std::string path = join(options.out_dir, "mesh.ply");
-      if (host::write_ply(path.c_str(), mesh, &ply_error).ok()) {
-        summary->files_written.push_back("mesh.ply");
-      } else {
-        late_failure(ply_error.c_str());
-      }
-    }
-    summary->mesh_vertices = mesh.vertex_count;
-    summary->mesh_triangles = mesh.triangle_count;
-    if (options.keep_mesh) {
-      summary->mesh_positions = std::move(sink.positions);
-      summary->mesh_indices = std::move(sink.indices);
-    }
-  }
+  write_mesh(options, pipeline, summary, late_failure);
 
-  // What the run claims: most frames gave a pose from tracking, and tracking fused new views.
-  const std::uint64_t frames_read =
-      summary->frames_processed + summary->frames_rejected + summary->frames_skipped_by_source;
-  const std::uint64_t frames_failed =
-      summary->frames_lost + summary->frames_rejected + summary->frames_skipped_by_source;
-  if (frames_read >= 2 && 2 * frames_failed > frames_read) {
-    summary->failure = std::to_string(frames_failed) + " of " + std::to_string(frames_read) +
-                       " frames lost, rejected or unreadable (" +
-                       std::to_string(summary->frames_lost) + " lost, " +
-                       std::to_string(summary->frames_rejected) + " rejected, " +
-                       std::to_string(summary->frames_skipped_by_source) + " unreadable)";
-  } else if (summary->frames_processed >= 2 && fused_after_first == 0) {
-    summary->failure = "nothing was fused after the first frame (" +
-                       std::to_string(summary->frames_processed) + " frames)";
-  }
+  judge_run(loop->fused_after_first, summary);
 
-  if (options.out_dir.empty()) return late_failures == 0 ? 0 : 1;
+  if (options.out_dir.empty()) return late_failure.count == 0 ? 0 : 1;
 
   // render.png: the last ray-cast, shaded and coloured by interpolation scale.
   {
@@ -329,128 +483,8 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
     }
   }
 
-  // stats.json
-  {
-    host::JsonWriter json;
-    json.begin_object();
-    json.key("frames").begin_array();
-    for (const FrameStats& s : summary->frames) write_frame_json(json, s);
-    json.end_array();
-    std::vector<double> totals, track, integrate, raycast, preprocess, free_space;
-    for (const FrameStats& s : summary->frames) {
-      totals.push_back(s.times.total_ms);
-      free_space.push_back(s.times.free_space_ms);
-      track.push_back(s.times.track_ms);
-      integrate.push_back(s.times.integrate_ms);
-      raycast.push_back(s.times.raycast_ms);
-      preprocess.push_back(s.times.validate_ms + s.times.preprocess_ms);
-    }
-    const Percentiles total = percentiles(totals);
-    json.key("summary").begin_object();
-    json.key("source").value(options.source_spec.c_str());
-    json.key("map").value(map_option_name(map_kind_of<VoxelT>()));
-    json.key("voxel_size_m").value(static_cast<double>(options.voxel_size_m));
-    json.key("threads").value(options.threads);
-    json.key("frames").value(static_cast<std::uint64_t>(summary->frames.size()));
-    json.key("frames_lost").value(summary->frames_lost);
-    json.key("frames_rejected").value(summary->frames_rejected);
-    json.key("frames_skipped_by_source").value(summary->frames_skipped_by_source);
-    json.key("frames_dropped_by_source").value(summary->frames_dropped_by_source);
-    json.key("frames_nearly_empty").value(summary->frames_nearly_empty);
-    json.key("frames_unfused").value(summary->frames_unfused);
-    if (!options.odometry.empty()) {
-      json.key("pose_source").value(options.odometry_only ? "external" : "external_prior");
-      json.key("frames_without_odometry").value(summary->frames_without_odometry);
-      json.key("frames_prior_gate").value(summary->frames_prior_gate);
-      json.key("frames_prior_lost").value(summary->frames_prior_lost);
-      json.key("priors_dropped").value(summary->priors_dropped);
-      json.key("odometry_noise_m").value(summary->odometry_noise_m);
-      json.key("odometry_noise_rad").value(summary->odometry_noise_rad);
-      if (summary->have_odometry_ate) {
-        json.key("odometry_ate_rmse_m").value(summary->odometry_ate_rmse_m);
-      }
-    }
-    json.key("total_ms").begin_object();
-    json.key("median").value(total.median);
-    json.key("p90").value(total.p90);
-    json.key("p99").value(total.p99);
-    json.key("max").value(total.max);
-    json.end_object();
-    json.key("median_ms").begin_object();
-    json.key("preprocess").value(percentiles(preprocess).median);
-    json.key("track").value(percentiles(track).median);
-    json.key("integrate").value(percentiles(integrate).median);
-    json.key("raycast").value(percentiles(raycast).median);
-    json.key("free_space").value(percentiles(free_space).median);
-    json.end_object();
-    json.key("arena_bytes").value(static_cast<std::uint64_t>(summary->arena_bytes));
-    json.key("map_bytes_reserved")
-        .value(static_cast<std::uint64_t>(summary->map_memory.bytes_reserved));
-    json.key("map_bytes_used").value(static_cast<std::uint64_t>(summary->map_memory.bytes_used));
-    json.key("pool_blocks_used").value(static_cast<std::uint64_t>(summary->map_memory.blocks_used));
-    json.key("pool_block_capacity")
-        .value(static_cast<std::uint64_t>(summary->map_memory.block_capacity));
-    json.key("blocks_evicted").value(summary->map_memory.evicted);
-    json.key("pool_refusals").value(summary->map_memory.refusals);
-    json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
-    json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));
-    json.key("mesh_triangles").value(static_cast<std::uint64_t>(summary->mesh_triangles));
-    json.key("failure").value(summary->failure.c_str());
-    if (summary->have_ate) {
-      json.key("ate_rmse_m").value(summary->ate_rmse_m);
-      json.key("ate_max_m").value(summary->ate_max_m);
-    }
-    json.key("wall_s").value(summary->wall_s);
-    if (options.deadline_ms > 0.0) {
-      const CostModel& m = summary->deadline_model;
-      json.key("deadline").begin_object();
-      json.key("deadline_ms").value(options.deadline_ms);
-      json.key("frozen").value(options.deadline_freeze);
-      json.key("calibration_loaded").value(summary->deadline_calibration_loaded);
-      json.key("frames_over").value(summary->frames_over_deadline);
-      json.key("share_over")
-          .value(summary->frames_processed > 0
-                     ? static_cast<double>(summary->frames_over_deadline) /
-                           static_cast<double>(summary->frames_processed)
-                     : 0.0);
-      json.key("model").begin_object();
-      json.key("fixed_ms").value(m.fixed_ms);
-      json.key("icp_fixed_ms").value(m.icp.fixed_ms);
-      json.key("icp_ms_per_mpixel_iteration").value(m.icp.ms_per_munit);
-      json.key("integrate_fixed_ms").value(m.integrate.fixed_ms);
-      json.key("integrate_ms_per_mvoxel").value(m.integrate.ms_per_munit);
-      json.key("raycast_fixed_ms").value(m.raycast.fixed_ms);
-      json.key("raycast_ms_per_mstep").value(m.raycast.ms_per_munit);
-      json.key("free_space_fixed_ms").value(m.free_space.fixed_ms);
-      json.key("free_space_ms_per_mvisit").value(m.free_space.ms_per_munit);
-      json.key("safety").value(m.safety);
-      json.end_object();
-      json.end_object();
-    }
-    json.end_object();
-    json.end_object();
-    ErrorText json_error;
-    const std::string path = join(options.out_dir, "stats.json");
-    if (json.write_file(path.c_str(), &json_error).ok()) {
-      summary->files_written.push_back("stats.json");
-    } else {
-      late_failure(json_error.c_str());
-    }
-
-    const std::vector<plot::StageSeries> series = {
-        {"pre-process", "#7f7f7f", preprocess},
-        {"track", "#1f77b4", track},
-        {"integrate", "#2ca02c", integrate},
-        {"ray-cast", "#d62728", raycast},
-    };
-    const std::string plot_path = join(options.out_dir, "stage_times.svg");
-    if (plot::write_stacked_svg(plot_path, options.source_spec + " stage times", series)) {
-      summary->files_written.push_back("stage_times.svg");
-    } else {
-      late_failure("cannot write " + plot_path);
-    }
-  }
-  return late_failures == 0 ? 0 : 1;
+  write_stats(options, map_kind_of<VoxelT>(), summary, late_failure);
+  return late_failure.count == 0 ? 0 : 1;
 }
 
 template int write_outputs<MultiresVoxel>(const RunOptions&, RunInputs*,

@@ -188,6 +188,70 @@ int odometry_prior(const RunOptions& options, const DepthFrame& frame, long proc
   return 0;
 }
 
+// What the loop shows as it runs: the live view (snapshots at most 10 times a second, the mesh
+// when a browser asks), the status line (RunOptions::live_status) and the progress line.
+struct FrameDisplay {
+  LiveSnapshot snapshot;
+  std::vector<Rgb8> snapshot_rgb;
+  std::chrono::steady_clock::time_point last_publish = std::chrono::steady_clock::now();
+  long frames_since_publish = 0;
+  long frames_since_status = 0;
+  std::chrono::steady_clock::time_point last_status = std::chrono::steady_clock::now();
+  bool show_progress = false;
+};
+
+template <typename VoxelT>
+int show_frame(const RunOptions& options, const Pipeline<VoxelT>& pipeline,
+               const RunSummary& summary, long processed, const FrameStats& stats,
+               LiveServer* server, FrameDisplay* display) {
+  LiveSnapshot& snapshot = display->snapshot;
+  std::vector<Rgb8>& snapshot_rgb = display->snapshot_rgb;
+  auto& last_publish = display->last_publish;
+  long& frames_since_publish = display->frames_since_publish;
+  long& frames_since_status = display->frames_since_status;
+  auto& last_status = display->last_status;
+  const bool show_progress = display->show_progress;
+  if (server != nullptr && server->mesh_requested()) {
+    VectorMeshSink sink;
+    if (!extract_mesh(pipeline, options, &sink)) return error_exit("cannot reserve the mesher");
+    server->publish_mesh(mesh_ply_bytes(sink.positions.empty() ? nullptr : sink.positions[0].data(),
+                                        sink.scales.data(), sink.positions.size(),
+                                        sink.indices.data(), sink.indices.size() / 3));
+  }
+  if (server != nullptr) {
+    // At most 10 snapshots a second: shading and copying cost the loop about a millisecond.
+    ++frames_since_publish;
+    const auto now = std::chrono::steady_clock::now();
+    const double since_s = std::chrono::duration<double>(now - last_publish).count();
+    if (since_s >= 0.1) {
+      fill_snapshot(pipeline, summary, processed,
+                    static_cast<double>(frames_since_publish) / since_s, &snapshot_rgb, &snapshot);
+      server->publish(snapshot);
+      frames_since_publish = 0;
+      last_publish = now;
+    }
+  }
+  if (options.live_status) {
+    ++frames_since_status;
+    const auto now = std::chrono::steady_clock::now();
+    const double since_s = std::chrono::duration<double>(now - last_status).count();
+    if (since_s >= 1.0) {
+      std::printf("%.1f fps  frame %ld  %s  pipeline %.1f ms  blocks %u\n",
+                  static_cast<double>(frames_since_status) / since_s, processed,
+                  frame_result_name(stats.result), stats.times.total_ms, stats.memory.blocks_used);
+      std::fflush(stdout);
+      frames_since_status = 0;
+      last_status = now;
+    }
+  }
+  if (show_progress) {
+    std::fprintf(stderr, "\rframe %5ld  %-8s  pose %-10s  %6.1f ms  blocks %u/%u  ", processed,
+                 frame_result_name(stats.result), pose_origin_name(stats.pose_origin),
+                 stats.times.total_ms, stats.memory.blocks_used, stats.memory.block_capacity);
+  }
+  return 0;
+}
+
 }  // namespace
 
 template <typename VoxelT>
@@ -201,17 +265,14 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
   const std::unique_ptr<AlignedBuffer>& buffer = run->buffer;
   std::unique_ptr<host::TumTrajectoryWriter>& trajectory_file = loop->trajectory_file;
   std::unique_ptr<LiveServer>& server = loop->server;
-  LiveSnapshot snapshot;
-  std::vector<Rgb8> snapshot_rgb;
-  auto last_publish = std::chrono::steady_clock::now();
-  long frames_since_publish = 0;
   if (!options.serve.empty()) {
     server = LiveServer::start(options.serve, LiveServerLimits(), &error);
     if (server == nullptr) return error_exit(error);
     std::fprintf(stderr, "live view at %s\n", server->url().c_str());
   }
 
-  const bool show_progress = options.progress && ::isatty(STDERR_FILENO);
+  FrameDisplay display;
+  display.show_progress = options.progress && ::isatty(STDERR_FILENO);
   DepthFrame frame;
   FrameWarnings warnings;
   const PipelineBudget default_budget;
@@ -224,8 +285,6 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
   bool have_first_pose = false;
   Se3d first_T_W_C = Se3d::Identity();  // the pose the first frame was given (loop_source)
   int consecutive_failures = 0;
-  long frames_since_status = 0;
-  auto last_status = std::chrono::steady_clock::now();
   for (;;) {
     if (options.stop != nullptr && options.stop->load()) break;
     if (options.max_frames >= 0 && processed >= options.max_frames) break;
@@ -346,48 +405,13 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
         return error_exit("cannot write " + join(options.out_dir, name));
       }
     }
-    if (server != nullptr && server->mesh_requested()) {
-      VectorMeshSink sink;
-      if (!extract_mesh(pipeline, options, &sink)) return error_exit("cannot reserve the mesher");
-      server->publish_mesh(mesh_ply_bytes(
-          sink.positions.empty() ? nullptr : sink.positions[0].data(), sink.scales.data(),
-          sink.positions.size(), sink.indices.data(), sink.indices.size() / 3));
-    }
-    if (server != nullptr) {
-      // At most 10 snapshots a second: shading and copying cost the loop about a millisecond.
-      ++frames_since_publish;
-      const auto now = std::chrono::steady_clock::now();
-      const double since_s = std::chrono::duration<double>(now - last_publish).count();
-      if (since_s >= 0.1) {
-        fill_snapshot(pipeline, *summary, processed,
-                      static_cast<double>(frames_since_publish) / since_s, &snapshot_rgb,
-                      &snapshot);
-        server->publish(snapshot);
-        frames_since_publish = 0;
-        last_publish = now;
-      }
-    }
-    if (options.live_status) {
-      ++frames_since_status;
-      const auto now = std::chrono::steady_clock::now();
-      const double since_s = std::chrono::duration<double>(now - last_status).count();
-      if (since_s >= 1.0) {
-        std::printf("%.1f fps  frame %ld  %s  pipeline %.1f ms  blocks %u\n",
-                    static_cast<double>(frames_since_status) / since_s, processed,
-                    frame_result_name(stats.result), stats.times.total_ms,
-                    stats.memory.blocks_used);
-        std::fflush(stdout);
-        frames_since_status = 0;
-        last_status = now;
-      }
-    }
-    if (show_progress) {
-      std::fprintf(stderr, "\rframe %5ld  %-8s  pose %-10s  %6.1f ms  blocks %u/%u  ", processed,
-                   frame_result_name(stats.result), pose_origin_name(stats.pose_origin),
-                   stats.times.total_ms, stats.memory.blocks_used, stats.memory.block_capacity);
+    if (const int rc =
+            show_frame(options, pipeline, *summary, processed, stats, server.get(), &display);
+        rc != 0) {
+      return rc;
     }
   }
-  if (show_progress) std::fprintf(stderr, "\n");
+  if (display.show_progress) std::fprintf(stderr, "\n");
   if (server != nullptr) {
     std::fprintf(stderr,
                  "live view: %llu answers, %llu connections refused over the cap, %llu timed "

@@ -47,4 +47,22 @@ int fail(const std::string& message) {
   return 2;
 }
 
+std::string format_option(const std::string& name, const char* value, const char* help) {
+  constexpr std::size_t kHelpColumn = 23;
+  std::string text = "  " + name;
+  if (value != nullptr) text += std::string(" ") + value;
+  const std::string indent(kHelpColumn, ' ');
+  if (text.size() + 2 <= kHelpColumn) {
+    text.resize(kHelpColumn, ' ');
+  } else {
+    text += "   ";
+  }
+  for (const char* c = help; *c != '\0'; ++c) {
+    text += *c;
+    if (*c == '\n' && c[1] != '\0') text += indent;
+  }
+  text += '\n';
+  return text;
+}
+
 }  // namespace octofuse::cli

@@ -15,100 +15,15 @@ namespace octofuse::examples {
 
 using cli::fail;
 
-void print_run_usage(const char* program, const char* default_source) {
-  std::printf(
-      "usage: %s [--source SPEC] [--out DIR] [--map multires|single|multires16]\n"
-      "         [--voxel-size M] [--mu M] [--frames N] [--threads N]\n"
-      "         [--intrinsics fx,fy,cx,cy] [--depth-scale S] [options]\n"
-      "\n"
-      "  --source SPEC        where depth comes from (default %s):\n%s"
-      "  --out DIR            output folder (default octofuse-out)\n"
-      "  --map KIND           multires (default), single (single-resolution baseline) or\n"
-      "                       multires16 (multires in 16-bit fixed point, half the memory)\n"
-      "  --voxel-size M       finest voxel edge in metres (default 0.01)\n"
-      "  --mu M               truncation distance in metres (default 8 voxels)\n"
-      "  --band-behind F      voxels are updated up to F * mu behind the surface, F in (0, 1]\n"
-      "                       (default 1; shorter keeps thin objects and the surfaces behind\n"
-      "                       them apart, see the README)\n"
-      "  --map-size M         side of the mapped cube in metres (default 8)\n"
-      "  --map-memory MB      memory for blocks and finest levels, when --max-blocks is not given\n"
-      "                       (default 1024)\n"
-      "  --max-blocks N       block pool capacity\n"
-      "  --frames N           stop after N frames (sim: also the sequence length)\n"
-      "  --threads N          worker threads (default 1)\n"
-      "  --intrinsics fx,fy,cx,cy   override the source's intrinsics (pixels)\n"
-      "  --depth-scale S      raw depth units per metre (TUM 5000, mm 1000)\n"
-      "  --gt-poses           fuse with ground-truth poses instead of tracking\n"
-      "  --odometry FILE      the vehicle's poses as a prior for ICP: a TUM trajectory (camera to\n"
-      "                       world, interpolated to each frame's time; the first frame's pose\n"
-      "                       anchors it), or "
-      "sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
-      "                       for a drifting noisy odometry of the source's ground truth\n"
-      "                       (default 1 %%/m drift); writes DIR/odometry.txt\n"
-      "  --odometry-mode M    prior (default): ICP from the odometry's motion, the odometry wins\n"
-      "                       when ICP is lost or off by more than 3 cm / 2 deg;\n"
-      "                       only: fuse at the odometry without ICP\n"
-      "  --odometry-noise M,R    prior mode: the odometry's error per axis of its motion over\n"
-      "                       one frame (metres, radians; default 0.0015,0.0015): ICP is pulled\n"
-      "                       towards it by the two estimates' uncertainties\n"
-      "  --odometry-weight T,R   prior mode: a fixed pull instead (per m^2 and rad^2 in ICP's\n"
-      "                       normal equations; 0,0: not at all)\n"
-      "  --bilateral          bilateral-filter the depth before tracking\n"
-      "  --icp-depth-knee M   ICP weighs pairs by 1/(1+(z/M)^4) (default 1; 0: all alike)\n"
-      "  --no-noise           sim: noiseless depth\n"
-      "  --seed N             sim: noise seed (default 1)\n"
-      "  --real-time          replay at the recorded rate, dropping frames when late\n"
-      "  --budget-new-blocks N, --budget-blocks N, --budget-raycast-steps N,\n"
-      "  --budget-icp A,B,C   per-frame work budgets (ICP: finest,middle,coarsest)\n"
-      "  --no-mesh            skip mesh.ply\n"
-      "  --mesh-scale S       multires mesh.ply from each block's current scale (default) or\n"
-      "                       finest: the finest scale it was fused at (static scenes)\n"
-      "  --write-frames       also write DIR/frames/render_NNNNNN.png for every frame\n"
-      "  --save-map FILE      write the map and its free space to FILE at the end (also when\n"
-      "                       stopped)\n"
-      "  --save-every N       and after every N frames (needs --save-map)\n"
-      "  --load-map FILE      start from a saved map (its voxel type, size, mu and cube win over\n"
-      "                       --map, --voxel-size, --mu, --map-size; its free space comes back\n"
-      "                       unless --no-free-space); the first frame's pose comes\n"
-      "                       from the source's ground truth or --initial-pose\n"
-      "  --initial-pose tx,ty,tz,qx,qy,qz,qw   first camera pose in the world (metres, unit\n"
-      "                       quaternion), instead of the source's ground truth (default:\n"
-      "                       the ground truth, else identity)\n"
-      "  --evict HIGH,LOW     when the block or finest-level pool is over HIGH %% full, evict the\n"
-      "                       blocks farthest from the camera until it is at LOW %% (default\n"
-      "                       90,80; off: a full pool refuses new blocks instead)\n"
-      "  --budget-evict N     evict at most N blocks per frame\n"
-      "  --deadline-ms D      keep each frame within D ms (0: off): the budgets above are derived\n"
-      "                       per frame from a cost model of this machine, learnt as it runs,\n"
-      "                       cut in the degradation order (ICP, voxel updates, ray-cast steps,\n"
-      "                       free space); stats.json says what each frame gave up\n"
-      "  --deadline-calibration FILE   start the cost model from FILE when it exists and write\n"
-      "                       the learnt one to it after the run\n"
-      "  --deadline-freeze    use FILE's model as it is, learning nothing: the same input and\n"
-      "                       calibration give the same result on any machine and thread count\n"
-      "  --no-free-space      do not record free space (queries then know only the TSDF band)\n"
-      "  --free-space-exact   settle octants beside nearer objects' silhouettes pixel by\n"
-      "                       pixel: more air reads free, carving costs about 1.6x as much\n"
-      "  --query-points FILE  answer FILE's points (one 'x y z' per line, metres, world frame)\n"
-      "                       against the final map into DIR/queries.txt:\n"
-      "                       'x y z STATE DISTANCE', STATE outside|unknown|free|near|inside\n"
-      "  --quiet              no progress line\n"
-      "  --serve ADDR:PORT    live view in a browser at http://ADDR:PORT/ (PORT alone: 127.0.0.1;\n"
-      "                       another address, such as 0.0.0.0, opens it to the network)\n"
-      "  --config FILE        read options from FILE: one 'key = value' a line, the key an option\n"
-      "                       without '--', flags true or false, '#' starts a comment line;\n"
-      "                       options on the command line override the file\n"
-      "  --print-config       print the effective options in that format and exit\n",
-      program, default_source, supported_sources().c_str());
-}
-
 namespace {
 
 // One command-line option. The command line and configuration files go through this one table, so
 // an option added here is configurable from a file and printed by --print-config with no more code.
 struct RunOption {
   const char* name;  // without "--"; also the config-file key
-  bool takes_value;  // false: a flag (in a file: true or false)
+  const char*
+      value;         // the argument's name in the usage; nullptr: a flag (in a file: true or false)
+  const char* help;  // the usage text (cli::format_option)
   // Applies `value` (a flag's setter gets ""); returns "" or what follows the name in the error.
   std::string (*set)(RunOptions& options, const std::string& value);
   // The effective value as the option's argument (flags: "true"/"false"); false when it is the
@@ -163,7 +78,7 @@ bool flag(bool on, std::string* value) {
 }
 
 const RunOption kRunOptions[] = {
-    {"source", true,
+    {"source", "SPEC", "where depth comes from (default %s):",
      [](RunOptions& o, const std::string& v) {
        o.source_spec = v;
        return std::string();
@@ -172,7 +87,7 @@ const RunOption kRunOptions[] = {
        *v = o.source_spec;
        return true;
      }},
-    {"out", true,
+    {"out", "DIR", "output folder (default octofuse-out)",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs a folder name");
        o.out_dir = v;
@@ -182,7 +97,9 @@ const RunOption kRunOptions[] = {
        *v = o.out_dir;
        return !o.out_dir.empty();
      }},
-    {"map", true,
+    {"map", "KIND",
+     "multires (default), single (single-resolution baseline) or\n"
+     "multires16 (multires in 16-bit fixed point, half the memory)",
      [](RunOptions& o, const std::string& v) {
        if (!parse_map_option(v, &o.map_kind)) {
          return " must be multires, single or multires16, not '" + v + "'";
@@ -193,7 +110,7 @@ const RunOption kRunOptions[] = {
        *v = map_option_name(o.map_kind);
        return true;
      }},
-    {"voxel-size", true,
+    {"voxel-size", "M", "finest voxel edge in metres (default 0.01)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 1e-4, 1.0, &o.voxel_size_m, " needs metres in [0.0001, 1]");
      },
@@ -201,7 +118,7 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.voxel_size_m);
        return true;
      }},
-    {"mu", true,
+    {"mu", "M", "truncation distance in metres (default 8 voxels)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 1e-4, 10.0, &o.mu_m, " needs metres in [0.0001, 10]");
      },
@@ -209,7 +126,10 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.mu_m);
        return o.mu_m > 0.0f;
      }},
-    {"band-behind", true,
+    {"band-behind", "F",
+     "voxels are updated up to F * mu behind the surface, F in (0, 1]\n"
+     "(default 1; shorter keeps thin objects and the surfaces behind\n"
+     "them apart, see the README)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 0.01, 1.0, &o.band_behind_mu, " needs a share of mu in [0.01, 1]");
      },
@@ -217,7 +137,7 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.band_behind_mu);
        return o.band_behind_mu != 1.0f;
      }},
-    {"map-size", true,
+    {"map-size", "M", "side of the mapped cube in metres (default 8)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 0.1, 10000.0, &o.map_size_m, " needs metres in [0.1, 10000]");
      },
@@ -225,7 +145,9 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.map_size_m);
        return true;
      }},
-    {"map-memory", true,
+    {"map-memory", "MB",
+     "memory for blocks and finest levels, when --max-blocks is not given\n"
+     "(default 1024)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 1.0, 1e6, &o.map_memory_mb, " needs megabytes in [1, 1e6]");
      },
@@ -233,7 +155,7 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.map_memory_mb);
        return true;
      }},
-    {"max-blocks", true,
+    {"max-blocks", "N", "block pool capacity",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 1, 1 << 30, integer))
@@ -245,7 +167,7 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.max_blocks);
        return o.max_blocks > 0;
      }},
-    {"frames", true,
+    {"frames", "N", "stop after N frames (sim: also the sequence length)",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 1, 100000000, integer)) return std::string(" needs a positive count");
@@ -257,7 +179,9 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.max_frames);
        return o.max_frames > 0;
      }},
-    {"threads", true,
+    {"threads", "N",
+     "worker threads (default: the machine's cores, at most 64; the\n"
+     "results are the same for any count)",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 1, 64, integer)) return std::string(" needs a count in [1, 64]");
@@ -268,7 +192,7 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.threads);
        return true;
      }},
-    {"intrinsics", true,
+    {"intrinsics", "fx,fy,cx,cy", "override the source's intrinsics (pixels)",
      [](RunOptions& o, const std::string& v) {
        if (!cli::parse_intrinsics(v, o.source.intrinsics)) {
          return std::string(" needs fx,fy,cx,cy with fx, fy > 0");
@@ -281,7 +205,7 @@ const RunOption kRunOptions[] = {
        *v = text_of(k[0]) + "," + text_of(k[1]) + "," + text_of(k[2]) + "," + text_of(k[3]);
        return o.source.have_intrinsics;
      }},
-    {"depth-scale", true,
+    {"depth-scale", "S", "raw depth units per metre (TUM 5000, mm 1000)",
      [](RunOptions& o, const std::string& v) {
        if (!cli::parse_double(v, 1e-3, 1e7, o.source.depth_scale)) {
          return std::string(" needs raw units per metre in [0.001, 1e7]");
@@ -292,7 +216,7 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.source.depth_scale);
        return o.source.depth_scale > 0.0;
      }},
-    {"seed", true,
+    {"seed", "N", "sim: noise seed (default 1)",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 0, INT64_MAX, integer)) {
@@ -305,7 +229,7 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.source.seed);
        return o.source.seed <= static_cast<unsigned long long>(INT64_MAX);
      }},
-    {"budget-new-blocks", true,
+    {"budget-new-blocks", "N", "per-frame work budget: new blocks",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 0, UINT32_MAX, integer)) return std::string(" needs a count");
@@ -316,7 +240,7 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.budget.max_new_blocks);
        return true;
      }},
-    {"budget-blocks", true,
+    {"budget-blocks", "N", "per-frame work budget: blocks integrated",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 0, UINT32_MAX, integer)) return std::string(" needs a count");
@@ -327,7 +251,7 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.budget.max_integrated_blocks);
        return true;
      }},
-    {"budget-raycast-steps", true,
+    {"budget-raycast-steps", "N", "per-frame work budget: ray-cast steps",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 1, INT64_MAX, integer)) {
@@ -341,7 +265,7 @@ const RunOption kRunOptions[] = {
        return o.budget.raycast_steps > 0 &&
               o.budget.raycast_steps <= static_cast<std::uint64_t>(INT64_MAX);
      }},
-    {"budget-icp", true,
+    {"budget-icp", "A,B,C", "per-frame work budget: ICP iterations (finest,middle,coarsest)",
      [](RunOptions& o, const std::string& v) {
        int levels[3];
        char tail = 0;
@@ -361,7 +285,7 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(it[0]) + "," + std::to_string(it[1]) + "," + std::to_string(it[2]);
        return true;
      }},
-    {"gt-poses", false,
+    {"gt-poses", nullptr, "fuse with ground-truth poses instead of tracking",
      [](RunOptions& o, const std::string&) {
        o.pose_source = PoseSource::ground_truth;
        return std::string();
@@ -369,7 +293,7 @@ const RunOption kRunOptions[] = {
      [](const RunOptions& o, std::string* v) {
        return flag(o.pose_source == PoseSource::ground_truth, v);
      }},
-    {"icp-depth-knee", true,
+    {"icp-depth-knee", "M", "ICP weighs pairs by 1/(1+(z/M)^4) (default 1; 0: all alike)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 0.0, 100.0, &o.icp_depth_knee_m, " needs metres in [0, 100]");
      },
@@ -377,37 +301,39 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.icp_depth_knee_m);
        return o.icp_depth_knee_m >= 0.0f;
      }},
-    {"bilateral", false,
+    {"bilateral", nullptr, "bilateral-filter the depth before tracking",
      [](RunOptions& o, const std::string&) {
        o.bilateral = true;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.bilateral, v); }},
-    {"no-noise", false,
+    {"no-noise", nullptr, "sim: noiseless depth",
      [](RunOptions& o, const std::string&) {
        o.source.sim_noise = false;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(!o.source.sim_noise, v); }},
-    {"real-time", false,
+    {"real-time", nullptr, "replay at the recorded rate, dropping frames when late",
      [](RunOptions& o, const std::string&) {
        o.source.real_time = true;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.source.real_time, v); }},
-    {"write-frames", false,
+    {"write-frames", nullptr, "also write DIR/frames/render_NNNNNN.png for every frame",
      [](RunOptions& o, const std::string&) {
        o.write_frames = true;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.write_frames, v); }},
-    {"no-mesh", false,
+    {"no-mesh", nullptr, "skip mesh.ply",
      [](RunOptions& o, const std::string&) {
        o.write_mesh = false;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(!o.write_mesh, v); }},
-    {"mesh-scale", true,
+    {"mesh-scale", "S",
+     "multires mesh.ply from each block's current scale (default) or\n"
+     "finest: the finest scale it was fused at (static scenes)",
      [](RunOptions& o, const std::string& v) {
        if (!parse_mesh_read_scale(v, &o.mesh_read_scale)) {
          return std::string(" must be current or finest");
@@ -418,7 +344,12 @@ const RunOption kRunOptions[] = {
        *v = o.mesh_read_scale == MeshReadScale::finest_fused ? "finest" : "current";
        return true;
      }},
-    {"odometry", true,
+    {"odometry", "FILE",
+     "the vehicle's poses as a prior for ICP: a TUM trajectory (camera to\n"
+     "world, interpolated to each frame's time; the first frame's pose\n"
+     "anchors it), or sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
+     "for a drifting noisy odometry of the source's ground truth\n"
+     "(default 1 %/m drift); writes DIR/odometry.txt",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs a TUM trajectory file or sim[:options]");
        o.odometry = v;
@@ -428,7 +359,10 @@ const RunOption kRunOptions[] = {
        *v = o.odometry;
        return !o.odometry.empty();
      }},
-    {"odometry-mode", true,
+    {"odometry-mode", "M",
+     "prior (default): ICP from the odometry's motion, the odometry wins\n"
+     "when ICP is lost or off by more than 3 cm / 2 deg;\n"
+     "only: fuse at the odometry without ICP",
      [](RunOptions& o, const std::string& v) {
        if (v != "prior" && v != "only") return std::string(" must be prior or only");
        o.odometry_only = v == "only";
@@ -439,7 +373,9 @@ const RunOption kRunOptions[] = {
        *v = o.odometry_only ? "only" : "prior";
        return !o.odometry.empty();
      }},
-    {"odometry-weight", true,
+    {"odometry-weight", "T,R",
+     "prior mode: a fixed pull instead of --odometry-noise (per m^2 and\n"
+     "rad^2 in ICP's normal equations; 0,0: not at all)",
      [](RunOptions& o, const std::string& v) {
        double t = 0.0, r = 0.0;
        char tail = 0;
@@ -455,7 +391,10 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.odometry_information[0]) + "," + text_of(o.odometry_information[1]);
        return o.odometry_information[0] >= 0.0;
      }},
-    {"odometry-noise", true,
+    {"odometry-noise", "M,R",
+     "prior mode: the odometry's error per axis of its motion over\n"
+     "one frame (metres, radians; default 0.0015,0.0015): ICP is pulled\n"
+     "towards it by the two estimates' uncertainties",
      [](RunOptions& o, const std::string& v) {
        double m = 0.0, r = 0.0;
        char tail = 0;
@@ -472,7 +411,10 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.odometry_noise[0]) + "," + text_of(o.odometry_noise[1]);
        return o.odometry_noise[0] > 0.0;
      }},
-    {"initial-pose", true,
+    {"initial-pose", "tx,ty,tz,qx,qy,qz,qw",
+     "first camera pose in the world (metres, unit\n"
+     "quaternion), instead of the source's ground truth (default:\n"
+     "the ground truth, else identity)",
      [](RunOptions& o, const std::string& v) {
        if (!parse_pose(v, &o.initial_T_W_C)) {
          return std::string(" needs tx,ty,tz,qx,qy,qz,qw (metres, a unit quaternion)");
@@ -487,7 +429,9 @@ const RunOption kRunOptions[] = {
             "," + text_of(q.y()) + "," + text_of(q.z()) + "," + text_of(q.w());
        return o.have_initial_pose;
      }},
-    {"save-map", true,
+    {"save-map", "FILE",
+     "write the map and its free space to FILE at the end (also when\n"
+     "stopped)",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs a file name");
        o.save_map_path = v;
@@ -497,7 +441,7 @@ const RunOption kRunOptions[] = {
        *v = o.save_map_path;
        return !o.save_map_path.empty();
      }},
-    {"save-every", true,
+    {"save-every", "N", "and after every N frames (needs --save-map)",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 1, 100000000, integer)) {
@@ -510,7 +454,11 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.save_every);
        return o.save_every > 0;
      }},
-    {"load-map", true,
+    {"load-map", "FILE",
+     "start from a saved map (its voxel type, size, mu and cube win over\n"
+     "--map, --voxel-size, --mu, --map-size; its free space comes back\n"
+     "unless --no-free-space); the first frame's pose comes\n"
+     "from the source's ground truth or --initial-pose",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs a file name");
        o.load_map_path = v;
@@ -520,7 +468,10 @@ const RunOption kRunOptions[] = {
        *v = o.load_map_path;
        return !o.load_map_path.empty();
      }},
-    {"evict", true,
+    {"evict", "HIGH,LOW",
+     "when the block or finest-level pool is over HIGH % full, evict the\n"
+     "blocks farthest from the camera until it is at LOW % (default\n"
+     "90,80; off: a full pool refuses new blocks instead)",
      [](RunOptions& o, const std::string& v) {
        if (v == "off") {
          o.eviction.enabled = false;
@@ -547,7 +498,7 @@ const RunOption kRunOptions[] = {
        }
        return true;
      }},
-    {"budget-evict", true,
+    {"budget-evict", "N", "evict at most N blocks per frame",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 1, UINT32_MAX, integer)) {
@@ -560,7 +511,11 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.budget.max_evictions);
        return o.budget.max_evictions > 0;
      }},
-    {"deadline-ms", true,
+    {"deadline-ms", "D",
+     "keep each frame within D ms (0: off): the budgets above are derived\n"
+     "per frame from a cost model of this machine, learnt as it runs,\n"
+     "cut in the degradation order (ICP, voxel updates, ray-cast steps,\n"
+     "free space); stats.json says what each frame gave up",
      [](RunOptions& o, const std::string& v) {
        double number = 0.0;
        if (!cli::parse_double(v, 0.0, 10000.0, number)) {
@@ -573,7 +528,9 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.deadline_ms);
        return o.deadline_ms > 0.0;
      }},
-    {"deadline-calibration", true,
+    {"deadline-calibration", "FILE",
+     "start the cost model from FILE when it exists and write\n"
+     "the learnt one to it after the run",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs a file");
        o.deadline_calibration = v;
@@ -583,25 +540,32 @@ const RunOption kRunOptions[] = {
        *v = o.deadline_calibration;
        return !o.deadline_calibration.empty();
      }},
-    {"deadline-freeze", false,
+    {"deadline-freeze", nullptr,
+     "use FILE's model as it is, learning nothing: the same input and\n"
+     "calibration give the same result on any machine and thread count",
      [](RunOptions& o, const std::string&) {
        o.deadline_freeze = true;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.deadline_freeze, v); }},
-    {"no-free-space", false,
+    {"no-free-space", nullptr, "do not record free space (queries then know only the TSDF band)",
      [](RunOptions& o, const std::string&) {
        o.free_space = false;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(!o.free_space, v); }},
-    {"free-space-exact", false,
+    {"free-space-exact", nullptr,
+     "settle octants beside nearer objects' silhouettes pixel by\n"
+     "pixel: more air reads free, carving costs about 1.6x as much",
      [](RunOptions& o, const std::string&) {
        o.free_space_exact = true;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.free_space_exact, v); }},
-    {"query-points", true,
+    {"query-points", "FILE",
+     "answer FILE's points (one 'x y z' per line, metres, world frame)\n"
+     "against the final map into DIR/queries.txt:\n"
+     "'x y z STATE DISTANCE', STATE outside|unknown|free|near|inside",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs a file");
        o.query_points_path = v;
@@ -611,13 +575,15 @@ const RunOption kRunOptions[] = {
        *v = o.query_points_path;
        return !o.query_points_path.empty();
      }},
-    {"quiet", false,
+    {"quiet", nullptr, "no progress line",
      [](RunOptions& o, const std::string&) {
        o.progress = false;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(!o.progress, v); }},
-    {"serve", true,
+    {"serve", "ADDR:PORT",
+     "live view in a browser at http://ADDR:PORT/ (PORT alone: 127.0.0.1;\n"
+     "another address, such as 0.0.0.0, opens it to the network)",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs PORT or ADDR:PORT");
        std::string host, port, why;
@@ -651,7 +617,7 @@ bool apply_config_entry(const ConfigEntry& entry, const std::string& file_name, 
     *error = where + "unknown key '" + entry.key + "'";
     return false;
   }
-  if (!option->takes_value) {
+  if (option->value == nullptr) {
     if (entry.value == "false") return true;
     if (entry.value != "true") {
       *error = where + entry.key + " takes true or false, not '" + entry.value + "'";
@@ -667,6 +633,32 @@ bool apply_config_entry(const ConfigEntry& entry, const std::string& file_name, 
 }
 
 }  // namespace
+
+void print_run_usage(const char* program, const char* default_source) {
+  std::string text = std::string("usage: ") + program +
+                     " [--source SPEC] [--out DIR] [--map multires|single|multires16]\n"
+                     "         [--voxel-size M] [--mu M] [--frames N] [--threads N]\n"
+                     "         [--intrinsics fx,fy,cx,cy] [--depth-scale S] [options]\n"
+                     "\n";
+  for (const RunOption& option : kRunOptions) {
+    if (std::string(option.name) == "source") {
+      // The default depends on the program, the list of sources (indented) on its build.
+      std::string help = option.help;
+      help.replace(help.find("%s"), 2, default_source);
+      text += cli::format_option("--source", option.value, help.c_str()) + supported_sources();
+      continue;
+    }
+    text += cli::format_option(std::string("--") + option.name, option.value, option.help);
+  }
+  text += cli::format_option("--config", "FILE",
+                             "read options from FILE: one 'key = value' a line, the key an option\n"
+                             "without '--', flags true or false, '#' starts a comment line;\n"
+                             "options on the command line override the file");
+  text += cli::format_option("--print-config", nullptr,
+                             "print the effective options in that format and exit");
+  text += cli::format_option("-h, --help", nullptr, "this text");
+  std::fputs(text.c_str(), stdout);
+}
 
 bool apply_run_config(const std::string& text, const std::string& file_name, RunOptions* options,
                       std::string* error) {
@@ -727,7 +719,7 @@ bool parse_run_args(int argc, char** argv, RunOptions* options, RunArgsRequest* 
     } else if (const RunOption* option = arg.size() > 2 && arg[0] == '-' && arg[1] == '-'
                                              ? find_run_option(arg.substr(2))
                                              : nullptr) {
-      if (option->takes_value) ++i;
+      if (option->value != nullptr) ++i;
     }
   }
   if (!config_path.empty()) {
@@ -751,7 +743,7 @@ bool parse_run_args(int argc, char** argv, RunOptions* options, RunArgsRequest* 
       return false;
     }
     std::string value;
-    if (option->takes_value) {
+    if (option->value != nullptr) {
       if (i + 1 >= argc) {
         RunOptions scratch;
         const std::string message = option->set(scratch, std::string());

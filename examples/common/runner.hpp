@@ -16,6 +16,10 @@
 
 namespace octofuse::examples {
 
+// --threads' default: the machine's cores (std::thread::hardware_concurrency()), in [1, 64] (the
+// pipeline's range). The results are the same for any count.
+int default_thread_count();
+
 struct RunOptions {
   std::string source_spec = "sim:desk";
   SourceOptions source;
@@ -26,7 +30,7 @@ struct RunOptions {
   float band_behind_mu = 1.0f;  // FusionConfig::behind_mu
   float map_size_m = 8.0f;      // cube side (rounded up to a power of two of voxels)
   long max_frames = -1;         // stop after this many frames; -1 = the whole source
-  int threads = 1;
+  int threads = default_thread_count();
   PoseSource pose_source = PoseSource::track;
   // --odometry: a TUM trajectory file, or "sim[:drift=..,noise=..,seed=..]" for a drifting noisy
   // odometry of the source's ground truth; empty: none. Used as the pose prior.

@@ -221,36 +221,8 @@ std::string comparison_table(const std::vector<Cell>& cells,
          md.str();
 }
 
-void usage() {
-  std::printf(
-      "usage: octofuse-bench [--quick] [--data DIR] [--out DIR] [--repeats N] [--frames N]\n"
-      "  --quick        one small comparison (sim:desk, 1 cm, multires vs single), ~1 minute\n"
-      "  --data DIR     folder holding 7scenes-redkitchen (adds it to the matrix)\n"
-      "  --out DIR      where bench.md, bench.json and the plots go (default bench-out)\n"
-      "  --repeats N    runs per cell, interleaved with the compared cell (default 3)\n"
-      "  --frames N     frames per run (default: 120; quick: 40)\n"
-      "  --voxels LIST  finest voxel sizes in metres, comma separated (default 0.01,0.002)\n"
-      "  --scenes LIST  sim scenes, comma separated (default desk,room)\n"
-      "  --threads LIST worker counts, comma separated (default 1,2)\n"
-      "  --poses MODE   icp, gt or both (default both)\n"
-      "  --maps LIST    maps per setting, compared side by side, comma separated: multires,\n"
-      "                 single, multires16 (default multires,single)\n"
-      "  --mesh-scale S multires meshes (mesh RMSE, thin recall) at each block's current scale\n"
-      "                 (default) or finest: the finest scale it was fused at\n"
-      "  --soak         instead of the matrix: replay a source in a loop under a memory cap and\n"
-      "                 again with a large one; fails (exit 1) when the capped run lost a frame\n"
-      "                 the other did not or its RSS grew after the first pass (soak.md,\n"
-      "                 soak.json in --out). Uses the first of --voxels and of --threads.\n"
-      "  --soak-frames N     frames per run (default 10000)\n"
-      "  --soak-source SPEC  source to loop, as octofuse-replay's --source (default sim:room)\n"
-      "  --map-memory MB     the capped run's map memory (default 16)\n"
-      "  --reference-memory MB  the reference run's (default 1024)\n"
-      "  --rss-tolerance MB  allowed RSS growth after the first pass (default 1)\n");
-}
-
-}  // namespace
-
-int main(int argc, char** argv) {
+// What the command line sets.
+struct BenchArgs {
   bool quick = false;
   std::string data_dir, out_dir = "bench-out";
   long repeats = -1, frames = -1;
@@ -262,116 +234,214 @@ int main(int argc, char** argv) {
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
                                                   octofuse::PoseSource::ground_truth};
-  auto split = [](const std::string& text) {
-    std::vector<std::string> items;
-    std::stringstream list(text);
-    std::string item;
-    while (std::getline(list, item, ',')) items.push_back(item);
-    return items;
-  };
   bool soak = false;
   octofuse::bench::SoakOptions soak_options;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    std::int64_t n = 0;
-    double mb = 0.0;
-    if (arg == "--quick") {
-      quick = true;
-    } else if (arg == "--soak") {
-      soak = true;
-    } else if (arg == "--soak-frames" && i + 1 < argc) {
-      if (!octofuse::cli::parse_int(argv[++i], 2, 10000000, n)) {
-        return octofuse::cli::fail("--soak-frames needs a count in [2, 10000000]");
-      }
-      soak_options.frames = static_cast<long>(n);
-    } else if (arg == "--soak-source" && i + 1 < argc) {
-      soak_options.source_spec = argv[++i];
-      if (soak_options.source_spec.empty()) return octofuse::cli::fail("--soak-source is empty");
-    } else if (arg == "--map-memory" && i + 1 < argc) {
-      if (!octofuse::cli::parse_double(argv[++i], 1.0, 65536.0, mb)) {
-        return octofuse::cli::fail("--map-memory needs megabytes in [1, 65536]");
-      }
-      soak_options.map_memory_mb = static_cast<float>(mb);
-    } else if (arg == "--reference-memory" && i + 1 < argc) {
-      if (!octofuse::cli::parse_double(argv[++i], 1.0, 65536.0, mb)) {
-        return octofuse::cli::fail("--reference-memory needs megabytes in [1, 65536]");
-      }
-      soak_options.reference_memory_mb = static_cast<float>(mb);
-    } else if (arg == "--rss-tolerance" && i + 1 < argc) {
-      if (!octofuse::cli::parse_double(argv[++i], 0.0, 65536.0, mb)) {
-        return octofuse::cli::fail("--rss-tolerance needs megabytes in [0, 65536]");
-      }
-      soak_options.rss_tolerance_mb = mb;
-    } else if (arg == "--data" && i + 1 < argc) {
-      data_dir = argv[++i];
-    } else if (arg == "--out" && i + 1 < argc) {
-      out_dir = argv[++i];
-    } else if (arg == "--repeats" && i + 1 < argc &&
-               octofuse::cli::parse_int(argv[i + 1], 1, 100, n)) {
-      repeats = n;
-      ++i;
-    } else if (arg == "--frames" && i + 1 < argc &&
-               octofuse::cli::parse_int(argv[i + 1], 2, 100000, n)) {
-      frames = n;
-      ++i;
-    } else if (arg == "--voxels" && i + 1 < argc) {
-      voxels.clear();
-      std::stringstream list(argv[++i]);
-      std::string item;
-      double v = 0.0;
-      while (std::getline(list, item, ',')) {
-        if (!octofuse::cli::parse_double(item, 1e-4, 1.0, v)) {
-          return octofuse::cli::fail("--voxels needs metres like 0.01,0.002");
-        }
-        voxels.push_back(static_cast<float>(v));
-      }
-    } else if (arg == "--scenes" && i + 1 < argc) {
-      sim_scenes = split(argv[++i]);
-      for (const std::string& name : sim_scenes) {
-        octofuse::sim::SceneId id;
-        if (!octofuse::sim::scene_id_from_name(name.c_str(), &id).ok()) {
-          return octofuse::cli::fail("--scenes: unknown scene '" + name + "'");
-        }
-      }
-    } else if (arg == "--threads" && i + 1 < argc) {
-      thread_counts.clear();
-      for (const std::string& item : split(argv[++i])) {
-        if (!octofuse::cli::parse_int(item, 1, 64, n)) {
-          return octofuse::cli::fail("--threads needs counts like 1,2");
-        }
-        thread_counts.push_back(static_cast<int>(n));
-      }
-    } else if (arg == "--poses" && i + 1 < argc) {
-      const std::string mode = argv[++i];
-      if (mode == "icp") {
-        pose_modes = {octofuse::PoseSource::track};
-      } else if (mode == "gt") {
-        pose_modes = {octofuse::PoseSource::ground_truth};
-      } else if (mode == "both") {
-        pose_modes = {octofuse::PoseSource::track, octofuse::PoseSource::ground_truth};
-      } else {
-        return octofuse::cli::fail("--poses must be icp, gt or both");
-      }
-    } else if (arg == "--maps" && i + 1 < argc) {
-      maps.clear();
-      for (const std::string& item : split(argv[++i])) {
-        octofuse::MapKind kind;
-        if (!octofuse::examples::parse_map_option(item, &kind)) {
-          return octofuse::cli::fail("--maps needs map kinds like multires,multires16");
-        }
-        maps.push_back(kind);
-      }
-    } else if (arg == "--mesh-scale" && i + 1 < argc) {
-      if (!octofuse::examples::parse_mesh_read_scale(argv[++i], &mesh_read_scale)) {
-        return octofuse::cli::fail("--mesh-scale must be current or finest");
-      }
-    } else if (arg == "-h" || arg == "--help") {
+};
+
+std::vector<std::string> split(const std::string& text) {
+  std::vector<std::string> items;
+  std::stringstream list(text);
+  std::string item;
+  while (std::getline(list, item, ',')) items.push_back(item);
+  return items;
+}
+
+using Option = octofuse::cli::Option<BenchArgs>;
+
+const Option kOptions[] = {
+    {"--quick", nullptr, "one small comparison (sim:desk, 1 cm, multires vs single), ~1 minute",
+     [](BenchArgs& a, const std::string&) {
+       a.quick = true;
+       return std::string();
+     }},
+    {"--data", "DIR", "folder holding 7scenes-redkitchen (adds it to the matrix)",
+     [](BenchArgs& a, const std::string& v) {
+       a.data_dir = v;
+       return std::string();
+     }},
+    {"--out", "DIR", "where bench.md, bench.json and the plots go (default bench-out)",
+     [](BenchArgs& a, const std::string& v) {
+       a.out_dir = v;
+       return std::string();
+     }},
+    {"--repeats", "N", "runs per cell, interleaved with the compared cell (default 3)",
+     [](BenchArgs& a, const std::string& v) {
+       std::int64_t n = 0;
+       if (!octofuse::cli::parse_int(v, 1, 100, n)) {
+         return std::string("unknown or incomplete option '--repeats' (see --help)");
+       }
+       a.repeats = n;
+       return std::string();
+     }},
+    {"--frames", "N", "frames per run (default: 120; quick: 40)",
+     [](BenchArgs& a, const std::string& v) {
+       std::int64_t n = 0;
+       if (!octofuse::cli::parse_int(v, 2, 100000, n)) {
+         return std::string("unknown or incomplete option '--frames' (see --help)");
+       }
+       a.frames = n;
+       return std::string();
+     }},
+    {"--voxels", "LIST", "finest voxel sizes in metres, comma separated (default 0.01,0.002)",
+     [](BenchArgs& a, const std::string& text) {
+       a.voxels.clear();
+       std::stringstream list(text);
+       std::string item;
+       double v = 0.0;
+       while (std::getline(list, item, ',')) {
+         if (!octofuse::cli::parse_double(item, 1e-4, 1.0, v)) {
+           return std::string("--voxels needs metres like 0.01,0.002");
+         }
+         a.voxels.push_back(static_cast<float>(v));
+       }
+       return std::string();
+     }},
+    {"--scenes", "LIST", "sim scenes, comma separated (default desk,room)",
+     [](BenchArgs& a, const std::string& v) {
+       a.sim_scenes = split(v);
+       for (const std::string& name : a.sim_scenes) {
+         octofuse::sim::SceneId id;
+         if (!octofuse::sim::scene_id_from_name(name.c_str(), &id).ok()) {
+           return "--scenes: unknown scene '" + name + "'";
+         }
+       }
+       return std::string();
+     }},
+    {"--threads", "LIST", "worker counts, comma separated (default 1,2)",
+     [](BenchArgs& a, const std::string& v) {
+       a.thread_counts.clear();
+       std::int64_t n = 0;
+       for (const std::string& item : split(v)) {
+         if (!octofuse::cli::parse_int(item, 1, 64, n)) {
+           return std::string("--threads needs counts like 1,2");
+         }
+         a.thread_counts.push_back(static_cast<int>(n));
+       }
+       return std::string();
+     }},
+    {"--poses", "MODE", "icp, gt or both (default both)",
+     [](BenchArgs& a, const std::string& mode) {
+       if (mode == "icp") {
+         a.pose_modes = {octofuse::PoseSource::track};
+       } else if (mode == "gt") {
+         a.pose_modes = {octofuse::PoseSource::ground_truth};
+       } else if (mode == "both") {
+         a.pose_modes = {octofuse::PoseSource::track, octofuse::PoseSource::ground_truth};
+       } else {
+         return std::string("--poses must be icp, gt or both");
+       }
+       return std::string();
+     }},
+    {"--maps", "LIST",
+     "maps per setting, compared side by side, comma separated: multires,\n"
+     "single, multires16 (default multires,single)",
+     [](BenchArgs& a, const std::string& v) {
+       a.maps.clear();
+       for (const std::string& item : split(v)) {
+         octofuse::MapKind kind;
+         if (!octofuse::examples::parse_map_option(item, &kind)) {
+           return std::string("--maps needs map kinds like multires,multires16");
+         }
+         a.maps.push_back(kind);
+       }
+       return std::string();
+     }},
+    {"--mesh-scale", "S",
+     "multires meshes (mesh RMSE, thin recall) at each block's current scale\n"
+     "(default) or finest: the finest scale it was fused at",
+     [](BenchArgs& a, const std::string& v) {
+       if (!octofuse::examples::parse_mesh_read_scale(v, &a.mesh_read_scale)) {
+         return std::string("--mesh-scale must be current or finest");
+       }
+       return std::string();
+     }},
+    {"--soak", nullptr,
+     "instead of the matrix: replay a source in a loop under a memory cap and\n"
+     "again with a large one; fails (exit 1) when the capped run lost a frame\n"
+     "the other did not or its RSS grew after the first pass (soak.md,\n"
+     "soak.json in --out). Uses the first of --voxels and of --threads.",
+     [](BenchArgs& a, const std::string&) {
+       a.soak = true;
+       return std::string();
+     }},
+    {"--soak-frames", "N", "frames per run (default 10000)",
+     [](BenchArgs& a, const std::string& v) {
+       std::int64_t n = 0;
+       if (!octofuse::cli::parse_int(v, 2, 10000000, n)) {
+         return std::string("--soak-frames needs a count in [2, 10000000]");
+       }
+       a.soak_options.frames = static_cast<long>(n);
+       return std::string();
+     }},
+    {"--soak-source", "SPEC", "source to loop, as octofuse-replay's --source (default sim:room)",
+     [](BenchArgs& a, const std::string& v) {
+       a.soak_options.source_spec = v;
+       if (a.soak_options.source_spec.empty()) return std::string("--soak-source is empty");
+       return std::string();
+     }},
+    {"--map-memory", "MB", "the capped run's map memory (default 16)",
+     [](BenchArgs& a, const std::string& v) {
+       double mb = 0.0;
+       if (!octofuse::cli::parse_double(v, 1.0, 65536.0, mb)) {
+         return std::string("--map-memory needs megabytes in [1, 65536]");
+       }
+       a.soak_options.map_memory_mb = static_cast<float>(mb);
+       return std::string();
+     }},
+    {"--reference-memory", "MB", "the reference run's (default 1024)",
+     [](BenchArgs& a, const std::string& v) {
+       double mb = 0.0;
+       if (!octofuse::cli::parse_double(v, 1.0, 65536.0, mb)) {
+         return std::string("--reference-memory needs megabytes in [1, 65536]");
+       }
+       a.soak_options.reference_memory_mb = static_cast<float>(mb);
+       return std::string();
+     }},
+    {"--rss-tolerance", "MB", "allowed RSS growth after the first pass (default 1)",
+     [](BenchArgs& a, const std::string& v) {
+       double mb = 0.0;
+       if (!octofuse::cli::parse_double(v, 0.0, 65536.0, mb)) {
+         return std::string("--rss-tolerance needs megabytes in [0, 65536]");
+       }
+       a.soak_options.rss_tolerance_mb = mb;
+       return std::string();
+     }},
+};
+
+void usage() {
+  std::printf(
+      "usage: octofuse-bench [--quick] [--data DIR] [--out DIR] [--repeats N] [--frames N]\n"
+      "         [options]\n\n%s",
+      octofuse::cli::options_usage(kOptions).c_str());
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  BenchArgs args;
+  std::string parse_error;
+  switch (octofuse::cli::parse_options(argc, argv, 1, kOptions, "unknown or incomplete option ",
+                                       &args, &parse_error)) {
+    case octofuse::cli::Parsed::help:
       usage();
       return 0;
-    } else {
-      return octofuse::cli::fail("unknown or incomplete option '" + arg + "' (see --help)");
-    }
+    case octofuse::cli::Parsed::error:
+      return octofuse::cli::fail(parse_error);
+    case octofuse::cli::Parsed::options:
+      break;
   }
+  const bool quick = args.quick;
+  const std::string& data_dir = args.data_dir;
+  const std::string& out_dir = args.out_dir;
+  long repeats = args.repeats, frames = args.frames;
+  std::vector<float>& voxels = args.voxels;
+  std::vector<std::string>& sim_scenes = args.sim_scenes;
+  const std::vector<int>& thread_counts = args.thread_counts;
+  const std::vector<octofuse::MapKind>& maps = args.maps;
+  const octofuse::MeshReadScale mesh_read_scale = args.mesh_read_scale;
+  const std::vector<octofuse::PoseSource>& pose_modes = args.pose_modes;
+  const bool soak = args.soak;
+  octofuse::bench::SoakOptions& soak_options = args.soak_options;
   if (voxels.empty() || thread_counts.empty() || maps.empty()) {
     return octofuse::cli::fail("--voxels, --threads and --maps need at least one value");
   }

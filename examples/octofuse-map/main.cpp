@@ -11,23 +11,56 @@
 #include <string>
 #include <vector>
 
+#include "cli.hpp"
 #include "host_memory.hpp"
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/ply.hpp"
 #include "octofuse/query/free_space.hpp"
+#include "runner.hpp"
 
 namespace octofuse {
 namespace {
 
+// The commands and the one option, each with its usage text.
+struct Command {
+  const char* name;
+  const char* arguments;
+  const char* help;
+};
+const Command kCommands[] = {
+    {"info", "FILE",
+     "check FILE whole and print its format version, voxel type and size,\n"
+     "cube, blocks per scale, free-space nodes and the memory they take"},
+    {"mesh", "FILE OUT.ply",
+     "write FILE's surface as a binary PLY (as octofuse-replay's mesh.ply)"},
+};
+
+struct MeshArgs {
+  MeshReadScale read_scale = MeshReadScale::current;
+};
+const cli::Option<MeshArgs> kMeshOptions[] = {
+    {"--mesh-scale", "S",
+     "mesh at each block's current scale (current, the default) or at the\n"
+     "finest scale it was fused at (finest)",
+     [](MeshArgs& a, const std::string& v) {
+       if (!examples::parse_mesh_read_scale(v, &a.read_scale)) {
+         return std::string("--mesh-scale must be current or finest");
+       }
+       return std::string();
+     }},
+};
+
 void print_usage() {
-  std::printf(
+  std::string text =
       "usage: octofuse-map info FILE\n"
       "       octofuse-map mesh FILE OUT.ply [--mesh-scale current|finest]\n"
-      "\n"
-      "  info   check FILE whole and print its format version, voxel type and size, cube,\n"
-      "         blocks per scale, free-space nodes and the memory they take\n"
-      "  mesh   write FILE's surface as a binary PLY (as octofuse-replay's mesh.ply)\n");
+      "\n";
+  for (const Command& command : kCommands) {
+    text += cli::format_option(command.name, command.arguments, command.help);
+  }
+  text += cli::options_usage(kMeshOptions);
+  std::fputs(text.c_str(), stdout);
 }
 
 int error_exit(const std::string& message) {
@@ -179,15 +212,13 @@ int main(int argc, char** argv) {
       return 2;
     }
     out_path = argv[3];
-    if (argc == 6) {
-      const std::string scale = argv[5];
-      if (scale == "finest") {
-        read_scale = MeshReadScale::finest_fused;
-      } else if (scale != "current") {
-        std::fprintf(stderr, "error: --mesh-scale must be current or finest\n");
-        return 2;
-      }
+    MeshArgs mesh_args;
+    std::string error;
+    if (cli::parse_options(argc, argv, 4, kMeshOptions, "unknown option ", &mesh_args, &error) !=
+        cli::Parsed::options) {
+      return cli::fail(error);
     }
+    read_scale = mesh_args.read_scale;
   } else {
     std::fprintf(stderr, "error: unknown command '%s' (info or mesh)\n", command.c_str());
     return 2;

@@ -299,9 +299,8 @@ int run_scene(const std::string& name, long frames, long sample_points, float vo
   return 0;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+// What the command line sets.
+struct QueryBenchArgs {
   std::vector<std::string> scenes = {"desk", "room"};
   long frames = 0;
   long points = 1000000;
@@ -309,63 +308,99 @@ int main(int argc, char** argv) {
   std::int64_t threads = 1;
   std::int64_t finest_octant = 0;
   bool exact = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    std::int64_t n = 0;
-    if (arg == "-h" || arg == "--help") {
-      std::printf(
-          "usage: octofuse-query-bench [--scenes desk,room] [--frames N] [--points N]\n"
-          "                            [--voxel-size M] [--threads N] [--finest-octant "
-          "0|2|4|8|16|32|64]\n"
-          "                            [--free-space-exact]\n"
-          "  --frames N   frames per run (default: the scene's whole sequence)\n"
-          "  --points N   random points for safety and coverage (default 1000000)\n");
+};
+
+using Option = octofuse::cli::Option<QueryBenchArgs>;
+
+const Option kOptions[] = {
+    {"--scenes", "LIST", "sim scenes, comma separated: desk, room (default desk,room)",
+     [](QueryBenchArgs& a, const std::string& list) {
+       a.scenes.clear();
+       std::size_t start = 0;
+       while (start <= list.size()) {
+         const std::size_t comma = list.find(',', start);
+         const std::string name =
+             list.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+         if (name != "desk" && name != "room") return "--scenes: unknown scene '" + name + "'";
+         a.scenes.push_back(name);
+         if (comma == std::string::npos) break;
+         start = comma + 1;
+       }
+       return std::string();
+     }},
+    {"--frames", "N", "frames per run (default: the scene's whole sequence)",
+     [](QueryBenchArgs& a, const std::string& v) {
+       std::int64_t n = 0;
+       if (!octofuse::cli::parse_int(v, 1, 100000, n)) {
+         return std::string("--frames needs a count in [1, 100000]");
+       }
+       a.frames = static_cast<long>(n);
+       return std::string();
+     }},
+    {"--points", "N", "random points for safety and coverage (default 1000000)",
+     [](QueryBenchArgs& a, const std::string& v) {
+       std::int64_t n = 0;
+       if (!octofuse::cli::parse_int(v, 1, 100000000, n)) {
+         return std::string("--points needs a count in [1, 1e8]");
+       }
+       a.points = static_cast<long>(n);
+       return std::string();
+     }},
+    {"--voxel-size", "M", "finest voxel edge in metres, in [0.001, 0.1] (default 0.01)",
+     [](QueryBenchArgs& a, const std::string& v) {
+       if (!octofuse::cli::parse_double(v, 1e-3, 0.1, a.voxel)) {
+         return std::string("--voxel-size needs metres in [0.001, 0.1]");
+       }
+       return std::string();
+     }},
+    {"--finest-octant", "V",
+     "the finest free-space octant's edge in voxels: 2, 4, 8, 16, 32 or 64\n"
+     "(default 0: automatic)",
+     [](QueryBenchArgs& a, const std::string& v) {
+       if (!octofuse::cli::parse_int(v, 0, 64, a.finest_octant) ||
+           (a.finest_octant & (a.finest_octant - 1)) != 0 || a.finest_octant == 1) {
+         return std::string("--finest-octant needs 0 (automatic), 2, 4, 8, 16, 32 or 64 (voxels)");
+       }
+       return std::string();
+     }},
+    {"--free-space-exact", nullptr,
+     "settle octants beside nearer objects' silhouettes pixel by pixel\n"
+     "(octofuse-replay's --free-space-exact)",
+     [](QueryBenchArgs& a, const std::string&) {
+       a.exact = true;
+       return std::string();
+     }},
+    {"--threads", "N", "worker threads, in [1, 64] (default 1)",
+     [](QueryBenchArgs& a, const std::string& v) {
+       if (!octofuse::cli::parse_int(v, 1, 64, a.threads)) {
+         return std::string("--threads needs a count in [1, 64]");
+       }
+       return std::string();
+     }},
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  QueryBenchArgs args;
+  std::string error;
+  switch (octofuse::cli::parse_options(argc, argv, 1, kOptions, "unknown option ", &args, &error)) {
+    case octofuse::cli::Parsed::help:
+      std::printf("usage: octofuse-query-bench [options]\n\n%s",
+                  octofuse::cli::options_usage(kOptions).c_str());
       return 0;
-    } else if (arg == "--scenes" && i + 1 < argc) {
-      scenes.clear();
-      std::string list = argv[++i];
-      std::size_t start = 0;
-      while (start <= list.size()) {
-        const std::size_t comma = list.find(',', start);
-        const std::string name =
-            list.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
-        if (name != "desk" && name != "room") {
-          return octofuse::cli::fail("--scenes: unknown scene '" + name + "'");
-        }
-        scenes.push_back(name);
-        if (comma == std::string::npos) break;
-        start = comma + 1;
-      }
-    } else if (arg == "--frames" && i + 1 < argc) {
-      if (!octofuse::cli::parse_int(argv[++i], 1, 100000, n)) {
-        return octofuse::cli::fail("--frames needs a count in [1, 100000]");
-      }
-      frames = static_cast<long>(n);
-    } else if (arg == "--points" && i + 1 < argc) {
-      if (!octofuse::cli::parse_int(argv[++i], 1, 100000000, n)) {
-        return octofuse::cli::fail("--points needs a count in [1, 1e8]");
-      }
-      points = static_cast<long>(n);
-    } else if (arg == "--voxel-size" && i + 1 < argc) {
-      if (!octofuse::cli::parse_double(argv[++i], 1e-3, 0.1, voxel)) {
-        return octofuse::cli::fail("--voxel-size needs metres in [0.001, 0.1]");
-      }
-    } else if (arg == "--finest-octant" && i + 1 < argc) {
-      if (!octofuse::cli::parse_int(argv[++i], 0, 64, finest_octant) ||
-          (finest_octant & (finest_octant - 1)) != 0 || finest_octant == 1) {
-        return octofuse::cli::fail(
-            "--finest-octant needs 0 (automatic), 2, 4, 8, 16, 32 or 64 (voxels)");
-      }
-    } else if (arg == "--free-space-exact") {
-      exact = true;
-    } else if (arg == "--threads" && i + 1 < argc) {
-      if (!octofuse::cli::parse_int(argv[++i], 1, 64, threads)) {
-        return octofuse::cli::fail("--threads needs a count in [1, 64]");
-      }
-    } else {
-      return octofuse::cli::fail("unknown option '" + arg + "' (see --help)");
-    }
+    case octofuse::cli::Parsed::error:
+      return octofuse::cli::fail(error);
+    case octofuse::cli::Parsed::options:
+      break;
   }
+  const std::vector<std::string>& scenes = args.scenes;
+  const long frames = args.frames;
+  const long points = args.points;
+  const double voxel = args.voxel;
+  const std::int64_t threads = args.threads;
+  const std::int64_t finest_octant = args.finest_octant;
+  const bool exact = args.exact;
   std::printf(
       "| scene | points | unsafe free points | unsafe free regions (of free / asked) | free of "
       "truly free in view | free or near > 0 | near SDF RMSE mm (points), within mu; within 3 "

@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <catch2/catch.hpp>
-#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -14,6 +13,7 @@
 #include <vector>
 
 #include "octofuse/pipeline/pipeline.hpp"
+#include "octofuse/pipeline/steady_clock.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
 #include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
@@ -109,12 +109,6 @@ struct ModelClock {
   }
 };
 
-std::int64_t steady_now_us(void*) {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
-
 enum class ClockKind { none, model, steady };
 
 struct Run {
@@ -135,7 +129,7 @@ Run run(const PipelineConfig& config, ClockKind clock_kind, int frames = kFrames
   model_clock.pipeline = &pipeline;
   Clock clock;
   if (clock_kind == ClockKind::model) clock = Clock{&ModelClock::now_us, &model_clock};
-  if (clock_kind == ClockKind::steady) clock = Clock{&steady_now_us, nullptr};
+  if (clock_kind == ClockKind::steady) clock = steady_clock();
   REQUIRE(pipeline.init(buffer.data, bytes, config, clock).ok());
   Run out;
   out.poses.reserve(static_cast<std::size_t>(frames));

@@ -14,6 +14,7 @@
 #include <new>
 #include <thread>
 
+#include "octofuse/pipeline/steady_clock.hpp"
 #include "octofuse/ports/replay/raw_format.hpp"
 #include "octofuse/ports/replay/text_parsers.hpp"
 
@@ -178,12 +179,6 @@ bool find_icl_ground_truth(const char* dir, char* out, std::size_t capacity) {
   return found && join(out, capacity, dir, best, std::strlen(best));
 }
 
-std::int64_t steady_now_us(void* /*context*/) {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
-
 void steady_sleep_until_us(void* /*context*/, std::int64_t time_us) {
   std::this_thread::sleep_until(
       std::chrono::steady_clock::time_point(std::chrono::microseconds(time_us)));
@@ -193,7 +188,7 @@ void steady_sleep_until_us(void* /*context*/, std::int64_t time_us) {
 
 ReplayClock steady_replay_clock() {
   ReplayClock clock;
-  clock.now_us = &steady_now_us;
+  clock.now_us = &octofuse::steady_now_us;
   clock.sleep_until_us = &steady_sleep_until_us;
   return clock;
 }

@@ -1,0 +1,433 @@
+// The frame loop of a run (runner_steps.hpp).
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <string>
+
+#include "octofuse/render/shade.hpp"
+#include "runner_steps.hpp"
+
+namespace octofuse::examples::detail {
+namespace {
+
+// Warnings about frames that did not do their part, each kind said once with what to change
+// (a long run would otherwise print thousands); the counts are in stats.json and the summary.
+struct FrameWarnings {
+  static constexpr int kLostReports = 5;
+  int lost_reported = 0;
+  bool pool_full = false;
+  bool finest_full = false;
+  bool fusion_budget = false;
+  bool raycast_budget = false;
+  bool evict_budget = false;
+  bool unfused = false;
+  bool icp_budget_set = false;  // --budget-icp given: the default iterations are no budget
+
+  void after(const FrameStats& s) {
+    const unsigned long index = static_cast<unsigned long>(s.frame_index);
+    const bool finest_only = s.integration.pool_refusals == s.integration.finest_refusals;
+    if (s.integration.pool_refusals > 0 && finest_only && !finest_full) {
+      finest_full = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the finest-level pool is full (%u levels): blocks beyond "
+                   "it integrate at scale 1 (raise --map-memory for finer detail)\n",
+                   index, s.memory.finest_capacity);
+    }
+    if (s.integration.pool_refusals > 0 && !finest_only && !pool_full) {
+      pool_full = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the block pool is full (%u blocks): surface it has no room "
+                   "for is not mapped (raise --map-memory)\n",
+                   index, s.memory.block_capacity);
+    }
+    if (s.integration.budget_hit && !fusion_budget) {
+      fusion_budget = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: an integration budget bound (blocks coarsened, skipped or "
+                   "not allocated; see budget_hits in stats.json)\n",
+                   index);
+    }
+    if (s.eviction.budget_hit && !evict_budget) {
+      evict_budget = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the eviction budget bound (%u blocks evicted, a pool is "
+                   "still above its low-water mark)\n",
+                   index, s.eviction.evicted);
+    }
+    if (s.raycast.budget_hit() && !raycast_budget) {
+      raycast_budget = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the ray-cast step budget bound (pixels left invalid)\n",
+                   index);
+    }
+    if (s.result == FrameResult::lost && lost_reported <= kLostReports) {
+      if (lost_reported++ == kLostReports) {
+        std::fprintf(stderr, "warning: more frames lost; counted in the summary and stats.json\n");
+        return;
+      }
+      std::fprintf(
+          stderr, "warning: frame %lu lost (%s: %u pixels matched, %.0f%% of the model)%s%s\n",
+          index, track_outcome_name(s.track.outcome), s.track.inliers,
+          100.0 * static_cast<double>(s.track.inlier_fraction),
+          icp_budget_set && s.budget_icp_hit ? "; ICP stopped at its iteration budget" : "",
+          s.memory.block_capacity > 0 && s.memory.blocks_used == s.memory.block_capacity
+              ? "; the block pool is full"
+              : "");
+    }
+    const bool fused_nothing =
+        (s.result == FrameResult::tracked || s.result == FrameResult::first) &&
+        s.integration.blocks_integrated == 0;
+    if (fused_nothing && !unfused) {
+      unfused = true;
+      std::fprintf(
+          stderr, "warning: frame %lu fused nothing%s\n", index,
+          s.integration.rays_outside_cube > 0 ? " (its view lies outside the map's cube)" : "");
+    }
+  }
+};
+
+// Fills the live view's snapshot from the run so far; `rgb` is the reused shading buffer.
+template <typename VoxelT>
+void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, long processed,
+                   double fps, std::vector<Rgb8>* rgb, LiveSnapshot* snapshot) {
+  const FrameStats& last = summary.frames.back();
+  snapshot->frame = processed;
+  snapshot->fps = fps;
+  snapshot->tracking = frame_result_name(last.result);
+  snapshot->map_bytes_used = last.memory.bytes_used;
+  snapshot->map_bytes_reserved = last.memory.bytes_reserved;
+  snapshot->blocks_used = last.memory.blocks_used;
+  snapshot->block_capacity = last.memory.block_capacity;
+  snapshot->stage_ms.clear();
+  const std::size_t frames = summary.frames.size();
+  const std::size_t first = frames > kLiveHistoryFrames ? frames - kLiveHistoryFrames : 0;
+  for (std::size_t i = first; i < frames; ++i) {
+    const StageTimes& t = summary.frames[i].times;
+    snapshot->stage_ms.push_back(static_cast<float>(t.validate_ms + t.preprocess_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.track_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.integrate_ms));
+    snapshot->stage_ms.push_back(static_cast<float>(t.raycast_ms));
+  }
+  snapshot->trajectory_p_W.clear();
+  const std::size_t poses = summary.trajectory.size();
+  const std::size_t stride = (poses + kLiveTrajectoryPoints - 1) / kLiveTrajectoryPoints;
+  for (std::size_t i = 0; i < poses; i += std::max<std::size_t>(stride, 1)) {
+    const Eigen::Vector3d p_W = summary.trajectory[i].T_W_C.translation();
+    for (int k = 0; k < 3; ++k) snapshot->trajectory_p_W.push_back(static_cast<float>(p_W[k]));
+  }
+  const PinholeCamera& camera = pipeline.working_camera();
+  rgb->resize(static_cast<std::size_t>(camera.width) * camera.height);
+  ImageView<Rgb8> view(rgb->data(), camera.width, camera.height);
+  const Eigen::Vector3f light_W = pipeline.reference_T_W_C().translation().template cast<float>();
+  snapshot->width = 0;
+  snapshot->height = 0;
+  snapshot->rgb.clear();
+  if (shade_by_scale(pipeline.surface_W(), pipeline.scale_image(), light_W, view).ok()) {
+    snapshot->width = camera.width;
+    snapshot->height = camera.height;
+    const auto* bytes = reinterpret_cast<const std::uint8_t*>(rgb->data());
+    snapshot->rgb.assign(bytes, bytes + rgb->size() * sizeof(Rgb8));
+  }
+}
+
+// The odometry's pose for this frame as the pipeline's prior (--odometry); the first frame's
+// anchors the odometry in the world.
+int odometry_prior(const RunOptions& options, const DepthFrame& frame, long processed,
+                   RunInputs* inputs, RunSummary* summary, PosePrior* prior) {
+  const bool odometry_sim = inputs->odometry_sim;
+  const std::vector<host::TimedPose>& odometry_O = inputs->odometry_O;
+#if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
+  sim::DriftingOdometry& drifting_odometry = inputs->drifting_odometry;
+#endif
+  Se3d& T_W_O = inputs->T_W_O;
+  if (!options.odometry.empty()) {
+    const double t_s = static_cast<double>(frame.timestamp_us) * 1e-6;
+    Se3d T_O_C = Se3d::Identity();
+    bool have_odometry = false;
+    if (odometry_sim) {
+      if (!frame.has_ground_truth) {
+        return error_exit("--odometry sim needs a source with ground truth");
+      }
+      Se3d truth = Se3d::Identity();
+      truth.matrix() = frame.T_W_C_ground_truth;
+#if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
+      T_O_C = drifting_odometry.next(truth);
+      have_odometry = true;
+#endif
+    } else {
+      have_odometry = host::interpolate_pose(odometry_O, t_s, kOdometryEndTolerance_s, &T_O_C);
+    }
+    if (processed == 0) {
+      if (!have_odometry) {
+        char text[160];
+        std::snprintf(text, sizeof(text),
+                      ": does not cover the first frame (t = %.6f s; poses span %.6f to %.6f s)",
+                      t_s, odometry_O.front().timestamp_s, odometry_O.back().timestamp_s);
+        return error_exit(options.odometry + text);
+      }
+      Se3d T_W_C0 = options.initial_T_W_C;
+      if (!options.have_initial_pose && frame.has_ground_truth) {
+        T_W_C0.matrix() = frame.T_W_C_ground_truth;
+      }
+      T_W_O = T_W_C0 * T_O_C.inverse();
+    }
+    if (have_odometry) {
+      prior->valid = true;
+      prior->T_W_C = (T_W_O * T_O_C).matrix();
+      host::TimedPose pose;
+      pose.timestamp_s = t_s;
+      pose.T_W_C.matrix() = prior->T_W_C;
+      summary->odometry.push_back(pose);
+    } else {
+      ++summary->frames_without_odometry;
+    }
+  }
+  return 0;
+}
+
+// What the loop shows as it runs: the live view (snapshots at most 10 times a second, the mesh
+// when a browser asks), the status line (RunOptions::live_status) and the progress line.
+struct FrameDisplay {
+  LiveSnapshot snapshot;
+  std::vector<Rgb8> snapshot_rgb;
+  std::chrono::steady_clock::time_point last_publish = std::chrono::steady_clock::now();
+  long frames_since_publish = 0;
+  long frames_since_status = 0;
+  std::chrono::steady_clock::time_point last_status = std::chrono::steady_clock::now();
+  bool show_progress = false;
+};
+
+template <typename VoxelT>
+int show_frame(const RunOptions& options, const Pipeline<VoxelT>& pipeline,
+               const RunSummary& summary, long processed, const FrameStats& stats,
+               LiveServer* server, FrameDisplay* display) {
+  LiveSnapshot& snapshot = display->snapshot;
+  std::vector<Rgb8>& snapshot_rgb = display->snapshot_rgb;
+  auto& last_publish = display->last_publish;
+  long& frames_since_publish = display->frames_since_publish;
+  long& frames_since_status = display->frames_since_status;
+  auto& last_status = display->last_status;
+  const bool show_progress = display->show_progress;
+  if (server != nullptr && server->mesh_requested()) {
+    VectorMeshSink sink;
+    if (!extract_mesh(pipeline, options, &sink)) return error_exit("cannot reserve the mesher");
+    server->publish_mesh(mesh_ply_bytes(sink.positions.empty() ? nullptr : sink.positions[0].data(),
+                                        sink.scales.data(), sink.positions.size(),
+                                        sink.indices.data(), sink.indices.size() / 3));
+  }
+  if (server != nullptr) {
+    // At most 10 snapshots a second: shading and copying cost the loop about a millisecond.
+    ++frames_since_publish;
+    const auto now = std::chrono::steady_clock::now();
+    const double since_s = std::chrono::duration<double>(now - last_publish).count();
+    if (since_s >= 0.1) {
+      fill_snapshot(pipeline, summary, processed,
+                    static_cast<double>(frames_since_publish) / since_s, &snapshot_rgb, &snapshot);
+      server->publish(snapshot);
+      frames_since_publish = 0;
+      last_publish = now;
+    }
+  }
+  if (options.live_status) {
+    ++frames_since_status;
+    const auto now = std::chrono::steady_clock::now();
+    const double since_s = std::chrono::duration<double>(now - last_status).count();
+    if (since_s >= 1.0) {
+      std::printf("%.1f fps  frame %ld  %s  pipeline %.1f ms  blocks %u\n",
+                  static_cast<double>(frames_since_status) / since_s, processed,
+                  frame_result_name(stats.result), stats.times.total_ms, stats.memory.blocks_used);
+      std::fflush(stdout);
+      frames_since_status = 0;
+      last_status = now;
+    }
+  }
+  if (show_progress) {
+    std::fprintf(stderr, "\rframe %5ld  %-8s  pose %-10s  %6.1f ms  blocks %u/%u  ", processed,
+                 frame_result_name(stats.result), pose_origin_name(stats.pose_origin),
+                 stats.times.total_ms, stats.memory.blocks_used, stats.memory.block_capacity);
+  }
+  return 0;
+}
+
+}  // namespace
+
+template <typename VoxelT>
+int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>* run,
+               RunSummary* summary, LoopResult* loop) {
+  std::string error;
+  const std::unique_ptr<DepthSource>& source = inputs->source;
+  LoopingSource* looping = inputs->looping;
+  const bool load_map = inputs->load_map;
+  Pipeline<VoxelT>& pipeline = run->pipeline;
+  const std::unique_ptr<AlignedBuffer>& buffer = run->buffer;
+  std::unique_ptr<host::TumTrajectoryWriter>& trajectory_file = loop->trajectory_file;
+  std::unique_ptr<LiveServer>& server = loop->server;
+  if (!options.serve.empty()) {
+    server = LiveServer::start(options.serve, LiveServerLimits(), &error);
+    if (server == nullptr) return error_exit(error);
+    std::fprintf(stderr, "live view at %s\n", server->url().c_str());
+  }
+
+  FrameDisplay display;
+  display.show_progress = options.progress && ::isatty(STDERR_FILENO);
+  DepthFrame frame;
+  FrameWarnings warnings;
+  const PipelineBudget default_budget;
+  for (int level = 0; level < kPyramidLevels; ++level) {
+    warnings.icp_budget_set = warnings.icp_budget_set || options.budget.icp_iterations[level] !=
+                                                             default_budget.icp_iterations[level];
+  }
+  std::uint64_t& fused_after_first = loop->fused_after_first;
+  long processed = 0;
+  bool have_first_pose = false;
+  Se3d first_T_W_C = Se3d::Identity();  // the pose the first frame was given (loop_source)
+  int consecutive_failures = 0;
+  for (;;) {
+    if (options.stop != nullptr && options.stop->load()) break;
+    if (options.max_frames >= 0 && processed >= options.max_frames) break;
+    const NextFrame next = source->next(frame);
+    if (next.outcome == FrameOutcome::end_of_stream) break;
+    if (next.outcome == FrameOutcome::error) {
+      return error_exit(options.source_spec + ": " + source->last_error());
+    }
+    if (next.outcome == FrameOutcome::skip) {
+      ++summary->frames_skipped_by_source;
+      std::fprintf(stderr, "warning: skipped a frame: %s\n", source->last_error());
+      continue;
+    }
+    PosePrior prior;
+    if (const int rc = odometry_prior(options, frame, processed, inputs, summary, &prior);
+        rc != 0) {
+      return rc;
+    }
+    if (looping != nullptr && looping->loop_started()) {
+      if (options.on_loop_start) options.on_loop_start(looping->loop());
+      // The camera is back where the first frame was: without this, tracking would have to
+      // bridge the jump from the end of the recording to its start.
+      if (have_first_pose && !pipeline.set_pose(first_T_W_C).ok()) {
+        return error_exit("cannot relocalise at the start of pass " +
+                          std::to_string(looping->loop()) + ": " + pipeline.last_error());
+      }
+    }
+    if (buffer == nullptr) {
+      Se3d T_W_C0 = options.initial_T_W_C;
+      if (!options.have_initial_pose && frame.has_ground_truth) {
+        T_W_C0.matrix() = frame.T_W_C_ground_truth;
+      }
+      const int rc = init_pipeline(options, *inputs, T_W_C0, run, summary);
+      if (rc != 0) return rc;
+    }
+    if (load_map && processed == 0 && !options.have_initial_pose && !frame.has_ground_truth) {
+      return error_exit(options.source_spec +
+                        ": no ground truth to place the first frame in the loaded map; give "
+                        "--initial-pose tx,ty,tz,qx,qy,qz,qw");
+    }
+
+    FrameStats stats;
+    const Status status = pipeline.process(frame, prior, &stats);
+    ++processed;
+    if (options.on_frame) options.on_frame(stats);
+    if (stats.result == FrameResult::rejected) {
+      ++summary->frames_rejected;
+      std::fprintf(stderr, "warning: frame %lu rejected: %s\n",
+                   static_cast<unsigned long>(stats.frame_index), pipeline.last_error());
+      if (++consecutive_failures > 100) return error_exit("100 bad frames in a row, giving up");
+      continue;
+    }
+    consecutive_failures = 0;
+    if (stats.deadline.over) ++summary->frames_over_deadline;
+    if (stats.result == FrameResult::lost) ++summary->frames_lost;
+    if (stats.result == FrameResult::nearly_empty) ++summary->frames_nearly_empty;
+    if (stats.pose_origin == PoseOrigin::prior_gate) ++summary->frames_prior_gate;
+    if (stats.pose_origin == PoseOrigin::prior_lost) ++summary->frames_prior_lost;
+    if (stats.prior_dropped && ++summary->priors_dropped <= 5) {
+      std::fprintf(stderr,
+                   "warning: frame %lu: the odometry's pose is implausibly far or fast; not "
+                   "used%s\n",
+                   static_cast<unsigned long>(stats.frame_index),
+                   summary->priors_dropped == 5 ? " (further such frames are not reported)" : "");
+    }
+    if (!status.ok() && status.code() != StatusCode::resource_exhausted &&
+        status.code() != StatusCode::data_loss && stats.result != FrameResult::lost) {
+      return error_exit(std::string("frame processing failed: ") + status.name());
+    }
+    warnings.after(stats);
+    const bool fused = stats.integration.blocks_integrated > 0;
+    if ((stats.result == FrameResult::tracked || stats.result == FrameResult::first) && !fused) {
+      ++summary->frames_unfused;
+    }
+    if (stats.result == FrameResult::tracked && fused) ++fused_after_first;
+    if (stats.result == FrameResult::first && !have_first_pose) {
+      have_first_pose = true;
+      first_T_W_C = pipeline.T_W_C();
+    }
+    ++summary->frames_processed;
+    if (options.keep_frame_records) summary->frames.push_back(stats);
+    host::TimedPose pose;
+    pose.timestamp_s = static_cast<double>(frame.timestamp_us) * 1e-6;
+    pose.T_W_C = pipeline.T_W_C();
+    if (options.keep_frame_records) summary->trajectory.push_back(pose);
+    if (!options.out_dir.empty() && trajectory_file == nullptr) {
+      if (!make_dir(options.out_dir)) {
+        return error_exit("cannot create output folder " + options.out_dir);
+      }
+      trajectory_file = std::make_unique<host::TumTrajectoryWriter>();
+      const std::string path = join(options.out_dir, "trajectory.txt");
+      if (!trajectory_file->open(path.c_str()).ok()) {
+        return error_exit(trajectory_file->last_error());
+      }
+    }
+    if (trajectory_file != nullptr && !trajectory_file->append(pose).ok()) {
+      return error_exit(trajectory_file->last_error());
+    }
+    if (options.save_every > 0 && !options.save_map_path.empty() &&
+        processed % options.save_every == 0) {
+      std::string save_error;
+      if (!save_map_now(options, pipeline, summary, &save_error)) {
+        std::fprintf(stderr, "warning: map not saved: %s\n", save_error.c_str());
+      }
+    }
+    if (frame.has_ground_truth && options.keep_frame_records) {
+      host::TimedPose truth;
+      truth.timestamp_s = pose.timestamp_s;
+      truth.T_W_C.matrix() = frame.T_W_C_ground_truth;
+      summary->ground_truth.push_back(truth);
+    }
+    if (options.write_frames && !options.out_dir.empty()) {
+      char name[64];
+      std::snprintf(name, sizeof(name), "frames/render_%06ld.png", processed - 1);
+      ErrorText png_error;
+      if ((processed == 1 && !make_dir(join(options.out_dir, "frames"))) ||
+          !write_render(pipeline, join(options.out_dir, name), &png_error)) {
+        return error_exit("cannot write " + join(options.out_dir, name));
+      }
+    }
+    if (const int rc =
+            show_frame(options, pipeline, *summary, processed, stats, server.get(), &display);
+        rc != 0) {
+      return rc;
+    }
+  }
+  if (display.show_progress) std::fprintf(stderr, "\n");
+  if (server != nullptr) {
+    std::fprintf(stderr,
+                 "live view: %llu answers, %llu connections refused over the cap, %llu timed "
+                 "out\n",
+                 static_cast<unsigned long long>(server->responses()),
+                 static_cast<unsigned long long>(server->refused()),
+                 static_cast<unsigned long long>(server->timed_out()));
+  }
+  return 0;
+}
+
+template int run_frames<MultiresVoxel>(const RunOptions&, RunInputs*, PipelineRun<MultiresVoxel>*,
+                                       RunSummary*, LoopResult*);
+template int run_frames<Multires16Voxel>(const RunOptions&, RunInputs*,
+                                         PipelineRun<Multires16Voxel>*, RunSummary*, LoopResult*);
+template int run_frames<TsdfVoxel>(const RunOptions&, RunInputs*, PipelineRun<TsdfVoxel>*,
+                                   RunSummary*, LoopResult*);
+
+}  // namespace octofuse::examples::detail

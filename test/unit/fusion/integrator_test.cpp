@@ -10,9 +10,10 @@
 #include <catch2/catch.hpp>
 
 #include "octofuse/map/mip.hpp"
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
-#include "unit/fusion/analytic_scene.hpp"
-#include "unit/map/arena_buffer.hpp"
+#include "support/analytic_scene.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -94,7 +95,7 @@ TEST_CASE("a plane fused at each scale crosses zero within a quarter voxel of it
   constexpr float kVoxel_m = 0.01f;
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   for (int scale = 0; scale <= kMaxBlockScale; ++scale) {
     CAPTURE(scale);
     Fusion<MultiresVoxel> fusion(map_config(kVoxel_m, 8, 8000), fusion_config(8 * kVoxel_m, scale),
@@ -139,7 +140,7 @@ TEMPLATE_TEST_CASE(
   constexpr double kMargin_m = 0.001;
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   FusionConfig full_config = fusion_config(kMu_m, 0);
   FusionConfig short_config = full_config;
   short_config.behind_mu = 0.375f;
@@ -184,7 +185,7 @@ TEST_CASE("where mu is under 2.5 voxels of the scale, voxels 2.5 voxels behind a
   constexpr double kMargin_m = 0.001;  // keeps voxel centres clear of the thresholds
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   for (int scale = 0; scale <= kMaxBlockScale; ++scale) {
     CAPTURE(scale);
     Fusion<MultiresVoxel> fusion(map_config(kVoxel_m, 8, 8000), fusion_config(kMu_m, scale),
@@ -224,7 +225,7 @@ TEST_CASE("single-resolution fusion of a plane crosses zero within a quarter vox
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
   Fusion<TsdfVoxel> fusion(map_config(kVoxel_m, 8, 8000), fusion_config(8 * kVoxel_m),
-                           test::test_camera(160, 120, 131.0f));
+                           test::centred_camera(160, 120, 131.0f));
   const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0, 0, 0.2}));
   REQUIRE(r.status.ok());
   CHECK(r.blocks_per_scale[0] == r.blocks_integrated);
@@ -244,7 +245,7 @@ TEST_CASE("a sphere fused at each scale crosses zero within a quarter voxel of i
   constexpr double kRadius_m = 0.3;
   AnalyticScene scene;
   scene.spheres.push_back({centre, kRadius_m});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   for (int scale = 0; scale <= kMaxBlockScale; ++scale) {
     CAPTURE(scale);
     Fusion<MultiresVoxel> fusion(map_config(kVoxel_m, 8, 8000), fusion_config(8 * kVoxel_m, scale),
@@ -285,7 +286,7 @@ TEST_CASE("the 16-bit voxel fuses like the float one within its quantisation bou
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.237});
   scene.spheres.push_back({Eigen::Vector3d(0.2, 0.1, 1.0), 0.15});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   for (int scale = 0; scale <= 1; ++scale) {
     CAPTURE(scale);
     Fusion<MultiresVoxel> ref(map_config(kVoxel_m, 8, 8000), fusion_config(kMu_m, scale), camera);
@@ -391,7 +392,7 @@ TEST_CASE(
     "[fusion][integrator]") {
   const AnalyticScene scene = near_and_far_spheres();
   Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f),
-                               test::test_camera(160, 120, 131.0f));
+                               test::centred_camera(160, 120, 131.0f));
   const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0, 0, -0.25}));
   REQUIRE(r.status.ok());
   REQUIRE(r.blocks_per_scale[0] > 0);
@@ -424,7 +425,7 @@ TEST_CASE("delta_y counts applied updates only", "[fusion][integrator]") {
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
   constexpr int kFrames = 3;
   Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f, 0),
-                               test::test_camera(160, 120, 131.0f));
+                               test::centred_camera(160, 120, 131.0f));
   for (int i = 0; i < kFrames; ++i) {
     REQUIRE(fusion.fuse(scene, test::looking_along_z({0, 0, 0.3})).status.ok());
   }
@@ -454,7 +455,7 @@ TEST_CASE("delta_y counts applied updates only", "[fusion][integrator]") {
 TEST_CASE("refinement down-propagates, then up-propagates in the same frame",
           "[fusion][integrator]") {
   const AnalyticScene scene = near_and_far_spheres();
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   const Se3d pose = test::looking_along_z({0, 0, -0.25});
   // First frame with every block at scale 1, then automatic scales: the near sphere's blocks
   // refine to 0 while the far sphere's stay at 1.
@@ -499,7 +500,7 @@ TEST_CASE("the thin-structure promise: close, far at scale 3, close again keeps 
   AnalyticScene scene;
   scene.cylinders.push_back({pole, kPoleRadius_m, -1.0, 1.0});
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 2.0});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   MapConfig mc = MapConfig::centred(Eigen::Vector3f(0.0f, 0.0f, 0.0f), kVoxel_m, 11, 60000, 60000);
   FusionConfig fc = fusion_config(8 * kVoxel_m);
   fc.max_blocks_per_frame = 1u << 16;
@@ -544,7 +545,7 @@ TEST_CASE("blocks never integrated at scale 0 hold no finest level",
           "[fusion][integrator][finest]") {
   const AnalyticScene scene = near_and_far_spheres();
   Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f),
-                               test::test_camera(160, 120, 131.0f));
+                               test::centred_camera(160, 120, 131.0f));
   for (int i = 0; i < 3; ++i) {
     const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0.01 * i, 0, -0.25}));
     REQUIRE(r.status.ok());
@@ -572,7 +573,7 @@ TEST_CASE("refining from scale 3 to 0 takes a finest level and down-propagates i
           "[fusion][integrator][finest]") {
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0.2, 0.1, 1).normalized(), 1.1});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   const Se3d pose = test::looking_along_z({0, 0, 0.2});
   Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f, 3), camera);
   REQUIRE(fusion.fuse(scene, pose).status.ok());
@@ -634,7 +635,7 @@ TEST_CASE("a full finest-level pool keeps blocks at scale 1, counted, and the ma
   constexpr std::uint32_t kFinest = 12;
   mc.finest_capacity = kFinest;
   Fusion<MultiresVoxel> fusion(mc, fusion_config(8 * kVoxel_m, 0),
-                               test::test_camera(160, 120, 131.0f));
+                               test::centred_camera(160, 120, 131.0f));
   for (int frame = 0; frame < 2; ++frame) {
     const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0, 0, 0.1}));
     CAPTURE(frame);
@@ -697,7 +698,7 @@ TEMPLATE_TEST_CASE("results are bit-identical for 1, 2 and 3 workers",
   AnalyticScene scene;
   scene.spheres.push_back({Eigen::Vector3d(0.1, 0.0, 1.3), 0.3});
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.9});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   const int workers = GENERATE(2, 3);
   CAPTURE(workers);
   Fusion<TestType> one(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
@@ -717,7 +718,7 @@ TEMPLATE_TEST_CASE("results are bit-identical for 1, 2 and 3 workers",
 
 TEST_CASE("a band of rows whose cell list fills up is finished by the merge, same map",
           "[fusion][integrator][threads]") {
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   // Depth only in the first rows: every block comes from the first band, whose list holds a
   // quarter of max_blocks_per_frame.
   auto fill = [&camera](std::vector<float>& depth) {
@@ -757,7 +758,7 @@ TEST_CASE("no heap allocation per frame", "[fusion][integrator][alloc]") {
   AnalyticScene scene;
   scene.spheres.push_back({Eigen::Vector3d(0.0, 0.0, 1.2), 0.2});
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.8});
-  const PinholeCamera camera = test::test_camera(80, 60, 65.0f);
+  const PinholeCamera camera = test::centred_camera(80, 60, 65.0f);
   // Coarse voxels keep this many-frame test quick in debug builds.
   Fusion<MultiresVoxel> multires(map_config(0.05f, 7, 2000), fusion_config(0.4f), camera);
   Fusion<TsdfVoxel> single(map_config(0.05f, 7, 2000), fusion_config(0.4f), camera);
@@ -786,7 +787,7 @@ TEST_CASE("a full block pool is reported and the map stays usable", "[fusion][in
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.0});
   constexpr std::uint32_t kBlocks = 40;
   Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, kBlocks), fusion_config(0.08f),
-                               test::test_camera(160, 120, 131.0f));
+                               test::centred_camera(160, 120, 131.0f));
   const IntegrationReport first = fusion.fuse(scene, test::looking_along_z({0, 0, 0.3}));
   CHECK(first.status == StatusCode::resource_exhausted);
   CHECK(first.blocks_requested > kBlocks);
@@ -807,7 +808,7 @@ TEST_CASE("a full block pool is reported and the map stays usable", "[fusion][in
 TEST_CASE("budgets bind in the documented order", "[fusion][integrator][budget]") {
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0.3, 0, 1).normalized(), 1.0});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   const Se3d pose = test::looking_along_z({0, 0, 0.3});
 
   SECTION("new blocks: the nearest are allocated") {
@@ -865,7 +866,7 @@ TEST_CASE("budgets bind in the documented order", "[fusion][integrator][budget]"
 TEST_CASE("bad input is refused without touching the map", "[fusion][integrator]") {
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.0});
-  const PinholeCamera camera = test::test_camera(160, 120, 131.0f);
+  const PinholeCamera camera = test::centred_camera(160, 120, 131.0f);
   Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f), camera);
   scene.render(camera, Se3d::Identity(), fusion.depth);
   const ImageView<const float> view(fusion.depth.data(), 160, 120);
@@ -885,7 +886,7 @@ TEST_CASE("bad input is refused without touching the map", "[fusion][integrator]
             .integrate(fusion.map, view, wrong, Se3d::Identity(), 0, FusionBudget(), team)
             .status == StatusCode::invalid_argument);
   const ImageView<const float> small(fusion.depth.data(), 80, 60);
-  PinholeCamera small_camera = test::test_camera(80, 60, 65.0f);
+  PinholeCamera small_camera = test::centred_camera(80, 60, 65.0f);
   CHECK(fusion.integrator
             .integrate(fusion.map, small, small_camera, Se3d::Identity(), 0, FusionBudget(), team)
             .status == StatusCode::failed_precondition);

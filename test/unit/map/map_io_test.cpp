@@ -22,8 +22,9 @@
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/query/map_query.hpp"
 #include "octofuse/render/raycaster.hpp"
-#include "unit/fusion/analytic_scene.hpp"
-#include "unit/map/arena_buffer.hpp"
+#include "support/aligned_buffer.hpp"
+#include "support/analytic_scene.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -71,7 +72,7 @@ Se3d pose(int frame) {
 }
 
 PinholeCamera camera() {
-  return test::test_camera(kWidth, kHeight, 55.0f);
+  return test::centred_camera(kWidth, kHeight, 55.0f);
 }
 
 // Depth frames of the analytic scene along pose(i), in millimetres, with ground truth.

@@ -8,8 +8,8 @@
 #include <catch2/catch.hpp>
 
 #include "octofuse/map/mip.hpp"
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
-#include "unit/map/arena_buffer.hpp"
 
 namespace octofuse {
 namespace {

@@ -14,7 +14,7 @@
 #include <Eigen/Geometry>
 
 #include "support/alloc_counter.hpp"
-#include "unit/render/analytic_map.hpp"
+#include "support/analytic_map.hpp"
 
 namespace octofuse {
 namespace {

@@ -13,8 +13,9 @@
 
 #include "octofuse/fusion/integrator.hpp"
 #include "octofuse/query/free_space.hpp"
-#include "unit/fusion/analytic_scene.hpp"
-#include "unit/map/arena_buffer.hpp"
+#include "support/aligned_buffer.hpp"
+#include "support/analytic_scene.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -28,13 +29,7 @@ constexpr double kWall_m = 2.0;
 constexpr float kDistanceTolerance_m = 0.5f * kVoxel_m;
 
 PinholeCamera small_camera() {
-  PinholeCamera c;
-  c.width = 160;
-  c.height = 120;
-  c.fx = c.fy = 120.0f;
-  c.cx = 79.5f;
-  c.cy = 59.5f;
-  return c;
+  return test::centred_camera(160, 120, 120.0f);
 }
 
 AnalyticScene wall_at(double z_m) {
@@ -342,10 +337,10 @@ TEST_CASE("octants of several blocks (the automatic choice for fine voxels) stay
 double exact_distance(const AnalyticScene& scene, const Eigen::Vector3d& p) {
   double best = std::numeric_limits<double>::infinity();
   for (const AnalyticScene::Plane& plane : scene.planes) {
-    best = std::min(best, std::abs(plane.normal.dot(p) - plane.offset));
+    best = std::min(best, std::abs(plane.normal.dot(p) - plane.offset_m));
   }
   for (const AnalyticScene::Sphere& sphere : scene.spheres) {
-    best = std::min(best, (p - sphere.centre).norm() - sphere.radius);
+    best = std::min(best, (p - sphere.centre_W).norm() - sphere.radius_m);
   }
   return best;
 }

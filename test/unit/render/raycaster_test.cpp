@@ -12,7 +12,8 @@
 #include <Eigen/Geometry>
 
 #include "support/alloc_counter.hpp"
-#include "unit/render/analytic_map.hpp"
+#include "support/analytic_map.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -34,7 +35,7 @@ MapConfig test_map_config() {
 }
 
 PinholeCamera test_camera() {
-  return PinholeCamera{50.0f, 50.0f, 31.5f, 23.5f, 64, 48};
+  return test::centred_camera(64, 48, 50.0f);
 }
 
 template <typename VoxelT>

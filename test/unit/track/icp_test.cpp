@@ -9,8 +9,10 @@
 #include <string>
 #include <vector>
 
-#include "analytic_scene.hpp"
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
+#include "support/analytic_scene.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -21,10 +23,6 @@ constexpr double kRotationTolerance_deg = 0.1;
 constexpr double kIdentityTranslationTolerance_m = 5e-5;
 constexpr double kIdentityRotationTolerance_deg = 5e-3;
 constexpr double kPi = 3.14159265358979323846;
-
-PinholeCamera vga_camera() {
-  return PinholeCamera{525.0f, 525.0f, 319.5f, 239.5f, 640, 480};
-}
 
 Se3d make_pose(const Eigen::Vector3d& translation_m, const Eigen::Vector3d& axis,
                double angle_deg) {
@@ -51,25 +49,14 @@ double rotation_error_deg(const Se3d& a, const Se3d& b) {
   return std::abs(aa.angle()) * 180.0 / kPi;
 }
 
-// A 64-byte aligned buffer and arena of exactly the bytes ArenaSizer reports.
-struct ArenaBuffer {
-  explicit ArenaBuffer(std::size_t bytes) : storage(bytes + kArenaAlignment) {
-    void* aligned = reinterpret_cast<void*>(
-        align_up(reinterpret_cast<std::uintptr_t>(storage.data()), kArenaAlignment));
-    arena = LinearArena(aligned, bytes);
-  }
-  std::vector<std::uint8_t> storage;
-  LinearArena arena;
-};
-
 // Pre-processor and tracker reserved for VGA input at QVGA working resolution.
 struct TrackFixture {
   explicit TrackFixture(const TrackConfig& track_config = TrackConfig{},
                         const PreprocessConfig& pre_config = PreprocessConfig{})
       : buffer(bytes_for(track_config, pre_config)) {
-    REQUIRE(pre.reserve(buffer.arena, pre_config, 640, 480).ok());
-    REQUIRE(tracker.reserve(buffer.arena, track_config, 320, 240).ok());
-    REQUIRE(buffer.arena.bytes_used() == buffer.arena.capacity());
+    REQUIRE(pre.reserve(buffer.arena(), pre_config, 640, 480).ok());
+    REQUIRE(tracker.reserve(buffer.arena(), track_config, 320, 240).ok());
+    REQUIRE(buffer.arena().bytes_used() == buffer.arena().capacity());
   }
   static std::size_t bytes_for(const TrackConfig& track_config,
                                const PreprocessConfig& pre_config) {
@@ -83,7 +70,7 @@ struct TrackFixture {
   // Renders the live depth at T_W_C_live (VGA) and pre-processes it.
   void set_live(const test::AnalyticScene& scene, const Se3d& T_W_C_live, int workers = 1,
                 float noise_m = 0.0f) {
-    live_depth = test::render_depth(scene, vga_camera(), T_W_C_live);
+    live_depth = scene.render(test::vga_camera(), T_W_C_live);
     if (noise_m > 0.0f) {
       std::mt19937 rng(7);
       std::uniform_real_distribution<float> noise(-noise_m, noise_m);
@@ -93,11 +80,12 @@ struct TrackFixture {
     }
     const WorkerTeam team(workers);
     REQUIRE(
-        pre.process(ImageView<const float>(live_depth.data(), 640, 480), vga_camera(), team).ok());
+        pre.process(ImageView<const float>(live_depth.data(), 640, 480), test::vga_camera(), team)
+            .ok());
   }
-  PinholeCamera camera_level0() const { return vga_camera().downsampled(2); }
+  PinholeCamera camera_level0() const { return test::vga_camera().downsampled(2); }
 
-  ArenaBuffer buffer;
+  test::ArenaBuffer buffer;
   DepthPreprocessor pre;
   IcpTracker tracker;
   std::vector<float> live_depth;
@@ -107,11 +95,11 @@ TEST_CASE("ArenaSizer gives the exact bytes the tracker takes") {
   ArenaSizer sizer;
   IcpTracker tracker;
   REQUIRE(tracker.reserve(sizer, TrackConfig{}, 320, 240).ok());
-  ArenaBuffer exact(sizer.bytes_used());
-  REQUIRE(tracker.reserve(exact.arena, TrackConfig{}, 320, 240).ok());
-  CHECK(exact.arena.bytes_used() == sizer.bytes_used());
-  ArenaBuffer short_buffer(sizer.bytes_used() - 1);
-  CHECK(tracker.reserve(short_buffer.arena, TrackConfig{}, 320, 240) ==
+  test::ArenaBuffer exact(sizer.bytes_used());
+  REQUIRE(tracker.reserve(exact.arena(), TrackConfig{}, 320, 240).ok());
+  CHECK(exact.arena().bytes_used() == sizer.bytes_used());
+  test::ArenaBuffer short_buffer(sizer.bytes_used() - 1);
+  CHECK(tracker.reserve(short_buffer.arena(), TrackConfig{}, 320, 240) ==
         StatusCode::resource_exhausted);
   TrackConfig bad;
   bad.min_normal_dot = 2.0f;
@@ -128,7 +116,7 @@ TEST_CASE("ICP recovers a known small offset on a synthetic pair") {
   const Se3d T_W_C_true = offset_pose();
   REQUIRE(translation_error_m(T_W_Cref, T_W_C_true) > 4e-3);
   REQUIRE(rotation_error_deg(T_W_Cref, T_W_C_true) > 1.4);
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(scene, T_W_C_true);
 
   Se3d T_W_C = T_W_Cref;  // the guess: the previous pose
@@ -156,7 +144,7 @@ TEST_CASE("the finest level's checkerboard lands where every pixel does, at half
   TrackFixture half;  // the default: checkerboard
   const Se3d T_W_Cref = reference_pose();
   const Se3d T_W_C_true = offset_pose();
-  const test::RenderedModel model = test::render_model(scene, full.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(full.camera_level0(), T_W_Cref);
   full.set_live(scene, T_W_C_true, 1, 0.002f);
   half.set_live(scene, T_W_C_true, 1, 0.002f);
   const WorkerTeam team(1);
@@ -186,7 +174,7 @@ TEST_CASE("ICP tracks against a model that covers only part of the view (a full 
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
   const Se3d T_W_C_true = offset_pose();
-  test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   // Keep the lower-left window where the three walls meet (14% of the pixels): enough geometry
   // to fix all six degrees of freedom.
   const int x0 = 0;
@@ -221,7 +209,7 @@ TEST_CASE("a model too small to constrain the pose is reported lost") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
-  test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   // 20 x 20 valid pixels: 0.5% of the image, under lost_min_image_fraction (5%).
   for (int y = 0; y < model.height; ++y) {
     for (int x = 0; x < model.width; ++x) {
@@ -242,7 +230,7 @@ TEST_CASE("ICP stays at the identity when already aligned") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(scene, T_W_Cref);
   Se3d T_W_C = T_W_Cref;
   const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
@@ -258,7 +246,7 @@ TEST_CASE("ICP with depth noise still lands within a millimetre, and the RMS gat
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
   const Se3d T_W_C_true = offset_pose();
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   constexpr float kNoise_m = 0.004f;  // uniform +- 4 mm per VGA pixel
   f.set_live(scene, T_W_C_true, 1, kNoise_m);
 
@@ -298,7 +286,7 @@ TEST_CASE("depth weighting lets a far surface that disagrees pull the estimate l
   moved.planes[2].offset_m += kWallShift_m;
   const Se3d T_W_Cref = Se3d::Identity();
   TrackFixture f;
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(moved, T_W_Cref);
 
   double shift_m[3] = {0.0, 0.0, 0.0};
@@ -336,7 +324,7 @@ TEST_CASE("a live view that does not match the model is reported lost and the po
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   // The live camera sees a wall 0.6 m in front of it that the model does not have.
   test::AnalyticScene other;
   other.planes.push_back({Eigen::Vector3d(0.0, 0.0, 1.0), 0.6});
@@ -358,7 +346,7 @@ TEST_CASE("a single plane in view is degenerate and reported as such") {
   wall.planes.push_back({Eigen::Vector3d(0.0, 0.0, 1.0), 2.0});
   TrackFixture f;
   const Se3d T_W_Cref = Se3d::Identity();
-  const test::RenderedModel model = test::render_model(wall, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = wall.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(wall, T_W_Cref);
   Se3d T_W_C = T_W_Cref;
   const TrackReport report = f.tracker.track(f.pre.pyramid(), model.map(), f.camera_level0(),
@@ -378,7 +366,7 @@ TEST_CASE("a prior holds the directions a single plane leaves open; ICP keeps th
   // The camera moved 1 cm along the wall (invisible to ICP) and 4 mm towards it (visible).
   const Se3d T_W_C_true =
       make_pose(Eigen::Vector3d(0.01, 0.005, 0.004), Eigen::Vector3d::UnitZ(), 0.0);
-  const test::RenderedModel model = test::render_model(wall, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = wall.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(wall, T_W_C_true);
   // The prior knows the motion along the wall but is 2 mm off towards it.
   IcpPrior prior;
@@ -418,7 +406,7 @@ TEST_CASE("weighted by uncertainty, a plane-only view follows the prior along th
   const Se3d T_W_Cref = Se3d::Identity();
   const Se3d T_W_C_true =
       make_pose(Eigen::Vector3d(0.01, 0.005, 0.004), Eigen::Vector3d::UnitZ(), 0.0);
-  const test::RenderedModel model = test::render_model(wall, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = wall.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(wall, T_W_C_true);
   IcpPrior prior;  // uncertainty weighting (the default)
   prior.T_W_C = T_W_C_true;
@@ -476,7 +464,7 @@ TEST_CASE("weighted by uncertainty, a well-constrained view barely moves towards
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
   const Se3d T_W_C_true = offset_pose();
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(scene, T_W_C_true, 1, 0.004f);  // about 1.2 mm RMS residual
   Se3d alone = T_W_Cref;
   REQUIRE(
@@ -520,7 +508,7 @@ TEST_CASE("a prior with an out-of-range noise is refused and the pose kept") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(scene, offset_pose());
   struct Bad {
     const char* what;
@@ -564,7 +552,7 @@ TEST_CASE("1 and 2 workers give bit-identical poses and reports") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(scene, offset_pose(), 1, 0.004f);
 
   Se3d one = T_W_Cref;
@@ -586,7 +574,7 @@ TEST_CASE("track allocates nothing after reserve") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(scene, offset_pose());
   const WorkerTeam team1(1);
   const WorkerTeam team2(2);
@@ -607,7 +595,7 @@ TEST_CASE("bad arguments are refused without touching the pose") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
-  const test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  const test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   f.set_live(scene, T_W_Cref);
   const WorkerTeam team(1);
 
@@ -640,8 +628,8 @@ TEST_CASE("bad arguments are refused without touching the pose") {
     IcpTracker small;
     ArenaSizer sizer;
     REQUIRE(small.reserve(sizer, TrackConfig{}, 160, 120).ok());
-    ArenaBuffer buffer(sizer.bytes_used());
-    REQUIRE(small.reserve(buffer.arena, TrackConfig{}, 160, 120).ok());
+    test::ArenaBuffer buffer(sizer.bytes_used());
+    REQUIRE(small.reserve(buffer.arena(), TrackConfig{}, 160, 120).ok());
     Se3d T_W_C = T_W_Cref;
     const TrackReport r =
         small.track(f.pre.pyramid(), model.map(), f.camera_level0(), T_W_Cref, T_W_C, team);
@@ -654,7 +642,7 @@ TEST_CASE("a corrupt model (NaN vertices, non-unit normals) never crashes or poi
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;
   const Se3d T_W_Cref = reference_pose();
-  test::RenderedModel model = test::render_model(scene, f.camera_level0(), T_W_Cref);
+  test::RenderedModel model = scene.render_model(f.camera_level0(), T_W_Cref);
   const float nan = std::numeric_limits<float>::quiet_NaN();
   for (std::size_t i = 0; i < model.vertices_W.size(); i += 3) {
     model.vertices_W[i] = Eigen::Vector3f(nan, 0.0f, 1.0f);
@@ -687,7 +675,7 @@ TEST_CASE("along a sequence, a foreign view is lost and the next matching view r
   Se3d estimate = true_pose(0);
   for (int k = 1; k < kFrames; ++k) {
     INFO("frame " << k);
-    const test::RenderedModel model = test::render_model(scene, f.camera_level0(), estimate);
+    const test::RenderedModel model = scene.render_model(f.camera_level0(), estimate);
     const bool foreign_view = k == kForeignFrame;
     if (foreign_view) {
       f.set_live(foreign, Se3d::Identity());

@@ -118,11 +118,9 @@ PipelineConfig config_for(float voxel_m = 0.02f) {
 // A pipeline with its buffer.
 template <typename VoxelT>
 struct Mapper {
-  explicit Mapper(const PipelineConfig& config)
-      : bytes(bytes_required(config)),
-        buffer(std::aligned_alloc(kArenaAlignment, align_up(bytes + 1, kArenaAlignment))) {
+  explicit Mapper(const PipelineConfig& config) : bytes(bytes_required(config)), buffer(bytes) {
     REQUIRE(bytes > 0);
-    REQUIRE(pipeline.init(buffer.get(), bytes, config).ok());
+    REQUIRE(pipeline.init(buffer.data, bytes, config).ok());
   }
   void run(const Frames& frames, int from, int to) {
     for (int i = from; i < to; ++i) {
@@ -132,7 +130,7 @@ struct Mapper {
     }
   }
   std::size_t bytes;
-  std::unique_ptr<void, test::AlignedFree> buffer;
+  test::Buffer buffer;
   Pipeline<VoxelT> pipeline;
 };
 

@@ -23,8 +23,7 @@ std::string write_trajectory(const std::vector<Se3d>& poses, const char* name) {
     REQUIRE(writer.append(pose).ok());
   }
   REQUIRE(writer.close().ok());
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  return test::read_bytes(path);
 }
 
 TEST_CASE("same input gives a byte-identical trajectory, twice and with 1 or 2 workers") {

@@ -16,6 +16,7 @@
 #include "ports/openni2/driver/test_ramp.hpp"
 #include "support/alloc_counter.hpp"
 #include "support/test_dir.hpp"
+#include "support/text.hpp"
 
 #if defined(__SANITIZE_ADDRESS__)
 // Debian's libOniFile leaks about 7 kB per OpenNI2 initialise/shutdown cycle, from inside the
@@ -35,14 +36,11 @@ namespace {
 using ports::OpenNi2DepthUnits;
 using ports::OpenNi2Options;
 using ports::OpenNi2Source;
+using test::contains;
 namespace ramp = test::oni;
 
 constexpr float kFocalTolerance_px = 1e-3f;
 constexpr double kDepthTolerance_m = 1e-6;
-
-bool contains(const char* text, const char* part) {
-  return std::strstr(text, part) != nullptr;
-}
 
 // Every pixel is the ramp of the frame's own index, in the given units per millimetre.
 bool frame_is_ramp(const DepthFrame& frame, int units_per_mm) {

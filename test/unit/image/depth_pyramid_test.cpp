@@ -9,6 +9,7 @@
 #include <random>
 #include <vector>
 
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
 #include "support/camera.hpp"
 
@@ -21,19 +22,17 @@ constexpr float kNormalTolerance = 1e-4f;
 
 // Owns a 64-byte aligned buffer of exactly the size ArenaSizer reports for the preprocessor.
 struct PreprocessorFixture {
-  explicit PreprocessorFixture(const PreprocessConfig& config, int width, int height) {
-    ArenaSizer sizer;
-    REQUIRE(pre.reserve(sizer, config, width, height).ok());
-    bytes = sizer.bytes_used();
-    storage.resize(bytes + kArenaAlignment);
-    void* aligned = reinterpret_cast<void*>(
-        align_up(reinterpret_cast<std::uintptr_t>(storage.data()), kArenaAlignment));
-    arena = LinearArena(aligned, bytes);
-    REQUIRE(pre.reserve(arena, config, width, height).ok());
+  explicit PreprocessorFixture(const PreprocessConfig& config, int width, int height)
+      : memory(bytes_for(config, width, height)), bytes(memory.bytes()) {
+    REQUIRE(pre.reserve(memory.arena(), config, width, height).ok());
   }
+  static std::size_t bytes_for(const PreprocessConfig& config, int width, int height) {
+    ArenaSizer sizer;
+    REQUIRE(DepthPreprocessor().reserve(sizer, config, width, height).ok());
+    return sizer.bytes_used();
+  }
+  test::ArenaBuffer memory;
   DepthPreprocessor pre;
-  std::vector<std::uint8_t> storage;
-  LinearArena arena;
   std::size_t bytes = 0;
 };
 
@@ -42,7 +41,7 @@ TEST_CASE("ArenaSizer gives the exact bytes the preprocessor takes") {
     PreprocessConfig config;
     config.bilateral = bilateral;
     PreprocessorFixture fixture(config, 640, 480);
-    CHECK(fixture.arena.bytes_used() == fixture.bytes);
+    CHECK(fixture.memory.arena().bytes_used() == fixture.bytes);
     CHECK(fixture.bytes >= 320u * 240u * (4u + 12u + 12u));
 
     // One byte short fails cleanly.

@@ -16,6 +16,7 @@
 #include <Eigen/Geometry>
 
 #include "octofuse/fusion/integrator.hpp"
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
 #include "support/analytic_map.hpp"
 #include "support/camera.hpp"
@@ -45,16 +46,14 @@ inline PinholeCamera test_camera() {
 
 template <typename VoxelT>
 struct OwnedRaycaster {
-  std::unique_ptr<std::uint8_t, void (*)(void*)> memory{nullptr, std::free};
+  test::ArenaBuffer memory;
   Raycaster<VoxelT> raycaster;
 
-  explicit OwnedRaycaster(const RaycastConfig& config) {
-    const std::size_t bytes = Raycaster<VoxelT>::bytes_required(config);
-    REQUIRE(bytes > 0);
-    memory.reset(static_cast<std::uint8_t*>(std::aligned_alloc(kArenaAlignment, bytes)));
-    LinearArena arena(memory.get(), bytes);
-    REQUIRE(raycaster.reserve(arena, config).ok());
-    REQUIRE(arena.bytes_used() == bytes);
+  explicit OwnedRaycaster(const RaycastConfig& config)
+      : memory(Raycaster<VoxelT>::bytes_required(config)) {
+    REQUIRE(memory.bytes() > 0);
+    REQUIRE(raycaster.reserve(memory.arena(), config).ok());
+    REQUIRE(memory.arena().bytes_used() == memory.bytes());
   }
 };
 

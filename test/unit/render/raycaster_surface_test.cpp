@@ -133,13 +133,10 @@ TEST_CASE("ray-casting what the integrator fused gives the wall back") {
   fusion.near_m = 0.1f;
   fusion.far_m = 3.0f;
   fusion.fixed_scale = fixed_scale;
-  const std::size_t bytes = Integrator<MultiresVoxel>::bytes_required(fusion, 64, 48);
-  REQUIRE(bytes > 0);
-  std::unique_ptr<std::uint8_t, void (*)(void*)> memory(
-      static_cast<std::uint8_t*>(std::aligned_alloc(kArenaAlignment, bytes)), std::free);
-  LinearArena arena(memory.get(), bytes);
+  test::ArenaBuffer memory(Integrator<MultiresVoxel>::bytes_required(fusion, 64, 48));
+  REQUIRE(memory.bytes() > 0);
   Integrator<MultiresVoxel> integrator;
-  REQUIRE(integrator.reserve(arena, fusion, 64, 48).ok());
+  REQUIRE(integrator.reserve(memory.arena(), fusion, 64, 48).ok());
   float depth[64 * 48];
   for (float& d : depth) d = kPlaneZ_m;
   const WorkerTeam team(1);

@@ -16,7 +16,7 @@ TEST_CASE("a block pool too small for the scene degrades and reports instead of 
   sim::SimSource probe(sim_config);
   REQUIRE(probe.open().ok());
   PipelineConfig config = small_config(probe, 0.01f, 1, kBlocks);
-  // 40 blocks are too little model to track against (that is reported as lost, see above);
+  // 40 blocks are too little model to track against (that is reported as lost);
   // ground-truth poses keep the fusion path busy on every frame.
   config.pose_source = PoseSource::ground_truth;
   std::vector<FrameStats> stats;

@@ -15,7 +15,8 @@
 #include <sys/mman.h>
 
 #include "octofuse/fusion/integrator.hpp"
-#include "unit/fusion/analytic_scene.hpp"
+#include "support/analytic_scene.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -101,7 +102,7 @@ double mean(const std::vector<double>& v) {
 
 void run(float voxel_size_m, int voxel_depth, std::uint32_t blocks, int frames, int workers,
          bool huge_pages) {
-  const PinholeCamera camera = test::test_camera(320, 240, 262.5f);
+  const PinholeCamera camera = test::centred_camera(320, 240, 262.5f);
   const MapConfig mc = MapConfig::centred(Eigen::Vector3f(0.0f, 0.4f, 1.2f), voxel_size_m,
                                           voxel_depth, blocks, blocks);
   FusionConfig fc;

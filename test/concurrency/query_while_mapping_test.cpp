@@ -13,24 +13,12 @@
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
 #include "support/aligned_buffer.hpp"
+#include "support/small_sim.hpp"
 
 namespace octofuse {
 namespace {
 
 constexpr int kFrames = 16;
-
-sim::SimConfig small_sim() {
-  sim::SimConfig config;
-  config.scene = sim::SceneId::desk;
-  config.frame_count = kFrames;
-  config.camera.width = 160;
-  config.camera.height = 120;
-  config.camera.fx = config.camera.fy = 525.0f / 4.0f;
-  config.camera.cx = 79.5f;
-  config.camera.cy = 59.5f;
-  config.noise.enabled = false;
-  return config;
-}
 
 using octofuse::test::Buffer;
 
@@ -86,7 +74,7 @@ Answer ask(const MapQuery<MultiresVoxel>& query, const std::vector<Eigen::Vector
 }
 
 TEST_CASE("queries from another thread see the map after whole frames only") {
-  sim::SimSource probe_source(small_sim());
+  sim::SimSource probe_source(test::small_sim(kFrames, /*noise=*/false));
   REQUIRE(probe_source.open().ok());
   const PipelineConfig config = config_for(probe_source);
   const std::vector<Eigen::Vector3f> points = probes(probe_source);
@@ -95,7 +83,7 @@ TEST_CASE("queries from another thread see the map after whole frames only") {
   // Serial reference: every probe's answer after each frame (version v = v frames fused).
   std::vector<std::vector<Answer>> expected;
   {
-    sim::SimSource source(small_sim());
+    sim::SimSource source(test::small_sim(kFrames, /*noise=*/false));
     REQUIRE(source.open().ok());
     Buffer buffer(bytes_required(config));
     Pipeline<MultiresVoxel> pipeline;
@@ -125,7 +113,7 @@ TEST_CASE("queries from another thread see the map after whole frames only") {
   REQUIRE(changed > 10);
 
   // Concurrent run: the planner asks round-robin until the mapper is done.
-  sim::SimSource source(small_sim());
+  sim::SimSource source(test::small_sim(kFrames, /*noise=*/false));
   REQUIRE(source.open().ok());
   Buffer buffer(bytes_required(config));
   Pipeline<MultiresVoxel> pipeline;

@@ -15,6 +15,8 @@
 #include <thread>
 #include <vector>
 
+#include "support/test_dir.hpp"
+
 namespace octofuse::test {
 
 struct Child {
@@ -60,10 +62,6 @@ inline std::string read_file(const std::string& path) {
   std::stringstream text;
   text << in.rdbuf();
   return text.str();
-}
-
-inline bool file_exists(const std::string& path) {
-  return ::access(path.c_str(), F_OK) == 0;
 }
 
 struct RunResult {

@@ -464,8 +464,9 @@ TEST_CASE("deepest, voxel updates fall to their deeper floor, deterministically"
 }
 
 TEST_CASE("a deadline of 0, or one every frame fits in, is today's pipeline bit for bit") {
-  // The pinned pose and map bits in pipeline_test.cpp hold the default config to the build
-  // before deadlines existed; here the deadline's other settings must not matter when it is off.
+  // The pinned pose and map bits in pipeline_determinism_test.cpp hold the default config to the
+  // build before deadlines existed; here the deadline's other settings must not matter when it is
+  // off.
   sim::SimSource probe(small_sim(kSimFrames));
   REQUIRE(probe.open().ok());
   const Run plain = run(small_config(probe, 1), ClockKind::none);

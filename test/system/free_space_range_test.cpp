@@ -10,6 +10,7 @@
 
 #include "octofuse/pipeline/pipeline.hpp"
 #include "support/aligned_buffer.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -22,13 +23,7 @@ constexpr float kVoxel_m = 0.02f;
 constexpr float kFar_m = 2.0f;
 
 PinholeCamera camera() {
-  PinholeCamera c;
-  c.width = kWidth;
-  c.height = kHeight;
-  c.fx = c.fy = 131.25f;
-  c.cx = (kWidth - 1) * 0.5f;
-  c.cy = (kHeight - 1) * 0.5f;
-  return c;
+  return test::centred_camera(kWidth, kHeight, 131.25f);
 }
 
 struct Answers {

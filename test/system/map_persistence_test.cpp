@@ -10,6 +10,7 @@
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
+#include "support/aligned_buffer.hpp"
 #include "support/small_sim.hpp"
 #include "support/test_dir.hpp"
 
@@ -25,13 +26,9 @@ sim::SimConfig sim_config() {
 }
 
 struct Run {
-  explicit Run(const PipelineConfig& config) : bytes(bytes_required(config)) {
-    buffer = std::aligned_alloc(kArenaAlignment, align_up(bytes + 1, kArenaAlignment));
-    REQUIRE(pipeline.init(buffer, bytes, config).ok());
+  explicit Run(const PipelineConfig& config) : bytes(bytes_required(config)), buffer(bytes) {
+    REQUIRE(pipeline.init(buffer.data, bytes, config).ok());
   }
-  ~Run() { std::free(buffer); }
-  Run(const Run&) = delete;
-  Run& operator=(const Run&) = delete;
 
   // Processes frames [from, to) of the sequence (earlier frames are read and dropped).
   void frames(sim::SimSource& source, int from, int to) {
@@ -50,7 +47,7 @@ struct Run {
   }
 
   std::size_t bytes;
-  void* buffer = nullptr;
+  test::Buffer buffer;
   Pipeline<MultiresVoxel> pipeline;
   std::vector<FrameStats> stats;
   std::vector<double> error_m;

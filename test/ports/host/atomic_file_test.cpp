@@ -4,26 +4,16 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
-#include <sstream>
 #include <string>
 
 #include "support/test_dir.hpp"
 
 using octofuse::StatusCode;
 using octofuse::host::AtomicFile;
+using octofuse::test::file_exists;
+using octofuse::test::read_bytes;
 
 namespace {
-
-std::string read_all(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-bool exists(const std::string& path) {
-  return std::ifstream(path).good();
-}
 
 void write_whole(const std::string& path, const std::string& text) {
   AtomicFile out;
@@ -39,27 +29,27 @@ TEST_CASE("AtomicFile: the destination holds the old or the new content, never a
   const std::string dir = octofuse::test::make_test_dir("atomic");
   const std::string path = dir + "/out.txt";
   write_whole(path, "first version\n");
-  CHECK(read_all(path) == "first version\n");
-  CHECK_FALSE(exists(path + ".tmp"));
+  CHECK(read_bytes(path) == "first version\n");
+  CHECK_FALSE(file_exists(path + ".tmp"));
 
   {
     AtomicFile out;
     REQUIRE(out.open(path.c_str()).ok());
     std::fprintf(out.file(), "second %s\n", "version, longer than the first");
     // Not committed yet: the old content is still what the destination holds.
-    CHECK(read_all(path) == "first version\n");
+    CHECK(read_bytes(path) == "first version\n");
     REQUIRE(out.commit().ok());
   }
-  CHECK(read_all(path) == "second version, longer than the first\n");
+  CHECK(read_bytes(path) == "second version, longer than the first\n");
 
   {
     AtomicFile out;
     REQUIRE(out.open(path.c_str()).ok());
     REQUIRE(out.write("abandoned", 9).ok());
-    CHECK(exists(path + ".tmp"));
+    CHECK(file_exists(path + ".tmp"));
   }  // going out of scope abandons it
-  CHECK(read_all(path) == "second version, longer than the first\n");
-  CHECK_FALSE(exists(path + ".tmp"));
+  CHECK(read_bytes(path) == "second version, longer than the first\n");
+  CHECK_FALSE(file_exists(path + ".tmp"));
 }
 
 TEST_CASE("AtomicFile: bad paths and calls in the wrong state get a Status",
@@ -75,8 +65,8 @@ TEST_CASE("AtomicFile: bad paths and calls in the wrong state get a Status",
   REQUIRE(out.open((dir + "/a").c_str()).ok());
   CHECK(out.open((dir + "/b").c_str()).code() == StatusCode::failed_precondition);
   REQUIRE(out.commit().ok());
-  CHECK(read_all(dir + "/a").empty());
-  CHECK(exists(dir + "/a"));
+  CHECK(read_bytes(dir + "/a").empty());
+  CHECK(file_exists(dir + "/a"));
 }
 
 TEST_CASE("AtomicFile: a destination that is not a regular file is never replaced",
@@ -95,9 +85,9 @@ TEST_CASE("AtomicFile: a destination that is not a regular file is never replace
     CHECK(std::string(out.last_error()).find("not a regular file") != std::string::npos);
     CHECK(octofuse::host::check_writable(path.c_str(), nullptr).code() ==
           StatusCode::invalid_argument);
-    CHECK_FALSE(exists(path + ".tmp"));
+    CHECK_FALSE(file_exists(path + ".tmp"));
   }
-  CHECK(exists(folder + "/inside"));
+  CHECK(file_exists(folder + "/inside"));
   CHECK(std::system(("test -p " + fifo).c_str()) == 0);
   CHECK(std::system("test -c /dev/null") == 0);
 
@@ -106,7 +96,7 @@ TEST_CASE("AtomicFile: a destination that is not a regular file is never replace
   REQUIRE(std::system(("mkfifo " + blocked + ".tmp").c_str()) == 0);
   AtomicFile out;
   CHECK(out.open(blocked.c_str()).code() == StatusCode::invalid_argument);
-  CHECK_FALSE(exists(blocked));
+  CHECK_FALSE(file_exists(blocked));
 }
 
 TEST_CASE("AtomicFile: a link is followed, the file it names replaced", "[host][atomic_file]") {
@@ -114,7 +104,7 @@ TEST_CASE("AtomicFile: a link is followed, the file it names replaced", "[host][
   write_whole(dir + "/target", "old");
   REQUIRE(std::system(("ln -s target " + dir + "/link").c_str()) == 0);
   write_whole(dir + "/link", "new");
-  CHECK(read_all(dir + "/target") == "new");
+  CHECK(read_bytes(dir + "/target") == "new");
   CHECK(std::system(("test -L " + dir + "/link").c_str()) == 0);
   // A link to nothing names no file to replace.
   REQUIRE(std::system(("ln -s missing " + dir + "/dangling").c_str()) == 0);
@@ -126,8 +116,8 @@ TEST_CASE("check_writable: folders that do not exist or cannot hold files", "[ho
   using octofuse::host::check_writable;
   const std::string dir = octofuse::test::make_test_dir("atomic_check");
   CHECK(check_writable((dir + "/new.bin").c_str(), nullptr).ok());
-  CHECK_FALSE(exists(dir + "/new.bin"));
-  CHECK_FALSE(exists(dir + "/new.bin.tmp"));
+  CHECK_FALSE(file_exists(dir + "/new.bin"));
+  CHECK_FALSE(file_exists(dir + "/new.bin.tmp"));
   octofuse::ErrorText error;
   CHECK(check_writable((dir + "/missing/new.bin").c_str(), &error).code() ==
         StatusCode::unavailable);
@@ -137,5 +127,5 @@ TEST_CASE("check_writable: folders that do not exist or cannot hold files", "[ho
   // An existing file is left as it was.
   write_whole(dir + "/old.bin", "kept");
   CHECK(check_writable((dir + "/old.bin").c_str(), nullptr).ok());
-  CHECK(read_all(dir + "/old.bin") == "kept");
+  CHECK(read_bytes(dir + "/old.bin") == "kept");
 }

@@ -20,15 +20,6 @@ namespace {
 const std::string kFixture =
     std::string(OCTOFUSE_SOURCE_DIR) + "/test/unit/map/data/small_multires_v2.ofmap";
 
-std::vector<char> read_all(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::vector<char>((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
-
-bool exists(const std::string& path) {
-  return std::ifstream(path).good();
-}
-
 // A map and free space reserved for what the file's header needs, with some room to spare.
 struct MapFor {
   explicit MapFor(const MapFileHeader& header) {
@@ -89,11 +80,11 @@ TEST_CASE("a map file loads, and saves back to the same bytes atomically", "[hos
   info.frames = loaded_header.frames;
   info.mu_m = loaded_header.mu_m;
   REQUIRE(host::save_map_file(path.c_str(), target.map, &target.free_space, info, &error).ok());
-  CHECK(read_all(path) == read_all(kFixture));
-  CHECK(!exists(path + ".tmp"));
+  CHECK(test::read_bytes(path) == test::read_bytes(kFixture));
+  CHECK(!test::file_exists(path + ".tmp"));
   // Without its free space the file is the same but for it (smaller), and loads as well.
   REQUIRE(host::save_map_file(path.c_str(), target.map, info, &error).ok());
-  CHECK(read_all(path).size() < read_all(kFixture).size());
+  CHECK(test::read_bytes(path).size() < test::read_bytes(kFixture).size());
   REQUIRE(host::load_map_file(path.c_str(), target.map, &target.free_space, &loaded_header, &error)
               .ok());
   CHECK(loaded_header.free_node_count == 0);
@@ -125,12 +116,12 @@ TEST_CASE("missing, unwritable and damaged map files say which file and what is 
   const std::string no_mu = dir + "/no_mu.ofmap";
   CHECK(host::save_map_file(no_mu.c_str(), target.map, info, &error).code() ==
         StatusCode::invalid_argument);
-  CHECK(!exists(no_mu));
-  CHECK(!exists(no_mu + ".tmp"));
+  CHECK(!test::file_exists(no_mu));
+  CHECK(!test::file_exists(no_mu + ".tmp"));
 
   // Cut in the middle of the block records, then of the free-space records: the loader names
   // the file and the record, and leaves nothing loaded.
-  const std::vector<char> bytes = read_all(kFixture);
+  const std::string bytes = test::read_bytes(kFixture);
   const std::string cut = dir + "/cut.ofmap";
   for (std::size_t keep : {std::size_t{8000}, bytes.size() - 100}) {
     {

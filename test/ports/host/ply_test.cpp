@@ -9,6 +9,7 @@
 using octofuse::ErrorText;
 using octofuse::StatusCode;
 using octofuse::host::Mesh;
+using octofuse::test::read_bytes;
 
 namespace {
 
@@ -66,8 +67,7 @@ TEST_CASE("PLY reader reports truncated and malformed files", "[host][ply]") {
     CHECK(octofuse::host::read_ply(path.c_str(), &read, &error) == StatusCode::unavailable);
   }
   SECTION("truncated body") {
-    std::ifstream in(good, std::ios::binary);
-    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::string bytes = read_bytes(good);
     const std::string path = dir + "/short.ply";
     std::ofstream(path, std::ios::binary) << bytes.substr(0, bytes.size() - 5);
     REQUIRE(file_size(path) + 5 == file_size(good));
@@ -76,8 +76,7 @@ TEST_CASE("PLY reader reports truncated and malformed files", "[host][ply]") {
     CHECK(read.vertices.empty());
   }
   SECTION("a header promising more than the body holds, or bytes after it") {
-    std::ifstream in(good, std::ios::binary);
-    std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::string bytes = read_bytes(good);
     const std::string huge = dir + "/huge.ply";
     std::string promised = bytes;
     const std::size_t at = promised.find("element vertex 4");

@@ -11,6 +11,7 @@ using octofuse::ErrorText;
 using octofuse::Se3d;
 using octofuse::StatusCode;
 using octofuse::host::TimedPose;
+using octofuse::test::write_text;
 
 namespace {
 
@@ -30,10 +31,6 @@ std::vector<TimedPose> random_trajectory(int count, unsigned seed) {
     poses.push_back(pose);
   }
   return poses;
-}
-
-void write_text(const std::string& path, const char* text) {
-  std::ofstream(path) << text;
 }
 
 }  // namespace

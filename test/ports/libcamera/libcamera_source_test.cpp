@@ -8,15 +8,14 @@
 #include <cstring>
 #include <string>
 
+#include "support/text.hpp"
+
 namespace octofuse {
 namespace {
 
 using ports::LibcameraOptions;
 using ports::LibcameraSource;
-
-bool contains(const char* text, const char* part) {
-  return std::strstr(text, part) != nullptr;
-}
+using test::contains;
 
 void quiet_libcamera() {
   ::setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);

@@ -6,7 +6,6 @@
 
 #include <OniCAPI.h>
 #include <dlfcn.h>
-#include <sys/stat.h>
 
 #include <catch2/catch.hpp>
 #include <cmath>
@@ -16,6 +15,8 @@
 
 #include "ports/openni2/driver/test_ramp.hpp"
 #include "support/alloc_counter.hpp"
+#include "support/test_dir.hpp"
+#include "support/text.hpp"
 
 #if defined(__SANITIZE_ADDRESS__)
 // Debian's libOniFile leaks about 7 kB per OpenNI2 initialise/shutdown cycle, from inside the
@@ -35,14 +36,11 @@ namespace {
 using ports::OpenNi2DepthUnits;
 using ports::OpenNi2Options;
 using ports::OpenNi2Source;
+using test::contains;
 namespace ramp = test::oni;
 
 constexpr float kFocalTolerance_px = 1e-3f;
 constexpr double kDepthTolerance_m = 1e-6;
-
-bool contains(const char* text, const char* part) {
-  return std::strstr(text, part) != nullptr;
-}
 
 // Every pixel is the ramp of the frame's own index, in the given units per millimetre.
 bool frame_is_ramp(const DepthFrame& frame, int units_per_mm) {
@@ -53,20 +51,6 @@ bool frame_is_ramp(const DepthFrame& frame, int units_per_mm) {
     }
   }
   return true;
-}
-
-std::string test_tmp_dir() {
-  const char* base = std::getenv("OCTOFUSE_TEST_TMP");
-  std::string dir;
-  if (base != nullptr && base[0] != '\0') {
-    dir = std::string(base) + "/openni2";
-    ::mkdir(base, 0755);
-    ::mkdir(dir.c_str(), 0755);
-  } else {
-    char pattern[] = "/tmp/octofuse-openni2-XXXXXX";
-    dir = ::mkdtemp(pattern);
-  }
-  return dir;
 }
 
 // Opens the default device; fails with a pointer at the runtime setup when the driver is absent.
@@ -249,7 +233,9 @@ TEST_CASE("openni2: no heap allocation per frame after open() beyond OpenNI2's o
 }
 
 TEST_CASE("openni2: a recording made with OpenNI2's recorder replays through libOniFile") {
-  const std::string path = test_tmp_dir() + "/ramp.oni";
+  const std::string dir = test::make_test_dir("openni2");
+  REQUIRE(!dir.empty());
+  const std::string path = dir + "/ramp.oni";
   std::remove(path.c_str());
   constexpr int kFramesToRecord = 12;
 

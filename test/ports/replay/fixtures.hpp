@@ -17,15 +17,6 @@
 
 namespace octofuse::test {
 
-inline void write_text(const std::string& path, const std::string& text) {
-  std::ofstream(path, std::ios::binary) << text;
-}
-
-inline std::string read_bytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
-
 // Depth with a per-frame pattern; `invalid` marks some pixels 65535 (7-Scenes' marker).
 inline std::vector<std::uint16_t> pattern_depth(int width, int height, int frame,
                                                 bool invalid = false) {

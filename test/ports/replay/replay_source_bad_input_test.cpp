@@ -5,6 +5,7 @@
 
 #include "fixtures.hpp"
 #include "octofuse/ports/replay/replay_source.hpp"
+#include "support/text.hpp"
 
 using octofuse::DepthFrame;
 using octofuse::FrameOutcome;
@@ -12,6 +13,7 @@ using octofuse::NextFrame;
 using octofuse::StatusCode;
 using octofuse::replay::ReplayConfig;
 using octofuse::replay::ReplaySource;
+using octofuse::test::contains;
 namespace fx = octofuse::test;
 
 namespace {
@@ -23,10 +25,6 @@ ReplayConfig config_for(const std::string& spec) {
   config.has_intrinsics = spec.rfind("raw:", 0) == 0;
   config.intrinsics = octofuse::PinholeCamera{500.0f, 500.0f, 3.0f, 2.0f, 0, 0};
   return config;
-}
-
-bool has(const char* text, const std::string& part) {
-  return std::string(text).find(part) != std::string::npos;
 }
 
 // Reads to the end; returns the sequence numbers delivered and the skip messages.
@@ -67,7 +65,7 @@ TEST_CASE("a folder that does not exist", "[replay][bad]") {
     const std::string path = "/nonexistent/octofuse-dataset";
     ReplaySource source(config_for(prefix + path));
     CHECK(source.open() == StatusCode::unavailable);
-    CHECK(has(source.last_error(), path));
+    CHECK(contains(source.last_error(), path));
     DepthFrame frame;
     const NextFrame got = source.next(frame);
     CHECK(got.outcome == FrameOutcome::error);
@@ -83,49 +81,49 @@ TEST_CASE("missing or unparsable text files", "[replay][bad]") {
     std::remove((tum.dir + "/depth.txt").c_str());
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::unavailable);
-    CHECK(has(source.last_error(), "depth.txt: cannot open"));
+    CHECK(contains(source.last_error(), "depth.txt: cannot open"));
   }
   SECTION("depth.txt line without a file name") {
     const fx::TumFixture tum = fx::write_tum(parent, "badlist");
     fx::write_text(tum.dir + "/depth.txt", "# header\n1.0 depth/a.png\n2.0\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "depth.txt:3: expected a file name"));
+    CHECK(contains(source.last_error(), "depth.txt:3: expected a file name"));
   }
   SECTION("depth.txt with a non-number timestamp") {
     const fx::TumFixture tum = fx::write_tum(parent, "badtime");
     fx::write_text(tum.dir + "/depth.txt", "abc depth/a.png\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "depth.txt:1: expected a timestamp"));
+    CHECK(contains(source.last_error(), "depth.txt:1: expected a timestamp"));
   }
   SECTION("empty depth.txt") {
     const fx::TumFixture tum = fx::write_tum(parent, "empty");
     fx::write_text(tum.dir + "/depth.txt", "# nothing\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "lists no frames"));
+    CHECK(contains(source.last_error(), "lists no frames"));
   }
   SECTION("groundtruth.txt with a short line") {
     const fx::TumFixture tum = fx::write_tum(parent, "badgt");
     fx::write_text(tum.dir + "/groundtruth.txt", "1305031102.0 1 2 3 0 0 0\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "groundtruth.txt:1: expected 8 numbers"));
+    CHECK(contains(source.last_error(), "groundtruth.txt:1: expected 8 numbers"));
   }
   SECTION("camera-intrinsics.txt missing") {
     const std::string dir = fx::write_seven_scenes(parent);
     std::remove((dir + "/camera-intrinsics.txt").c_str());
     ReplaySource source(config_for("7scenes:" + dir));
     CHECK(source.open() == StatusCode::unavailable);
-    CHECK(has(source.last_error(), "camera-intrinsics.txt: cannot open"));
+    CHECK(contains(source.last_error(), "camera-intrinsics.txt: cannot open"));
   }
   SECTION("camera-intrinsics.txt not a camera matrix") {
     const std::string dir = fx::write_seven_scenes(parent);
     fx::write_text(dir + "/camera-intrinsics.txt", "585 0 320\n0 585 240\n0 0\n");
     ReplaySource source(config_for("7scenes:" + dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "camera-intrinsics.txt: expected 9 numbers"));
+    CHECK(contains(source.last_error(), "camera-intrinsics.txt: expected 9 numbers"));
   }
   SECTION("raw without intrinsics") {
     const std::string path = parent + "/x.raw";
@@ -134,7 +132,7 @@ TEST_CASE("missing or unparsable text files", "[replay][bad]") {
     config.has_intrinsics = false;
     ReplaySource source(config);
     CHECK(source.open() == StatusCode::invalid_argument);
-    CHECK(has(source.last_error(), "x.raw: a .raw recording has no intrinsics"));
+    CHECK(contains(source.last_error(), "x.raw: a .raw recording has no intrinsics"));
   }
 }
 
@@ -145,7 +143,7 @@ TEST_CASE("timestamps going backwards", "[replay][bad]") {
     fx::write_text(tum.dir + "/depth.txt", "2.0 depth/a.png\n3.0 depth/b.png\n2.5 depth/c.png\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "depth.txt:3: timestamp 2.500000 goes backwards"));
+    CHECK(contains(source.last_error(), "depth.txt:3: timestamp 2.500000 goes backwards"));
   }
   SECTION("in groundtruth.txt") {
     const fx::TumFixture tum = fx::write_tum(parent, "gtback");
@@ -153,8 +151,8 @@ TEST_CASE("timestamps going backwards", "[replay][bad]") {
                    "1305031102.0 0 0 0 0 0 0 1\n1305031101.0 0 0 0 0 0 0 1\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "groundtruth.txt:2: timestamp"));
-    CHECK(has(source.last_error(), "goes backwards"));
+    CHECK(contains(source.last_error(), "groundtruth.txt:2: timestamp"));
+    CHECK(contains(source.last_error(), "goes backwards"));
   }
 }
 
@@ -165,7 +163,7 @@ TEST_CASE("poses that are not rotations", "[replay][bad]") {
     fx::write_text(tum.dir + "/groundtruth.txt", "1305031102.0 0 0 0 0 0 0 2\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "groundtruth.txt:1: quaternion has length 2"));
+    CHECK(contains(source.last_error(), "groundtruth.txt:1: quaternion has length 2"));
   }
   SECTION("7-Scenes pose with a scaled rotation skips that frame only") {
     const std::string dir = fx::write_seven_scenes(parent, 3);
@@ -177,7 +175,7 @@ TEST_CASE("poses that are not rotations", "[replay][bad]") {
     const Replayed replayed = replay_all(source);
     CHECK(replayed.frames == std::vector<std::uint64_t>{0, 2});
     REQUIRE(replayed.skips.size() == 1);
-    CHECK(has(replayed.skips[0].c_str(), "frame-000001.pose.txt: not a rigid transform"));
+    CHECK(contains(replayed.skips[0].c_str(), "frame-000001.pose.txt: not a rigid transform"));
     CHECK(replayed.ended);
   }
   SECTION("7-Scenes pose with too few numbers") {
@@ -188,7 +186,7 @@ TEST_CASE("poses that are not rotations", "[replay][bad]") {
     const Replayed replayed = replay_all(source);
     CHECK(replayed.frames == std::vector<std::uint64_t>{0});
     REQUIRE(replayed.skips.size() == 1);
-    CHECK(has(replayed.skips[0].c_str(), "frame-000001.pose.txt: expected 16 numbers"));
+    CHECK(contains(replayed.skips[0].c_str(), "frame-000001.pose.txt: expected 16 numbers"));
   }
 }
 
@@ -214,13 +212,13 @@ TEST_CASE("truncated, corrupt, missing and wrong-format PNG frames are skipped",
   CHECK(replayed.ended);
   for (std::size_t i = 0; i < 4; ++i) {
     INFO(replayed.skips[i]);
-    CHECK(has(replayed.skips[i].c_str(), frame_png(tum, static_cast<int>(i) + 1)));
+    CHECK(contains(replayed.skips[i].c_str(), frame_png(tum, static_cast<int>(i) + 1)));
     CHECK(replayed.skip_codes[i] == StatusCode::data_loss);
   }
-  CHECK(has(replayed.skips[0].c_str(), "corrupt or truncated PNG"));
-  CHECK(has(replayed.skips[1].c_str(), "corrupt or truncated PNG"));
-  CHECK(has(replayed.skips[2].c_str(), "not a PNG file"));
-  CHECK(has(replayed.skips[3].c_str(), "cannot open"));
+  CHECK(contains(replayed.skips[0].c_str(), "corrupt or truncated PNG"));
+  CHECK(contains(replayed.skips[1].c_str(), "corrupt or truncated PNG"));
+  CHECK(contains(replayed.skips[2].c_str(), "not a PNG file"));
+  CHECK(contains(replayed.skips[3].c_str(), "cannot open"));
 }
 
 TEST_CASE("a first frame that cannot be read fails open()", "[replay][bad]") {
@@ -229,7 +227,7 @@ TEST_CASE("a first frame that cannot be read fails open()", "[replay][bad]") {
   fx::write_text(frame_png(tum, 0), "garbage");
   ReplaySource source(config_for("tum:" + tum.dir));
   CHECK(source.open() == StatusCode::data_loss);
-  CHECK(has(source.last_error(), frame_png(tum, 0) + ": not a PNG file"));
+  CHECK(contains(source.last_error(), frame_png(tum, 0) + ": not a PNG file"));
 }
 
 TEST_CASE("frames larger than the configured maximum", "[replay][bad]") {
@@ -239,7 +237,7 @@ TEST_CASE("frames larger than the configured maximum", "[replay][bad]") {
   config.max_width = 4;
   ReplaySource source(config);
   CHECK(source.open() == StatusCode::resource_exhausted);
-  CHECK(has(source.last_error(), "image is 8x6, larger than the configured maximum 4x480"));
+  CHECK(contains(source.last_error(), "image is 8x6, larger than the configured maximum 4x480"));
 }
 
 TEST_CASE("more frames than max_frames", "[replay][bad]") {
@@ -251,7 +249,7 @@ TEST_CASE("more frames than max_frames", "[replay][bad]") {
     config.max_frames = 4;
     ReplaySource source(config);
     CHECK(source.open() == StatusCode::resource_exhausted);
-    CHECK(has(source.last_error(), "more than 4 frames"));
+    CHECK(contains(source.last_error(), "more than 4 frames"));
   }
 }
 
@@ -269,7 +267,7 @@ TEST_CASE(".raw with a short last frame or absurd sizes", "[replay][bad]") {
     const Replayed replayed = replay_all(source);
     CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1});
     REQUIRE(replayed.skips.size() == 1);
-    CHECK(has(replayed.skips[0].c_str(), "short.raw: short frame at byte"));
+    CHECK(contains(replayed.skips[0].c_str(), "short.raw: short frame at byte"));
     CHECK(replayed.ended);
   }
   SECTION("a few stray bytes at the end") {
@@ -280,7 +278,7 @@ TEST_CASE(".raw with a short last frame or absurd sizes", "[replay][bad]") {
     const Replayed replayed = replay_all(source);
     CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1});
     REQUIRE(replayed.skips.size() == 1);
-    CHECK(has(replayed.skips[0].c_str(), "only 3 bytes left"));
+    CHECK(contains(replayed.skips[0].c_str(), "only 3 bytes left"));
   }
   SECTION("absurd depth size in a later frame") {
     std::string third = fx::raw_frame_bytes(5, 4, 2);
@@ -295,8 +293,8 @@ TEST_CASE(".raw with a short last frame or absurd sizes", "[replay][bad]") {
     const Replayed replayed = replay_all(source);
     CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1});
     REQUIRE(replayed.skips.size() == 1);
-    CHECK(has(replayed.skips[0].c_str(), "absurd.raw: frame at byte"));
-    CHECK(has(replayed.skips[0].c_str(), "2147483647x4"));
+    CHECK(contains(replayed.skips[0].c_str(), "absurd.raw: frame at byte"));
+    CHECK(contains(replayed.skips[0].c_str(), "2147483647x4"));
     CHECK(replayed.ended);
   }
   SECTION("a corrupt header mid-file: that frame skipped, the ones after it still read") {
@@ -313,7 +311,7 @@ TEST_CASE(".raw with a short last frame or absurd sizes", "[replay][bad]") {
     const Replayed replayed = replay_all(source);
     CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1, 3, 4});
     REQUIRE(replayed.skips.size() == 1);
-    CHECK(has(replayed.skips[0].c_str(), "middle.raw: frame at byte"));
+    CHECK(contains(replayed.skips[0].c_str(), "middle.raw: frame at byte"));
     CHECK(replayed.ended);
   }
   SECTION("garbage after two frames: each frame-sized slot counted as a skipped frame") {
@@ -342,21 +340,21 @@ TEST_CASE(".raw with a short last frame or absurd sizes", "[replay][bad]") {
     fx::write_text(path, first);
     ReplaySource source(config_for("raw:" + path));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "absurd RGB size"));
+    CHECK(contains(source.last_error(), "absurd RGB size"));
   }
   SECTION("zero-sized first frame") {
     const std::string path = dir + "/zero.raw";
     fx::write_text(path, std::string(16, '\0'));
     ReplaySource source(config_for("raw:" + path));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "zero.raw: frame at byte 0 has an empty depth image"));
+    CHECK(contains(source.last_error(), "zero.raw: frame at byte 0 has an empty depth image"));
   }
   SECTION("empty file") {
     const std::string path = dir + "/empty.raw";
     fx::write_text(path, "");
     ReplaySource source(config_for("raw:" + path));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "empty.raw: empty file"));
+    CHECK(contains(source.last_error(), "empty.raw: empty file"));
   }
 }
 
@@ -372,8 +370,8 @@ TEST_CASE("a 7-Scenes frame missing between others is skipped, not the end", "[r
   const Replayed replayed = replay_all(source);
   CHECK(replayed.frames == std::vector<std::uint64_t>{0, 1, 4, 5});
   REQUIRE(replayed.skips.size() == 2);
-  CHECK(has(replayed.skips[0].c_str(), dir + "/frame-000002.depth.png: cannot open"));
-  CHECK(has(replayed.skips[1].c_str(), dir + "/frame-000003.depth.png: cannot open"));
+  CHECK(contains(replayed.skips[0].c_str(), dir + "/frame-000002.depth.png: cannot open"));
+  CHECK(contains(replayed.skips[1].c_str(), dir + "/frame-000003.depth.png: cannot open"));
   CHECK(replayed.ended);
 }
 
@@ -385,20 +383,20 @@ TEST_CASE("timestamps too large for microseconds are refused", "[replay][bad]") 
     fx::write_text(tum.dir + "/depth.txt", "1.0 depth/a.png\n1e300 depth/b.png\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "depth.txt:2: timestamp 1e+300 s is outside [0, 1e+11] s"));
+    CHECK(contains(source.last_error(), "depth.txt:2: timestamp 1e+300 s is outside [0, 1e+11] s"));
   }
   SECTION("negative, in depth.txt") {
     const fx::TumFixture tum = fx::write_tum(parent, "negative");
     fx::write_text(tum.dir + "/depth.txt", "-5.0 depth/a.png\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "depth.txt:1: timestamp -5 s is outside"));
+    CHECK(contains(source.last_error(), "depth.txt:1: timestamp -5 s is outside"));
   }
   SECTION("in groundtruth.txt") {
     const fx::TumFixture tum = fx::write_tum(parent, "gthuge");
     fx::write_text(tum.dir + "/groundtruth.txt", "1e300 0 0 0 0 0 0 1\n");
     ReplaySource source(config_for("tum:" + tum.dir));
     CHECK(source.open() == StatusCode::data_loss);
-    CHECK(has(source.last_error(), "groundtruth.txt:1: timestamp 1e+300 s is outside"));
+    CHECK(contains(source.last_error(), "groundtruth.txt:1: timestamp 1e+300 s is outside"));
   }
 }

@@ -5,6 +5,7 @@
 
 #include "fixtures.hpp"
 #include "support/alloc_counter.hpp"
+#include "support/text.hpp"
 
 using octofuse::DepthFrame;
 using octofuse::FrameOutcome;
@@ -14,6 +15,7 @@ using octofuse::replay::DatasetFormat;
 using octofuse::replay::Pacing;
 using octofuse::replay::ReplayConfig;
 using octofuse::replay::ReplaySource;
+using octofuse::test::contains;
 namespace fx = octofuse::test;
 
 namespace {
@@ -25,10 +27,6 @@ ReplayConfig config_for(const std::string& spec) {
   octofuse::ErrorText error;
   REQUIRE(octofuse::replay::parse_replay_spec(spec.c_str(), &config, &error).ok());
   return config;
-}
-
-bool has(const char* text, const std::string& part) {
-  return std::string(text).find(part) != std::string::npos;
 }
 
 void require_pixels(const DepthFrame& frame, const std::vector<std::uint16_t>& expected, int width,
@@ -69,7 +67,7 @@ TEST_CASE("replay spec parsing", "[replay]") {
   CHECK(config.format == DatasetFormat::tum);
   CHECK(octofuse::replay::parse_replay_spec("kinect:x", &config, &error) ==
         StatusCode::invalid_argument);
-  CHECK(has(error.c_str(), "kinect:x"));
+  CHECK(contains(error.c_str(), "kinect:x"));
   CHECK(octofuse::replay::parse_replay_spec("tum:", &config, &error) ==
         StatusCode::invalid_argument);
   const std::string long_spec = "tum:" + std::string(600, 'a');

@@ -7,6 +7,7 @@
 
 #include "ports/v4l2/fake_v4l2_device.hpp"
 #include "support/alloc_counter.hpp"
+#include "support/text.hpp"
 
 namespace octofuse {
 namespace {
@@ -14,6 +15,7 @@ namespace {
 using ports::V4l2DepthFormat;
 using ports::V4l2Options;
 using ports::V4l2Source;
+using test::contains;
 using test::FakeV4l2Device;
 
 constexpr float kPixelTolerance_px = 1e-3f;
@@ -40,10 +42,6 @@ bool frame_matches(const DepthFrame& frame, std::uint64_t sequence) {
     }
   }
   return true;
-}
-
-bool contains(const char* text, const char* part) {
-  return std::strstr(text, part) != nullptr;
 }
 
 TEST_CASE("v4l2: negotiates Z16, maps a ring and delivers frames in driver order") {

@@ -7,6 +7,8 @@
 #include <random>
 #include <vector>
 
+#include "support/analytic_scene.hpp"
+
 namespace octofuse {
 namespace {
 
@@ -137,19 +139,6 @@ PinholeCamera small_camera(int width, int height) {
   return camera;
 }
 
-// Depth of the plane n . p = offset seen through each pixel of `camera`.
-std::vector<float> plane_depth(const PinholeCamera& camera, const Eigen::Vector3d& n,
-                               double offset_m) {
-  std::vector<float> depth(static_cast<std::size_t>(camera.width) * camera.height);
-  for (int y = 0; y < camera.height; ++y) {
-    for (int x = 0; x < camera.width; ++x) {
-      const Eigen::Vector3d ray((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0);
-      depth[y * camera.width + x] = static_cast<float>(offset_m / n.dot(ray));
-    }
-  }
-  return depth;
-}
-
 TEST_CASE("depth_to_vertices back-projects valid pixels and zeroes holes") {
   const PinholeCamera camera = small_camera(6, 4);
   std::vector<float> depth(24, 2.0f);
@@ -174,7 +163,9 @@ TEST_CASE("normals of a plane are exact and face the camera") {
   const PinholeCamera camera = small_camera(kW, kH);
   const Eigen::Vector3d n_C = Eigen::Vector3d(0.2, -0.3, -1.0).normalized();
   const double offset_m = n_C.dot(Eigen::Vector3d(0.0, 0.0, 2.0));
-  const std::vector<float> depth = plane_depth(camera, n_C, offset_m);
+  test::AnalyticScene plane;
+  plane.planes.push_back({n_C, offset_m});
+  const std::vector<float> depth = plane.render(camera, Se3d::Identity());
   std::vector<Eigen::Vector3f> vertices(kW * kH);
   std::vector<Eigen::Vector3f> normals(kW * kH, Eigen::Vector3f::Constant(9.0f));
   const WorkerTeam team(1);

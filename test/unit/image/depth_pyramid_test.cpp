@@ -9,7 +9,9 @@
 #include <random>
 #include <vector>
 
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -18,25 +20,19 @@ constexpr float kDepthTolerance_m = 1e-6f;
 constexpr float kVertexTolerance_m = 1e-5f;
 constexpr float kNormalTolerance = 1e-4f;
 
-PinholeCamera vga_camera() {
-  return PinholeCamera{525.0f, 525.0f, 319.5f, 239.5f, 640, 480};
-}
-
 // Owns a 64-byte aligned buffer of exactly the size ArenaSizer reports for the preprocessor.
 struct PreprocessorFixture {
-  explicit PreprocessorFixture(const PreprocessConfig& config, int width, int height) {
-    ArenaSizer sizer;
-    REQUIRE(pre.reserve(sizer, config, width, height).ok());
-    bytes = sizer.bytes_used();
-    storage.resize(bytes + kArenaAlignment);
-    void* aligned = reinterpret_cast<void*>(
-        align_up(reinterpret_cast<std::uintptr_t>(storage.data()), kArenaAlignment));
-    arena = LinearArena(aligned, bytes);
-    REQUIRE(pre.reserve(arena, config, width, height).ok());
+  explicit PreprocessorFixture(const PreprocessConfig& config, int width, int height)
+      : memory(bytes_for(config, width, height)), bytes(memory.bytes()) {
+    REQUIRE(pre.reserve(memory.arena(), config, width, height).ok());
   }
+  static std::size_t bytes_for(const PreprocessConfig& config, int width, int height) {
+    ArenaSizer sizer;
+    REQUIRE(DepthPreprocessor().reserve(sizer, config, width, height).ok());
+    return sizer.bytes_used();
+  }
+  test::ArenaBuffer memory;
   DepthPreprocessor pre;
-  std::vector<std::uint8_t> storage;
-  LinearArena arena;
   std::size_t bytes = 0;
 };
 
@@ -45,7 +41,7 @@ TEST_CASE("ArenaSizer gives the exact bytes the preprocessor takes") {
     PreprocessConfig config;
     config.bilateral = bilateral;
     PreprocessorFixture fixture(config, 640, 480);
-    CHECK(fixture.arena.bytes_used() == fixture.bytes);
+    CHECK(fixture.memory.arena().bytes_used() == fixture.bytes);
     CHECK(fixture.bytes >= 320u * 240u * (4u + 12u + 12u));
 
     // One byte short fails cleanly.
@@ -73,13 +69,13 @@ TEST_CASE("reserve and process reject bad configs, sizes and cameras") {
 
   std::vector<float> depth(640 * 480, 1.0f);
   const WorkerTeam team(1);
-  CHECK(pre.process(ImageView<const float>(depth.data(), 640, 480), vga_camera(), team) ==
+  CHECK(pre.process(ImageView<const float>(depth.data(), 640, 480), test::vga_camera(), team) ==
         StatusCode::failed_precondition);
 
   PreprocessorFixture fixture(PreprocessConfig{}, 640, 480);
-  CHECK(fixture.pre.process(ImageView<const float>(depth.data(), 320, 480), vga_camera(), team) ==
-        StatusCode::invalid_argument);
-  PinholeCamera bad = vga_camera();
+  CHECK(fixture.pre.process(ImageView<const float>(depth.data(), 320, 480), test::vga_camera(),
+                            team) == StatusCode::invalid_argument);
+  PinholeCamera bad = test::vga_camera();
   bad.fx = std::numeric_limits<float>::quiet_NaN();
   CHECK(fixture.pre.process(ImageView<const float>(depth.data(), 640, 480), bad, team) ==
         StatusCode::invalid_argument);
@@ -149,7 +145,8 @@ TEST_CASE("a fronto-parallel wall gives exact depth, vertices and normals at eve
     constexpr float kWall_m = 1.5f;
     std::vector<float> depth(640 * 480, kWall_m);
     const WorkerTeam team(1);
-    REQUIRE(fixture.pre.process(ImageView<const float>(depth.data(), 640, 480), vga_camera(), team)
+    REQUIRE(fixture.pre
+                .process(ImageView<const float>(depth.data(), 640, 480), test::vga_camera(), team)
                 .ok());
     const DepthPyramid& p = fixture.pre.pyramid();
     for (int level = 0; level < kPyramidLevels; ++level) {
@@ -190,7 +187,8 @@ TEST_CASE("invalid input pixels stay invalid through the pyramid") {
   PreprocessorFixture fixture(config, 640, 480);
   const WorkerTeam team(1);
   REQUIRE(
-      fixture.pre.process(ImageView<const float>(depth.data(), 640, 480), vga_camera(), team).ok());
+      fixture.pre.process(ImageView<const float>(depth.data(), 640, 480), test::vga_camera(), team)
+          .ok());
   const DepthPyramid& p = fixture.pre.pyramid();
   for (int level = 0; level < kPyramidLevels; ++level) {
     const int empty_columns = 128 >> level;
@@ -237,8 +235,8 @@ TEST_CASE("process is bit-identical for 1 and 2 workers and allocates nothing") 
   const ImageView<const float> input(depth.data(), 640, 480);
   {
     test::AllocationScope scope;
-    REQUIRE(one.pre.process(input, vga_camera(), team1).ok());
-    REQUIRE(two.pre.process(input, vga_camera(), team2).ok());
+    REQUIRE(one.pre.process(input, test::vga_camera(), team1).ok());
+    REQUIRE(two.pre.process(input, test::vga_camera(), team2).ok());
     CHECK(scope.allocations() == 0);
   }
   const DepthPyramid& a = one.pre.pyramid();
@@ -275,7 +273,8 @@ TEST_CASE("garbage depth (NaN, infinities, negatives, huge values) gives a clean
   config.bilateral = true;
   PreprocessorFixture fixture(config, 640, 480);
   REQUIRE(fixture.pre
-              .process(ImageView<const float>(depth.data(), 640, 480), vga_camera(), WorkerTeam(1))
+              .process(ImageView<const float>(depth.data(), 640, 480), test::vga_camera(),
+                       WorkerTeam(1))
               .ok());
   const DepthPyramid& p = fixture.pre.pyramid();
   for (int level = 0; level < kPyramidLevels; ++level) {

@@ -8,7 +8,7 @@
 #include <catch2/catch.hpp>
 
 #include "octofuse/map/keys.hpp"
-#include "unit/map/arena_buffer.hpp"
+#include "support/aligned_buffer.hpp"
 
 namespace octofuse {
 namespace {

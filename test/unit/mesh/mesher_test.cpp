@@ -13,8 +13,9 @@
 
 #include <Eigen/Geometry>
 
+#include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
-#include "unit/render/analytic_map.hpp"
+#include "support/analytic_map.hpp"
 
 namespace octofuse {
 namespace {
@@ -36,25 +37,27 @@ MapConfig test_map_config() {
 // A mesher and a buffer over their own memory.
 template <typename VoxelT>
 struct Meshing {
-  std::unique_ptr<std::uint8_t, void (*)(void*)> memory{nullptr, std::free};
+  test::ArenaBuffer memory;
   Mesher<VoxelT> mesher;
   MeshBuffer buffer;
 
   explicit Meshing(const MeshConfig& config = MeshConfig{}, std::size_t vertex_capacity = 400000,
-                   std::size_t triangle_capacity = 800000) {
+                   std::size_t triangle_capacity = 800000)
+      : memory(bytes_for(config, vertex_capacity, triangle_capacity)) {
     const std::size_t mesher_bytes = Mesher<VoxelT>::bytes_required(config);
     REQUIRE(mesher_bytes > 0);
-    ArenaSizer sizer;
-    REQUIRE(MeshBuffer::reserve(sizer, vertex_capacity, triangle_capacity).ok());
-    const std::size_t bytes =
-        align_up(mesher_bytes + sizer.bytes_used() + kArenaAlignment, kArenaAlignment);
-    memory.reset(static_cast<std::uint8_t*>(std::aligned_alloc(kArenaAlignment, bytes)));
-    LinearArena arena(memory.get(), bytes);
-    REQUIRE(mesher.reserve(arena, config).ok());
-    REQUIRE(arena.bytes_used() == mesher_bytes);
-    Result<MeshBuffer> b = MeshBuffer::reserve(arena, vertex_capacity, triangle_capacity);
+    REQUIRE(mesher.reserve(memory.arena(), config).ok());
+    REQUIRE(memory.arena().bytes_used() == mesher_bytes);
+    Result<MeshBuffer> b = MeshBuffer::reserve(memory.arena(), vertex_capacity, triangle_capacity);
     REQUIRE(b.ok());
     buffer = b.value();
+  }
+  static std::size_t bytes_for(const MeshConfig& config, std::size_t vertex_capacity,
+                               std::size_t triangle_capacity) {
+    ArenaSizer sizer;
+    REQUIRE(MeshBuffer::reserve(sizer, vertex_capacity, triangle_capacity).ok());
+    return align_up(Mesher<VoxelT>::bytes_required(config) + sizer.bytes_used() + kArenaAlignment,
+                    kArenaAlignment);
   }
 };
 

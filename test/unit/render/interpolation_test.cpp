@@ -3,7 +3,7 @@
 #include <catch2/catch.hpp>
 #include <cmath>
 
-#include "unit/render/analytic_map.hpp"
+#include "support/analytic_map.hpp"
 
 namespace octofuse {
 namespace {

@@ -13,6 +13,7 @@
 
 #include "octofuse/core/arena.hpp"
 #include "octofuse/map/octree.hpp"
+#include "support/aligned_buffer.hpp"
 
 namespace octofuse::test {
 
@@ -30,16 +31,11 @@ inline void set_voxel(MultiresVoxel& v, float tsdf, float weight) {
 // An octree with its own arena memory.
 template <typename VoxelT>
 struct OwnedMap {
-  std::unique_ptr<std::uint8_t, void (*)(void*)> memory{nullptr, std::free};
-  LinearArena arena;
+  ArenaBuffer memory;
   Octree<VoxelT> map;
 
-  explicit OwnedMap(const MapConfig& config) {
-    const std::size_t bytes = Octree<VoxelT>::bytes_required(config);
-    memory.reset(static_cast<std::uint8_t*>(
-        std::aligned_alloc(kArenaAlignment, align_up(bytes, kArenaAlignment))));
-    arena = LinearArena(memory.get(), bytes);
-    if (!map.reserve(arena, config).ok()) std::abort();
+  explicit OwnedMap(const MapConfig& config) : memory(Octree<VoxelT>::bytes_required(config)) {
+    if (!map.reserve(memory.arena(), config).ok()) std::abort();
   }
 };
 

@@ -16,7 +16,8 @@
 
 #include "octofuse/pipeline/pipeline.hpp"
 #include "support/aligned_buffer.hpp"
-#include "unit/fusion/analytic_scene.hpp"
+#include "support/analytic_scene.hpp"
+#include "support/camera.hpp"
 
 namespace octofuse {
 namespace {
@@ -59,16 +60,16 @@ AnalyticScene grazing_scene() {
 double exact_distance(const AnalyticScene& scene, const Eigen::Vector3d& p) {
   double best = std::numeric_limits<double>::infinity();
   for (const AnalyticScene::Plane& plane : scene.planes) {
-    best = std::min(best, plane.normal.dot(p) - plane.offset);
+    best = std::min(best, plane.normal.dot(p) - plane.offset_m);
   }
   for (const AnalyticScene::CylinderY& c : scene.cylinders) {
-    const double radial = std::hypot(p.x() - c.centre.x(), p.z() - c.centre.z()) - c.radius;
-    const double axial = std::max(c.y_min - p.y(), p.y() - c.y_max);
+    const double radial = std::hypot(p.x() - c.centre_W.x(), p.z() - c.centre_W.z()) - c.radius_m;
+    const double axial = std::max(c.y_min_m - p.y(), p.y() - c.y_max_m);
     best = std::min(best, std::hypot(std::max(radial, 0.0), std::max(axial, 0.0)) +
                               std::min(std::max(radial, axial), 0.0));
   }
   for (const AnalyticScene::Box& box : scene.boxes) {
-    const Eigen::Vector3d q = (box.R.transpose() * (p - box.centre)).cwiseAbs() - box.half;
+    const Eigen::Vector3d q = (box.R_W_B.transpose() * (p - box.centre_W)).cwiseAbs() - box.half_m;
     const double outside = q.cwiseMax(0.0).norm();
     const double inside = std::min(q.maxCoeff(), 0.0);
     best = std::min(best, outside + inside);
@@ -77,7 +78,7 @@ double exact_distance(const AnalyticScene& scene, const Eigen::Vector3d& p) {
 }
 
 PinholeCamera input_camera() {
-  return test::test_camera(kWidth, kHeight, 262.5f);
+  return test::centred_camera(kWidth, kHeight, 262.5f);
 }
 
 struct Violations {
@@ -163,8 +164,8 @@ TEST_CASE("free distances stay lower bounds beside grazing surfaces and thin bar
   check_box(query, scene, Eigen::Vector3d(-0.8, -0.45, 2.7), Eigen::Vector3d(0.6, 0.1, 3.6), 0.01,
             &v);
   for (const AnalyticScene::Box& box : scene.boxes) {
-    check_box(query, scene, box.centre - Eigen::Vector3d::Constant(0.45),
-              box.centre + Eigen::Vector3d::Constant(0.45), 0.01, &v);
+    check_box(query, scene, box.centre_W - Eigen::Vector3d::Constant(0.45),
+              box.centre_W + Eigen::Vector3d::Constant(0.45), 0.01, &v);
   }
   INFO("points " << v.checked << ", free " << v.free_points << ", over the bound " << v.over);
   // Free inside or within a voxel of a bar that the last frames missed: a state no distance

@@ -13,7 +13,7 @@
 
 #include <catch2/catch.hpp>
 
-#include "octofuse/map/mip.hpp"
+#include "octofuse/map/detail/mip.hpp"
 #include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
 #include "support/analytic_scene.hpp"

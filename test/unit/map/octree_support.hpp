@@ -10,7 +10,7 @@
 
 #include <catch2/catch.hpp>
 
-#include "octofuse/map/mip.hpp"
+#include "octofuse/map/detail/mip.hpp"
 #include "support/aligned_buffer.hpp"
 #include "support/alloc_counter.hpp"
 

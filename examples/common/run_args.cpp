@@ -129,7 +129,7 @@ const RunOption kRunOptions[] = {
     {"band-behind", "F",
      "voxels are updated up to F * mu behind the surface, F in (0, 1]\n"
      "(default 1; shorter keeps thin objects and the surfaces behind\n"
-     "them apart, see the README)",
+     "them apart, see docs/results.md)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 0.01, 1.0, &o.band_behind_mu, " needs a share of mu in [0.01, 1]");
      },

@@ -1,5 +1,5 @@
 #pragma once
-// The command line shared by octofuse-replay and octofuse-live (options listed in the README),
+// The command line shared by octofuse-replay and octofuse-live (options listed in docs/replay.md),
 // and the configuration files that spell the same options (see config_file.hpp).
 
 #include <string>

@@ -21,15 +21,6 @@
 namespace octofuse::examples::detail {
 namespace {
 
-int voxel_depth_for(float map_size_m, float voxel_size_m) {
-  int depth = kMinVoxelDepth;
-  while (depth < kMaxVoxelDepth &&
-         voxel_size_m * static_cast<float>(1 << depth) < map_size_m * 0.999f) {
-    ++depth;
-  }
-  return depth;
-}
-
 // Whether --odometry names the simulated odometry rather than a file.
 bool odometry_is_sim(const RunOptions& options) {
   return options.odometry == "sim" || options.odometry.rfind("sim:", 0) == 0;

@@ -15,6 +15,15 @@ MapConfig MapConfig::centred(const Eigen::Vector3f& centre_W, float voxel_size_m
   return config;
 }
 
+int voxel_depth_for(float map_size_m, float voxel_size_m) {
+  int depth = kMinVoxelDepth;
+  while (depth < kMaxVoxelDepth &&
+         voxel_size_m * static_cast<float>(1 << depth) < map_size_m * 0.999f) {
+    ++depth;
+  }
+  return depth;
+}
+
 Status validate(const MapConfig& config) {
   if (!(config.voxel_size_m >= kMinVoxelSize_m) || !(config.voxel_size_m <= kMaxVoxelSize_m)) {
     return StatusCode::invalid_argument;  // also NaN

@@ -7,16 +7,6 @@
 namespace octofuse {
 namespace {
 
-// 2^d voxels per side, the least d whose cube covers map_size_m (within 0.1 %).
-int voxel_depth_for(float map_size_m, float voxel_size_m) {
-  int depth = kMinVoxelDepth;
-  while (depth < kMaxVoxelDepth &&
-         voxel_size_m * static_cast<float>(1 << depth) < map_size_m * 0.999f) {
-    ++depth;
-  }
-  return depth;
-}
-
 MeshConfig mesh_config(std::uint32_t vertex_capacity) {
   MeshConfig config;
   config.vertex_capacity = vertex_capacity;

@@ -10,6 +10,15 @@
 namespace octofuse {
 namespace {
 
+TEST_CASE("voxel_depth_for: the least cube of 2^d voxels that covers the map", "[map][config]") {
+  CHECK(voxel_depth_for(8.0f, 0.01f) == 10);   // 1024 voxels, 10.24 m
+  CHECK(voxel_depth_for(5.12f, 0.02f) == 8);   // exactly 256 voxels
+  CHECK(voxel_depth_for(5.125f, 0.02f) == 8);  // within 0.1 % still fits
+  CHECK(voxel_depth_for(5.2f, 0.02f) == 9);    // beyond it takes the next depth
+  CHECK(voxel_depth_for(0.01f, 0.01f) == kMinVoxelDepth);
+  CHECK(voxel_depth_for(1e9f, 0.001f) == kMaxVoxelDepth);
+}
+
 TEST_CASE("bytes_required is exact", "[map][octree]") {
   for (const MapConfig& config : {small_config(), small_config(1000, 3000)}) {
     const std::size_t need = Octree<MultiresVoxel>::bytes_required(config);

@@ -57,4 +57,8 @@ struct MapConfig {
 // block or finest capacity above 2^30).
 Status validate(const MapConfig& config);
 
+// The least voxel depth d (kMinVoxelDepth..kMaxVoxelDepth) whose cube of 2^d voxels of
+// voxel_size_m covers map_size_m (within 0.1 %).
+int voxel_depth_for(float map_size_m, float voxel_size_m);
+
 }  // namespace octofuse

@@ -730,6 +730,12 @@ typename Pipeline<VoxelT>::FrameProgress Pipeline<VoxelT>::start_frame(const Dep
   stats.deadline = deadline_.plan();
   progress.icp_budget = config_.budget.icp_iterations;
   if (deadline_.active()) apply_deadline(stats.deadline);
+  // Without a reference view (the first frame, after reset()) the frame fuses and casts whatever
+  // the plan says: a later frame has nothing to track against otherwise.
+  if (!have_reference_) {
+    stats.deadline.fusion_skipped = false;
+    stats.deadline.raycast_skipped = false;
+  }
   if (stats.deadline.planned) progress.icp_budget = stats.deadline.icp_iterations;
   progress.t_start = clock_.now();
   own_error_ = false;
@@ -1040,13 +1046,17 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
   current_.times.track_ms = elapsed_ms(progress.t_last, t_tracked);
   progress.t_last = t_tracked;
 
-  // 4. Integrate, and carve free space.
-  const Status integration_status = fuse_frame(progress);
+  // 4. Integrate, and carve free space (not on a frame the deadline gave them up on).
+  Status integration_status = ok_status();
+  if (!current_.deadline.fusion_skipped) integration_status = fuse_frame(progress);
   if (!integration_status.ok() && integration_status.code() != StatusCode::resource_exhausted) {
     return finish_frame(progress, progress.result, integration_status, stats_out);
   }
 
-  // 5. Ray-cast the reference view for the next frame.
+  // 5. Ray-cast the reference view for the next frame (or track it against the last one).
+  if (current_.deadline.raycast_skipped) {
+    return finish_frame(progress, progress.result, integration_status, stats_out);
+  }
   const Status cast = cast_reference_view(progress);
   if (!cast.ok()) return finish_frame(progress, progress.result, cast, stats_out);
   return finish_frame(progress, progress.result, integration_status, stats_out);

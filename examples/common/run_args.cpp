@@ -827,6 +827,11 @@ void print_run_summary(const RunOptions& options, const RunSummary& summary) {
                 summary.frames.size(),
                 100.0 * static_cast<double>(summary.frames_over_deadline) /
                     static_cast<double>(summary.frames.size()));
+    if (summary.frames_fusion_skipped > 0) {
+      std::printf("deadline: %llu frames not fused, %llu of them tracked only\n",
+                  static_cast<unsigned long long>(summary.frames_fusion_skipped),
+                  static_cast<unsigned long long>(summary.frames_track_only));
+    }
   }
   if (summary.map_loaded) {
     std::printf("loaded %s: %u blocks, %u free-space nodes in %.3f s\n",

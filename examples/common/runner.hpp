@@ -139,6 +139,8 @@ struct RunSummary {
   // and the frames whose process() time exceeded the deadline.
   CostModel deadline_model;
   std::uint64_t frames_over_deadline = 0;
+  std::uint64_t frames_fusion_skipped = 0;  // the deadline's depth not fused (incl. track-only)
+  std::uint64_t frames_track_only = 0;      // neither fused nor cast
   bool deadline_calibration_loaded = false;
 };
 

@@ -339,6 +339,10 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
     }
     consecutive_failures = 0;
     if (stats.deadline.over) ++summary->frames_over_deadline;
+    if (stats.deadline.fusion_skipped) ++summary->frames_fusion_skipped;
+    if (stats.deadline.fusion_skipped && stats.deadline.raycast_skipped) {
+      ++summary->frames_track_only;
+    }
     if (stats.result == FrameResult::lost) ++summary->frames_lost;
     if (stats.result == FrameResult::nearly_empty) ++summary->frames_nearly_empty;
     if (stats.pose_origin == PoseOrigin::prior_gate) ++summary->frames_prior_gate;

@@ -108,6 +108,8 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
     json.key("blocks_skipped")
         .value(static_cast<std::uint64_t>(s.integration.budget_blocks_skipped));
     json.key("raycast_pixels_cut").value(static_cast<std::uint64_t>(s.raycast.budget_cut_pixels));
+    json.key("fusion_skipped").value(d.fusion_skipped);
+    json.key("raycast_skipped").value(d.raycast_skipped);
     json.end_object();
   }
   json.end_object();
@@ -250,6 +252,8 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
     json.key("frozen").value(options.deadline_freeze);
     json.key("calibration_loaded").value(summary->deadline_calibration_loaded);
     json.key("frames_over").value(summary->frames_over_deadline);
+    json.key("frames_fusion_skipped").value(summary->frames_fusion_skipped);
+    json.key("frames_track_only").value(summary->frames_track_only);
     json.key("share_over")
         .value(summary->frames_processed > 0 ? static_cast<double>(summary->frames_over_deadline) /
                                                    static_cast<double>(summary->frames_processed)

@@ -38,6 +38,10 @@ constexpr double kHalfResolutionShare = 0.5;
 constexpr double kAllocationHalfShare = 0.4;
 // And where the voxel updates must fall below their first floor.
 constexpr double kVoxelDeepShare = 0.3;
+// Where even the floors do not fit: frames take turns fusing and casting.
+constexpr double kAlternateShare = 0.4;
+// And where ICP alone at its floors is about all that fits.
+constexpr double kTrackOnlyShare = 0.1;
 
 PipelineConfig small_config(const sim::SimSource& source, int workers) {
   const Se3d T_W_C0 = source.ground_truth_T_W_C(0);
@@ -190,6 +194,13 @@ PipelineConfig frozen_config(const sim::SimSource& source, double deadline_ms) {
   return config;
 }
 
+// The ladder down to its floors alone, without the last steps (fusion in turns, tracking only).
+PipelineConfig floors_only(PipelineConfig config) {
+  config.deadline.fuse_alternate = false;
+  config.deadline.track_only = false;
+  return config;
+}
+
 TEST_CASE("derived budgets keep the modelled frame time within the deadline, in order") {
   sim::SimSource probe(small_sim(kSimFrames));
   REQUIRE(probe.open().ok());
@@ -204,7 +215,7 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
   const Run limited = run(config, ClockKind::model);
   REQUIRE(limited.allocations == 0);
   int planned = 0, cut = 0, over_without = 0, lost = 0, infeasible = 0;
-  int steps_cut[8] = {};
+  int steps_cut[10] = {};
   for (std::size_t i = 0; i < limited.stats.size(); ++i) {
     CAPTURE(i);
     const FrameStats& s = limited.stats[i];
@@ -222,7 +233,7 @@ TEST_CASE("derived budgets keep the modelled frame time within the deadline, in 
     REQUIRE(s.times.total_ms <= d.predicted_ms + 1e-3);
     if (d.infeasible) {
       ++infeasible;
-      REQUIRE(d.deepest == DeadlineStep::voxel_updates_deep);
+      REQUIRE(static_cast<int>(d.deepest) >= static_cast<int>(DeadlineStep::voxel_updates_deep));
       REQUIRE(d.free_space_visits == 1);
     } else {
       REQUIRE(s.times.total_ms <= deadline_ms);
@@ -347,7 +358,7 @@ TEST_CASE(
   const Run unbounded = run(small_config(probe, 1), ClockKind::model);
   // Tighter than above: ICP and the voxel updates at their floors do not fit.
   const double deadline_ms = kHalfResolutionShare * deadline_for(unbounded);
-  const PipelineConfig config = frozen_config(probe, deadline_ms);
+  const PipelineConfig config = floors_only(frozen_config(probe, deadline_ms));
   const Run a = run(config, ClockKind::model);
   int half = 0;
   for (std::size_t i = 1; i < a.stats.size(); ++i) {
@@ -397,7 +408,7 @@ TEST_CASE("deeper still, allocation marches every other pixel's ray, determinist
   REQUIRE(probe.open().ok());
   const Run unbounded = run(small_config(probe, 1), ClockKind::model);
   const double deadline_ms = kAllocationHalfShare * deadline_for(unbounded);
-  const PipelineConfig config = frozen_config(probe, deadline_ms);
+  const PipelineConfig config = floors_only(frozen_config(probe, deadline_ms));
   const Run a = run(config, ClockKind::model);
   int halved = 0;
   for (std::size_t i = 1; i < a.stats.size(); ++i) {
@@ -437,7 +448,7 @@ TEST_CASE("deepest, voxel updates fall to their deeper floor, deterministically"
   REQUIRE(probe.open().ok());
   const Run unbounded = run(small_config(probe, 1), ClockKind::model);
   const double deadline_ms = kVoxelDeepShare * deadline_for(unbounded);
-  const PipelineConfig config = frozen_config(probe, deadline_ms);
+  const PipelineConfig config = floors_only(frozen_config(probe, deadline_ms));
   const Run a = run(config, ClockKind::model);
   int deep = 0;
   for (std::size_t i = 1; i < a.stats.size(); ++i) {
@@ -461,6 +472,134 @@ TEST_CASE("deepest, voxel updates fall to their deeper floor, deterministically"
   PipelineConfig three = config;
   three.workers = 3;
   REQUIRE(same_bits(a, run(three, ClockKind::steady)));
+}
+
+// The largest distance between a run's camera positions and the ground truth's.
+double max_position_error_m(const Run& r, const sim::SimSource& source) {
+  double worst = 0.0;
+  for (std::size_t i = 0; i < r.poses.size(); ++i) {
+    const Se3d truth = source.ground_truth_T_W_C(static_cast<int>(i));
+    worst = std::max(worst, (r.poses[i].translation() - truth.translation()).norm());
+  }
+  return worst;
+}
+
+TEST_CASE("below every floor, frames take turns fusing and casting and track every frame") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  const double deadline_ms = kAlternateShare * deadline_for(unbounded);
+  const PipelineConfig config = frozen_config(probe, deadline_ms);
+  // Not vacuous: at this deadline the floors alone do not fit.
+  const Run floors = run(floors_only(config), ClockKind::model);
+  int floors_infeasible = 0;
+  for (const FrameStats& s : floors.stats) floors_infeasible += s.deadline.infeasible ? 1 : 0;
+  REQUIRE(floors_infeasible > kFrames / 2);
+
+  const Run a = run(config, ClockKind::model);
+  REQUIRE(a.allocations == 0);
+  int fused = 0, cast = 0, infeasible = 0, tracked_only = 0;
+  bool last_fused_only = false;  // the previous frame fused and did not cast
+  for (std::size_t i = 1; i < a.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = a.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(d.planned);
+    REQUIRE(s.track_attempted);  // every frame tracks
+    REQUIRE(s.result == FrameResult::tracked);
+    // Each frame says what it gave up, and gave up just that.
+    REQUIRE((s.integration.blocks_touched == 0) == d.fusion_skipped);
+    REQUIRE((s.free_space.node_visits == 0) == d.fusion_skipped);
+    REQUIRE((s.raycast.steps == 0) == d.raycast_skipped);
+    // The model is the machine: a plan that fits keeps the frame within D.
+    REQUIRE(s.times.total_ms <= d.predicted_ms + 1e-3);
+    if (d.infeasible) {
+      ++infeasible;
+    } else {
+      REQUIRE(s.times.total_ms <= deadline_ms);
+    }
+    if (d.deepest == DeadlineStep::track_only) {
+      REQUIRE(d.fusion_skipped);  // both given up; the turn stays
+      REQUIRE(d.raycast_skipped);
+      ++tracked_only;
+      continue;
+    }
+    if (d.deepest != DeadlineStep::fuse_alternate) {
+      REQUIRE_FALSE(d.fusion_skipped);
+      REQUIRE_FALSE(d.raycast_skipped);
+      last_fused_only = false;
+      continue;
+    }
+    // One of the two, in turns: a frame casts after one that fused without casting.
+    REQUIRE(d.fusion_skipped != d.raycast_skipped);
+    REQUIRE(d.fusion_skipped == last_fused_only);
+    last_fused_only = !d.fusion_skipped;
+    (d.fusion_skipped ? cast : fused) += 1;
+  }
+  INFO("deadline " << deadline_ms << " ms: " << fused << " fusing turns, " << cast
+                   << " casting turns, " << tracked_only << " track-only, " << infeasible
+                   << " over D by plan");
+  // Every frame below the floors; the turns alternate; only a frame the track-only cap let
+  // through may be over D.
+  REQUIRE(fused + cast + tracked_only == kFrames - 1);
+  REQUIRE(fused > kFrames / 4);
+  REQUIRE(std::abs(fused - cast) <= 1);
+  REQUIRE(infeasible * (config.deadline.max_track_only_frames + 1) <= kFrames);
+  // Half the depth fused still tracks about as well (2 cm voxels).
+  const double error_m = max_position_error_m(a, probe);
+  INFO("largest position error " << error_m << " m, without a deadline "
+                                 << max_position_error_m(unbounded, probe) << " m");
+  CHECK(error_m < 0.02);
+  // Frozen: the turns are the same for 3 workers and any clock.
+  PipelineConfig three = config;
+  three.workers = 3;
+  const Run b = run(three, ClockKind::steady);
+  REQUIRE(same_bits(a, b));
+  for (std::size_t i = 0; i < a.stats.size(); ++i) {
+    REQUIRE(a.stats[i].deadline.fusion_skipped == b.stats[i].deadline.fusion_skipped);
+    REQUIRE(a.stats[i].deadline.raycast_skipped == b.stats[i].deadline.raycast_skipped);
+  }
+}
+
+TEST_CASE("when neither turn fits, frames only track, never more than the cap in a row") {
+  sim::SimSource probe(small_sim(kSimFrames));
+  REQUIRE(probe.open().ok());
+  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  const double deadline_ms = kTrackOnlyShare * deadline_for(unbounded);
+  const PipelineConfig config = frozen_config(probe, deadline_ms);
+  const int cap = config.deadline.max_track_only_frames;
+  REQUIRE(cap > 0);
+  const Run a = run(config, ClockKind::model);
+  REQUIRE(a.allocations == 0);
+  int track_only = 0, run_length = 0, turns = 0;
+  for (std::size_t i = 1; i < a.stats.size(); ++i) {
+    CAPTURE(i);
+    const FrameStats& s = a.stats[i];
+    const DeadlineReport& d = s.deadline;
+    REQUIRE(s.track_attempted);
+    if (d.deepest == DeadlineStep::track_only) {
+      REQUIRE(d.fusion_skipped);
+      REQUIRE(d.raycast_skipped);
+      REQUIRE(s.integration.blocks_touched == 0);
+      REQUIRE(s.free_space.node_visits == 0);
+      REQUIRE(s.raycast.steps == 0);
+      REQUIRE(++run_length <= cap);
+      ++track_only;
+      if (!d.infeasible) REQUIRE(s.times.total_ms <= deadline_ms);
+      continue;
+    }
+    // The frame after the cap fuses or casts, over D if it must.
+    if (run_length == cap) REQUIRE(d.deepest == DeadlineStep::fuse_alternate);
+    if (d.deepest == DeadlineStep::fuse_alternate) ++turns;
+    run_length = 0;
+  }
+  INFO("deadline " << deadline_ms << " ms: " << track_only << " track-only frames, " << turns
+                   << " turns of fusing or casting");
+  REQUIRE(track_only > kFrames / 2);
+  REQUIRE(turns > 0);
+  PipelineConfig three = config;
+  three.workers = 3;
+  REQUIRE(same_bits(a, run(three, ClockKind::none)));
 }
 
 TEST_CASE("a deadline of 0, or one every frame fits in, is today's pipeline bit for bit") {

@@ -94,6 +94,38 @@ TEST_CASE("external_prior with a drifting odometry beats the odometry alone and 
   REQUIRE(by_icp == r.stats.size() - 1);  // the noise stays well inside the gate
 }
 
+TEST_CASE("a prior is never much worse than ICP alone, whatever noise it states") {
+  // 2 mm and 1.75 mrad of white noise per pose (2.8 mm and 2.5 mrad on one frame's motion),
+  // stated too low (the default 1.5 / 1.5), right and too high, and 5 %/m of drift, so that the
+  // odometry alone is clearly worse than ICP on this coarse (2 cm) map.
+  constexpr int kFrames = 120;
+  sim::SimSource probe(small_sim(300));
+  REQUIRE(probe.open().ok());
+  const Run icp = run(kFrames, small_config(probe, PoseSource::track), nullptr, nullptr, 300);
+  REQUIRE(icp.frames_lost == 0);
+  const double icp_rms_m = rms_position_error(icp.poses, icp.truth);
+  const double stated[3][2] = {{0.0015, 0.0015}, {0.0028, 0.0025}, {0.01, 0.01}};
+  for (const auto& noise : stated) {
+    CAPTURE(noise[0], noise[1]);
+    sim::OdometryDriftConfig drift_config;
+    drift_config.drift_per_m = 0.05;
+    drift_config.drift_rad_per_m = 0.02;
+    drift_config.noise_m = 0.002;
+    drift_config.noise_rad = 0.00175;
+    Drift drift{sim::DriftingOdometry(drift_config), Se3d::Identity()};
+    PipelineConfig config = small_config(probe, PoseSource::external_prior);
+    config.prior_noise_m = noise[0];
+    config.prior_noise_rad = noise[1];
+    const Run r = run(kFrames, config, &drifting_prior, &drift, 300);
+    const double fused_rms_m = rms_position_error(r.poses, r.truth);
+    const double odometry_rms_m = rms_position_error(r.priors, r.truth);
+    CAPTURE(icp_rms_m, fused_rms_m, odometry_rms_m);
+    REQUIRE(r.frames_lost == 0);
+    REQUIRE(odometry_rms_m > 2.0 * icp_rms_m);  // the odometry alone is far worse
+    CHECK(fused_rms_m <= 1.05 * icp_rms_m);     // a few percent: 3.3 % stated too low
+  }
+}
+
 TEST_CASE("external_prior: a corrupted prior trips the gate and the frame says so") {
   sim::SimSource probe(small_sim(300));
   REQUIRE(probe.open().ok());

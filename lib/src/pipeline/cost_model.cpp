@@ -86,6 +86,10 @@ Status validate(const DeadlineConfig& config, ErrorText* error) {
     err.set("deadline demand_growth must be in [1, 4]");
     return StatusCode::invalid_argument;
   }
+  if (config.max_track_only_frames < 0 || config.max_track_only_frames > 1000) {
+    err.set("deadline max_track_only_frames must be in [0, 1000]");
+    return StatusCode::invalid_argument;
+  }
   return ok_status();
 }
 
@@ -107,6 +111,10 @@ const char* deadline_step_name(DeadlineStep step) {
       return "free_space";
     case DeadlineStep::voxel_updates_deep:
       return "voxel_updates_deep";
+    case DeadlineStep::fuse_alternate:
+      return "fuse_alternate";
+    case DeadlineStep::track_only:
+      return "track_only";
   }
   return "unknown";
 }
@@ -130,6 +138,8 @@ void DeadlineController::reset(const DeadlineConfig& config,
   voxel_demand_ = 0.0;
   raycast_demand_ = 0.0;
   free_space_demand_ = 0.0;
+  map_ahead_of_cast_ = false;
+  track_only_run_ = 0;
 }
 
 double DeadlineController::icp_units(const int iterations[kPyramidLevels]) const {
@@ -141,6 +151,27 @@ double DeadlineController::icp_units(const int iterations[kPyramidLevels]) const
 }
 
 DeadlineReport DeadlineController::plan() const {
+  DeadlineReport r = plan_stages(true, true);
+  if (!r.infeasible || !config_.fuse_alternate) return r;
+  // (8) Frames take turns: the one after a frame that fused casts the reference from its own
+  // pose; the others fuse. Each runs the ladder again over its own stages.
+  const bool cast_turn = map_ahead_of_cast_;
+  DeadlineReport half = plan_stages(!cast_turn, cast_turn);
+  half.fusion_skipped = cast_turn;
+  half.raycast_skipped = !cast_turn;
+  half.deepest = DeadlineStep::fuse_alternate;
+  if (!half.infeasible || !config_.track_only || track_only_run_ >= config_.max_track_only_frames) {
+    return half;
+  }
+  // (9) Track only; the turn is kept for the next frame.
+  DeadlineReport track = plan_stages(false, false);
+  track.fusion_skipped = true;
+  track.raycast_skipped = true;
+  track.deepest = DeadlineStep::track_only;
+  return track;
+}
+
+DeadlineReport DeadlineController::plan_stages(bool fuse, bool cast) const {
   DeadlineReport r;
   r.active = active();
   r.deadline_ms = config_.deadline_ms;
@@ -157,14 +188,17 @@ DeadlineReport DeadlineController::plan() const {
   const double voxels_full = voxels;
   double steps = std::max(raycast_demand_ * growth, level_pixels_[0]);
   double visits = free_space_used_ ? std::max(free_space_demand_ * growth, kMinVisitDemand) : 0.0;
+  const bool carve = fuse && free_space_used_;
+  // A stage the frame skips costs nothing and is cut nothing.
   const double icp_rate = icp_used_ ? model_.icp.ms_per_munit * 1e-6 : 0.0;
-  const double voxel_rate = model_.integrate.ms_per_munit * 1e-6;
-  const double step_rate = model_.raycast.ms_per_munit * 1e-6;
-  const double visit_rate = free_space_used_ ? model_.free_space.ms_per_munit * 1e-6 : 0.0;
+  const double voxel_rate = fuse ? model_.integrate.ms_per_munit * 1e-6 : 0.0;
+  const double step_rate = cast ? model_.raycast.ms_per_munit * 1e-6 : 0.0;
+  const double visit_rate = carve ? model_.free_space.ms_per_munit * 1e-6 : 0.0;
   // What every frame pays whatever its budgets.
   double fixed_ms = model_.fixed_ms + (icp_used_ ? model_.icp.fixed_ms : 0.0) +
-                    model_.integrate.fixed_ms + model_.raycast.fixed_ms +
-                    (free_space_used_ ? model_.free_space.fixed_ms : 0.0);
+                    (fuse ? model_.integrate.fixed_ms : 0.0) +
+                    (cast ? model_.raycast.fixed_ms : 0.0) +
+                    (carve ? model_.free_space.fixed_ms : 0.0);
   auto stages_ms = [&](const int iterations[kPyramidLevels], double v, double s, double f) {
     return icp_rate * icp_units(iterations) + voxel_rate * v + step_rate * s + visit_rate * f;
   };
@@ -204,7 +238,7 @@ DeadlineReport DeadlineController::plan() const {
     r.deepest = DeadlineStep::raycast_half;
   }
   // Allocation at every other pixel: its march, the integration's fixed part, at that share.
-  if (over_ms > kNegligible_ms && config_.allocation_half) {
+  if (over_ms > kNegligible_ms && config_.allocation_half && fuse) {
     const double saved_ms = model_.integrate.fixed_ms * (1.0 - half_pixels_ / level_pixels_[0]);
     over_ms -= saved_ms;
     fixed_ms -= saved_ms;
@@ -212,7 +246,7 @@ DeadlineReport DeadlineController::plan() const {
     r.deepest = DeadlineStep::allocation_half;
   }
   cut(steps, config_.min_raycast_fraction, step_rate, DeadlineStep::raycast);
-  if (free_space_used_) {
+  if (carve) {
     cut(visits, config_.min_free_space_fraction, visit_rate, DeadlineStep::free_space);
   }
   // Voxel updates once more, to the deeper floor (a fraction of the demand, as the first).
@@ -273,6 +307,13 @@ void DeadlineController::learn(Regression& f, StageCost& cost, double units, dou
 
 void DeadlineController::observe(const FrameObservation& frame, const DeadlineReport& plan) {
   if (!active()) return;
+  // The turns of (8) follow what ran, (9)'s run length what was planned.
+  if (frame.raycast.ran) {
+    map_ahead_of_cast_ = false;
+  } else if (frame.integrate.ran) {
+    map_ahead_of_cast_ = true;
+  }
+  track_only_run_ = plan.fusion_skipped && plan.raycast_skipped ? track_only_run_ + 1 : 0;
   auto demand = [](double& estimate, const StageObservation& stage) {
     if (!stage.ran) return;
     estimate = stage.budget_hit
@@ -296,7 +337,9 @@ void DeadlineController::observe(const FrameObservation& frame, const DeadlineRe
   if (frame.free_space.ran) {
     learn(free_space_fit_, model_.free_space, frame.free_space.units, frame.free_space.ms);
   }
-  if (frame.integrate.ran && frame.raycast.ran) {
+  // The rest of a frame that ran to its end (a fusing or a casting turn, or one that tracked only).
+  const bool tracked_only = plan.fusion_skipped && plan.raycast_skipped && frame.icp.ran;
+  if (frame.integrate.ran || frame.raycast.ran || tracked_only) {
     const double rest_ms =
         frame.total_ms - frame.icp.ms - frame.integrate.ms - frame.raycast.ms - frame.free_space.ms;
     if (std::isfinite(rest_ms)) {

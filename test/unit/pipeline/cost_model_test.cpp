@@ -7,6 +7,7 @@
 #include <catch2/catch.hpp>
 #include <cmath>
 #include <limits>
+#include <string>
 
 namespace octofuse {
 namespace {
@@ -55,9 +56,14 @@ FrameObservation demand_frame() {
   return o;
 }
 
-DeadlineReport plan_for(double deadline_ms) {
+// The frame after demand_frame(); `last_steps`: false keeps the ladder at its floors (no turns of
+// fusion and casting, no track-only frames).
+DeadlineReport plan_for(double deadline_ms, bool last_steps = false) {
   DeadlineController controller;
-  controller.reset(hand_config(deadline_ms), kIcp, kSide, kSide, true, true);
+  DeadlineConfig config = hand_config(deadline_ms);
+  config.fuse_alternate = last_steps;
+  config.track_only = last_steps;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
   controller.observe(demand_frame(), controller.plan());
   return controller.plan();
 }
@@ -183,6 +189,7 @@ TEST_CASE("below the floors the plan says infeasible and keeps the floors") {
   const DeadlineReport r = plan_for(5.0);
   REQUIRE(r.planned);
   CHECK(r.infeasible);
+  CHECK_FALSE(r.fusion_skipped);
   CHECK(r.deepest == DeadlineStep::voxel_updates_deep);
   CHECK(r.max_voxel_updates == 125000);  // an eighth of the demand
   CHECK(r.raycast_half);
@@ -197,8 +204,18 @@ TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
   int previous = 0;
   for (double deadline_ms = 40.0; deadline_ms > 1.0; deadline_ms -= 0.25) {
     CAPTURE(deadline_ms);
-    const DeadlineReport r = plan_for(deadline_ms);
+    const DeadlineReport r = plan_for(deadline_ms, true);
     const int step = static_cast<int>(r.deepest);
+    if (step >= static_cast<int>(DeadlineStep::fuse_alternate)) {
+      // Below every floor: first a turn of fusing, then tracking alone.
+      REQUIRE(step >= previous);
+      previous = step;
+      CHECK(r.raycast_skipped);
+      CHECK(r.fusion_skipped == (r.deepest == DeadlineStep::track_only));
+      CHECK(plan_for(deadline_ms, false).infeasible);
+      if (!r.infeasible) CHECK(r.predicted_ms <= deadline_ms + kTolerance_ms);
+      continue;
+    }
     REQUIRE(step >= previous);
     previous = step;
     // A step is cut only when every earlier one is at its floor.
@@ -221,7 +238,103 @@ TEST_CASE("as the deadline shrinks the steps are cut in the documented order") {
     if (step > static_cast<int>(DeadlineStep::raycast)) CHECK(r.raycast_steps == 12500);
     if (!r.infeasible) CHECK(r.predicted_ms <= deadline_ms + kTolerance_ms);
   }
-  CHECK(previous == static_cast<int>(DeadlineStep::voxel_updates_deep));
+  CHECK(previous == static_cast<int>(DeadlineStep::track_only));
+}
+
+// A frame that ran what `plan` said, each stage at its demand_frame() units within its budget.
+FrameObservation frame_as_planned(const DeadlineReport& plan) {
+  FrameObservation o = demand_frame();
+  if (plan.fusion_skipped) o.integrate = o.free_space = StageObservation{};
+  if (plan.raycast_skipped) o.raycast = StageObservation{};
+  o.total_ms = plan.predicted_ms;
+  return o;
+}
+
+TEST_CASE("below the floors, frames take turns fusing and casting, each ladder over its stages") {
+  DeadlineController controller;
+  controller.reset(hand_config(5.0), kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  // The floors need 5.0627 ms (above). The frame after one that cast fuses: fixed 1.75 ms, ICP at
+  // its floors 1.375, voxels 2.5 at their first floor, allocation halved (-0.1875), free space
+  // at one visit (0.0002 ms): 0.4377 ms over, 43770 voxel updates off the deeper cut.
+  const DeadlineReport fuse = controller.plan();
+  CHECK(fuse.deepest == DeadlineStep::fuse_alternate);
+  CHECK_FALSE(fuse.infeasible);
+  CHECK_FALSE(fuse.fusion_skipped);
+  CHECK(fuse.raycast_skipped);
+  CHECK(fuse.allocation_half);
+  CHECK(fuse.free_space_visits == 1);
+  CHECK(static_cast<double>(fuse.max_voxel_updates) == Approx(206230.0).margin(1.0));
+  CHECK(fuse.predicted_ms == Approx(5.0).margin(1e-3));
+  // The next casts: fixed 1.5 ms, ICP 1.375, the half-resolution 50000 steps (2.5 ms) cut by
+  // 7500 to fit; its voxel budgets are not cut (it integrates nothing).
+  controller.observe(frame_as_planned(fuse), fuse);
+  const DeadlineReport cast = controller.plan();
+  CHECK(cast.deepest == DeadlineStep::fuse_alternate);
+  CHECK_FALSE(cast.infeasible);
+  CHECK(cast.fusion_skipped);
+  CHECK_FALSE(cast.raycast_skipped);
+  CHECK(cast.raycast_half);
+  CHECK_FALSE(cast.allocation_half);
+  CHECK(static_cast<double>(cast.raycast_steps) == Approx(42500.0).margin(1.0));
+  CHECK(cast.predicted_ms == Approx(5.0).margin(1e-3));
+  // And the turns go on.
+  controller.observe(frame_as_planned(cast), cast);
+  const DeadlineReport again = controller.plan();
+  CHECK_FALSE(again.fusion_skipped);
+  CHECK(again.raycast_skipped);
+  // Switched off, the plan stays at the floors, infeasible.
+  const DeadlineReport off = plan_for(5.0, false);
+  CHECK(off.deepest == DeadlineStep::voxel_updates_deep);
+  CHECK(off.infeasible);
+  CHECK_FALSE(off.fusion_skipped);
+  CHECK_FALSE(off.raycast_skipped);
+}
+
+TEST_CASE("when neither turn fits, frames only track, a bounded run of them at a time") {
+  DeadlineController controller;
+  DeadlineConfig config = hand_config(3.0);
+  config.max_track_only_frames = 3;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  // ICP at its floors alone (1.375 ms) is over what the fusing turn leaves (3 - 1.75); tracking
+  // only costs 1.25 ms and ICP above its floors.
+  for (int frame = 0; frame < 3; ++frame) {
+    CAPTURE(frame);
+    const DeadlineReport r = controller.plan();
+    CHECK(r.deepest == DeadlineStep::track_only);
+    CHECK(r.fusion_skipped);
+    CHECK(r.raycast_skipped);
+    CHECK_FALSE(r.infeasible);
+    CHECK(r.icp_iterations[0] == 1);
+    CHECK(r.predicted_ms <= 3.0 + kTolerance_ms);  // ICP cut only as far as needed
+    controller.observe(frame_as_planned(r), r);
+  }
+  // The fourth fuses, over the deadline, and the map moves on; then the run starts again.
+  const DeadlineReport fuse = controller.plan();
+  CHECK(fuse.deepest == DeadlineStep::fuse_alternate);
+  CHECK(fuse.infeasible);
+  CHECK_FALSE(fuse.fusion_skipped);
+  CHECK(fuse.raycast_skipped);
+  controller.observe(frame_as_planned(fuse), fuse);
+  const DeadlineReport next = controller.plan();
+  CHECK(next.deepest == DeadlineStep::track_only);
+  // A track-only frame keeps the turn: the frame the cap lets through after it casts.
+  for (int frame = 0; frame < 3; ++frame) {
+    const DeadlineReport r = controller.plan();
+    REQUIRE(r.deepest == DeadlineStep::track_only);
+    controller.observe(frame_as_planned(r), r);
+  }
+  const DeadlineReport cast = controller.plan();
+  CHECK(cast.fusion_skipped);
+  CHECK_FALSE(cast.raycast_skipped);
+  // Without the step, the fusing turn runs infeasible.
+  config.track_only = false;
+  controller.reset(config, kIcp, kSide, kSide, true, true);
+  controller.observe(demand_frame(), controller.plan());
+  const DeadlineReport no_track_only = controller.plan();
+  CHECK(no_track_only.deepest == DeadlineStep::fuse_alternate);
+  CHECK(no_track_only.infeasible);
 }
 
 TEST_CASE("an adapting model learns each stage's line from times that follow the work") {
@@ -395,6 +508,10 @@ TEST_CASE("bad deadline settings and models are refused with a reason") {
   c = DeadlineConfig{};
   c.demand_growth = 0.5f;
   CHECK_FALSE(validate(c).ok());
+  c = DeadlineConfig{};
+  c.max_track_only_frames = -1;
+  CHECK_FALSE(validate(c, &error).ok());
+  CHECK(std::string(error.c_str()).find("max_track_only_frames") != std::string::npos);
   CHECK(validate(DeadlineConfig{}).ok());
 }
 

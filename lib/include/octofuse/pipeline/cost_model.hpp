@@ -51,15 +51,23 @@ struct DeadlineConfig {
   // A stage that is not cut gets its demand times this as its budget, so a view that asks for a
   // little more than the last one is served whole.
   float demand_growth = 1.25f;
+  // The last steps, when even the floors do not fit: frames take turns, one fusing its depth
+  // (integration, free space), the next ray-casting the reference view from its own pose, every
+  // frame tracking; then frames that only track, at most max_track_only_frames in a row, so the
+  // map and the model's figures of the skipped stages never stop for long.
+  bool fuse_alternate = true;
+  bool track_only = true;
+  int max_track_only_frames = 3;
 };
 
 // ok, or invalid_argument: deadline_ms finite in [0, 1e5], the model valid, floors >= 0 and
-// fractions in [0, 1], demand_growth in [1, 4].
+// fractions in [0, 1], demand_growth in [1, 4], max_track_only_frames in [0, 1000].
 Status validate(const DeadlineConfig& config, ErrorText* error = nullptr);
 
 // Degradation steps a deadline plan cuts, numbered in the order it cuts them (pipeline.hpp's
 // steps (1), (4), (6) and (7), with the half-resolution ray-cast and allocation before (6) and
-// a deeper cut of (4) after (7)).
+// a deeper cut of (4) after (7)); then, below the floors, fusion on every other frame and frames
+// that only track.
 enum class DeadlineStep : std::uint8_t {
   none = 0,
   icp = 1,
@@ -69,6 +77,8 @@ enum class DeadlineStep : std::uint8_t {
   raycast = 5,
   free_space = 6,
   voxel_updates_deep = 7,
+  fuse_alternate = 8,
+  track_only = 9,
 };
 const char* deadline_step_name(DeadlineStep step);
 
@@ -76,7 +86,7 @@ const char* deadline_step_name(DeadlineStep step);
 struct DeadlineReport {
   bool active = false;      // a deadline was set and the plan applied
   bool planned = false;     // false: no demand known yet (the first frame), configured budgets
-  bool infeasible = false;  // the floors alone do not fit the deadline
+  bool infeasible = false;  // even the deepest step taken does not fit the deadline
   bool over = false;        // the measured frame time exceeded the deadline
   DeadlineStep deepest = DeadlineStep::none;  // the last step the plan cut
   double deadline_ms = 0.0;
@@ -88,6 +98,10 @@ struct DeadlineReport {
   bool raycast_half = false;     // the reference ray-cast at half resolution
   bool allocation_half = false;  // allocation marched every other pixel's ray in x and y
   std::uint32_t free_space_visits = 0;
+  // Stages this frame does not run (fuse_alternate: one of the two; track_only: both). The
+  // budgets above are then those of the stages it runs, planned over them alone.
+  bool fusion_skipped = false;   // no integration, no free space: this frame's depth is not fused
+  bool raycast_skipped = false;  // no reference ray-cast: the next frame tracks an older view
   // Demand estimates the plan started from (units).
   double voxel_demand = 0.0;
   double raycast_demand = 0.0;
@@ -138,6 +152,8 @@ class DeadlineController {
   };
   static void learn(Regression& regression, StageCost& cost, double units, double ms);
   double icp_units(const int iterations[kPyramidLevels]) const;
+  // The ladder of cuts over the stages the frame runs.
+  DeadlineReport plan_stages(bool fuse, bool cast) const;
 
   Regression icp_fit_, integrate_fit_, raycast_fit_, free_space_fit_;
 
@@ -153,6 +169,8 @@ class DeadlineController {
   double voxel_demand_ = 0.0;
   double raycast_demand_ = 0.0;
   double free_space_demand_ = 0.0;
+  bool map_ahead_of_cast_ = false;  // the last frame that did either fused and did not cast
+  int track_only_run_ = 0;          // frames in a row that only tracked
 };
 
 }  // namespace octofuse

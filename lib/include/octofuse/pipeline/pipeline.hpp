@@ -195,7 +195,8 @@ struct StageTimes {
 };
 
 enum class FrameResult : std::uint8_t {
-  tracked,       // pose estimated (or taken from ground truth) and the frame integrated
+  tracked,       // pose estimated (or taken from ground truth) and the frame integrated (unless
+                 // the deadline gave that up: FrameStats::deadline.fusion_skipped)
   first,         // first frame: pose fixed, integrated
   lost,          // tracking lost: pose kept, nothing integrated
   rejected,      // the frame failed validation: nothing changed

@@ -289,7 +289,13 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
     if (options.stop != nullptr && options.stop->load()) break;
     if (options.max_frames >= 0 && processed >= options.max_frames) break;
     const NextFrame next = source->next(frame);
-    if (next.outcome == FrameOutcome::end_of_stream) break;
+    if (next.outcome == FrameOutcome::end_of_stream) {
+      // A recording cut short ends with the cause in last_error().
+      if (next.status.code() != StatusCode::end_of_stream) {
+        std::fprintf(stderr, "warning: %s\n", source->last_error());
+      }
+      break;
+    }
     if (next.outcome == FrameOutcome::error) {
       return error_exit(options.source_spec + ": " + source->last_error());
     }

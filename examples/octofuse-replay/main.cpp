@@ -3,10 +3,16 @@
 
 #include <cstdio>
 
+#include <cstring>
+
 #include "run_args.hpp"
+#include "sources.hpp"
 #include "stop_signal.hpp"
 
 int main(int argc, char** argv) {
+  if (argc >= 2 && std::strcmp(argv[1], "--list") == 0) {
+    return octofuse::examples::list_bag(argc == 3 ? argv[2] : std::string());
+  }
   octofuse::examples::RunOptions options;
   options.out_dir = "octofuse-out";
   bool help = false;

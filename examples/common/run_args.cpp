@@ -97,6 +97,18 @@ const RunOption kRunOptions[] = {
        *v = o.out_dir;
        return !o.out_dir.empty();
      }},
+    {"record", "FILE",
+     "write the frames received, their intrinsics, timestamps and\n"
+     "ground truth as a ROS 2 bag (MCAP); replay it with mcap:FILE",
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a file name");
+       o.record = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.record;
+       return !o.record.empty();
+     }},
     {"map", "KIND",
      "multires (default), single (single-resolution baseline) or\n"
      "multires16 (multires in 16-bit fixed point, half the memory)",

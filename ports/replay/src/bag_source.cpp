@@ -40,19 +40,6 @@ bool copy_value(const char* begin, std::size_t size, char* out, std::size_t capa
   return true;
 }
 
-// A pose from a translation and a quaternion; false when the quaternion is not a rotation.
-bool to_se3(const RosPose& pose, Se3d* T) {
-  const Eigen::Quaterniond q(pose.q[3], pose.q[0], pose.q[1], pose.q[2]);
-  const double n = q.norm();
-  if (!(std::fabs(n - 1.0) < 1e-3) || !std::isfinite(pose.t[0] + pose.t[1] + pose.t[2])) {
-    return false;
-  }
-  T->setIdentity();
-  T->linear() = q.normalized().toRotationMatrix();
-  T->translation() = Eigen::Vector3d(pose.t[0], pose.t[1], pose.t[2]);
-  return true;
-}
-
 bool host_is_big_endian() {
   const std::uint16_t one = 1;
   std::uint8_t first = 0;
@@ -423,7 +410,7 @@ int BagSource::tf_find(const char* name, std::size_t size, bool insert) {
 
 void BagSource::tf_update(const RosPose& transform) {
   Se3d T;
-  if (!to_se3(transform, &T)) return;
+  if (!pose_to_se3(transform, &T)) return;
   const int child = tf_find(transform.child_frame.data, transform.child_frame.size, true);
   const int parent = tf_find(transform.parent_frame.data, transform.parent_frame.size, true);
   if (child < 0 || parent < 0 || child == parent) return;
@@ -460,12 +447,13 @@ bool BagSource::pose_for(const RosString& camera_frame, Se3d* T_W_C) {
   }
   if (!have_pose_) return false;
   // The pose is of its child frame (the robot's body): add the body-to-camera TF when known.
-  Se3d T_B_C = Se3d::Identity();
   const int body = tf_find(pose_child_, std::strlen(pose_child_), false);
-  if (camera >= 0 && body >= 0 && camera != body) {
-    if (!tf_chain(camera, body, &T_B_C)) T_B_C = Se3d::Identity();
+  Se3d T_B_C;
+  if (camera >= 0 && body >= 0 && camera != body && tf_chain(camera, body, &T_B_C)) {
+    *T_W_C = T_W_B_ * T_B_C;
+  } else {
+    *T_W_C = T_W_B_;  // the pose is the camera's
   }
-  *T_W_C = T_W_B_ * T_B_C;
   return true;
 }
 
@@ -583,7 +571,7 @@ NextFrame BagSource::next(DepthFrame& frame) {
           kind == Kind::odometry
               ? decode_odometry(message.data, message.size, RosWire::cdr, &pose)
               : decode_pose_stamped(message.data, message.size, RosWire::cdr, &pose);
-      if (decoded && to_se3(pose, &T_W_B_)) {
+      if (decoded && pose_to_se3(pose, &T_W_B_)) {
         have_pose_ = true;
         const RosString& child = pose.child_frame;
         const std::size_t n = child.size < sizeof(pose_child_) ? child.size : 0;

@@ -3,6 +3,8 @@
 #include <cmath>
 #include <cstring>
 
+#include <Eigen/Geometry>
+
 namespace octofuse::replay {
 
 bool RosString::equals(const char* text) const {
@@ -190,6 +192,35 @@ bool decode_odometry(const std::uint8_t* data, std::size_t size, RosWire wire, R
   pose->child_frame = r.string();
   read_pose(r, pose);  // pose.pose; covariance and twist are not needed
   return r.ok();
+}
+
+bool pose_to_se3(const RosPose& pose, Se3d* T) {
+  const Eigen::Quaterniond q(pose.q[3], pose.q[0], pose.q[1], pose.q[2]);
+  const double n = q.norm();
+  if (!(std::fabs(n - 1.0) < 1e-3) || !std::isfinite(pose.t[0] + pose.t[1] + pose.t[2])) {
+    return false;
+  }
+  T->setIdentity();
+  T->linear() = q.normalized().toRotationMatrix();
+  T->translation() = Eigen::Vector3d(pose.t[0], pose.t[1], pose.t[2]);
+  return true;
+}
+
+RosPose pose_from_matrix(const Eigen::Matrix4d& T) {
+  RosPose pose;
+  const Eigen::Quaterniond q(Eigen::Matrix3d(T.topLeftCorner<3, 3>()));
+  for (int i = 0; i < 3; ++i) pose.t[i] = T(i, 3);
+  pose.q[0] = q.x();
+  pose.q[1] = q.y();
+  pose.q[2] = q.z();
+  pose.q[3] = q.w();
+  return pose;
+}
+
+Eigen::Matrix4d pose_as_replayed(const Eigen::Matrix4d& T) {
+  Se3d replayed;
+  if (!pose_to_se3(pose_from_matrix(T), &replayed)) return T;
+  return replayed.matrix();
 }
 
 bool RosTfReader::begin(const std::uint8_t* data, std::size_t size, RosWire wire) {

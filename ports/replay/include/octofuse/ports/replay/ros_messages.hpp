@@ -9,6 +9,8 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "octofuse/math/se3.hpp"
+
 namespace octofuse::replay {
 
 enum class RosWire : std::uint8_t { cdr, ros1 };
@@ -105,6 +107,15 @@ struct RosPose {
 };
 bool decode_pose_stamped(const std::uint8_t* data, std::size_t size, RosWire wire, RosPose* pose);
 bool decode_odometry(const std::uint8_t* data, std::size_t size, RosWire wire, RosPose* pose);
+
+// The rigid transform of a pose; false when its quaternion is not a unit one (within 1e-3) or
+// its translation is not finite. The quaternion is normalised first.
+bool pose_to_se3(const RosPose& pose, Se3d* T);
+// What a pose recorded from `T` (through a quaternion) reads back as: the recorder gives the
+// run this, so a recording replays bit for bit.
+Eigen::Matrix4d pose_as_replayed(const Eigen::Matrix4d& T);
+// The translation and quaternion recorded for `T`.
+RosPose pose_from_matrix(const Eigen::Matrix4d& T);
 
 // tf2_msgs/TFMessage: begin() reads the count, then next() each transform.
 class RosTfReader {

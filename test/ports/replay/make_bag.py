@@ -10,6 +10,9 @@ Frame dump (little-endian), as test/ports/replay/bag_fixtures.hpp writes it:
   b"OFDUMP1\\n", u32 count, u32 width, u32 height, f32 fx fy cx cy, then per frame:
   i64 timestamp_us, f32 metres_per_unit, u8 has_pose, 16 f64 T_W_C (row-major), u16 pixels.
 
+With a DUMP ending in .mcap (an unchunked MCAP such as octofuse-replay --record writes), its
+schemas, channels and messages are rewritten in the layout and compression asked for.
+
 usage: make_bag.py DUMP OUT.mcap [--compression none|zstd|lz4] [--unchunked] [--no-summary]
        [--encoding 16UC1|32FC1|mono16] [--big-endian] [--pose tf|odometry|pose_stamped|none]
        [--distortion K1] [--extra-image]
@@ -223,6 +226,8 @@ def main():
     except ImportError:
         sys.exit(77)
 
+    if args.dump.endswith(".mcap"):
+        return rewrite(args)
     width, height, k4, frames = read_dump(args.dump)
     schemas = [(1, "sensor_msgs/msg/Image"), (2, "sensor_msgs/msg/CameraInfo"),
                (3, "tf2_msgs/msg/TFMessage"), (4, "nav_msgs/msg/Odometry"),
@@ -238,7 +243,6 @@ def main():
         channels += [(9, 1, "/camera/color/image_raw")]
 
     messages = []  # (channel, log_time_ns, data)
-    seq = 0
     for i, (ts_us, mpu, has_pose, T, pixels) in enumerate(frames):
         stamp = ts_us * 1000
         if i == 0 and args.pose == "tf":
@@ -264,14 +268,41 @@ def main():
         messages.append((1, stamp, image_msg(stamp, width, height, pixels, mpu, args.encoding,
                                                     args.big_endian)))
 
-    out = bytearray(MAGIC)
-    out += record(0x01, mcap_string("ros2") + mcap_string("octofuse-test-writer"))
     schema_records = [record(0x03, struct.pack("<H", sid) + mcap_string(name) +
                              mcap_string("ros2msg") + struct.pack("<I", 0))
                       for sid, name in schemas]
     channel_records = [record(0x04, struct.pack("<HH", cid, sid) + mcap_string(topic) +
                               mcap_string("cdr") + struct.pack("<I", 0))
                        for cid, sid, topic in channels]
+    write_mcap(args, schema_records, channel_records, messages)
+
+
+def rewrite(args):
+    """Messages of an unchunked MCAP, written again as asked."""
+    with open(args.dump, "rb") as f:
+        data = f.read()
+    schema_records, channel_records, messages = [], [], []
+    pos = 8
+    while pos + 9 <= len(data):
+        opcode, size = struct.unpack_from("<BQ", data, pos)
+        whole = data[pos:pos + 9 + size]
+        if opcode == 0x03:
+            schema_records.append(whole)
+        elif opcode == 0x04:
+            channel_records.append(whole)
+        elif opcode == 0x05:
+            cid, _, log_ns, _ = struct.unpack_from("<HIQQ", data, pos + 9)
+            messages.append((cid, log_ns, data[pos + 9 + 22:pos + 9 + size]))
+        elif opcode in (0x0F, 0x02):
+            break
+        pos += 9 + size
+    write_mcap(args, schema_records, channel_records, messages)
+
+
+def write_mcap(args, schema_records, channel_records, messages):
+    seq = 0
+    out = bytearray(MAGIC)
+    out += record(0x01, mcap_string("ros2") + mcap_string("octofuse-test-writer"))
     for r in schema_records + channel_records:
         out += r
 
@@ -326,7 +357,7 @@ def main():
         for cid, _, _ in messages:
             counts[cid] = counts.get(cid, 0) + 1
         counts_bytes = b"".join(struct.pack("<HQ", c, n) for c, n in sorted(counts.items()))
-        stats = (struct.pack("<QHIIIQQ", len(messages), len(schemas), len(channels), 0, 0,
+        stats = (struct.pack("<QHIIIQQ", len(messages), len(schema_records), len(channel_records), 0, 0,
                              min(m[1] for m in messages), max(m[1] for m in messages)) +
                  struct.pack("<I", len(counts_bytes)) + counts_bytes)
         out += record(0x0B, stats)

@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include "octofuse/core/arena.hpp"
+#include "octofuse/ports/replay/rvl.hpp"
 
 namespace octofuse::replay {
 namespace {
@@ -198,8 +199,9 @@ Status BagSource::choose_topics() {
   depth_channel_ = -1;
   if (config_.depth_topic[0] != '\0') {
     depth_channel_ = find_topic(config_.depth_topic);
-    if (depth_channel_ < 0 || kinds_[depth_channel_] != Kind::image) {
-      error_.set("mcap: no sensor_msgs/msg/Image topic '%s' in %s (see --list)",
+    if (depth_channel_ < 0 ||
+        (kinds_[depth_channel_] != Kind::image && kinds_[depth_channel_] != Kind::compressed)) {
+      error_.set("mcap: no sensor_msgs/msg/Image or CompressedImage topic '%s' in %s (see --list)",
                  config_.depth_topic, config_.path);
       return StatusCode::invalid_argument;
     }
@@ -214,16 +216,29 @@ Status BagSource::choose_topics() {
         depth = i;
       }
     }
-    if (images == 1)
+    if (images == 0) {
+      // No raw image: compressed_depth_image_transport's topics (".../compressedDepth").
+      for (int i = 0; i < n; ++i) {
+        if (kinds_[i] != Kind::compressed || counts_[i] == 0 ||
+            std::strstr(reader_.channel_at(i).topic, "compressedDepth") == nullptr) {
+          continue;
+        }
+        ++images;
+        any = i;
+      }
+    }
+    if (images == 1) {
       depth_channel_ = any;
-    else if (depth_images == 1)
+    } else if (depth_images == 1) {
       depth_channel_ = depth;
+    }
     if (depth_channel_ < 0) {
-      error_.set(images == 0
-                     ? "mcap: %s has no sensor_msgs/msg/Image messages (see --list)"
-                     : "mcap: %s has several image topics; choose one with mcap:FILE?depth=TOPIC "
-                       "(see --list)",
-                 config_.path);
+      error_.set(
+          images == 0
+              ? "mcap: %s has no sensor_msgs/msg/Image (or compressedDepth) messages (see --list)"
+              : "mcap: %s has several image topics; choose one with mcap:FILE?depth=TOPIC "
+                "(see --list)",
+          config_.path);
       return StatusCode::invalid_argument;
     }
   }
@@ -241,7 +256,12 @@ Status BagSource::choose_topics() {
   } else {
     int infos = 0, any = -1, sibling = -1;
     const char* slash = std::strrchr(depth_topic_, '/');
-    const std::size_t prefix = slash ? static_cast<std::size_t>(slash - depth_topic_) : 0;
+    std::size_t prefix = slash ? static_cast<std::size_t>(slash - depth_topic_) : 0;
+    if (kinds_[depth_channel_] == Kind::compressed) {
+      // ".../image_raw/compressedDepth": the camera info sits beside image_raw.
+      while (prefix > 0 && depth_topic_[--prefix] != '/') {
+      }
+    }
     for (int i = 0; i < n; ++i) {
       if (kinds_[i] != Kind::camera_info || !have_info_[i]) continue;
       ++infos;
@@ -364,6 +384,7 @@ Status BagSource::open() {
       frame_pixels * sizeof(std::uint16_t) * static_cast<std::size_t>(config_.ring_size),
       kArenaAlignment);
   (void)sizer.allocate_array<TfFrame>(static_cast<std::size_t>(config_.max_tf_frames));
+  (void)png_.reserve(sizer);
   memory_bytes_ = sizer.bytes_used();
   memory_ = std::aligned_alloc(kArenaAlignment, align_up(memory_bytes_, kArenaAlignment));
   if (memory_ == nullptr) {
@@ -379,6 +400,7 @@ Status BagSource::open() {
               kArenaAlignment)
           .value());
   tf_ = arena.allocate_array<TfFrame>(static_cast<std::size_t>(config_.max_tf_frames)).value();
+  OCTOFUSE_CHECK(png_.reserve(arena).ok());  // sized by the same calls
   tf_count_ = 0;
   have_pose_ = false;
   sequence_ = 0;
@@ -519,17 +541,21 @@ NextFrame BagSource::convert(const RosImage& image, std::int64_t log_time_ns, De
       }
     }
   }
-  frame.depth_raw = ImageView<const std::uint16_t>(out, width, height);
-  frame.metres_per_unit = 1.0f / units;
-  const std::int64_t stamp_ns =
-      image.stamp_ns != 0 ? image.stamp_ns : static_cast<std::int64_t>(log_time_ns);
-  frame.timestamp_us = stamp_ns / 1000;
+  return finish(out, units, image.stamp_ns, image.frame_id, log_time_ns, frame);
+}
+
+NextFrame BagSource::finish(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
+                            const RosString& frame_id, std::int64_t log_time_ns,
+                            DepthFrame& frame) {
+  frame.depth_raw = ImageView<const std::uint16_t>(pixels, intrinsics_.width, intrinsics_.height);
+  frame.metres_per_unit = 1.0f / units_per_m;
+  frame.timestamp_us = (stamp_ns != 0 ? stamp_ns : log_time_ns) / 1000;
   frame.sequence = sequence_++;
   Se3d T_W_C;
   frame.has_ground_truth = false;
   frame.T_W_C_ground_truth = Eigen::Matrix4d::Identity();
   if ((use_tf_ || pose_channel_ >= 0)) {
-    if (pose_for(image.frame_id, &T_W_C)) {
+    if (pose_for(frame_id, &T_W_C)) {
       frame.has_ground_truth = true;
       frame.T_W_C_ground_truth = T_W_C.matrix();
     } else {
@@ -537,6 +563,93 @@ NextFrame BagSource::convert(const RosImage& image, std::int64_t log_time_ns, De
     }
   }
   return NextFrame::got_frame();
+}
+
+// compressed_depth_image_transport: a 12-byte header (int32 format, float quantisation A, B),
+// then a 16-bit PNG or, for rvl, int32 width, height and the RVL stream. 32FC1 is stored as
+// quantised inverse depth: metres = A / (v - B), 0 for no data.
+NextFrame BagSource::convert_compressed(const RosCompressedImage& image, std::int64_t log_time_ns,
+                                        DepthFrame& frame) {
+  const char* format = image.format.data != nullptr ? image.format.data : "";
+  const std::size_t format_size = image.format.size;
+  auto has = [&](const char* word) {
+    const std::size_t n = std::strlen(word);
+    for (std::size_t i = 0; i + n <= format_size; ++i) {
+      if (std::strncmp(format + i, word, n) == 0) return true;
+    }
+    return false;
+  };
+  const bool is16 = has("16UC1") || has("mono16");
+  const bool is32 = has("32FC1");
+  const bool rvl = has("rvl");
+  if (!has("compressedDepth") || (!is16 && !is32)) {
+    error_.set("%s: compressed format '%.*s' is not compressedDepth of 16UC1 or 32FC1",
+               depth_topic_, static_cast<int>(format_size), format);
+    return NextFrame::skipped(StatusCode::invalid_argument);
+  }
+  if (image.data_size < 12) {
+    error_.set("%s: compressedDepth data of %u bytes has no header", depth_topic_, image.data_size);
+    return NextFrame::skipped(StatusCode::data_loss);
+  }
+  auto le32 = [](const std::uint8_t* p) {
+    return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
+           (std::uint32_t{p[3]} << 24);
+  };
+  float quant[2];
+  for (int i = 0; i < 2; ++i) {
+    const std::uint32_t bits = le32(image.data + 4 + 4 * i);
+    std::memcpy(&quant[i], &bits, 4);
+  }
+  const std::uint8_t* payload = image.data + 12;
+  const std::size_t payload_size = image.data_size - 12;
+  std::uint16_t* out = ring_ + static_cast<std::size_t>(ring_next_) *
+                                   static_cast<std::size_t>(intrinsics_.width) *
+                                   static_cast<std::size_t>(intrinsics_.height);
+  ring_next_ = (ring_next_ + 1) % config_.ring_size;
+  const std::size_t pixel_count =
+      static_cast<std::size_t>(intrinsics_.width) * static_cast<std::size_t>(intrinsics_.height);
+  if (rvl) {
+    std::uint32_t size[2] = {0, 0};
+    if (payload_size < 8) {
+      error_.set("%s: RVL data of %zu bytes has no size", depth_topic_, payload_size);
+      return NextFrame::skipped(StatusCode::data_loss);
+    }
+    size[0] = le32(payload);
+    size[1] = le32(payload + 4);
+    if (size[0] != static_cast<std::uint32_t>(intrinsics_.width) ||
+        size[1] != static_cast<std::uint32_t>(intrinsics_.height)) {
+      error_.set("%s: RVL image of %ux%u, the camera has %dx%d", depth_topic_, size[0], size[1],
+                 intrinsics_.width, intrinsics_.height);
+      return NextFrame::skipped(StatusCode::invalid_argument);
+    }
+    if (!decode_rvl(payload + 8, payload_size - 8, out, pixel_count)) {
+      error_.set("%s: corrupt or truncated RVL data", depth_topic_);
+      return NextFrame::skipped(StatusCode::data_loss);
+    }
+  } else {
+    int width = 0, height = 0;
+    if (!png_.decode(payload, payload_size, out, intrinsics_.width, intrinsics_.height, &width,
+                     &height, depth_topic_, &error_)
+             .ok()) {
+      return NextFrame::skipped(StatusCode::data_loss);
+    }
+    if (width != intrinsics_.width || height != intrinsics_.height) {
+      error_.set("%s: PNG of %dx%d, the camera has %dx%d", depth_topic_, width, height,
+                 intrinsics_.width, intrinsics_.height);
+      return NextFrame::skipped(StatusCode::invalid_argument);
+    }
+  }
+  float units =
+      config_.depth_units_per_m > 0.0f ? config_.depth_units_per_m : (is16 ? 1000.0f : 5000.0f);
+  if (is32) {
+    for (std::size_t i = 0; i < pixel_count; ++i) {
+      if (out[i] == 0) continue;
+      const float m = quant[0] / (static_cast<float>(out[i]) - quant[1]);
+      const float u = m * units + 0.5f;
+      out[i] = (u >= 1.0f && u < 65535.5f) ? static_cast<std::uint16_t>(u) : 0;
+    }
+  }
+  return finish(out, units, image.stamp_ns, image.frame_id, log_time_ns, frame);
 }
 
 NextFrame BagSource::next(DepthFrame& frame) {
@@ -581,6 +694,15 @@ NextFrame BagSource::next(DepthFrame& frame) {
       continue;
     }
     if (c != depth_channel_) continue;
+    if (kind == Kind::compressed) {
+      RosCompressedImage compressed;
+      if (!decode_compressed_image(message.data, message.size, RosWire::cdr, &compressed)) {
+        error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/CompressedImage",
+                   config_.path, static_cast<unsigned long long>(message.sequence), depth_topic_);
+        return NextFrame::skipped(StatusCode::data_loss);
+      }
+      return convert_compressed(compressed, static_cast<std::int64_t>(message.log_time_ns), frame);
+    }
     RosImage image;
     if (!decode_image(message.data, message.size, RosWire::cdr, &image)) {
       error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/Image", config_.path,

@@ -192,6 +192,83 @@ def pose_stamped_msg(stamp_ns, T):
     return bytes(c.buf)
 
 
+def png16(width, height, values):
+    """A 16-bit grayscale PNG (big-endian samples, filter 0 on every row)."""
+    def chunk(kind, data):
+        return (struct.pack(">I", len(data)) + kind + data +
+                struct.pack(">I", zlib.crc32(kind + data)))
+    rows = b"".join(b"\x00" + struct.pack(">%dH" % width, *values[y * width:(y + 1) * width])
+                    for y in range(height))
+    return (b"\x89PNG\r\n\x1a\n" +
+            chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 16, 0, 0, 0, 0)) +
+            chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+
+
+def rvl(values):
+    """RVL (Wilson 2017): zero runs, then runs of zig-zag deltas, as 3-bit nibbles."""
+    words = []
+    state = {"word": 0, "nibbles": 0}
+
+    def put_nibble(n):
+        state["word"] = (state["word"] << 4) | n
+        state["nibbles"] += 1
+        if state["nibbles"] == 8:
+            words.append(state["word"] & 0xFFFFFFFF)
+            state["word"] = 0
+            state["nibbles"] = 0
+
+    def vle(v):
+        while True:
+            n = v & 7
+            v >>= 3
+            if v:
+                n |= 8
+            put_nibble(n)
+            if not v:
+                break
+
+    i, previous = 0, 0
+    while i < len(values):
+        zeros = 0
+        while i < len(values) and values[i] == 0:
+            zeros += 1
+            i += 1
+        vle(zeros)
+        j = i
+        while j < len(values) and values[j] != 0:
+            j += 1
+        vle(j - i)
+        for v in values[i:j]:
+            delta = v - previous
+            vle((delta << 1) ^ (delta >> 31) if delta >= 0 else ((-delta) << 1) - 1)
+            previous = v
+        i = j
+    if state["nibbles"]:
+        words.append((state["word"] << (4 * (8 - state["nibbles"]))) & 0xFFFFFFFF)
+    return struct.pack("<%dI" % len(words), *words)
+
+
+def compressed_depth_msg(stamp_ns, width, height, pixels, mpu, encoding, codec):
+    """sensor_msgs/CompressedImage as compressed_depth_image_transport writes it."""
+    values = list(struct.unpack("<%dH" % (width * height), pixels))
+    quant_a, quant_b = 0.0, 0.0
+    if encoding == "32FC1":
+        quant_a = 100.0 * 101.0  # depth_quantization 100, depth_max 10 m (the defaults)
+        quant_b = 1.0 - quant_a / 10.0
+        values = [int(quant_a / (v * mpu) + quant_b) if v and v * mpu < 10.0 else 0
+                  for v in values]
+    header = struct.pack("<iff", 0, quant_a, quant_b)
+    if codec == "rvl":
+        body = struct.pack("<II", width, height) + rvl(values)
+    else:
+        body = png16(width, height, values)
+    c = Cdr()
+    c.header(stamp_ns, "camera_depth")
+    c.string("%s; compressedDepth %s" % (encoding, codec))
+    c.bytes(header + body)
+    return bytes(c.buf)
+
+
 IDENTITY = (1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0)
 
 
@@ -216,6 +293,8 @@ def main():
     ap.add_argument("--big-endian", action="store_true")
     ap.add_argument("--pose", default="tf", choices=["tf", "odometry", "pose_stamped", "none"])
     ap.add_argument("--distortion", type=float, default=0.0)
+    ap.add_argument("--compressed", choices=["png", "rvl"],
+                    help="compressedDepth CompressedImage instead of Image")
     ap.add_argument("--extra-image", action="store_true", help="a second (colour) image topic")
     args = ap.parse_args()
     try:
@@ -229,10 +308,12 @@ def main():
     if args.dump.endswith(".mcap"):
         return rewrite(args)
     width, height, k4, frames = read_dump(args.dump)
-    schemas = [(1, "sensor_msgs/msg/Image"), (2, "sensor_msgs/msg/CameraInfo"),
+    image_type = "CompressedImage" if args.compressed else "Image"
+    schemas = [(1, "sensor_msgs/msg/" + image_type), (2, "sensor_msgs/msg/CameraInfo"),
                (3, "tf2_msgs/msg/TFMessage"), (4, "nav_msgs/msg/Odometry"),
                (5, "geometry_msgs/msg/PoseStamped")]
-    channels = [(1, 1, "/camera/depth/image_raw"), (2, 2, "/camera/depth/camera_info")]
+    depth_topic = "/camera/depth/image_raw" + ("/compressedDepth" if args.compressed else "")
+    channels = [(1, 1, depth_topic), (2, 2, "/camera/depth/camera_info")]
     if args.pose == "tf":
         channels += [(3, 3, "/tf"), (4, 3, "/tf_static")]
     elif args.pose == "odometry":
@@ -265,8 +346,12 @@ def main():
             c.u32(6)
             c.bytes(bytes(12))
             messages.append((9, stamp, bytes(c.buf)))
-        messages.append((1, stamp, image_msg(stamp, width, height, pixels, mpu, args.encoding,
-                                                    args.big_endian)))
+        if args.compressed:
+            messages.append((1, stamp, compressed_depth_msg(stamp, width, height, pixels, mpu,
+                                                            args.encoding, args.compressed)))
+        else:
+            messages.append((1, stamp, image_msg(stamp, width, height, pixels, mpu,
+                                                 args.encoding, args.big_endian)))
 
     schema_records = [record(0x03, struct.pack("<H", sid) + mcap_string(name) +
                              mcap_string("ros2msg") + struct.pack("<I", 0))

@@ -4,6 +4,9 @@
 // an MCAP file (rosbag2's default storage) with ROS 2 CDR messages:
 //   depth  sensor_msgs/msg/Image: 16UC1 or mono16 (millimetres unless a depth scale is given),
 //          32FC1 (metres, NaN for no data; stored at 5000 units/m unless a scale is given);
+//          or sensor_msgs/msg/CompressedImage from compressed_depth_image_transport
+//          ("16UC1; compressedDepth png|rvl", "32FC1; compressedDepth png|rvl"), used when the
+//          bag has no raw depth image;
 //   info   sensor_msgs/msg/CameraInfo: K gives the intrinsics; a distortion model with non-zero
 //          coefficients is refused (octofuse takes rectified depth only);
 //   pose   nav_msgs/msg/Odometry, geometry_msgs/msg/PoseStamped, or tf2_msgs/msg/TFMessage
@@ -22,6 +25,7 @@
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/math/se3.hpp"
 #include "octofuse/ports/replay/mcap_reader.hpp"
+#include "octofuse/ports/replay/png_depth.hpp"
 #include "octofuse/ports/replay/ros_messages.hpp"
 #include "octofuse/sensor/depth_source.hpp"
 
@@ -106,6 +110,10 @@ class BagSource final : public DepthSource {
   bool tf_chain(int from, int to, Se3d* T_to_from) const;
   bool pose_for(const RosString& camera_frame, Se3d* T_W_C);
   NextFrame convert(const RosImage& image, std::int64_t log_time_ns, DepthFrame& frame);
+  NextFrame convert_compressed(const RosCompressedImage& image, std::int64_t log_time_ns,
+                               DepthFrame& frame);
+  NextFrame finish(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
+                   const RosString& frame_id, std::int64_t log_time_ns, DepthFrame& frame);
 
   BagConfig config_;
   ErrorText error_;
@@ -118,6 +126,7 @@ class BagSource final : public DepthSource {
   std::size_t memory_bytes_ = 0;
   std::uint16_t* ring_ = nullptr;
   TfFrame* tf_ = nullptr;
+  PngDepthDecoder png_;
   int tf_count_ = 0;
 
   static constexpr int kMaxChannels = 256;

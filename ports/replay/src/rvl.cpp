@@ -55,8 +55,9 @@ bool decode_rvl(const std::uint8_t* data, std::size_t size, std::uint16_t* pixel
       const std::uint32_t positive = in.value();
       if (!in.ok) return false;
       // Zig-zag: even values are non-negative deltas, odd ones negative.
-      const std::int32_t delta =
-          static_cast<std::int32_t>(positive >> 1) ^ -static_cast<std::int32_t>(positive & 1u);
+      // Unsigned arithmetic: 16-bit wrap-around, as the encoder's, and no signed overflow on
+      // hostile deltas.
+      const std::uint32_t delta = (positive >> 1) ^ (0u - (positive & 1u));
       previous = static_cast<std::uint16_t>(previous + delta);
       pixels[out++] = previous;
     }

@@ -151,7 +151,6 @@ class BagSource final : public DepthSource {
   char pose_child_[64] = {};
 
   PinholeCamera intrinsics_;
-  float units_per_m_ = 1000.0f;
   std::uint64_t sequence_ = 0;
   std::uint64_t frames_without_pose_ = 0;
   int ring_next_ = 0;

@@ -74,13 +74,30 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     const std::size_t key_size = static_cast<std::size_t>(eq - key);
     const char* value = eq + 1;
     const std::size_t value_size = item - key_size - 1;
+    if (key_size == 6 && std::strncmp(key, "buffer", 6) == 0) {
+      // Megabytes for each of the reader's two buffers (record and chunk).
+      char number[16] = {};
+      char* end_number = nullptr;
+      const long mb =
+          value_size < sizeof(number) && copy_value(value, value_size, number, sizeof(number))
+              ? std::strtol(number, &end_number, 10)
+              : 0;
+      if (end_number == nullptr || *end_number != '\0' || mb < 1 || mb > 1024) {
+        error->set("mcap: buffer=MB needs 1 to 1024");
+        return StatusCode::invalid_argument;
+      }
+      config->limits.max_record_bytes = static_cast<std::size_t>(mb) << 20;
+      config->limits.max_chunk_bytes = static_cast<std::size_t>(mb) << 20;
+      query = end;
+      continue;
+    }
     char* out = nullptr;
     if (key_size == 5 && std::strncmp(key, "depth", 5) == 0) out = config->depth_topic;
     if (key_size == 4 && std::strncmp(key, "info", 4) == 0) out = config->info_topic;
     if (key_size == 4 && std::strncmp(key, "pose", 4) == 0) out = config->pose_topic;
     if (key_size == 5 && std::strncmp(key, "world", 5) == 0) out = config->world_frame;
     if (out == nullptr) {
-      error->set("mcap: unknown option '%.*s' (depth, info, pose, world)",
+      error->set("mcap: unknown option '%.*s' (depth, info, pose, world, buffer)",
                  static_cast<int>(key_size), key);
       return StatusCode::invalid_argument;
     }

@@ -326,9 +326,11 @@ bool McapReader::load_chunk(const std::uint8_t* body, std::size_t size, bool com
     chunk_size_ = available;
   } else {
     if (uncompressed_size > limits_.max_chunk_bytes) {
-      error_.set("mcap: chunk at byte %llu holds %llu bytes, over the %zu-byte chunk buffer",
-                 static_cast<unsigned long long>(offset_),
-                 static_cast<unsigned long long>(uncompressed_size), limits_.max_chunk_bytes);
+      error_.set(
+          "mcap: chunk at byte %llu holds %llu bytes, over the %zu-byte chunk buffer (raise it "
+          "with ?buffer=MB)",
+          static_cast<unsigned long long>(offset_),
+          static_cast<unsigned long long>(uncompressed_size), limits_.max_chunk_bytes);
       return false;
     }
     std::size_t out = 0;
@@ -473,9 +475,11 @@ McapNext McapReader::next(McapMessage* message) {
     }
     const bool complete = size <= file_size_ - body_offset;
     if (complete && size > limits_.max_record_bytes) {
-      error_.set("mcap: record at byte %llu is %llu bytes, over the %zu-byte record buffer",
-                 static_cast<unsigned long long>(offset_), static_cast<unsigned long long>(size),
-                 limits_.max_record_bytes);
+      error_.set(
+          "mcap: record at byte %llu is %llu bytes, over the %zu-byte record buffer (raise it with "
+          "?buffer=MB)",
+          static_cast<unsigned long long>(offset_), static_cast<unsigned long long>(size),
+          limits_.max_record_bytes);
       return fail(StatusCode::resource_exhausted);
     }
     std::size_t want = static_cast<std::size_t>(complete ? size : file_size_ - body_offset);

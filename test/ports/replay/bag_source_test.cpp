@@ -289,6 +289,20 @@ TEST_CASE("mcap: bad input gets one clear error", "[replay][bag]") {
     std::unique_ptr<BagSource> bag = open_bag(fixture.dir + "/none.mcap");
     CHECK(bag->open().code() == StatusCode::unavailable);
   }
+  SECTION("a chunk larger than the buffer: the error says how to raise it") {
+    const std::string path = fixture.bag("b.mcap", "--compression zstd");
+    if (path.empty()) return;
+    octofuse::replay::McapReader reader;
+    octofuse::replay::McapLimits limits;
+    limits.max_chunk_bytes = 4096;  // a 160 x 120 frame decompresses to 38 kB
+    REQUIRE(reader.open(path.c_str(), limits).ok());
+    octofuse::replay::McapMessage message;
+    octofuse::replay::McapNext got;
+    while ((got = reader.next(&message)) == octofuse::replay::McapNext::message) {
+    }
+    CHECK(got == octofuse::replay::McapNext::error);
+    CHECK(std::strstr(reader.error(), "raise it with ?buffer=MB") != nullptr);
+  }
   SECTION("a depth topic that is not there") {
     const std::string path = fixture.bag("t.mcap", "--compression none");
     std::unique_ptr<BagSource> bag = open_bag(path, "?depth=/nope");
@@ -319,6 +333,10 @@ TEST_CASE("mcap: bad input gets one clear error", "[replay][bag]") {
     CHECK(std::strcmp(config.info_topic, "/i") == 0);
     CHECK(std::strcmp(config.pose_topic, "/tf") == 0);
     CHECK(std::strcmp(config.world_frame, "map") == 0);
+    CHECK(octofuse::replay::parse_bag_spec("mcap:a?buffer=2", &config, &error).ok());
+    CHECK(config.limits.max_chunk_bytes == 2u << 20);
+    CHECK(octofuse::replay::parse_bag_spec("mcap:a?buffer=0", &config, &error).code() ==
+          StatusCode::invalid_argument);
     CHECK(octofuse::replay::parse_bag_spec("mcap:", &config, &error).code() ==
           StatusCode::invalid_argument);
     CHECK(octofuse::replay::parse_bag_spec("mcap:a?colour=x", &config, &error).code() ==

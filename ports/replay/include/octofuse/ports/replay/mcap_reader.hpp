@@ -23,8 +23,10 @@ struct LZ4F_dctx_s;
 namespace octofuse::replay {
 
 struct McapLimits {
-  std::size_t max_record_bytes = 16u << 20;  // a chunk record or a loose message
-  std::size_t max_chunk_bytes = 16u << 20;   // a chunk once decompressed
+  // A chunk record or a loose message, and a chunk once decompressed: 8 MiB holds a 1280 x 1024
+  // 32FC1 image (rosbag2 chunks are 768 KiB, or one message when it is larger).
+  std::size_t max_record_bytes = 8u << 20;
+  std::size_t max_chunk_bytes = 8u << 20;
   int max_channels = 64;
   int max_schemas = 64;
 };

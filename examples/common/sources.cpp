@@ -38,7 +38,7 @@ std::string supported_sources() {
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
   out += "                       tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE (recordings)\n";
-  out += "                       mcap:FILE[?depth=T&info=T&pose=T&world=F] (ROS 2 bag)\n";
+  out += "                       mcap:FILE[?depth=T&info=T&pose=T&world=F&buffer=MB] (ROS 2 bag)\n";
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
   out += "                       openni2[:URI] | oni:FILE (OpenNI2 camera or recording)\n";

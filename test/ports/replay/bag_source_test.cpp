@@ -13,6 +13,7 @@
 #include "octofuse/ports/replay/bag_source.hpp"
 #include "octofuse/ports/replay/replay_source.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
+#include "support/alloc_counter.hpp"
 #include "support/small_sim.hpp"
 #include "support/test_dir.hpp"
 
@@ -197,6 +198,26 @@ TEST_CASE("mcap: compressedDepth of 32FC1 comes back within its quantisation", "
       }
       CHECK(outside == 0);
     }
+  }
+}
+
+TEST_CASE("mcap: next() after open() does not allocate", "[replay][bag]") {
+  if (!octofuse::test::counts_malloc()) return;  // the sanitizers own malloc
+  Fixture fixture(sim_frames());
+  for (const char* options : {"--compression zstd", "--compression lz4", "--unchunked",
+                              "--compressed png", "--compressed rvl --compression zstd"}) {
+    INFO(options);
+    const std::string path = fixture.bag("alloc.mcap", options);
+    if (path.empty()) continue;
+    std::unique_ptr<BagSource> bag = open_bag(path);
+    REQUIRE(bag->open().ok());
+    octofuse::DepthFrame frame;
+    int frames = 0;
+    // open() read the whole bag once: the decompressors' buffers are already there.
+    octofuse::test::AllocationScope scope;
+    while (bag->next(frame).outcome == FrameOutcome::frame) ++frames;
+    CHECK(scope.allocations() == 0);
+    CHECK(frames == kSimFrames);
   }
 }
 

@@ -41,6 +41,14 @@ TEST_CASE("replay --record: the recording replays bit for bit", "[programs][bag]
     CHECK(part.size() > 10 * 40);
     CHECK(trajectory.compare(0, part.size(), part) == 0);
   }
+  {  // the recording's poses as the odometry prior of a replay of it
+    const octofuse::test::RunResult run = octofuse::test::run_replay(
+        {"--source", "mcap:" + bag, "--odometry", "mcap:" + bag, "--quiet", "--out", dir + "/d"},
+        log);
+    INFO(run.output);
+    CHECK(run.exit_status == 0);
+    CHECK(run.output.find("odometry: 0 frames without it") != std::string::npos);
+  }
   {  // --list prints the topics
     const octofuse::test::RunResult run = octofuse::test::run_replay({"--list", bag}, log);
     CHECK(run.exit_status == 0);

@@ -730,4 +730,64 @@ NextFrame BagSource::next(DepthFrame& frame) {
   }
 }
 
+Status read_bag_poses(const BagConfig& config,
+                      void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
+                      void* context, ErrorText* error) {
+  McapReader reader;
+  Status status = reader.open(config.path, config.limits);
+  if (!status.ok()) {
+    error->set("%s", reader.error());
+    return status;
+  }
+  // The topic: named, or the only Odometry / PoseStamped one (channels are declared before
+  // their first message, so the choice is made at the first pose message of a second kind).
+  McapMessage message;
+  const McapChannel* chosen = nullptr;
+  const McapChannel* other = nullptr;
+  std::uint64_t poses = 0;
+  for (;;) {
+    const McapNext got = reader.next(&message);
+    if (got == McapNext::end || got == McapNext::truncated) break;
+    if (got == McapNext::error) {
+      error->set("%s: %s", config.path, reader.error());
+      return StatusCode::data_loss;
+    }
+    const BagSource::Kind kind = kind_of(*message.channel);
+    if (kind != BagSource::Kind::odometry && kind != BagSource::Kind::pose) continue;
+    if (config.pose_topic[0] != '\0') {
+      if (std::strcmp(message.channel->topic, config.pose_topic) != 0) continue;
+    } else if (chosen == nullptr) {
+      chosen = message.channel;
+    } else if (chosen != message.channel) {
+      other = message.channel;
+      break;
+    }
+    RosPose pose;
+    const bool decoded = kind == BagSource::Kind::odometry
+                             ? decode_odometry(message.data, message.size, RosWire::cdr, &pose)
+                             : decode_pose_stamped(message.data, message.size, RosWire::cdr, &pose);
+    Se3d T;
+    if (!decoded || !pose_to_se3(pose, &T)) {
+      error->set("%s: pose message %llu on %s is malformed or not a rotation", config.path,
+                 static_cast<unsigned long long>(message.sequence), message.channel->topic);
+      return StatusCode::data_loss;
+    }
+    const std::int64_t stamp_ns =
+        pose.stamp_ns != 0 ? pose.stamp_ns : static_cast<std::int64_t>(message.log_time_ns);
+    on_pose(context, stamp_ns, T);
+    ++poses;
+  }
+  if (other != nullptr) {
+    error->set("%s has several pose topics (%s, %s); choose one with mcap:FILE?pose=TOPIC",
+               config.path, chosen->topic, other->topic);
+    return StatusCode::invalid_argument;
+  }
+  if (poses == 0) {
+    error->set("%s: no Odometry or PoseStamped messages%s%s", config.path,
+               config.pose_topic[0] ? " on " : "", config.pose_topic);
+    return StatusCode::invalid_argument;
+  }
+  return ok_status();
+}
+
 }  // namespace octofuse::replay

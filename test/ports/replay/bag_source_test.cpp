@@ -221,6 +221,39 @@ TEST_CASE("mcap: next() after open() does not allocate", "[replay][bag]") {
   }
 }
 
+TEST_CASE("mcap: a bag's odometry poses for the prior", "[replay][bag]") {
+  Fixture fixture(sim_frames());
+  struct Collected {
+    std::vector<std::int64_t> stamps_ns;
+    std::vector<Eigen::Matrix4d> poses;
+  } collected;
+  auto collect = [](void* context, std::int64_t stamp_ns, const octofuse::Se3d& T) {
+    static_cast<Collected*>(context)->stamps_ns.push_back(stamp_ns);
+    static_cast<Collected*>(context)->poses.push_back(T.matrix());
+  };
+  octofuse::ErrorText error;
+  BagConfig config;
+  for (const char* kind : {"odometry", "pose_stamped"}) {
+    INFO(kind);
+    collected = Collected();
+    const std::string path =
+        fixture.bag(std::string(kind) + ".mcap", std::string("--compression none --pose ") + kind);
+    REQUIRE(octofuse::replay::parse_bag_spec(("mcap:" + path).c_str(), &config, &error).ok());
+    REQUIRE(octofuse::replay::read_bag_poses(config, collect, &collected, &error).ok());
+    REQUIRE(collected.poses.size() == fixture.kept.frames.size());
+    for (std::size_t i = 0; i < collected.poses.size(); ++i) {
+      CHECK(collected.stamps_ns[i] == fixture.kept.frames[i].timestamp_us * 1000);
+      CHECK((collected.poses[i] - fixture.kept.frames[i].T_W_C).cwiseAbs().maxCoeff() < 1e-12);
+    }
+  }
+  // A bag with TF only has no odometry topic: one clear error.
+  const std::string tf = fixture.bag("tf.mcap", "--compression none --pose tf");
+  REQUIRE(octofuse::replay::parse_bag_spec(("mcap:" + tf).c_str(), &config, &error).ok());
+  CHECK(octofuse::replay::read_bag_poses(config, collect, &collected, &error).code() ==
+        StatusCode::invalid_argument);
+  CHECK(std::strstr(error.c_str(), "no Odometry or PoseStamped") != nullptr);
+}
+
 TEST_CASE("mcap: a bag of sim frames gives the same trajectory as the sim", "[replay][bag]") {
   Fixture fixture(sim_frames());
   const std::string path = fixture.bag("same.mcap", "--compression zstd");

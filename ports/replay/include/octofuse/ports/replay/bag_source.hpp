@@ -56,6 +56,15 @@ struct BagConfig {
 // invalid_argument for another prefix, an empty path, an unknown key or a value too long.
 Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
 
+// Every pose on a bag's Odometry or PoseStamped topic (`config.pose_topic`, or the only such
+// topic), in file order, for use as the odometry prior: `on_pose(context, stamp_ns, T)` with the
+// pose of the message's child frame (the camera's, when the bag records the camera) in its
+// parent frame. invalid_argument when there is no such topic or several; data_loss for a
+// corrupt bag. A bag cut short gives the poses before the cut.
+Status read_bag_poses(const BagConfig& config,
+                      void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
+                      void* context, ErrorText* error);
+
 // What a topic holds, for --list and the automatic choice.
 struct BagTopic {
   const McapChannel* channel = nullptr;

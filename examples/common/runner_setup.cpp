@@ -88,13 +88,24 @@ bool check_outputs(const RunOptions& options, std::string* error) {
     }
   }
   if (!options.save_map_path.empty()) outputs.push_back({options.save_map_path, "--save-map"});
+  if (!options.record.empty()) outputs.push_back({options.record, "--record"});
   if (options.deadline_ms > 0.0 && !options.deadline_calibration.empty() &&
       !options.deadline_freeze) {
     outputs.push_back({options.deadline_calibration, "--deadline-calibration"});
   }
   std::vector<Output> inputs;
+  // A bag given as a source or odometry is a file behind its "mcap:" prefix and "?" options.
+  auto bag_file = [](const std::string& spec) {
+    return spec.substr(
+        5, spec.find('?') == std::string::npos ? std::string::npos : spec.find('?') - 5);
+  };
+  if (options.source_spec.rfind("mcap:", 0) == 0) {
+    inputs.push_back({bag_file(options.source_spec), "--source"});
+  }
   if (!options.odometry.empty() && !odometry_is_sim(options)) {
-    inputs.push_back({options.odometry, "--odometry"});
+    inputs.push_back(
+        {options.odometry.rfind("mcap:", 0) == 0 ? bag_file(options.odometry) : options.odometry,
+         "--odometry"});
   }
   if (!options.query_points_path.empty()) {
     inputs.push_back({options.query_points_path, "--query-points"});

@@ -49,6 +49,14 @@ TEST_CASE("replay --record: the recording replays bit for bit", "[programs][bag]
     CHECK(run.exit_status == 0);
     CHECK(run.output.find("odometry: 0 frames without it") != std::string::npos);
   }
+  {  // recording over the bag being replayed is refused, and the bag is left alone
+    const octofuse::test::RunResult run = octofuse::test::run_replay(
+        {"--source", "mcap:" + bag, "--record", bag, "--quiet", "--out", dir + "/e"}, log);
+    CHECK(run.exit_status == 1);
+    CHECK(run.output.find("is the file of --source; refusing to overwrite it") !=
+          std::string::npos);
+    CHECK(octofuse::test::read_bytes(bag).size() > 1000000);
+  }
   {  // --list prints the topics
     const octofuse::test::RunResult run = octofuse::test::run_replay({"--list", bag}, log);
     CHECK(run.exit_status == 0);

@@ -10,6 +10,8 @@ packages=(
   libeigen3-dev catch2
   # port dependencies (replay: libpng; live cameras: OpenNI2, libcamera, V4L2)
   libpng-dev libopenni2-dev libcamera-dev libv4l-dev
+  # robot recordings (MCAP chunks) and the independent bag writer the tests use
+  libzstd-dev liblz4-dev python3-zstandard python3-lz4
   # cross compilers for ARM boards and qemu-user to run the tests
   g++-aarch64-linux-gnu g++-arm-linux-gnueabihf
   libgcc-12-dev-arm64-cross libgcc-12-dev-armhf-cross

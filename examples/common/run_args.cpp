@@ -97,6 +97,18 @@ const RunOption kRunOptions[] = {
        *v = o.out_dir;
        return !o.out_dir.empty();
      }},
+    {"record", "FILE",
+     "write the frames received, their intrinsics, timestamps and\n"
+     "ground truth as a ROS 2 bag (MCAP); replay it with mcap:FILE",
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a file name");
+       o.record = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.record;
+       return !o.record.empty();
+     }},
     {"map", "KIND",
      "multires (default), single (single-resolution baseline) or\n"
      "multires16 (multires in 16-bit fixed point, half the memory)",
@@ -347,7 +359,8 @@ const RunOption kRunOptions[] = {
     {"odometry", "FILE",
      "the vehicle's poses as a prior for ICP: a TUM trajectory (camera to\n"
      "world, interpolated to each frame's time; the first frame's pose\n"
-     "anchors it), or sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
+     "anchors it), a bag's poses (mcap:FILE[?pose=TOPIC], Odometry or\n"
+     "PoseStamped), or sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
      "for a drifting noisy odometry of the source's ground truth\n"
      "(default 1 %/m drift); writes DIR/odometry.txt",
      [](RunOptions& o, const std::string& v) {

@@ -35,6 +35,8 @@ struct RunOptions {
   // --odometry: a TUM trajectory file, or "sim[:drift=..,noise=..,seed=..]" for a drifting noisy
   // odometry of the source's ground truth; empty: none. Used as the pose prior.
   std::string odometry;
+  // --record FILE.mcap: the frames the pipeline receives, written as a ROS 2 bag; empty: none.
+  std::string record;
   bool odometry_only = false;        // --odometry-mode only: fuse at the odometry, no ICP
   bool odometry_mode_given = false;  // --odometry-mode was given (it needs --odometry)
   double odometry_information[2] = {-1.0, -1.0};  // --odometry-weight T,R; < 0: not given

@@ -10,6 +10,11 @@
 #include "octofuse/render/shade.hpp"
 #include "runner_steps.hpp"
 
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+#include "octofuse/ports/replay/mcap_writer.hpp"
+#include "octofuse/ports/replay/ros_messages.hpp"
+#endif
+
 namespace octofuse::examples::detail {
 namespace {
 
@@ -271,6 +276,12 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
     std::fprintf(stderr, "live view at %s\n", server->url().c_str());
   }
 
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+  replay::McapWriter recorder;
+  bool recording = false;
+#else
+  if (!options.record.empty()) return error_exit("--record needs the replay port in this build");
+#endif
   FrameDisplay display;
   display.show_progress = options.progress && ::isatty(STDERR_FILENO);
   DepthFrame frame;
@@ -289,7 +300,13 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
     if (options.stop != nullptr && options.stop->load()) break;
     if (options.max_frames >= 0 && processed >= options.max_frames) break;
     const NextFrame next = source->next(frame);
-    if (next.outcome == FrameOutcome::end_of_stream) break;
+    if (next.outcome == FrameOutcome::end_of_stream) {
+      // A recording cut short ends with the cause in last_error().
+      if (next.status.code() != StatusCode::end_of_stream) {
+        std::fprintf(stderr, "warning: %s\n", source->last_error());
+      }
+      break;
+    }
     if (next.outcome == FrameOutcome::error) {
       return error_exit(options.source_spec + ": " + source->last_error());
     }
@@ -298,6 +315,25 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
       std::fprintf(stderr, "warning: skipped a frame: %s\n", source->last_error());
       continue;
     }
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+    if (!options.record.empty()) {
+      if (!recording) {
+        PinholeCamera camera = inputs->input_camera;
+        camera.width = frame.depth_raw.width;
+        camera.height = frame.depth_raw.height;
+        if (!recorder.open(options.record.c_str(), camera).ok()) {
+          return error_exit(recorder.last_error());
+        }
+        recording = true;
+      }
+      // The run uses the ground truth as the recording will give it back (through a quaternion),
+      // so that replaying the recording is this run, bit for bit.
+      if (frame.has_ground_truth) {
+        frame.T_W_C_ground_truth = replay::pose_as_replayed(frame.T_W_C_ground_truth);
+      }
+      if (!recorder.write(frame).ok()) return error_exit(recorder.last_error());
+    }
+#endif
     PosePrior prior;
     if (const int rc = odometry_prior(options, frame, processed, inputs, summary, &prior);
         rc != 0) {
@@ -424,6 +460,14 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
                  static_cast<unsigned long long>(server->refused()),
                  static_cast<unsigned long long>(server->timed_out()));
   }
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+  if (recording) {
+    const std::uint64_t recorded = recorder.frames_written();
+    if (!recorder.close().ok()) return error_exit(recorder.last_error());
+    std::fprintf(stderr, "recorded %llu frames to %s\n", static_cast<unsigned long long>(recorded),
+                 options.record.c_str());
+  }
+#endif
   return 0;
 }
 

@@ -18,6 +18,10 @@
 #include "query_points.hpp"
 #include "runner_steps.hpp"
 
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+#include "octofuse/ports/replay/bag_source.hpp"
+#endif
+
 namespace octofuse::examples::detail {
 namespace {
 
@@ -84,13 +88,24 @@ bool check_outputs(const RunOptions& options, std::string* error) {
     }
   }
   if (!options.save_map_path.empty()) outputs.push_back({options.save_map_path, "--save-map"});
+  if (!options.record.empty()) outputs.push_back({options.record, "--record"});
   if (options.deadline_ms > 0.0 && !options.deadline_calibration.empty() &&
       !options.deadline_freeze) {
     outputs.push_back({options.deadline_calibration, "--deadline-calibration"});
   }
   std::vector<Output> inputs;
+  // A bag given as a source or odometry is a file behind its "mcap:" prefix and "?" options.
+  auto bag_file = [](const std::string& spec) {
+    return spec.substr(
+        5, spec.find('?') == std::string::npos ? std::string::npos : spec.find('?') - 5);
+  };
+  if (options.source_spec.rfind("mcap:", 0) == 0) {
+    inputs.push_back({bag_file(options.source_spec), "--source"});
+  }
   if (!options.odometry.empty() && !odometry_is_sim(options)) {
-    inputs.push_back({options.odometry, "--odometry"});
+    inputs.push_back(
+        {options.odometry.rfind("mcap:", 0) == 0 ? bag_file(options.odometry) : options.odometry,
+         "--odometry"});
   }
   if (!options.query_points_path.empty()) {
     inputs.push_back({options.query_points_path, "--query-points"});
@@ -393,7 +408,26 @@ int read_odometry(const RunOptions& options, RunInputs* inputs) {
 #endif
   if (!odometry_sim && !options.odometry.empty()) {
     ErrorText odometry_error;
-    if (!host::read_tum_trajectory(options.odometry.c_str(), &odometry_O, &odometry_error).ok()) {
+    if (options.odometry.rfind("mcap:", 0) == 0) {
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+      // A bag's Odometry or PoseStamped topic (mcap:FILE?pose=TOPIC).
+      replay::BagConfig bag;
+      if (!replay::parse_bag_spec(options.odometry.c_str(), &bag, &odometry_error).ok() ||
+          !replay::read_bag_poses(
+               bag,
+               [](void* context, std::int64_t stamp_ns, const Se3d& T) {
+                 static_cast<std::vector<host::TimedPose>*>(context)->push_back(
+                     {static_cast<double>(stamp_ns) * 1e-9, T});
+               },
+               &odometry_O, &odometry_error)
+               .ok()) {
+        return error_exit(std::string("--odometry: ") + odometry_error.c_str());
+      }
+#else
+      return error_exit("--odometry mcap: needs the replay port in this build");
+#endif
+    } else if (!host::read_tum_trajectory(options.odometry.c_str(), &odometry_O, &odometry_error)
+                    .ok()) {
       return error_exit(odometry_error.c_str());
     }
     if (odometry_O.empty()) return error_exit(options.odometry + ": no poses");

@@ -1,11 +1,15 @@
 #include "sources.hpp"
 
+#include <cstdio>
+#include <cstring>
+
 #include "octofuse/core/error_text.hpp"
 
 #if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
 #include "octofuse/ports/sim/sim_source.hpp"
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+#include "octofuse/ports/replay/bag_source.hpp"
 #include "octofuse/ports/replay/replay_source.hpp"
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
@@ -34,6 +38,7 @@ std::string supported_sources() {
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
   out += "                       tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE (recordings)\n";
+  out += "                       mcap:FILE[?depth=T&info=T&pose=T&world=F&buffer=MB] (ROS 2 bag)\n";
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
   out += "                       openni2[:URI] | oni:FILE (OpenNI2 camera or recording)\n";
@@ -91,6 +96,25 @@ std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOp
     return std::make_unique<replay::ReplaySource>(config);
   }
 #endif
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+  if (starts_with(spec, "mcap:")) {
+    replay::BagConfig config;
+    if (!replay::parse_bag_spec(spec.c_str(), &config, &text).ok()) {
+      *error = text.c_str();
+      return nullptr;
+    }
+    if (options.have_intrinsics) {
+      config.has_intrinsics = true;
+      config.intrinsics.fx = static_cast<float>(options.intrinsics[0]);
+      config.intrinsics.fy = static_cast<float>(options.intrinsics[1]);
+      config.intrinsics.cx = static_cast<float>(options.intrinsics[2]);
+      config.intrinsics.cy = static_cast<float>(options.intrinsics[3]);
+    }
+    if (options.depth_scale > 0.0)
+      config.depth_units_per_m = static_cast<float>(options.depth_scale);
+    return std::make_unique<replay::BagSource>(config);
+  }
+#endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
   if (spec == "openni2" || starts_with(spec, "openni2:") || starts_with(spec, "oni:")) {
     // The options struct borrows the URI; the source copies it in its constructor.
@@ -135,6 +159,45 @@ std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOp
   *error =
       "unknown or unsupported source '" + spec + "'; this build supports:\n" + supported_sources();
   return nullptr;
+}
+
+int list_bag(const std::string& path) {
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+  replay::BagConfig config;
+  if (path.empty() || path.size() >= sizeof(config.path)) {
+    std::fprintf(stderr, "error: --list needs a bag file\n");
+    return 2;
+  }
+  std::memcpy(config.path, path.c_str(), path.size() + 1);
+  replay::BagSource bag(config);
+  if (!bag.scan().ok()) {
+    std::fprintf(stderr, "error: %s\n", bag.last_error());
+    return 1;
+  }
+  std::printf("%-40s %-36s %8s %12s %12s\n", "topic", "type", "count", "first_s", "last_s");
+  std::uint64_t first = ~std::uint64_t{0}, last = 0;
+  for (int i = 0; i < bag.topic_count(); ++i) {
+    const replay::BagTopic topic = bag.topic(i);
+    std::printf("%-40s %-36s %8llu %12.3f %12.3f\n", topic.channel->topic,
+                topic.channel->schema_name, static_cast<unsigned long long>(topic.count),
+                static_cast<double>(topic.first_log_ns) * 1e-9,
+                static_cast<double>(topic.last_log_ns) * 1e-9);
+    if (topic.count > 0) {
+      if (topic.first_log_ns < first) first = topic.first_log_ns;
+      if (topic.last_log_ns > last) last = topic.last_log_ns;
+    }
+  }
+  if (last >= first) {
+    std::printf("time span %.3f s (%.3f to %.3f)\n", static_cast<double>(last - first) * 1e-9,
+                static_cast<double>(first) * 1e-9, static_cast<double>(last) * 1e-9);
+  }
+  if (bag.scan_warning()[0] != '\0') std::fprintf(stderr, "warning: %s\n", bag.scan_warning());
+  return 0;
+#else
+  std::fprintf(stderr, "error: this build has no bag reader (replay port)\n");
+  (void)path;
+  return 1;
+#endif
 }
 
 }  // namespace octofuse::examples

@@ -1,7 +1,8 @@
 #pragma once
 // Turns a source spec from the command line into a DepthSource:
 //   sim:desk | sim:room | tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE
-//   | oni:FILE | openni2[:URI] | v4l2:/dev/videoN | libcamera[:ID]
+//   | mcap:FILE[?depth=T&info=T&pose=T&world=F] | oni:FILE | openni2[:URI] | v4l2:/dev/videoN |
+//   libcamera[:ID]
 // Live and recorded-camera specs exist only when their port was built.
 
 #include <memory>
@@ -24,6 +25,9 @@ struct SourceOptions {
 // The source, or null with `error` set ("unknown source 'foo:'", "tum: needs a folder").
 std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOptions& options,
                                          std::string* error);
+
+// octofuse-replay --list FILE: prints a bag's topics, types, counts and time span; the exit status.
+int list_bag(const std::string& path);
 
 // One line per spec form this build supports, for --help.
 std::string supported_sources();

@@ -3,10 +3,17 @@
 
 #include <cstdio>
 
+#include <cstring>
+
+#include "cli.hpp"
 #include "run_args.hpp"
+#include "sources.hpp"
 #include "stop_signal.hpp"
 
 int main(int argc, char** argv) {
+  if (argc >= 2 && std::strcmp(argv[1], "--list") == 0) {
+    return octofuse::examples::list_bag(argc == 3 ? argv[2] : std::string());
+  }
   octofuse::examples::RunOptions options;
   options.out_dir = "octofuse-out";
   bool help = false;
@@ -17,6 +24,10 @@ int main(int argc, char** argv) {
   if (printed_config) return 0;
   if (help) {
     octofuse::examples::print_run_usage("octofuse-replay", "sim:desk");
+    std::fputs(octofuse::cli::format_option(
+                   "--list", "FILE", "print a bag's topics, types, counts and time span, and exit")
+                   .c_str(),
+               stdout);
     return 0;
   }
   // SIGINT/SIGTERM: finish the frame, write everything, exit 128 + the signal (cut short).

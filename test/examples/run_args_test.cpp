@@ -62,6 +62,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "tum:my data/fr1 # desk",
                  "--out",
                  "run 1",
+                 "--record",
+                 "run 1.mcap",
                  "--map",
                  "single",
                  "--voxel-size",

@@ -1,0 +1,168 @@
+#pragma once
+// DepthSource for robot recordings, read without ROS:
+//   mcap:FILE[?depth=TOPIC&info=TOPIC&pose=TOPIC&world=FRAME]
+// an MCAP file (rosbag2's default storage) with ROS 2 CDR messages:
+//   depth  sensor_msgs/msg/Image: 16UC1 or mono16 (millimetres unless a depth scale is given),
+//          32FC1 (metres, NaN for no data; stored at 5000 units/m unless a scale is given);
+//          or sensor_msgs/msg/CompressedImage from compressed_depth_image_transport
+//          ("16UC1; compressedDepth png|rvl", "32FC1; compressedDepth png|rvl"), used when the
+//          bag has no raw depth image;
+//   info   sensor_msgs/msg/CameraInfo: K gives the intrinsics; a distortion model with non-zero
+//          coefficients is refused (octofuse takes rectified depth only);
+//   pose   nav_msgs/msg/Odometry, geometry_msgs/msg/PoseStamped, or tf2_msgs/msg/TFMessage
+//          (/tf and /tf_static chained from the depth image's frame up to `world`, by default the
+//          root of that chain); delivered as each frame's ground truth.
+// Topics left out are chosen when there is one obvious candidate (the only one of its type, or
+// the only image topic with "depth" in its name); otherwise open() names the candidates.
+//
+// open() reads the file once to count topics and find the camera info, then next() streams it
+// again in file order, keeping the newest pose of each kind. Memory is fixed at open(): the MCAP
+// reader's two buffers (McapLimits), the frame ring and a table of TF frames.
+
+#include <cstddef>
+#include <cstdint>
+
+#include "octofuse/core/error_text.hpp"
+#include "octofuse/math/se3.hpp"
+#include "octofuse/ports/replay/mcap_reader.hpp"
+#include "octofuse/ports/replay/png_depth.hpp"
+#include "octofuse/ports/replay/ros_messages.hpp"
+#include "octofuse/sensor/depth_source.hpp"
+
+namespace octofuse::replay {
+
+struct BagConfig {
+  static constexpr std::size_t kMaxPath = 512;
+  static constexpr std::size_t kMaxName = McapChannel::kMaxName;
+
+  char path[kMaxPath] = {};
+  char depth_topic[kMaxName] = {};  // empty: chosen automatically
+  char info_topic[kMaxName] = {};
+  char pose_topic[kMaxName] = {};
+  char world_frame[kMaxName] = {};  // TF only; empty: the root of the depth frame's chain
+
+  bool has_intrinsics = false;     // use `intrinsics` instead of the camera info
+  PinholeCamera intrinsics;        // width/height 0: taken from the first image
+  float depth_units_per_m = 0.0f;  // 0: 1000 for 16-bit images, 5000 for 32FC1
+
+  int max_width = 1280;
+  int max_height = 1024;
+  int ring_size = 2;
+  int max_tf_frames = 64;
+  McapLimits limits;
+};
+
+// Fills `config` from "mcap:FILE?key=value&..." (keys depth, info, pose, world).
+// invalid_argument for another prefix, an empty path, an unknown key or a value too long.
+Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
+
+// Every pose on a bag's Odometry or PoseStamped topic (`config.pose_topic`, or the only such
+// topic), in file order, for use as the odometry prior: `on_pose(context, stamp_ns, T)` with the
+// pose of the message's child frame (the camera's, when the bag records the camera) in its
+// parent frame. invalid_argument when there is no such topic or several; data_loss for a
+// corrupt bag. A bag cut short gives the poses before the cut.
+Status read_bag_poses(const BagConfig& config,
+                      void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
+                      void* context, ErrorText* error);
+
+// What a topic holds, for --list and the automatic choice.
+struct BagTopic {
+  const McapChannel* channel = nullptr;
+  std::uint64_t count = 0;
+  std::uint64_t first_log_ns = 0;
+  std::uint64_t last_log_ns = 0;
+};
+
+class BagSource final : public DepthSource {
+ public:
+  explicit BagSource(const BagConfig& config);
+  ~BagSource() override;
+  BagSource(const BagSource&) = delete;
+  BagSource& operator=(const BagSource&) = delete;
+
+  // Reads the whole file once (counts, camera info) and chooses the topics. unavailable (no
+  // file), data_loss (not MCAP, corrupt), invalid_argument (no depth topic, ambiguous topics, no
+  // intrinsics, a distortion it cannot honour), resource_exhausted.
+  Status open() override;
+  NextFrame next(DepthFrame& frame) override;
+  void close() override;
+  PinholeCamera intrinsics() const override { return intrinsics_; }
+  SourceCapabilities capabilities() const override;
+  const char* last_error() const override { return error_.c_str(); }
+
+  // Only the first pass (no topic choice): for listing a bag. Then topic_count()/topic() and
+  // scan_warning() (a cut file) are valid.
+  Status scan();
+  int topic_count() const { return reader_.channel_count(); }
+  BagTopic topic(int index) const;
+  const char* scan_warning() const { return scan_warning_.c_str(); }
+
+  // Frames whose pose could not be found (no TF chain to the world, no pose yet).
+  std::uint64_t frames_without_pose() const { return frames_without_pose_; }
+  std::size_t bytes_reserved() const { return memory_bytes_ + reader_.bytes_reserved(); }
+  const char* depth_topic() const { return depth_topic_; }
+  const char* pose_topic() const { return pose_topic_; }
+
+  struct TfFrame {
+    char name[64] = {};
+    int parent = -1;
+    Se3d T_parent_child = Se3d::Identity();
+  };
+
+  // Channel kinds, indexed like the reader's channels.
+  enum class Kind : std::uint8_t { other, image, compressed, camera_info, tf, odometry, pose };
+
+ private:
+  Status choose_topics();
+  int tf_find(const char* name, std::size_t size, bool insert);
+  void tf_update(const RosPose& transform);
+  bool tf_chain(int from, int to, Se3d* T_to_from) const;
+  bool pose_for(const RosString& camera_frame, Se3d* T_W_C);
+  NextFrame convert(const RosImage& image, std::int64_t log_time_ns, DepthFrame& frame);
+  NextFrame convert_compressed(const RosCompressedImage& image, std::int64_t log_time_ns,
+                               DepthFrame& frame);
+  NextFrame finish(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
+                   const RosString& frame_id, std::int64_t log_time_ns, DepthFrame& frame);
+
+  BagConfig config_;
+  ErrorText error_;
+  ErrorText scan_warning_;
+  McapReader reader_;
+  bool open_ = false;
+  bool scanned_ = false;
+
+  void* memory_ = nullptr;
+  std::size_t memory_bytes_ = 0;
+  std::uint16_t* ring_ = nullptr;
+  TfFrame* tf_ = nullptr;
+  PngDepthDecoder png_;
+  int tf_count_ = 0;
+
+  static constexpr int kMaxChannels = 256;
+  Kind kinds_[kMaxChannels] = {};
+  std::uint64_t counts_[kMaxChannels] = {};
+  std::uint64_t first_ns_[kMaxChannels] = {};
+  std::uint64_t last_ns_[kMaxChannels] = {};
+  int first_width_[kMaxChannels] = {};
+  int first_height_[kMaxChannels] = {};
+  RosCameraInfo first_info_[kMaxChannels];
+  bool have_info_[kMaxChannels] = {};
+  char info_model_[kMaxChannels][32] = {};
+
+  const char* depth_topic_ = "";
+  const char* pose_topic_ = "";
+  int depth_channel_ = -1;
+  int info_channel_ = -1;
+  int pose_channel_ = -1;  // odometry or pose topic; -1 with use_tf_ for TF
+  bool use_tf_ = false;
+  bool have_pose_ = false;
+  Se3d T_W_B_ = Se3d::Identity();  // the newest pose message
+  char pose_child_[64] = {};
+
+  PinholeCamera intrinsics_;
+  std::uint64_t sequence_ = 0;
+  std::uint64_t frames_without_pose_ = 0;
+  int ring_next_ = 0;
+};
+
+}  // namespace octofuse::replay

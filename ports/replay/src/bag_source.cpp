@@ -1,0 +1,793 @@
+#include "octofuse/ports/replay/bag_source.hpp"
+
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/ports/replay/rvl.hpp"
+
+namespace octofuse::replay {
+namespace {
+
+bool starts_with(const char* text, const char* prefix) {
+  return std::strncmp(text, prefix, std::strlen(prefix)) == 0;
+}
+
+// ROS 2 names types "pkg/msg/Type", ROS 1 "pkg/Type": both are accepted.
+bool is_type(const char* schema, const char* package, const char* type) {
+  const std::size_t p = std::strlen(package);
+  if (std::strncmp(schema, package, p) != 0 || schema[p] != '/') return false;
+  const char* rest = schema + p + 1;
+  if (starts_with(rest, "msg/")) rest += 4;
+  return std::strcmp(rest, type) == 0;
+}
+
+BagSource::Kind kind_of(const McapChannel& channel) {
+  const char* s = channel.schema_name;
+  if (is_type(s, "sensor_msgs", "Image")) return BagSource::Kind::image;
+  if (is_type(s, "sensor_msgs", "CompressedImage")) return BagSource::Kind::compressed;
+  if (is_type(s, "sensor_msgs", "CameraInfo")) return BagSource::Kind::camera_info;
+  if (is_type(s, "tf2_msgs", "TFMessage")) return BagSource::Kind::tf;
+  if (is_type(s, "nav_msgs", "Odometry")) return BagSource::Kind::odometry;
+  if (is_type(s, "geometry_msgs", "PoseStamped")) return BagSource::Kind::pose;
+  return BagSource::Kind::other;
+}
+
+bool copy_value(const char* begin, std::size_t size, char* out, std::size_t capacity) {
+  if (size >= capacity) return false;
+  std::memcpy(out, begin, size);
+  out[size] = '\0';
+  return true;
+}
+
+bool host_is_big_endian() {
+  const std::uint16_t one = 1;
+  std::uint8_t first = 0;
+  std::memcpy(&first, &one, 1);
+  return first == 0;
+}
+
+}  // namespace
+
+Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
+  if (!starts_with(spec, "mcap:")) {
+    error->set("bag: '%s' is not mcap:FILE", spec);
+    return StatusCode::invalid_argument;
+  }
+  const char* path = spec + 5;
+  const char* query = std::strchr(path, '?');
+  const std::size_t path_size = query ? static_cast<std::size_t>(query - path) : std::strlen(path);
+  if (path_size == 0 || !copy_value(path, path_size, config->path, sizeof(config->path))) {
+    error->set("mcap: needs a file (at most %zu bytes)", sizeof(config->path) - 1);
+    return StatusCode::invalid_argument;
+  }
+  while (query != nullptr) {
+    const char* key = query + 1;
+    const char* end = std::strchr(key, '&');
+    const char* eq = std::strchr(key, '=');
+    const std::size_t item = end ? static_cast<std::size_t>(end - key) : std::strlen(key);
+    if (eq == nullptr || eq > key + item) {
+      error->set("mcap: option '%.*s' needs KEY=VALUE", static_cast<int>(item), key);
+      return StatusCode::invalid_argument;
+    }
+    const std::size_t key_size = static_cast<std::size_t>(eq - key);
+    const char* value = eq + 1;
+    const std::size_t value_size = item - key_size - 1;
+    if (key_size == 6 && std::strncmp(key, "buffer", 6) == 0) {
+      // Megabytes for each of the reader's two buffers (record and chunk).
+      char number[16] = {};
+      char* end_number = nullptr;
+      const long mb =
+          value_size < sizeof(number) && copy_value(value, value_size, number, sizeof(number))
+              ? std::strtol(number, &end_number, 10)
+              : 0;
+      if (end_number == nullptr || *end_number != '\0' || mb < 1 || mb > 1024) {
+        error->set("mcap: buffer=MB needs 1 to 1024");
+        return StatusCode::invalid_argument;
+      }
+      config->limits.max_record_bytes = static_cast<std::size_t>(mb) << 20;
+      config->limits.max_chunk_bytes = static_cast<std::size_t>(mb) << 20;
+      query = end;
+      continue;
+    }
+    char* out = nullptr;
+    if (key_size == 5 && std::strncmp(key, "depth", 5) == 0) out = config->depth_topic;
+    if (key_size == 4 && std::strncmp(key, "info", 4) == 0) out = config->info_topic;
+    if (key_size == 4 && std::strncmp(key, "pose", 4) == 0) out = config->pose_topic;
+    if (key_size == 5 && std::strncmp(key, "world", 5) == 0) out = config->world_frame;
+    if (out == nullptr) {
+      error->set("mcap: unknown option '%.*s' (depth, info, pose, world, buffer)",
+                 static_cast<int>(key_size), key);
+      return StatusCode::invalid_argument;
+    }
+    if (value_size == 0 || !copy_value(value, value_size, out, BagConfig::kMaxName)) {
+      error->set("mcap: option '%.*s' needs a value of 1 to %zu bytes", static_cast<int>(key_size),
+                 key, BagConfig::kMaxName - 1);
+      return StatusCode::invalid_argument;
+    }
+    query = end;
+  }
+  return ok_status();
+}
+
+BagSource::BagSource(const BagConfig& config) : config_(config) {}
+
+BagSource::~BagSource() {
+  close();
+}
+
+void BagSource::close() {
+  reader_.close();
+  std::free(memory_);
+  memory_ = nullptr;
+  memory_bytes_ = 0;
+  ring_ = nullptr;
+  tf_ = nullptr;
+  open_ = scanned_ = false;
+}
+
+SourceCapabilities BagSource::capabilities() const {
+  SourceCapabilities caps;
+  caps.has_ground_truth = use_tf_ || pose_channel_ >= 0;
+  caps.ring_size = config_.ring_size;
+  return caps;
+}
+
+BagTopic BagSource::topic(int index) const {
+  BagTopic t;
+  t.channel = &reader_.channel_at(index);
+  t.count = counts_[index];
+  t.first_log_ns = first_ns_[index];
+  t.last_log_ns = last_ns_[index];
+  return t;
+}
+
+Status BagSource::scan() {
+  close();
+  error_.clear();
+  scan_warning_.clear();
+  if (config_.limits.max_channels > kMaxChannels) {
+    error_.set("mcap: at most %d channels", kMaxChannels);
+    return StatusCode::invalid_argument;
+  }
+  Status status = reader_.open(config_.path, config_.limits);
+  if (!status.ok()) {
+    error_.set("%s", reader_.error());
+    return status;
+  }
+  for (int i = 0; i < kMaxChannels; ++i) {
+    counts_[i] = first_ns_[i] = last_ns_[i] = 0;
+    first_width_[i] = first_height_[i] = 0;
+    have_info_[i] = false;
+  }
+  McapMessage message;
+  for (;;) {
+    const McapNext got = reader_.next(&message);
+    if (got == McapNext::end) break;
+    if (got == McapNext::truncated) {
+      scan_warning_.set("%s", reader_.warning());
+      break;
+    }
+    if (got == McapNext::error) {
+      error_.set("%s: %s", config_.path, reader_.error());
+      reader_.close();
+      return StatusCode::data_loss;
+    }
+    const int c = static_cast<int>(message.channel - &reader_.channel_at(0));
+    if (counts_[c] == 0) {
+      first_ns_[c] = message.log_time_ns;
+      kinds_[c] = kind_of(*message.channel);
+    }
+    ++counts_[c];
+    last_ns_[c] = message.log_time_ns;
+    if (kinds_[c] == Kind::image && first_width_[c] == 0) {
+      RosImage image;
+      if (decode_image(message.data, message.size, RosWire::cdr, &image)) {
+        first_width_[c] = static_cast<int>(image.width);
+        first_height_[c] = static_cast<int>(image.height);
+      }
+    }
+    if (kinds_[c] == Kind::camera_info && !have_info_[c]) {
+      have_info_[c] = decode_camera_info(message.data, message.size, RosWire::cdr, &first_info_[c]);
+      if (have_info_[c]) {
+        // The view points into the reader's buffer: keep a copy of the model's name.
+        const RosString& model = first_info_[c].distortion_model;
+        const std::size_t n =
+            model.size < sizeof(info_model_[c]) ? model.size : sizeof(info_model_[c]) - 1;
+        if (n > 0) std::memcpy(info_model_[c], model.data, n);
+        info_model_[c][n] = '\0';
+      }
+    }
+  }
+  scanned_ = true;
+  return ok_status();
+}
+
+Status BagSource::choose_topics() {
+  const int n = reader_.channel_count();
+  auto find_topic = [&](const char* name) {
+    for (int i = 0; i < n; ++i) {
+      if (std::strcmp(reader_.channel_at(i).topic, name) == 0) return i;
+    }
+    return -1;
+  };
+  // Depth.
+  depth_channel_ = -1;
+  if (config_.depth_topic[0] != '\0') {
+    depth_channel_ = find_topic(config_.depth_topic);
+    if (depth_channel_ < 0 ||
+        (kinds_[depth_channel_] != Kind::image && kinds_[depth_channel_] != Kind::compressed)) {
+      error_.set("mcap: no sensor_msgs/msg/Image or CompressedImage topic '%s' in %s (see --list)",
+                 config_.depth_topic, config_.path);
+      return StatusCode::invalid_argument;
+    }
+  } else {
+    int images = 0, depth_images = 0, any = -1, depth = -1;
+    for (int i = 0; i < n; ++i) {
+      if (kinds_[i] != Kind::image || counts_[i] == 0) continue;
+      ++images;
+      any = i;
+      if (std::strstr(reader_.channel_at(i).topic, "depth") != nullptr) {
+        ++depth_images;
+        depth = i;
+      }
+    }
+    if (images == 0) {
+      // No raw image: compressed_depth_image_transport's topics (".../compressedDepth").
+      for (int i = 0; i < n; ++i) {
+        if (kinds_[i] != Kind::compressed || counts_[i] == 0 ||
+            std::strstr(reader_.channel_at(i).topic, "compressedDepth") == nullptr) {
+          continue;
+        }
+        ++images;
+        any = i;
+      }
+    }
+    if (images == 1) {
+      depth_channel_ = any;
+    } else if (depth_images == 1) {
+      depth_channel_ = depth;
+    }
+    if (depth_channel_ < 0) {
+      error_.set(
+          images == 0
+              ? "mcap: %s has no sensor_msgs/msg/Image (or compressedDepth) messages (see --list)"
+              : "mcap: %s has several image topics; choose one with mcap:FILE?depth=TOPIC "
+                "(see --list)",
+          config_.path);
+      return StatusCode::invalid_argument;
+    }
+  }
+  depth_topic_ = reader_.channel_at(depth_channel_).topic;
+
+  // Camera info: the named one, the only one, or the one beside the depth topic.
+  info_channel_ = -1;
+  if (config_.info_topic[0] != '\0') {
+    info_channel_ = find_topic(config_.info_topic);
+    if (info_channel_ < 0 || kinds_[info_channel_] != Kind::camera_info) {
+      error_.set("mcap: no sensor_msgs/msg/CameraInfo topic '%s' in %s", config_.info_topic,
+                 config_.path);
+      return StatusCode::invalid_argument;
+    }
+  } else {
+    int infos = 0, any = -1, sibling = -1;
+    const char* slash = std::strrchr(depth_topic_, '/');
+    std::size_t prefix = slash ? static_cast<std::size_t>(slash - depth_topic_) : 0;
+    if (kinds_[depth_channel_] == Kind::compressed) {
+      // ".../image_raw/compressedDepth": the camera info sits beside image_raw.
+      while (prefix > 0 && depth_topic_[--prefix] != '/') {
+      }
+    }
+    for (int i = 0; i < n; ++i) {
+      if (kinds_[i] != Kind::camera_info || !have_info_[i]) continue;
+      ++infos;
+      any = i;
+      const char* topic = reader_.channel_at(i).topic;
+      if (std::strncmp(topic, depth_topic_, prefix) == 0 && topic[prefix] == '/' &&
+          std::strchr(topic + prefix + 1, '/') == nullptr) {
+        sibling = i;
+      }
+    }
+    info_channel_ = infos == 1 ? any : sibling;
+  }
+  if (config_.has_intrinsics) {
+    intrinsics_ = config_.intrinsics;
+  } else {
+    if (info_channel_ < 0 || !have_info_[info_channel_]) {
+      error_.set(
+          "mcap: no camera info for %s in %s; choose one with mcap:FILE?info=TOPIC or give "
+          "--intrinsics",
+          depth_topic_, config_.path);
+      return StatusCode::invalid_argument;
+    }
+    const RosCameraInfo& info = first_info_[info_channel_];
+    if (info.max_abs_distortion != 0.0) {
+      error_.set(
+          "mcap: camera info on %s has %s distortion (largest coefficient %g); octofuse "
+          "takes rectified depth only: rectify it, or give --intrinsics to use it as is",
+          reader_.channel_at(info_channel_).topic,
+          info_model_[info_channel_][0] ? info_model_[info_channel_] : "unnamed",
+          info.max_abs_distortion);
+      return StatusCode::invalid_argument;
+    }
+    intrinsics_.fx = static_cast<float>(info.k[0]);
+    intrinsics_.fy = static_cast<float>(info.k[4]);
+    intrinsics_.cx = static_cast<float>(info.k[2]);
+    intrinsics_.cy = static_cast<float>(info.k[5]);
+    intrinsics_.width = static_cast<int>(info.width);
+    intrinsics_.height = static_cast<int>(info.height);
+    if (!(intrinsics_.fx > 0.0f && intrinsics_.fy > 0.0f)) {
+      error_.set("mcap: camera info on %s has no focal length (K[0], K[4] not > 0)",
+                 reader_.channel_at(info_channel_).topic);
+      return StatusCode::invalid_argument;
+    }
+  }
+  if (intrinsics_.width == 0 || intrinsics_.height == 0) {
+    intrinsics_.width = first_width_[depth_channel_];
+    intrinsics_.height = first_height_[depth_channel_];
+  }
+  if (intrinsics_.width <= 0 || intrinsics_.height <= 0 || intrinsics_.width > config_.max_width ||
+      intrinsics_.height > config_.max_height) {
+    error_.set("mcap: depth images of %dx%d on %s (at most %dx%d)", intrinsics_.width,
+               intrinsics_.height, depth_topic_, config_.max_width, config_.max_height);
+    return StatusCode::resource_exhausted;
+  }
+
+  // Poses: the named topic, the only odometry or pose topic, else TF when there is any.
+  pose_channel_ = -1;
+  use_tf_ = false;
+  pose_topic_ = "";
+  int tf_topics = 0;
+  for (int i = 0; i < n; ++i) tf_topics += kinds_[i] == Kind::tf && counts_[i] > 0;
+  if (config_.pose_topic[0] != '\0') {
+    const int c = find_topic(config_.pose_topic);
+    if (c < 0 ||
+        (kinds_[c] != Kind::odometry && kinds_[c] != Kind::pose && kinds_[c] != Kind::tf)) {
+      error_.set("mcap: no Odometry, PoseStamped or TFMessage topic '%s' in %s", config_.pose_topic,
+                 config_.path);
+      return StatusCode::invalid_argument;
+    }
+    if (kinds_[c] == Kind::tf) {
+      use_tf_ = true;
+    } else {
+      pose_channel_ = c;
+    }
+    pose_topic_ = reader_.channel_at(c).topic;
+  } else {
+    int poses = 0, any = -1;
+    for (int i = 0; i < n; ++i) {
+      if ((kinds_[i] == Kind::odometry || kinds_[i] == Kind::pose) && counts_[i] > 0) {
+        ++poses;
+        any = i;
+      }
+    }
+    if (poses > 1) {
+      error_.set("mcap: %s has several pose topics; choose one with mcap:FILE?pose=TOPIC",
+                 config_.path);
+      return StatusCode::invalid_argument;
+    }
+    if (poses == 1) {
+      pose_channel_ = any;
+      pose_topic_ = reader_.channel_at(any).topic;
+    } else if (tf_topics > 0) {
+      use_tf_ = true;
+      pose_topic_ = "/tf";
+    }
+  }
+  return ok_status();
+}
+
+Status BagSource::open() {
+  Status status = scan();
+  if (!status.ok()) return status;
+  if (config_.max_width <= 0 || config_.max_height <= 0 || config_.max_width > 16384 ||
+      config_.max_height > 16384 || config_.ring_size < 1 || config_.ring_size > 64 ||
+      config_.max_tf_frames < 1 || config_.max_tf_frames > 4096 ||
+      !(config_.depth_units_per_m >= 0.0f)) {
+    error_.set("mcap: invalid configuration");
+    close();
+    return StatusCode::invalid_argument;
+  }
+  status = choose_topics();
+  if (!status.ok()) {
+    close();
+    return status;
+  }
+  ArenaSizer sizer;
+  const std::size_t frame_pixels =
+      static_cast<std::size_t>(intrinsics_.width) * static_cast<std::size_t>(intrinsics_.height);
+  (void)sizer.allocate_bytes(
+      frame_pixels * sizeof(std::uint16_t) * static_cast<std::size_t>(config_.ring_size),
+      kArenaAlignment);
+  (void)sizer.allocate_array<TfFrame>(static_cast<std::size_t>(config_.max_tf_frames));
+  (void)png_.reserve(sizer);
+  memory_bytes_ = sizer.bytes_used();
+  memory_ = std::aligned_alloc(kArenaAlignment, align_up(memory_bytes_, kArenaAlignment));
+  if (memory_ == nullptr) {
+    error_.set("mcap: cannot reserve %zu bytes", memory_bytes_);
+    close();
+    return StatusCode::resource_exhausted;
+  }
+  LinearArena arena(memory_, memory_bytes_);
+  ring_ = static_cast<std::uint16_t*>(
+      arena
+          .allocate_bytes(
+              frame_pixels * sizeof(std::uint16_t) * static_cast<std::size_t>(config_.ring_size),
+              kArenaAlignment)
+          .value());
+  tf_ = arena.allocate_array<TfFrame>(static_cast<std::size_t>(config_.max_tf_frames)).value();
+  OCTOFUSE_CHECK(png_.reserve(arena).ok());  // sized by the same calls
+  tf_count_ = 0;
+  have_pose_ = false;
+  sequence_ = 0;
+  frames_without_pose_ = 0;
+  ring_next_ = 0;
+  reader_.rewind();
+  error_.clear();
+  open_ = true;
+  return ok_status();
+}
+
+int BagSource::tf_find(const char* name, std::size_t size, bool insert) {
+  // TF names may start with a slash (ROS 1): "/world" and "world" are the same frame.
+  if (size > 0 && name[0] == '/') {
+    ++name;
+    --size;
+  }
+  for (int i = 0; i < tf_count_; ++i) {
+    if (std::strlen(tf_[i].name) == size && std::strncmp(tf_[i].name, name, size) == 0) return i;
+  }
+  if (!insert || tf_count_ >= config_.max_tf_frames || size >= sizeof(tf_[0].name)) return -1;
+  TfFrame& frame = tf_[tf_count_];
+  std::memcpy(frame.name, name, size);
+  frame.name[size] = '\0';
+  frame.parent = -1;
+  frame.T_parent_child = Se3d::Identity();
+  return tf_count_++;
+}
+
+void BagSource::tf_update(const RosPose& transform) {
+  Se3d T;
+  if (!pose_to_se3(transform, &T)) return;
+  const int child = tf_find(transform.child_frame.data, transform.child_frame.size, true);
+  const int parent = tf_find(transform.parent_frame.data, transform.parent_frame.size, true);
+  if (child < 0 || parent < 0 || child == parent) return;
+  tf_[child].parent = parent;
+  tf_[child].T_parent_child = T;
+}
+
+// T_to_from by walking parents from `from`; to < 0 means the root of the chain.
+bool BagSource::tf_chain(int from, int to, Se3d* T_to_from) const {
+  Se3d T = Se3d::Identity();
+  int f = from;
+  for (int steps = 0; steps <= tf_count_; ++steps) {
+    if (f == to || (to < 0 && tf_[f].parent < 0)) {
+      *T_to_from = T;
+      return true;
+    }
+    if (tf_[f].parent < 0) return false;
+    T = tf_[f].T_parent_child * T;
+    f = tf_[f].parent;
+  }
+  return false;  // a cycle
+}
+
+bool BagSource::pose_for(const RosString& camera_frame, Se3d* T_W_C) {
+  const int camera = tf_find(camera_frame.data, camera_frame.size, false);
+  if (use_tf_) {
+    if (camera < 0) return false;
+    int world = -1;
+    if (config_.world_frame[0] != '\0') {
+      world = tf_find(config_.world_frame, std::strlen(config_.world_frame), false);
+      if (world < 0) return false;
+    }
+    return tf_chain(camera, world, T_W_C);
+  }
+  if (!have_pose_) return false;
+  // The pose is of its child frame (the robot's body): add the body-to-camera TF when known.
+  const int body = tf_find(pose_child_, std::strlen(pose_child_), false);
+  Se3d T_B_C;
+  if (camera >= 0 && body >= 0 && camera != body && tf_chain(camera, body, &T_B_C)) {
+    *T_W_C = T_W_B_ * T_B_C;
+  } else {
+    *T_W_C = T_W_B_;  // the pose is the camera's
+  }
+  return true;
+}
+
+NextFrame BagSource::convert(const RosImage& image, std::int64_t log_time_ns, DepthFrame& frame) {
+  const int width = static_cast<int>(image.width);
+  const int height = static_cast<int>(image.height);
+  if (width != intrinsics_.width || height != intrinsics_.height) {
+    error_.set("%s: image of %dx%d, the camera has %dx%d", depth_topic_, width, height,
+               intrinsics_.width, intrinsics_.height);
+    return NextFrame::skipped(StatusCode::invalid_argument);
+  }
+  const bool is16 = image.encoding.equals("16UC1") || image.encoding.equals("mono16");
+  const bool is32 = image.encoding.equals("32FC1");
+  if (!is16 && !is32) {
+    error_.set("%s: encoding '%.*s' is not depth (16UC1, mono16, 32FC1)", depth_topic_,
+               static_cast<int>(image.encoding.size),
+               image.encoding.data ? image.encoding.data : "");
+    return NextFrame::skipped(StatusCode::invalid_argument);
+  }
+  const std::size_t pixel_bytes = is16 ? 2 : 4;
+  const std::uint64_t row_bytes = static_cast<std::uint64_t>(width) * pixel_bytes;
+  if (image.step < row_bytes ||
+      static_cast<std::uint64_t>(image.step) * static_cast<std::uint64_t>(height) >
+          image.data_size) {
+    error_.set("%s: %u bytes of data for %dx%d %s rows of %u bytes", depth_topic_, image.data_size,
+               width, height, is16 ? "16-bit" : "float", image.step);
+    return NextFrame::skipped(StatusCode::data_loss);
+  }
+  const bool swap = image.big_endian != host_is_big_endian();
+  std::uint16_t* out = ring_ + static_cast<std::size_t>(ring_next_) *
+                                   static_cast<std::size_t>(width) *
+                                   static_cast<std::size_t>(height);
+  ring_next_ = (ring_next_ + 1) % config_.ring_size;
+  const float units =
+      config_.depth_units_per_m > 0.0f ? config_.depth_units_per_m : (is16 ? 1000.0f : 5000.0f);
+  for (int y = 0; y < height; ++y) {
+    const std::uint8_t* row = image.data + static_cast<std::size_t>(y) * image.step;
+    std::uint16_t* dst = out + static_cast<std::size_t>(y) * static_cast<std::size_t>(width);
+    if (is16) {
+      std::memcpy(dst, row, static_cast<std::size_t>(row_bytes));
+      if (swap) {
+        for (int x = 0; x < width; ++x) {
+          dst[x] = static_cast<std::uint16_t>((dst[x] >> 8) | (dst[x] << 8));
+        }
+      }
+    } else {
+      for (int x = 0; x < width; ++x) {
+        std::uint8_t b[4];
+        std::memcpy(b, row + 4 * x, 4);
+        if (swap) {
+          std::uint8_t t = b[0];
+          b[0] = b[3];
+          b[3] = t;
+          t = b[1];
+          b[1] = b[2];
+          b[2] = t;
+        }
+        float m = 0.0f;
+        std::memcpy(&m, b, 4);
+        const float u = m * units + 0.5f;
+        // NaN, negative and out-of-range depths are "no data".
+        dst[x] = (u >= 1.0f && u < 65535.5f) ? static_cast<std::uint16_t>(u) : 0;
+      }
+    }
+  }
+  return finish(out, units, image.stamp_ns, image.frame_id, log_time_ns, frame);
+}
+
+NextFrame BagSource::finish(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
+                            const RosString& frame_id, std::int64_t log_time_ns,
+                            DepthFrame& frame) {
+  frame.depth_raw = ImageView<const std::uint16_t>(pixels, intrinsics_.width, intrinsics_.height);
+  frame.metres_per_unit = 1.0f / units_per_m;
+  frame.timestamp_us = (stamp_ns != 0 ? stamp_ns : log_time_ns) / 1000;
+  frame.sequence = sequence_++;
+  Se3d T_W_C;
+  frame.has_ground_truth = false;
+  frame.T_W_C_ground_truth = Eigen::Matrix4d::Identity();
+  if ((use_tf_ || pose_channel_ >= 0)) {
+    if (pose_for(frame_id, &T_W_C)) {
+      frame.has_ground_truth = true;
+      frame.T_W_C_ground_truth = T_W_C.matrix();
+    } else {
+      ++frames_without_pose_;
+    }
+  }
+  return NextFrame::got_frame();
+}
+
+// compressed_depth_image_transport: a 12-byte header (int32 format, float quantisation A, B),
+// then a 16-bit PNG or, for rvl, int32 width, height and the RVL stream. 32FC1 is stored as
+// quantised inverse depth: metres = A / (v - B), 0 for no data.
+NextFrame BagSource::convert_compressed(const RosCompressedImage& image, std::int64_t log_time_ns,
+                                        DepthFrame& frame) {
+  const char* format = image.format.data != nullptr ? image.format.data : "";
+  const std::size_t format_size = image.format.size;
+  auto has = [&](const char* word) {
+    const std::size_t n = std::strlen(word);
+    for (std::size_t i = 0; i + n <= format_size; ++i) {
+      if (std::strncmp(format + i, word, n) == 0) return true;
+    }
+    return false;
+  };
+  const bool is16 = has("16UC1") || has("mono16");
+  const bool is32 = has("32FC1");
+  const bool rvl = has("rvl");
+  if (!has("compressedDepth") || (!is16 && !is32)) {
+    error_.set("%s: compressed format '%.*s' is not compressedDepth of 16UC1 or 32FC1",
+               depth_topic_, static_cast<int>(format_size), format);
+    return NextFrame::skipped(StatusCode::invalid_argument);
+  }
+  if (image.data_size < 12) {
+    error_.set("%s: compressedDepth data of %u bytes has no header", depth_topic_, image.data_size);
+    return NextFrame::skipped(StatusCode::data_loss);
+  }
+  auto le32 = [](const std::uint8_t* p) {
+    return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
+           (std::uint32_t{p[3]} << 24);
+  };
+  float quant[2];
+  for (int i = 0; i < 2; ++i) {
+    const std::uint32_t bits = le32(image.data + 4 + 4 * i);
+    std::memcpy(&quant[i], &bits, 4);
+  }
+  const std::uint8_t* payload = image.data + 12;
+  const std::size_t payload_size = image.data_size - 12;
+  std::uint16_t* out = ring_ + static_cast<std::size_t>(ring_next_) *
+                                   static_cast<std::size_t>(intrinsics_.width) *
+                                   static_cast<std::size_t>(intrinsics_.height);
+  ring_next_ = (ring_next_ + 1) % config_.ring_size;
+  const std::size_t pixel_count =
+      static_cast<std::size_t>(intrinsics_.width) * static_cast<std::size_t>(intrinsics_.height);
+  if (rvl) {
+    std::uint32_t size[2] = {0, 0};
+    if (payload_size < 8) {
+      error_.set("%s: RVL data of %zu bytes has no size", depth_topic_, payload_size);
+      return NextFrame::skipped(StatusCode::data_loss);
+    }
+    size[0] = le32(payload);
+    size[1] = le32(payload + 4);
+    if (size[0] != static_cast<std::uint32_t>(intrinsics_.width) ||
+        size[1] != static_cast<std::uint32_t>(intrinsics_.height)) {
+      error_.set("%s: RVL image of %ux%u, the camera has %dx%d", depth_topic_, size[0], size[1],
+                 intrinsics_.width, intrinsics_.height);
+      return NextFrame::skipped(StatusCode::invalid_argument);
+    }
+    if (!decode_rvl(payload + 8, payload_size - 8, out, pixel_count)) {
+      error_.set("%s: corrupt or truncated RVL data", depth_topic_);
+      return NextFrame::skipped(StatusCode::data_loss);
+    }
+  } else {
+    int width = 0, height = 0;
+    if (!png_.decode(payload, payload_size, out, intrinsics_.width, intrinsics_.height, &width,
+                     &height, depth_topic_, &error_)
+             .ok()) {
+      return NextFrame::skipped(StatusCode::data_loss);
+    }
+    if (width != intrinsics_.width || height != intrinsics_.height) {
+      error_.set("%s: PNG of %dx%d, the camera has %dx%d", depth_topic_, width, height,
+                 intrinsics_.width, intrinsics_.height);
+      return NextFrame::skipped(StatusCode::invalid_argument);
+    }
+  }
+  float units =
+      config_.depth_units_per_m > 0.0f ? config_.depth_units_per_m : (is16 ? 1000.0f : 5000.0f);
+  if (is32) {
+    for (std::size_t i = 0; i < pixel_count; ++i) {
+      if (out[i] == 0) continue;
+      const float m = quant[0] / (static_cast<float>(out[i]) - quant[1]);
+      const float u = m * units + 0.5f;
+      out[i] = (u >= 1.0f && u < 65535.5f) ? static_cast<std::uint16_t>(u) : 0;
+    }
+  }
+  return finish(out, units, image.stamp_ns, image.frame_id, log_time_ns, frame);
+}
+
+NextFrame BagSource::next(DepthFrame& frame) {
+  if (!open_) {
+    error_.set("mcap: next() before a successful open()");
+    return NextFrame::failed(StatusCode::failed_precondition);
+  }
+  McapMessage message;
+  for (;;) {
+    const McapNext got = reader_.next(&message);
+    if (got == McapNext::end) return NextFrame::ended();
+    if (got == McapNext::truncated) {
+      error_.set("%s: %s", config_.path, reader_.warning());
+      return NextFrame{FrameOutcome::end_of_stream, StatusCode::data_loss};
+    }
+    if (got == McapNext::error) {
+      error_.set("%s: %s", config_.path, reader_.error());
+      return NextFrame::failed(StatusCode::data_loss);
+    }
+    const int c = static_cast<int>(message.channel - &reader_.channel_at(0));
+    const Kind kind = kinds_[c];
+    if (kind == Kind::tf) {
+      RosTfReader tf;
+      RosPose transform;
+      if (!tf.begin(message.data, message.size, RosWire::cdr)) continue;
+      for (std::uint32_t i = 0; i < tf.count() && tf.next(&transform); ++i) tf_update(transform);
+      continue;
+    }
+    if (c == pose_channel_) {
+      RosPose pose;
+      const bool decoded =
+          kind == Kind::odometry
+              ? decode_odometry(message.data, message.size, RosWire::cdr, &pose)
+              : decode_pose_stamped(message.data, message.size, RosWire::cdr, &pose);
+      if (decoded && pose_to_se3(pose, &T_W_B_)) {
+        have_pose_ = true;
+        const RosString& child = pose.child_frame;
+        const std::size_t n = child.size < sizeof(pose_child_) ? child.size : 0;
+        if (n > 0) std::memcpy(pose_child_, child.data, n);
+        pose_child_[n] = '\0';
+      }
+      continue;
+    }
+    if (c != depth_channel_) continue;
+    if (kind == Kind::compressed) {
+      RosCompressedImage compressed;
+      if (!decode_compressed_image(message.data, message.size, RosWire::cdr, &compressed)) {
+        error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/CompressedImage",
+                   config_.path, static_cast<unsigned long long>(message.sequence), depth_topic_);
+        return NextFrame::skipped(StatusCode::data_loss);
+      }
+      return convert_compressed(compressed, static_cast<std::int64_t>(message.log_time_ns), frame);
+    }
+    RosImage image;
+    if (!decode_image(message.data, message.size, RosWire::cdr, &image)) {
+      error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/Image", config_.path,
+                 static_cast<unsigned long long>(message.sequence), depth_topic_);
+      return NextFrame::skipped(StatusCode::data_loss);
+    }
+    return convert(image, static_cast<std::int64_t>(message.log_time_ns), frame);
+  }
+}
+
+Status read_bag_poses(const BagConfig& config,
+                      void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
+                      void* context, ErrorText* error) {
+  McapReader reader;
+  Status status = reader.open(config.path, config.limits);
+  if (!status.ok()) {
+    error->set("%s", reader.error());
+    return status;
+  }
+  // The topic: named, or the only Odometry / PoseStamped one (channels are declared before
+  // their first message, so the choice is made at the first pose message of a second kind).
+  McapMessage message;
+  const McapChannel* chosen = nullptr;
+  const McapChannel* other = nullptr;
+  std::uint64_t poses = 0;
+  for (;;) {
+    const McapNext got = reader.next(&message);
+    if (got == McapNext::end || got == McapNext::truncated) break;
+    if (got == McapNext::error) {
+      error->set("%s: %s", config.path, reader.error());
+      return StatusCode::data_loss;
+    }
+    const BagSource::Kind kind = kind_of(*message.channel);
+    if (kind != BagSource::Kind::odometry && kind != BagSource::Kind::pose) continue;
+    if (config.pose_topic[0] != '\0') {
+      if (std::strcmp(message.channel->topic, config.pose_topic) != 0) continue;
+    } else if (chosen == nullptr) {
+      chosen = message.channel;
+    } else if (chosen != message.channel) {
+      other = message.channel;
+      break;
+    }
+    RosPose pose;
+    const bool decoded = kind == BagSource::Kind::odometry
+                             ? decode_odometry(message.data, message.size, RosWire::cdr, &pose)
+                             : decode_pose_stamped(message.data, message.size, RosWire::cdr, &pose);
+    Se3d T;
+    if (!decoded || !pose_to_se3(pose, &T)) {
+      error->set("%s: pose message %llu on %s is malformed or not a rotation", config.path,
+                 static_cast<unsigned long long>(message.sequence), message.channel->topic);
+      return StatusCode::data_loss;
+    }
+    const std::int64_t stamp_ns =
+        pose.stamp_ns != 0 ? pose.stamp_ns : static_cast<std::int64_t>(message.log_time_ns);
+    on_pose(context, stamp_ns, T);
+    ++poses;
+  }
+  if (other != nullptr) {
+    error->set("%s has several pose topics (%s, %s); choose one with mcap:FILE?pose=TOPIC",
+               config.path, chosen->topic, other->topic);
+    return StatusCode::invalid_argument;
+  }
+  if (poses == 0) {
+    error->set("%s: no Odometry or PoseStamped messages%s%s", config.path,
+               config.pose_topic[0] ? " on " : "", config.pose_topic);
+    return StatusCode::invalid_argument;
+  }
+  return ok_status();
+}
+
+}  // namespace octofuse::replay

@@ -1,0 +1,94 @@
+#pragma once
+// Frames a bag test starts from (sim or 7-Scenes), dumped for the independent MCAP writer
+// (make_bag.py) and kept in memory to compare with what the bag reader gives back.
+
+#include <sys/wait.h>
+
+#include <cstdint>
+#include <cstdlib>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "octofuse/sensor/depth_source.hpp"
+
+namespace octofuse::test {
+
+struct KeptFrame {
+  std::vector<std::uint16_t> depth;
+  int width = 0;
+  int height = 0;
+  float metres_per_unit = 0.0f;
+  std::int64_t timestamp_us = 0;
+  bool has_pose = false;
+  Eigen::Matrix4d T_W_C = Eigen::Matrix4d::Identity();
+};
+
+struct KeptFrames {
+  PinholeCamera camera;
+  std::vector<KeptFrame> frames;
+};
+
+// Up to `count` frames of an opened source.
+inline KeptFrames keep_frames(DepthSource& source, int count) {
+  KeptFrames kept;
+  kept.camera = source.intrinsics();
+  DepthFrame frame;
+  while (static_cast<int>(kept.frames.size()) < count) {
+    const NextFrame next = source.next(frame);
+    if (next.outcome == FrameOutcome::skip) continue;
+    if (next.outcome != FrameOutcome::frame) break;
+    KeptFrame k;
+    k.width = frame.depth_raw.width;
+    k.height = frame.depth_raw.height;
+    for (int y = 0; y < k.height; ++y) {
+      for (int x = 0; x < k.width; ++x) k.depth.push_back(frame.depth_raw(x, y));
+    }
+    k.metres_per_unit = frame.metres_per_unit;
+    k.timestamp_us = frame.timestamp_us;
+    k.has_pose = frame.has_ground_truth;
+    k.T_W_C = frame.T_W_C_ground_truth;
+    kept.frames.push_back(std::move(k));
+  }
+  return kept;
+}
+
+// The dump make_bag.py reads (its docstring has the layout).
+inline void write_frame_dump(const std::string& path, const KeptFrames& kept) {
+  std::ofstream out(path, std::ios::binary);
+  auto put = [&](const void* p, std::size_t n) { out.write(static_cast<const char*>(p), n); };
+  out << "OFDUMP1\n";
+  const std::uint32_t head[3] = {static_cast<std::uint32_t>(kept.frames.size()),
+                                 static_cast<std::uint32_t>(kept.camera.width),
+                                 static_cast<std::uint32_t>(kept.camera.height)};
+  put(head, sizeof(head));
+  const float k[4] = {kept.camera.fx, kept.camera.fy, kept.camera.cx, kept.camera.cy};
+  put(k, sizeof(k));
+  for (const KeptFrame& f : kept.frames) {
+    put(&f.timestamp_us, 8);
+    put(&f.metres_per_unit, 4);
+    const std::uint8_t has = f.has_pose ? 1 : 0;
+    put(&has, 1);
+    for (int r = 0; r < 4; ++r) {
+      for (int c = 0; c < 4; ++c) put(&f.T_W_C(r, c), 8);
+    }
+    put(f.depth.data(), f.depth.size() * 2);
+  }
+}
+
+// Runs make_bag.py; its exit status (77: a compression module is missing).
+inline int make_bag(const std::string& dump, const std::string& bag, const std::string& options) {
+#if !defined(OCTOFUSE_PYTHON)
+  (void)dump;
+  (void)bag;
+  (void)options;
+  return 77;  // no interpreter found at configure time
+#else
+  const std::string command = std::string(OCTOFUSE_PYTHON) + " " + OCTOFUSE_MAKE_BAG + " " + dump +
+                              " " + bag + " " + options;
+  const int rc = std::system(command.c_str());
+  return rc < 0 ? rc : WEXITSTATUS(rc);
+#endif
+}
+
+}  // namespace octofuse::test

@@ -1,0 +1,67 @@
+// octofuse-replay --record: the bag it writes replays to the same trajectory and mesh, bit for
+// bit; a recording cut short (a killed recorder) replays to its last whole frame with a warning.
+
+#include <catch2/catch.hpp>
+#include <string>
+
+#include "replay_process.hpp"
+#include "support/test_dir.hpp"
+
+TEST_CASE("replay --record: the recording replays bit for bit", "[programs][bag]") {
+  const std::string dir = octofuse::test::make_test_dir("record");
+  const std::string bag = dir + "/desk.mcap";
+  const std::string log = dir + "/log.txt";
+  const octofuse::test::RunResult recorded = octofuse::test::run_replay(
+      {"--source", "sim:desk", "--frames", "30", "--quiet", "--out", dir + "/a", "--record", bag},
+      log);
+  INFO(recorded.output);
+  REQUIRE(recorded.exit_status == 0);
+  CHECK(recorded.output.find("recorded 30 frames") != std::string::npos);
+
+  const octofuse::test::RunResult replayed =
+      octofuse::test::run_replay({"--source", "mcap:" + bag, "--quiet", "--out", dir + "/b"}, log);
+  INFO(replayed.output);
+  REQUIRE(replayed.exit_status == 0);
+  const std::string trajectory = octofuse::test::read_bytes(dir + "/a/trajectory.txt");
+  CHECK(trajectory.size() > 30 * 40);
+  CHECK(trajectory == octofuse::test::read_bytes(dir + "/b/trajectory.txt"));
+  CHECK(octofuse::test::read_bytes(dir + "/a/mesh.ply") ==
+        octofuse::test::read_bytes(dir + "/b/mesh.ply"));
+
+  {  // cut short: a warning, and the frames before the cut
+    const std::string bytes = octofuse::test::read_bytes(bag);
+    const std::string cut = dir + "/cut.mcap";
+    octofuse::test::write_text(cut, bytes.substr(0, bytes.size() * 2 / 3));
+    const octofuse::test::RunResult run = octofuse::test::run_replay(
+        {"--source", "mcap:" + cut, "--quiet", "--out", dir + "/c"}, log);
+    INFO(run.output);
+    CHECK(run.exit_status == 0);
+    CHECK(run.output.find("warning: " + cut + ": bag cut short at byte") != std::string::npos);
+    const std::string part = octofuse::test::read_bytes(dir + "/c/trajectory.txt");
+    CHECK(part.size() > 10 * 40);
+    CHECK(trajectory.compare(0, part.size(), part) == 0);
+  }
+  {  // the recording's poses as the odometry prior of a replay of it
+    const octofuse::test::RunResult run = octofuse::test::run_replay(
+        {"--source", "mcap:" + bag, "--odometry", "mcap:" + bag, "--quiet", "--out", dir + "/d"},
+        log);
+    INFO(run.output);
+    CHECK(run.exit_status == 0);
+    CHECK(run.output.find("odometry: 0 frames without it") != std::string::npos);
+  }
+  {  // recording over the bag being replayed is refused, and the bag is left alone
+    const octofuse::test::RunResult run = octofuse::test::run_replay(
+        {"--source", "mcap:" + bag, "--record", bag, "--quiet", "--out", dir + "/e"}, log);
+    CHECK(run.exit_status == 1);
+    CHECK(run.output.find("is the file of --source; refusing to overwrite it") !=
+          std::string::npos);
+    CHECK(octofuse::test::read_bytes(bag).size() > 1000000);
+  }
+  {  // --list prints the topics
+    const octofuse::test::RunResult run = octofuse::test::run_replay({"--list", bag}, log);
+    CHECK(run.exit_status == 0);
+    CHECK(run.output.find("/camera/depth/image_raw") != std::string::npos);
+    CHECK(run.output.find("sensor_msgs/msg/CameraInfo") != std::string::npos);
+    CHECK(run.output.find("time span 0.967 s") != std::string::npos);
+  }
+}

@@ -356,7 +356,7 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
     std::memcpy(geometry + 1, fields, sizeof(fields));
     run->store = std::make_unique<host::BlockStoreFile>();
     ErrorText store_error;
-    std::string warning;
+    ErrorText warning;
     if (!run->store
              ->open(options.map_file_path.c_str(), geometry, sizeof(geometry), &store_error,
                     &warning)

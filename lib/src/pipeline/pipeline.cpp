@@ -510,6 +510,13 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
     T_W_Cref_ = T_W_C_;
     return ok_status();
   }
+  if (store_ != nullptr) {
+    // Stored blocks in the new view come back first (within the frame budgets), so the ray-cast
+    // shows the old map there.
+    ExclusiveHold hold(guard_);
+    StoreReport reloaded;
+    reload_stored(reloaded);
+  }
   // The old reference was seen from elsewhere: ray-cast what the map shows from here, whole.
   if (deadline_.active()) {
     raycaster_.set_step_budget(config_.budget.raycast_steps);

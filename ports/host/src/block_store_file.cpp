@@ -73,19 +73,23 @@ void BlockStoreFile::close() {
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
   index_.clear();
+  std::free(buffer_);
+  buffer_ = nullptr;
 }
 
 Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
-                            std::size_t geometry_size, ErrorText* error, std::string* warning) {
+                            std::size_t geometry_size, ErrorText* error, ErrorText* warning) {
   close();
   stats_ = BlockStoreFileStats();
-  path_ = path;
+  if (warning != nullptr) warning->clear();
   auto fail = [&](StatusCode code, const char* why) {
     if (error != nullptr) error->set("%s: %s", path, why);
     close();
     return Status(code);
   };
   if (geometry_size > kMaxGeometry) return fail(StatusCode::invalid_argument, "geometry too long");
+  buffer_ = static_cast<std::uint8_t*>(std::malloc(kEntryHead + kMaxRecord + 4));
+  if (buffer_ == nullptr) return fail(StatusCode::resource_exhausted, "no memory");
   fd_ = ::open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd_ < 0) return fail(StatusCode::unavailable, std::strerror(errno));
   struct stat st;
@@ -94,19 +98,19 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
   }
   const std::uint64_t size = static_cast<std::uint64_t>(st.st_size);
   const std::size_t header_bytes = sizeof(kFileMagic) + 4 + 4 + geometry_size + 4;
-  std::vector<std::uint8_t> header(header_bytes);
-  std::memcpy(header.data(), kFileMagic, sizeof(kFileMagic));
-  put_u32(header.data() + 8, kFileVersion);
-  put_u32(header.data() + 12, static_cast<std::uint32_t>(geometry_size));
-  if (geometry_size > 0) std::memcpy(header.data() + 16, geometry, geometry_size);
-  put_u32(header.data() + 16 + geometry_size, crc32(header.data(), 16 + geometry_size));
+  std::uint8_t header[16 + kMaxGeometry + 4];
+  std::memcpy(header, kFileMagic, sizeof(kFileMagic));
+  put_u32(header + 8, kFileVersion);
+  put_u32(header + 12, static_cast<std::uint32_t>(geometry_size));
+  if (geometry_size > 0) std::memcpy(header + 16, geometry, geometry_size);
+  put_u32(header + 16 + geometry_size, crc32(header, 16 + geometry_size));
   if (size < header_bytes) {
     // New, or cut before its header was whole: nothing in it can be a record.
     if (size > 0 && warning != nullptr) {
-      *warning = std::string(path) + ": header torn (" + std::to_string(size) +
-                 " bytes); the store starts empty";
+      warning->set("%s: header torn (%llu bytes); the store starts empty", path,
+                   static_cast<unsigned long long>(size));
     }
-    if (::ftruncate(fd_, 0) != 0 || !write_at(fd_, header.data(), header_bytes, 0) ||
+    if (::ftruncate(fd_, 0) != 0 || !write_at(fd_, header, header_bytes, 0) ||
         ::fdatasync(fd_) != 0) {
       return fail(StatusCode::unavailable, "cannot write the header");
     }
@@ -114,19 +118,18 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
     stats_.file_bytes = file_bytes_;
     return ok_status();
   }
-  std::vector<std::uint8_t> found(header_bytes);
-  if (!read_at(fd_, found.data(), header_bytes, 0))
-    return fail(StatusCode::unavailable, "read failed");
-  if (std::memcmp(found.data(), kFileMagic, sizeof(kFileMagic)) != 0) {
+  std::uint8_t found[sizeof(header)];
+  if (!read_at(fd_, found, header_bytes, 0)) return fail(StatusCode::unavailable, "read failed");
+  if (std::memcmp(found, kFileMagic, sizeof(kFileMagic)) != 0) {
     return fail(StatusCode::invalid_argument, "not a block store");
   }
-  if (found != header) {
+  if (std::memcmp(found, header, header_bytes) != 0) {
     return fail(StatusCode::invalid_argument,
                 "another version or map geometry (voxel type, size, depth or origin)");
   }
   // Index every whole entry; stop at the first torn or damaged one.
   std::uint64_t offset = header_bytes;
-  std::vector<std::uint8_t> record;
+  std::uint8_t* record = buffer_;
   while (offset + kEntryHead + 4 <= size) {
     std::uint8_t head[kEntryHead];
     if (!read_at(fd_, head, kEntryHead, offset)) break;
@@ -135,10 +138,9 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
         offset + kEntryHead + length + 4 > size) {
       break;
     }
-    record.resize(length + 4);
-    if (!read_at(fd_, record.data(), length + 4, offset + kEntryHead)) break;
-    const std::uint32_t crc = crc32(record.data(), length, crc32(head + 4, 12));
-    if (crc != get_u32(record.data() + length)) break;
+    if (!read_at(fd_, record, length + 4, offset + kEntryHead)) break;
+    const std::uint32_t crc = crc32(record, length, crc32(head + 4, 12));
+    if (crc != get_u32(record + length)) break;
     Entry& e = index_[get_u64(head + 4)];
     e.offset = offset + kEntryHead;
     e.size = length;
@@ -151,9 +153,9 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
       return fail(StatusCode::unavailable, "cannot drop the torn tail");
     }
     if (warning != nullptr) {
-      *warning = std::string(path) + ": dropped " + std::to_string(size - offset) +
-                 " bytes of a torn or damaged tail after " + std::to_string(stats_.entries) +
-                 " whole records";
+      warning->set("%s: dropped %llu bytes of a torn or damaged tail after %llu whole records",
+                   path, static_cast<unsigned long long>(size - offset),
+                   static_cast<unsigned long long>(stats_.entries));
     }
   }
   file_bytes_ = offset;
@@ -173,12 +175,11 @@ Status BlockStoreFile::put(std::uint64_t block_morton, const std::uint8_t* recor
   put_u32(tail, crc32(record, size, crc32(head + 4, 12)));
   // Head, record and CRC in one write where possible; a cut anywhere leaves a torn tail that
   // open() drops.
-  std::vector<std::uint8_t>& buffer = write_buffer_;
-  buffer.resize(kEntryHead + size + 4);
-  std::memcpy(buffer.data(), head, kEntryHead);
-  std::memcpy(buffer.data() + kEntryHead, record, size);
-  std::memcpy(buffer.data() + kEntryHead + size, tail, 4);
-  if (!write_at(fd_, buffer.data(), buffer.size(), file_bytes_)) {
+  const std::size_t entry_bytes = kEntryHead + size + 4;
+  std::memcpy(buffer_, head, kEntryHead);
+  std::memcpy(buffer_ + kEntryHead, record, size);
+  std::memcpy(buffer_ + kEntryHead + size, tail, 4);
+  if (!write_at(fd_, buffer_, entry_bytes, file_bytes_)) {
     // Whatever part reached the file is a torn tail: cut it so later entries stay readable (if
     // that fails too, the next open() drops it).
     (void)::ftruncate(fd_, static_cast<off_t>(file_bytes_));
@@ -188,9 +189,9 @@ Status BlockStoreFile::put(std::uint64_t block_morton, const std::uint8_t* recor
   e.offset = file_bytes_ + kEntryHead;
   e.size = static_cast<std::uint32_t>(size);
   e.in_memory = false;
-  file_bytes_ += buffer.size();
+  file_bytes_ += entry_bytes;
   ++stats_.entries;
-  stats_.bytes_written += buffer.size();
+  stats_.bytes_written += entry_bytes;
   stats_.file_bytes = file_bytes_;
   return ok_status();
 }
@@ -235,13 +236,6 @@ Status BlockStoreFile::sync() {
   return ::fdatasync(fd_) == 0 ? ok_status() : Status(StatusCode::unavailable);
 }
 
-std::vector<std::uint64_t> BlockStoreFile::keys() const {
-  std::vector<std::uint64_t> out;
-  out.reserve(index_.size());
-  for (const auto& kv : index_) out.push_back(kv.first);
-  return out;
-}
-
 bool BlockStoreFile::in_memory(std::uint64_t block_morton) const {
   const auto it = index_.find(block_morton);
   return it != index_.end() && it->second.in_memory;
@@ -257,59 +251,63 @@ template <typename VoxelT>
 Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
                                 const FreeSpace* free_space, BlockStoreFile& store,
                                 const MapSaveInfo& info, ErrorText* error) {
-  const std::vector<std::uint64_t> stored = store.keys();
   std::size_t extra = 0;
-  for (const std::uint64_t key : stored) {
+  store.for_each_key([&](std::uint64_t key) {
     if (map.find_block_index_morton(key) == kNoIndex) ++extra;
-  }
+  });
   MapConfig config = map.config();
   config.block_capacity = static_cast<std::uint32_t>(map.block_count() + extra + 1);
   config.finest_capacity = config.block_capacity;
   config.node_capacity = config.block_capacity * static_cast<std::uint32_t>(map.block_level()) + 1;
   const std::size_t bytes = Octree<VoxelT>::bytes_required(config);
-  void* raw = bytes > 0 ? std::aligned_alloc(kArenaAlignment, (bytes + kArenaAlignment - 1) /
-                                                                  kArenaAlignment * kArenaAlignment)
-                        : nullptr;
-  if (raw == nullptr) {
+  const std::size_t record_bytes = block_record_max_bytes<VoxelT>();
+  const std::size_t rounded = (bytes + kArenaAlignment - 1) / kArenaAlignment * kArenaAlignment;
+  void* raw = bytes > 0 ? std::aligned_alloc(kArenaAlignment, rounded) : nullptr;
+  const std::unique_ptr<void, void (*)(void*)> owner(raw, std::free);
+  auto* record = static_cast<std::uint8_t*>(std::malloc(record_bytes));
+  const std::unique_ptr<void, void (*)(void*)> record_owner(record, std::free);
+  auto* indices =
+      static_cast<std::uint32_t*>(std::malloc(sizeof(std::uint32_t) * config.block_capacity));
+  const std::unique_ptr<void, void (*)(void*)> indices_owner(indices, std::free);
+  if (raw == nullptr || record == nullptr || indices == nullptr) {
     if (error != nullptr) error->set("%s: no memory to merge the map with its store", path);
     return StatusCode::resource_exhausted;
   }
-  const std::unique_ptr<void, void (*)(void*)> owner(raw, std::free);
   LinearArena arena(raw, bytes);
   Octree<VoxelT> merged;
   if (!merged.reserve(arena, config).ok()) return StatusCode::resource_exhausted;
-  std::vector<std::uint8_t> record(block_record_max_bytes<VoxelT>());
-  std::vector<std::uint32_t> indices;
-  indices.reserve(config.block_capacity);
+  std::size_t count = 0;
   // Blocks in memory first (they are newer than any stored record of theirs), then the stored.
   for (std::uint32_t i = 0; i < map.block_count(); ++i) {
-    const Result<std::size_t> size =
-        encode_block_record(map.block(i), record.data(), record.size());
+    const Result<std::size_t> size = encode_block_record(map.block(i), record, record_bytes);
     const Result<std::uint32_t> index =
-        size.ok() ? restore_block_record(merged, record.data(), size.value()) : size.status();
+        size.ok() ? restore_block_record(merged, record, size.value()) : size.status();
     if (!index.ok()) {
       if (error != nullptr)
         error->set("%s: cannot merge a block (%s)", path, index.status().name());
       return index.status();
     }
-    indices.push_back(index.value());
+    indices[count++] = index.value();
   }
-  for (const std::uint64_t key : stored) {
-    if (map.find_block_index_morton(key) != kNoIndex) continue;
-    const Result<std::size_t> size = store.read(key, record.data(), record.size());
+  Status failed;
+  store.for_each_key([&](std::uint64_t key) {
+    if (!failed.ok() || map.find_block_index_morton(key) != kNoIndex) return;
+    const Result<std::size_t> size = store.read(key, record, record_bytes);
     ErrorText why;
     const Result<std::uint32_t> index =
-        size.ok() ? restore_block_record(merged, record.data(), size.value(), &why) : size.status();
+        size.ok() ? restore_block_record(merged, record, size.value(), &why) : size.status();
     if (!index.ok()) {
       if (error != nullptr) {
         error->set("%s: a stored block cannot be read back (%s%s%s)", path, index.status().name(),
-                   why.c_str()[0] != 0 ? ": " : "", why.c_str());
+                   why.empty() ? "" : ": ", why.c_str());
       }
-      return index.status();
+      failed = index.status();
+      return;
     }
-    indices.push_back(index.value());
-  }
-  merged.propagate_summaries(indices.data(), indices.size());
+    indices[count++] = index.value();
+  });
+  if (!failed.ok()) return failed;
+  merged.propagate_summaries(indices, count);
   return save_map_file(path, merged, free_space, info, error);
 }
 

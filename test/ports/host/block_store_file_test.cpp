@@ -36,7 +36,7 @@ std::uint64_t key_of(int i) {
   return morton_encode(Eigen::Vector3i(i % 7, (i / 7) % 5, i / 35));
 }
 
-Status open_store(host::BlockStoreFile& store, const std::string& path, std::string* warning,
+Status open_store(host::BlockStoreFile& store, const std::string& path, ErrorText* warning,
                   const std::uint8_t* geometry = kGeometry) {
   ErrorText error;
   const Status s = store.open(path.c_str(), geometry, sizeof(kGeometry), &error, warning);
@@ -57,7 +57,7 @@ TEST_CASE("the block store keeps the newest record of each key across reopens") 
   const std::string path = dir + "/store";
   {
     host::BlockStoreFile store;
-    std::string warning;
+    ErrorText warning;
     REQUIRE(open_store(store, path, &warning).ok());
     REQUIRE(warning.empty());
     for (int i = 0; i < 50; ++i) {
@@ -89,7 +89,7 @@ TEST_CASE("the block store keeps the newest record of each key across reopens") 
                 .code() == StatusCode::out_of_range);
   }
   host::BlockStoreFile again;
-  std::string warning;
+  ErrorText warning;
   REQUIRE(open_store(again, path, &warning).ok());
   REQUIRE(warning.empty());
   REQUIRE(again.stats().keys == 50u);
@@ -123,7 +123,7 @@ TEST_CASE("a store cut at any byte or damaged in its tail reopens with every who
     CAPTURE(cut);
     test::write_text(path, whole.substr(0, cut));
     host::BlockStoreFile store;
-    std::string warning;
+    ErrorText warning;
     REQUIRE(open_store(store, path, &warning).ok());
     int whole_records = 0;
     while (whole_records + 1 < static_cast<int>(ends.size()) &&
@@ -142,7 +142,7 @@ TEST_CASE("a store cut at any byte or damaged in its tail reopens with every who
       REQUIRE(store.put(key_of(40), r.data(), r.size()).ok());
       store.close();
       host::BlockStoreFile after;
-      std::string none;
+      ErrorText none;
       REQUIRE(open_store(after, path, &none).ok());
       REQUIRE(none.empty());
       REQUIRE(holds(after, key_of(40), 0));
@@ -153,7 +153,7 @@ TEST_CASE("a store cut at any byte or damaged in its tail reopens with every who
   damaged[ends[5] + 20] = static_cast<char>(damaged[ends[5] + 20] ^ 0x40);
   test::write_text(path, damaged);
   host::BlockStoreFile store;
-  std::string warning;
+  ErrorText warning;
   REQUIRE(open_store(store, path, &warning).ok());
   REQUIRE_FALSE(warning.empty());
   REQUIRE(store.stats().keys == 5u);
@@ -198,7 +198,7 @@ TEST_CASE("a writer killed with SIGKILL at random instants loses no record it ha
     ::close(fds[0]);
     REQUIRE(WIFSIGNALED(status));
     host::BlockStoreFile store;
-    std::string warning;
+    ErrorText warning;
     REQUIRE(open_store(store, path, &warning).ok());
     // Every key written up to `last` holds its newest version up to `last`, or a newer one.
     for (int k = 0; k < 200 && k <= last; ++k) {

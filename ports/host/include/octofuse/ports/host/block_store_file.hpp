@@ -10,8 +10,6 @@
 #include <cstddef>
 #include <cstdint>
 #include <map>
-#include <string>
-#include <vector>
 
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/map/block_store.hpp"
@@ -42,7 +40,7 @@ class BlockStoreFile final : public BlockStore {
   // torn tail was dropped; unavailable (cannot open, read or truncate), invalid_argument (not a
   // store, another geometry), each with a one-line `error`.
   Status open(const char* path, const std::uint8_t* geometry, std::size_t geometry_size,
-              ErrorText* error, std::string* warning);
+              ErrorText* error, ErrorText* warning);
   void close();
   bool is_open() const { return fd_ >= 0; }
 
@@ -55,8 +53,12 @@ class BlockStoreFile final : public BlockStore {
 
   // Makes what was appended durable (fdatasync): ok or unavailable.
   Status sync();
-  // Every stored key (in memory or not), increasing, and the newest record of one.
-  std::vector<std::uint64_t> keys() const;
+  // Calls fn(key) for every stored key (in memory or not), increasing; read() gives the newest
+  // record of one.
+  template <typename Fn>
+  void for_each_key(Fn&& fn) const {
+    for (const auto& kv : index_) fn(kv.first);
+  }
   Result<std::size_t> read(std::uint64_t block_morton, std::uint8_t* record, std::size_t capacity);
   bool in_memory(std::uint64_t block_morton) const;
   BlockStoreFileStats stats() const;
@@ -68,11 +70,10 @@ class BlockStoreFile final : public BlockStore {
     bool in_memory = false;
   };
   int fd_ = -1;
-  std::string path_;
   std::map<std::uint64_t, Entry> index_;
   std::uint64_t file_bytes_ = 0;
   BlockStoreFileStats stats_;
-  std::vector<std::uint8_t> write_buffer_;  // one framed entry
+  std::uint8_t* buffer_ = nullptr;  // one framed entry (malloc'd at open())
 };
 
 // The whole map: `map`'s blocks and every stored block not in memory, merged into a map reserved

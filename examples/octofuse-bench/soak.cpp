@@ -95,7 +95,8 @@ struct PassRow {
   double peak_rss_mb = 0.0;  // VmHWM over the run so far
   double median_ms = 0.0;
   double p99_ms = 0.0;
-  // Refusals (blocks, nodes, finest levels; free-space nodes) and, with a store, its traffic.
+  // Refusals (blocks and nodes; finest levels are a degradation, not counted; free-space nodes)
+  // and, with a store, its traffic.
   std::uint64_t refusals = 0;
   std::uint64_t free_space_refusals = 0;
   std::uint64_t store_read = 0;
@@ -194,7 +195,7 @@ void on_frame(SoakRun& run, const FrameStats& stats) {
       }
     }
     row.evicted += stats.eviction.evicted;
-    row.refusals += stats.integration.pool_refusals;
+    row.refusals += stats.integration.pool_refusals - stats.integration.finest_refusals;
     row.free_space_refusals += stats.free_space.pool_refused;
     row.store_read += stats.store.read;
     row.store_remapped += stats.store.remapped;

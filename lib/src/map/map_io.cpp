@@ -1116,9 +1116,11 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   const Key key{fields.morton, static_cast<std::uint8_t>(map.block_level())};
   const Eigen::Vector3i coords = voxel_to_block(key_corner_voxel(key));
   if (map.find_block_index(coords) != kNoIndex) return StatusCode::failed_precondition;
+  // With the finest-level pool full the block comes back demoted, as release_finest() leaves it.
+  bool demote = false;
   if (Block::kSplitFinest && fields.has_finest) {
     const MapMemory memory = map.memory();
-    if (memory.finest_used >= memory.finest_capacity) return StatusCode::resource_exhausted;
+    demote = memory.finest_used >= memory.finest_capacity;
   }
   AllocationCounts counts;
   const Status allocated = map.allocate(&key, 1, &counts);
@@ -1126,7 +1128,7 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   if (!allocated.ok() || counts.new_blocks != 1) return StatusCode::out_of_range;
   const std::uint32_t index = map.find_block_index(coords);
   Block& block = map.block(index);
-  if (Block::kSplitFinest && fields.has_finest) {
+  if (Block::kSplitFinest && fields.has_finest && !demote) {
     const Status finest = map.acquire_finest(block);
     OCTOFUSE_CHECK(finest.ok());  // room checked above
   }
@@ -1138,10 +1140,27 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   block.tsdf_max = fields.summary[1];
   block.tsdf_mean = fields.summary[2];
   block.weight_mean = fields.summary[3];
-  if (fields.has_finest) {
+  if (fields.has_finest && !demote) {
     std::copy(scratch, scratch + kBlockFinestVoxelCount, block.scale_begin(0));
   }
   std::copy(scratch + kBlockFinestVoxelCount, scratch + kBlockVoxelCount, block.scale_begin(1));
+  if constexpr (Block::kSplitFinest) {
+    if (demote) {
+      if (block.integrated() && block.current_scale == 0) {
+        if (block.mip_scale < 1) {
+          // Scale 1 from the record's finest voxels, through a level lent for the moment.
+          FinestLevel<VoxelT> lent;
+          std::copy(scratch, scratch + kBlockFinestVoxelCount, lent.voxels);
+          block.finest = &lent;
+          propagate_block_up(block, 0, 1);
+          block.finest = nullptr;
+          block.mip_scale = 1;
+        }
+        block.current_scale = 1;
+        Octree<VoxelT>::update_block_summary(block);
+      }
+    }
+  }
   return index;
 }
 

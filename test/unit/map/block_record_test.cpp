@@ -80,5 +80,38 @@ TEMPLATE_TEST_CASE("a block record restores the block's whole state in another m
   }
 }
 
+TEST_CASE("with the finest-level pool full a block comes back at scale 1, brought up to date",
+          "[map][store]") {
+  MapFixture<MultiresVoxel> a(small_config(8, 64));
+  MapConfig full_config = small_config(8, 64);
+  full_config.finest_capacity = 1;
+  MapFixture<MultiresVoxel> b(full_config);
+  Result<std::uint32_t> index = a.map.allocate_block(Eigen::Vector3i(1, 2, 3));
+  REQUIRE(index.ok());
+  VoxelBlock<MultiresVoxel>& block = a.map.block(index.value());
+  fill_block(a.map, block, 0);
+  block.mip_scale = 0;  // scale 1 not yet brought up to date from scale 0
+  std::vector<std::uint8_t> record(block_record_max_bytes<MultiresVoxel>());
+  const Result<std::size_t> size = encode_block_record(block, record.data(), record.size());
+  REQUIRE(size.ok());
+  // Fill b's one finest level.
+  Result<std::uint32_t> other = b.map.allocate_block(Eigen::Vector3i(5, 5, 5));
+  REQUIRE(other.ok());
+  REQUIRE(b.map.acquire_finest(b.map.block(other.value())).ok());
+  const Result<std::uint32_t> restored = restore_block_record(b.map, record.data(), size.value());
+  REQUIRE(restored.ok());
+  const VoxelBlock<MultiresVoxel>& got = b.map.block(restored.value());
+  REQUIRE_FALSE(got.has_finest());
+  REQUIRE(got.current_scale == 1);
+  REQUIRE(got.mip_scale == 1);
+  // Scale 1 holds the weighted means of the finest voxels: as release_finest() makes them.
+  a.map.release_finest(&index.value(), 1);
+  for (int i = kBlockFinestVoxelCount; i < kBlockVoxelCount; ++i) {
+    REQUIRE(got.voxel(i).x == a.map.block(index.value()).voxel(i).x);
+    REQUIRE(got.voxel(i).y == a.map.block(index.value()).voxel(i).y);
+  }
+  REQUIRE(got.tsdf_mean == a.map.block(index.value()).tsdf_mean);
+}
+
 }  // namespace
 }  // namespace octofuse

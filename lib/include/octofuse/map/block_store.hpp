@@ -55,7 +55,9 @@ Result<std::size_t> encode_block_record(const VoxelBlock<VoxelT>& block, std::ui
 // state: its pool index. Its summary is restored; the nodes above are not summarised (call
 // propagate_summaries()). data_loss (the record is damaged or out of range, the map unchanged);
 // out_of_range (outside the cube); failed_precondition when the block is in memory (mapped afresh);
-// resource_exhausted when a pool (blocks, nodes, finest levels) is full (the map unchanged).
+// resource_exhausted when the block or node pool is full (the map unchanged). With the finest-level
+// pool full, a block recorded with its finest level comes back without it, at scale 1 (brought up
+// to date from scale 0 when needed), as Octree::release_finest() leaves a block.
 template <typename VoxelT>
 Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8_t* record,
                                            std::size_t size, ErrorText* error = nullptr);

@@ -638,7 +638,7 @@ void Pipeline<VoxelT>::spill(std::uint32_t count) {
 
 // Stored blocks whose centre projects into the view (within two blocks of its edges, in front of
 // the camera, nearer than the depth range plus a block) come back nearest first, before this
-// frame's integration would map their space afresh, while the pool has room.
+// frame's integration would map their space afresh, while the pool is below its high-water mark.
 template <typename VoxelT>
 void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
   const float far_m = config_.fusion.far_m;
@@ -690,10 +690,10 @@ void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
               if (a.rank != b.rank) return a.rank < b.rank;
               return a.morton < b.morton;
             });
-  // Up to the whole pool: eviction, next, makes room again by the farthest blocks (these are in
-  // view, so near).
-  const MapMemory memory = map_.memory();
-  const std::uint32_t room = memory.block_capacity - memory.blocks_used;
+  // Up to the pool's high-water mark only: filling it further would make this frame's eviction
+  // send blocks just read back (in view, but not yet updated) out again, frame after frame.
+  const std::uint32_t used = map_.memory().blocks_used;
+  const std::uint32_t room = evict_high_blocks_ > used ? evict_high_blocks_ - used : 0;
   const std::uint32_t budget = std::min(room, config_.budget.max_store_reads);
   std::uint32_t restored = 0;
   for (std::uint32_t i = 0; i < candidates; ++i) {

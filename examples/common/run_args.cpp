@@ -481,6 +481,18 @@ const RunOption kRunOptions[] = {
        *v = o.load_map_path;
        return !o.load_map_path.empty();
      }},
+    {"map-file", "FILE",
+     "keep evicted blocks in FILE (an append-only store, created when\n"
+     "absent) and read them back when the camera returns (needs eviction)",
+     [](RunOptions& o, const std::string& v) {
+       if (v.empty()) return std::string(" needs a file name");
+       o.map_file_path = v;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.map_file_path;
+       return !o.map_file_path.empty();
+     }},
     {"evict", "HIGH,LOW",
      "when the block or finest-level pool is over HIGH % full, evict the\n"
      "blocks farthest from the camera until it is at LOW % (default\n"

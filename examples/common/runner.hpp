@@ -88,6 +88,8 @@ struct RunOptions {
   std::string save_map_path;
   long save_every = 0;
   std::string load_map_path;
+  // --map-file: evicted blocks go to this store and come back when the camera returns.
+  std::string map_file_path;
   // --initial-pose: the first frame's pose (camera to world) instead of the source's ground truth.
   bool have_initial_pose = false;
   Se3d initial_T_W_C = Se3d::Identity();
@@ -119,7 +121,12 @@ struct RunSummary {
   double ate_max_m = 0.0;
   std::size_t arena_bytes = 0;
   MapMemory map_memory;
-  std::size_t free_space_bytes = 0;  // free-space nodes in use at the end
+  std::size_t free_space_bytes = 0;       // free-space nodes in use at the end
+  std::uint64_t free_space_refusals = 0;  // free-space nodes refused, the pool full
+  // With --map-file: the store's totals (StoreReport summed) and its file at the end.
+  StoreReport store_total;
+  std::uint64_t store_file_bytes = 0;
+  std::uint64_t store_keys = 0;
   std::size_t mesh_vertices = 0;
   std::size_t mesh_triangles = 0;
   std::vector<Eigen::Vector3f> mesh_positions;  // with keep_mesh

@@ -29,6 +29,8 @@ struct FrameWarnings {
   bool raycast_budget = false;
   bool evict_budget = false;
   bool unfused = false;
+  bool nodes_full = false;
+  bool free_space_full = false;
   bool icp_budget_set = false;  // --budget-icp given: the default iterations are no budget
 
   void after(const FrameStats& s) {
@@ -41,7 +43,23 @@ struct FrameWarnings {
                    "it integrate at scale 1 (raise --map-memory for finer detail)\n",
                    index, s.memory.finest_capacity);
     }
-    if (s.integration.pool_refusals > 0 && !finest_only && !pool_full) {
+    if (s.memory.node_refusals > 0 && !nodes_full) {
+      nodes_full = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the inner-node pool is full (%u nodes): blocks that need a "
+                   "new node are not mapped (raise --map-memory; node_refusals in stats.json)\n",
+                   index, s.memory.node_capacity);
+    }
+    if (s.free_space.pool_refused > 0 && !free_space_full) {
+      free_space_full = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: one frame's carving needs more than the whole free-space "
+                   "pool: air beyond it is not recorded (free_space_refused in stats.json)\n",
+                   index);
+    }
+    const bool blocks_refused =
+        s.integration.pool_refusals > s.integration.finest_refusals + s.integration.node_refusals;
+    if (blocks_refused && !pool_full) {
       pool_full = true;
       std::fprintf(stderr,
                    "warning: frame %lu: the block pool is full (%u blocks): surface it has no room "
@@ -286,6 +304,8 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
   display.show_progress = options.progress && ::isatty(STDERR_FILENO);
   DepthFrame frame;
   FrameWarnings warnings;
+  bool store_sync_warned = false;
+  bool store_write_warned = false;
   const PipelineBudget default_budget;
   for (int level = 0; level < kPyramidLevels; ++level) {
     warnings.icp_budget_set = warnings.icp_budget_set || options.budget.icp_iterations[level] !=
@@ -394,6 +414,30 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
         status.code() != StatusCode::data_loss && stats.result != FrameResult::lost) {
       return error_exit(std::string("frame processing failed: ") + status.name());
     }
+    summary->free_space_refusals += stats.free_space.pool_refused;
+    if (run->store != nullptr) {
+      StoreReport& t = summary->store_total;
+      t.written += stats.store.written;
+      t.write_failed += stats.store.write_failed;
+      t.read += stats.store.read;
+      t.read_failed += stats.store.read_failed;
+      t.remapped += stats.store.remapped;
+      t.bytes_written += stats.store.bytes_written;
+      t.bytes_read += stats.store.bytes_read;
+      // What this frame handed over survives a power cut from here on.
+      if (stats.store.written > 0 && !run->store->sync().ok() && !store_sync_warned) {
+        store_sync_warned = true;
+        std::fprintf(stderr, "warning: %s: sync failed; the store may lose recent blocks\n",
+                     options.map_file_path.c_str());
+      }
+      if (stats.store.write_failed > 0 && !store_write_warned) {
+        store_write_warned = true;
+        std::fprintf(stderr,
+                     "warning: frame %lu: the block store refused %u blocks (their state is "
+                     "lost; store_write_failed in stats.json)\n",
+                     static_cast<unsigned long>(stats.frame_index), stats.store.write_failed);
+      }
+    }
     warnings.after(stats);
     const bool fused = stats.integration.blocks_integrated > 0;
     if ((stats.result == FrameResult::tracked || stats.result == FrameResult::first) && !fused) {
@@ -426,7 +470,7 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
     if (options.save_every > 0 && !options.save_map_path.empty() &&
         processed % options.save_every == 0) {
       std::string save_error;
-      if (!save_map_now(options, pipeline, summary, &save_error)) {
+      if (!save_map_now(options, pipeline, summary, &save_error, run->store.get())) {
         std::fprintf(stderr, "warning: map not saved: %s\n", save_error.c_str());
       }
     }

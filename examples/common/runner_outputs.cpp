@@ -65,6 +65,16 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("blocks_evicted").value(static_cast<std::uint64_t>(s.eviction.evicted));
   json.key("blocks_demoted").value(static_cast<std::uint64_t>(s.eviction.demoted));
   json.key("pool_refusals").value(static_cast<std::uint64_t>(s.integration.pool_refusals));
+  json.key("node_refusals").value(static_cast<std::uint64_t>(s.integration.node_refusals));
+  json.key("free_space_refused").value(static_cast<std::uint64_t>(s.free_space.pool_refused));
+  json.key("store_written").value(static_cast<std::uint64_t>(s.store.written));
+  json.key("store_write_failed").value(static_cast<std::uint64_t>(s.store.write_failed));
+  json.key("store_read").value(static_cast<std::uint64_t>(s.store.read));
+  json.key("store_read_failed").value(static_cast<std::uint64_t>(s.store.read_failed));
+  json.key("store_remapped").value(static_cast<std::uint64_t>(s.store.remapped));
+  json.key("store_waiting").value(static_cast<std::uint64_t>(s.store.waiting));
+  json.key("store_bytes_written").value(s.store.bytes_written);
+  json.key("store_bytes_read").value(s.store.bytes_read);
   json.key("keys_dropped").value(static_cast<std::uint64_t>(s.integration.keys_dropped));
   json.key("raycast_steps").value(s.raycast.steps);
   json.key("raycast_valid_pixels").value(static_cast<std::uint64_t>(s.raycast.valid_pixels));
@@ -236,6 +246,19 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
       .value(static_cast<std::uint64_t>(summary->map_memory.block_capacity));
   json.key("blocks_evicted").value(summary->map_memory.evicted);
   json.key("pool_refusals").value(summary->map_memory.refusals);
+  json.key("node_refusals").value(summary->map_memory.node_refusals);
+  json.key("nodes_evicted").value(summary->map_memory.nodes_evicted);
+  json.key("free_space_refusals").value(summary->free_space_refusals);
+  json.key("store_written").value(static_cast<std::uint64_t>(summary->store_total.written));
+  json.key("store_write_failed")
+      .value(static_cast<std::uint64_t>(summary->store_total.write_failed));
+  json.key("store_read").value(static_cast<std::uint64_t>(summary->store_total.read));
+  json.key("store_read_failed").value(static_cast<std::uint64_t>(summary->store_total.read_failed));
+  json.key("store_remapped").value(static_cast<std::uint64_t>(summary->store_total.remapped));
+  json.key("store_bytes_written").value(summary->store_total.bytes_written);
+  json.key("store_bytes_read").value(summary->store_total.bytes_read);
+  json.key("store_file_bytes").value(summary->store_file_bytes);
+  json.key("store_keys").value(summary->store_keys);
   json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
   json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));
   json.key("mesh_triangles").value(static_cast<std::uint64_t>(summary->mesh_triangles));
@@ -353,7 +376,7 @@ bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, Err
 // Writes --save-map's file; false (with the reason in *error) when it could not.
 template <typename VoxelT>
 bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
-                  std::string* error) {
+                  std::string* error, host::BlockStoreFile* store) {
   const auto start = std::chrono::steady_clock::now();
   ErrorText text;
   MapSaveInfo info;
@@ -361,8 +384,14 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
   info.mu_m = pipeline.config().fusion.mu_m;
   const FreeSpace* free_space =
       pipeline.config().free_space.enabled ? &pipeline.free_space() : nullptr;
-  if (!host::save_map_file(options.save_map_path.c_str(), pipeline.map(), free_space, info, &text)
-           .ok()) {
+  // With --map-file the file holds the whole map: memory and store.
+  const Status saved =
+      store != nullptr
+          ? host::save_map_file_with_store(options.save_map_path.c_str(), pipeline.map(),
+                                           free_space, *store, info, &text)
+          : host::save_map_file(options.save_map_path.c_str(), pipeline.map(), free_space, info,
+                                &text);
+  if (!saved.ok()) {
     *error = text.c_str();
     return false;
   }
@@ -422,6 +451,11 @@ int close_run(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>*
   summary->odometry_noise_m = pipeline.prior_noise_m();
   summary->odometry_noise_rad = pipeline.prior_noise_rad();
   summary->map_memory = pipeline.map().memory();
+  if (run->store != nullptr) {
+    const host::BlockStoreFileStats store = run->store->stats();
+    summary->store_file_bytes = store.file_bytes;
+    summary->store_keys = store.keys;
+  }
   if (options.deadline_ms > 0.0) {
     summary->deadline_model = pipeline.cost_model();
     if (!options.deadline_calibration.empty() && !options.deadline_freeze &&
@@ -459,7 +493,9 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
   }
   if (!options.save_map_path.empty()) {
     std::string save_error;
-    if (!save_map_now(options, pipeline, summary, &save_error)) late_failure(save_error);
+    if (!save_map_now(options, pipeline, summary, &save_error, run->store.get())) {
+      late_failure(save_error);
+    }
   }
 
   evaluate_trajectories(summary);
@@ -499,11 +535,11 @@ template int write_outputs<Multires16Voxel>(const RunOptions&, RunInputs*,
 template int write_outputs<TsdfVoxel>(const RunOptions&, RunInputs*, PipelineRun<TsdfVoxel>*,
                                       LoopResult*, RunSummary*);
 template bool save_map_now<MultiresVoxel>(const RunOptions&, const Pipeline<MultiresVoxel>&,
-                                          RunSummary*, std::string*);
+                                          RunSummary*, std::string*, host::BlockStoreFile*);
 template bool save_map_now<Multires16Voxel>(const RunOptions&, const Pipeline<Multires16Voxel>&,
-                                            RunSummary*, std::string*);
+                                            RunSummary*, std::string*, host::BlockStoreFile*);
 template bool save_map_now<TsdfVoxel>(const RunOptions&, const Pipeline<TsdfVoxel>&, RunSummary*,
-                                      std::string*);
+                                      std::string*, host::BlockStoreFile*);
 template bool extract_mesh<MultiresVoxel>(const Pipeline<MultiresVoxel>&, const RunOptions&,
                                           VectorMeshSink*);
 template bool extract_mesh<Multires16Voxel>(const Pipeline<Multires16Voxel>&, const RunOptions&,

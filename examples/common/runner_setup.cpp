@@ -361,6 +361,28 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
                       "): " + pipeline.last_error());
   }
   summary->arena_bytes = bytes;
+  if (!options.map_file_path.empty()) {
+    // The store belongs to one map geometry: voxel type, size, depth and origin.
+    std::uint8_t geometry[1 + 4 * 5];
+    geometry[0] = static_cast<std::uint8_t>(map_voxel_type<VoxelT>());
+    const MapConfig& map = pipeline.map().config();
+    const float fields[5] = {map.voxel_size_m, static_cast<float>(map.voxel_depth),
+                             map.origin_W.x(), map.origin_W.y(), map.origin_W.z()};
+    std::memcpy(geometry + 1, fields, sizeof(fields));
+    run->store = std::make_unique<host::BlockStoreFile>();
+    ErrorText store_error;
+    ErrorText warning;
+    if (!run->store
+             ->open(options.map_file_path.c_str(), geometry, sizeof(geometry), &store_error,
+                    &warning)
+             .ok()) {
+      return error_exit(store_error.c_str());
+    }
+    if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
+    if (!pipeline.set_block_store(run->store.get()).ok()) {
+      return error_exit("--map-file needs eviction (--evict HIGH,LOW)");
+    }
+  }
   return 0;
 }
 

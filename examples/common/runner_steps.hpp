@@ -13,6 +13,7 @@
 #include "live_server.hpp"
 #include "looping_source.hpp"
 #include "octofuse/pipeline/steady_clock.hpp"
+#include "octofuse/ports/host/block_store_file.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/trajectory_io.hpp"
 #include "runner.hpp"
@@ -55,6 +56,7 @@ struct PipelineRun {
   Pipeline<VoxelT> pipeline;
   std::unique_ptr<AlignedBuffer> buffer;
   const Clock clock = steady_clock();
+  std::unique_ptr<host::BlockStoreFile> store;  // --map-file
 };
 
 // What the frame loop leaves for the outputs.
@@ -96,7 +98,7 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
 // Writes --save-map's file; false (with the reason in *error) when it could not.
 template <typename VoxelT>
 bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
-                  std::string* error);
+                  std::string* error, host::BlockStoreFile* store = nullptr);
 // Meshes the map into `sink`; false when the mesher cannot reserve its memory.
 template <typename VoxelT>
 bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,

@@ -373,6 +373,12 @@ const Option kOptions[] = {
        a.soak_options.frames = static_cast<long>(n);
        return std::string();
      }},
+    {"--soak-map-file", "FILE",
+     "the capped soak run keeps evicted blocks in FILE (--map-file; emptied first)",
+     [](BenchArgs& a, const std::string& v) {
+       a.soak_options.map_file = v;
+       return v.empty() ? std::string("--soak-map-file is empty") : std::string();
+     }},
     {"--soak-source", "SPEC", "source to loop, as octofuse-replay's --source (default sim:room)",
      [](BenchArgs& a, const std::string& v) {
        a.soak_options.source_spec = v;

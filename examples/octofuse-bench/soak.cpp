@@ -95,6 +95,16 @@ struct PassRow {
   double peak_rss_mb = 0.0;  // VmHWM over the run so far
   double median_ms = 0.0;
   double p99_ms = 0.0;
+  // Refusals (blocks and nodes; finest levels are a degradation, not counted; free-space nodes)
+  // and, with a store, its traffic.
+  std::uint64_t refusals = 0;
+  std::uint64_t free_space_refusals = 0;
+  std::uint64_t store_read = 0;
+  std::uint64_t store_remapped = 0;
+  std::uint64_t store_written = 0;
+  std::uint64_t store_bytes_read = 0;
+  std::uint64_t store_bytes_written = 0;
+  std::uint64_t frames_waiting = 0;  // frames that left stored blocks in view for a later one
 };
 
 struct SoakRun {
@@ -136,6 +146,23 @@ void print_row(const SoakRun& run, const PassRow& row) {
                static_cast<unsigned long long>(row.evicted), row.blocks_resident,
                row.block_capacity, row.blocks_high_water, row.octree_nodes, row.free_space_nodes,
                row.rss_mb, row.peak_rss_mb, row.median_ms, row.p99_ms);
+  std::fprintf(stderr,
+               "[soak %s %g MB] pass %d: refusals %llu (free space %llu); store: read %llu, "
+               "re-mapped %llu, written %llu, %.1f / %.1f KB per frame read / written, frames "
+               "waiting %llu\n",
+               run.name, static_cast<double>(run.map_memory_mb), row.pass,
+               static_cast<unsigned long long>(row.refusals),
+               static_cast<unsigned long long>(row.free_space_refusals),
+               static_cast<unsigned long long>(row.store_read),
+               static_cast<unsigned long long>(row.store_remapped),
+               static_cast<unsigned long long>(row.store_written),
+               row.frames > 0 ? static_cast<double>(row.store_bytes_read) / 1024.0 /
+                                    static_cast<double>(row.frames)
+                              : 0.0,
+               row.frames > 0 ? static_cast<double>(row.store_bytes_written) / 1024.0 /
+                                    static_cast<double>(row.frames)
+                              : 0.0,
+               static_cast<unsigned long long>(row.frames_waiting));
 }
 
 void close_pass(SoakRun& run) {
@@ -168,6 +195,14 @@ void on_frame(SoakRun& run, const FrameStats& stats) {
       }
     }
     row.evicted += stats.eviction.evicted;
+    row.refusals += stats.integration.pool_refusals - stats.integration.finest_refusals;
+    row.free_space_refusals += stats.free_space.pool_refused;
+    row.store_read += stats.store.read;
+    row.store_remapped += stats.store.remapped;
+    row.store_written += stats.store.written;
+    row.store_bytes_read += stats.store.bytes_read;
+    row.store_bytes_written += stats.store.bytes_written;
+    if (stats.store.waiting > 0) ++row.frames_waiting;
     row.blocks_resident = stats.memory.blocks_used;
     row.block_capacity = stats.memory.block_capacity;
     run.blocks_high_water = std::max(run.blocks_high_water, stats.memory.blocks_used);
@@ -215,6 +250,11 @@ void run_one(const SoakOptions& soak, SoakRun& run) {
   options.write_mesh = false;
   options.progress = false;
   options.keep_frame_records = false;  // per-frame records would grow with the run
+  if (!soak.map_file.empty() && run.map_memory_mb == soak.map_memory_mb &&
+      std::string(run.name) == "capped") {
+    std::remove(soak.map_file.c_str());  // a fresh store for a fresh run
+    options.map_file_path = soak.map_file;
+  }
   options.on_frame = [&run](const FrameStats& stats) { on_frame(run, stats); };
   options.on_loop_start = [&run](int pass) { on_pass_start(run, pass); };
   std::fprintf(stderr, "[soak %s %g MB] %s, %ld frames ...\n", run.name,
@@ -243,6 +283,8 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
       .value(static_cast<std::uint64_t>(run.summary.map_memory.bytes_reserved));
   json.key("map_bytes_used").value(static_cast<std::uint64_t>(run.summary.map_memory.bytes_used));
   json.key("wall_s").value(run.wall_s);
+  json.key("store_file_bytes").value(run.summary.store_file_bytes);
+  json.key("store_keys").value(run.summary.store_keys);
   json.key("rss_end_first_pass_mb").value(run.rss_end_first_pass_mb);
   json.key("max_rss_after_first_pass_mb").value(run.max_rss_after_first_pass_mb);
   json.key("rss_growth_after_first_pass_mb").value(run.growth_mb());
@@ -270,6 +312,14 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
     json.key("peak_rss_mb").value(row.peak_rss_mb);
     json.key("median_ms").value(row.median_ms);
     json.key("p99_ms").value(row.p99_ms);
+    json.key("refusals").value(row.refusals);
+    json.key("free_space_refusals").value(row.free_space_refusals);
+    json.key("store_read").value(row.store_read);
+    json.key("store_remapped").value(row.store_remapped);
+    json.key("store_written").value(row.store_written);
+    json.key("store_bytes_read").value(row.store_bytes_read);
+    json.key("store_bytes_written").value(row.store_bytes_written);
+    json.key("frames_waiting").value(row.frames_waiting);
     json.end_object();
   }
   json.end_array();

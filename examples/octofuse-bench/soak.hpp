@@ -17,6 +17,8 @@ struct SoakOptions {
   float voxel_size_m = 0.01f;
   int threads = 1;
   std::string out_dir = "bench-out";
+  // --soak-map-file: the capped run keeps evicted blocks in this store (emptied first).
+  std::string map_file;
 };
 
 // Runs both passes, prints a table per run and the verdict, writes soak.json and soak.md into

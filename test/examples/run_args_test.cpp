@@ -121,6 +121,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "9",
                  "--load-map",
                  "in.ofmap",
+                 "--map-file",
+                 "blocks.store",
                  "--no-free-space",
                  "--query-points",
                  "points.txt",

@@ -84,10 +84,15 @@ std::uint32_t FreeOctree::walk_within(const Eigen::Vector3f& centre_W, float kee
 std::uint32_t FreeOctree::prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
                                    float min_radius_m) {
   if (!reserved_ || nodes_.used() <= max_nodes) return 0;
-  // The largest radius (to 1 %) that keeps at most max_nodes, but not below min_radius_m.
+  // The largest radius (to 1 %) that keeps at most max_nodes, not below min_radius_m unless the
+  // air within min_radius_m alone overflows max_nodes: then the floor gives way (down to the
+  // root alone), so a pool of any size keeps room for the next frame's carving.
   float lo = min_radius_m;
   float hi = 2.0f * map_.size_m();
-  if (walk_within(centre_W, lo, false) > max_nodes) return prune(centre_W, lo);
+  if (walk_within(centre_W, lo, false) > max_nodes) {
+    hi = lo;
+    lo = 0.0f;
+  }
   for (int step = 0; step < 24 && hi - lo > 0.01f * hi; ++step) {
     const float mid = 0.5f * (lo + hi);
     if (walk_within(centre_W, mid, false) <= max_nodes) {

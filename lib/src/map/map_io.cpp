@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstring>
 
+#include "octofuse/map/block_store.hpp"
 #include "octofuse/map/free_octree.hpp"
 
 namespace octofuse {
@@ -337,6 +338,42 @@ void write_node_record(RecordWriter& w, const OctreeNode& n) {
   w.f32(n.summary.tsdf_max);
   w.end_record();
 }
+// Every node after its parent, as the loader needs: in index order when the pool has that order
+// (a map that never lost an inner node to eviction), else depth first from the root, children in
+// child-index order. Either way the file depends only on the map.
+template <typename VoxelT>
+void write_node_records(RecordWriter& w, const Octree<VoxelT>& map) {
+  bool parents_first = true;
+  for (std::uint32_t i = 1; i < map.node_count() && parents_first; ++i) {
+    parents_first = map.node(i).parent < i;
+  }
+  if (parents_first) {
+    for (std::uint32_t i = 0; i < map.node_count(); ++i) write_node_record(w, map.node(i));
+    return;
+  }
+  struct Frame {
+    std::uint32_t node;
+    int next_child;
+  };
+  Frame stack[kMaxVoxelDepth + 2];
+  int top = 0;
+  stack[top++] = Frame{Octree<VoxelT>::root_index(), 0};
+  write_node_record(w, map.node(Octree<VoxelT>::root_index()));
+  const int last_inner_level = map.block_level() - 1;
+  while (top > 0) {
+    Frame& f = stack[top - 1];
+    const OctreeNode& n = map.node(f.node);
+    if (n.level == last_inner_level || f.next_child == 8) {
+      --top;
+      continue;
+    }
+    const std::uint32_t child = n.children[f.next_child++];
+    if (child == kNoIndex) continue;
+    write_node_record(w, map.node(child));
+    stack[top++] = Frame{child, 0};
+  }
+}
+
 struct NodeRecord {
   Key key;
   NodeSummary summary;
@@ -863,7 +900,7 @@ Status save_map(const Octree<VoxelT>& map, const FreeOctree* free_space, const M
   }
   RecordWriter w(sink);
   write_header_record(w, h);
-  for (std::uint32_t i = 0; i < map.node_count(); ++i) write_node_record(w, map.node(i));
+  write_node_records(w, map);
   for (std::uint32_t i = 0; i < map.block_count(); ++i) write_block_record(w, map.block(i));
   for (std::uint32_t i = 0; i < h.free_node_count; ++i) write_free_record(w, free_space->node(i));
   w.u8(kEndTag);
@@ -1034,5 +1071,108 @@ template Status save_map(const Octree<Multires16Voxel>&, const FreeOctree*, cons
 template Status load_map(ByteSource&, Octree<Multires16Voxel>&, MapFileHeader*, ErrorText*);
 template Status load_map(ByteSource&, Octree<Multires16Voxel>&, FreeOctree*, MapFileHeader*,
                          ErrorText*);
+
+// --- Block records for a BlockStore (block_store.hpp): the map file's block record, alone.
+
+template <typename VoxelT>
+std::size_t block_record_max_bytes() {
+  // tag, key, frame, scales and flags, summary, every voxel, CRC.
+  return 1 + 8 + 4 + 4 + 16 +
+         static_cast<std::size_t>(kBlockVoxelCount) *
+             voxel_bytes(static_cast<const VoxelT*>(nullptr)) +
+         4;
+}
+
+template <typename VoxelT>
+Result<std::size_t> encode_block_record(const VoxelBlock<VoxelT>& block, std::uint8_t* out,
+                                        std::size_t capacity) {
+  if (capacity < block_record_max_bytes<VoxelT>()) return StatusCode::resource_exhausted;
+  MemorySink sink(out, capacity);
+  RecordWriter w(sink);
+  write_block_record(w, block);
+  const Status written = w.finish();
+  if (!written.ok()) return written;
+  return sink.size();
+}
+
+template <typename VoxelT>
+Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8_t* record,
+                                           std::size_t size, ErrorText* error) {
+  using Block = VoxelBlock<VoxelT>;
+  MemorySource source(record, size);
+  RecordReader r(source, error);
+  r.begin_record("stored block", -1);
+  BlockFields fields;
+  if (!read_block_fields<VoxelT>(r, map.voxel_depth(), fields)) return r.status();
+  // Voxels into scratch first: a damaged record changes nothing.
+  static_assert(sizeof(VoxelT) <= 16, "scratch sized for 16-byte voxels");
+  VoxelT scratch[kBlockVoxelCount];
+  const int first = fields.has_finest ? 0 : kBlockFinestVoxelCount;
+  if (!r.voxels(scratch + first, kBlockVoxelCount - first) || !r.end_record()) return r.status();
+  if (!r.at_end()) {
+    r.fail(StatusCode::data_loss, "extra bytes after the record");
+    return r.status();
+  }
+  const Key key{fields.morton, static_cast<std::uint8_t>(map.block_level())};
+  const Eigen::Vector3i coords = voxel_to_block(key_corner_voxel(key));
+  if (map.find_block_index(coords) != kNoIndex) return StatusCode::failed_precondition;
+  // With the finest-level pool full the block comes back demoted, as release_finest() leaves it.
+  bool demote = false;
+  if (Block::kSplitFinest && fields.has_finest) {
+    const MapMemory memory = map.memory();
+    demote = memory.finest_used >= memory.finest_capacity;
+  }
+  AllocationCounts counts;
+  const Status allocated = map.allocate(&key, 1, &counts);
+  if (counts.refused > 0) return StatusCode::resource_exhausted;
+  if (!allocated.ok() || counts.new_blocks != 1) return StatusCode::out_of_range;
+  const std::uint32_t index = map.find_block_index(coords);
+  Block& block = map.block(index);
+  if (Block::kSplitFinest && fields.has_finest && !demote) {
+    const Status finest = map.acquire_finest(block);
+    OCTOFUSE_CHECK(finest.ok());  // room checked above
+  }
+  block.last_updated_frame = fields.last_updated;
+  block.current_scale = fields.current;
+  block.min_scale = fields.min_scale;
+  block.mip_scale = fields.mip;
+  block.tsdf_min = fields.summary[0];
+  block.tsdf_max = fields.summary[1];
+  block.tsdf_mean = fields.summary[2];
+  block.weight_mean = fields.summary[3];
+  if (fields.has_finest && !demote) {
+    std::copy(scratch, scratch + kBlockFinestVoxelCount, block.scale_begin(0));
+  }
+  std::copy(scratch + kBlockFinestVoxelCount, scratch + kBlockVoxelCount, block.scale_begin(1));
+  if constexpr (Block::kSplitFinest) {
+    if (demote) {
+      if (block.integrated() && block.current_scale == 0) {
+        if (block.mip_scale < 1) {
+          // Scale 1 from the record's finest voxels, through a level lent for the moment.
+          FinestLevel<VoxelT> lent;
+          std::copy(scratch, scratch + kBlockFinestVoxelCount, lent.voxels);
+          block.finest = &lent;
+          propagate_block_up(block, 0, 1);
+          block.finest = nullptr;
+          block.mip_scale = 1;
+        }
+        block.current_scale = 1;
+        Octree<VoxelT>::update_block_summary(block);
+      }
+    }
+  }
+  return index;
+}
+
+#define OCTOFUSE_BLOCK_RECORD(VoxelT)                                                        \
+  template std::size_t block_record_max_bytes<VoxelT>();                                     \
+  template Result<std::size_t> encode_block_record(const VoxelBlock<VoxelT>&, std::uint8_t*, \
+                                                   std::size_t);                             \
+  template Result<std::uint32_t> restore_block_record(Octree<VoxelT>&, const std::uint8_t*,  \
+                                                      std::size_t, ErrorText*);
+OCTOFUSE_BLOCK_RECORD(TsdfVoxel)
+OCTOFUSE_BLOCK_RECORD(MultiresVoxel)
+OCTOFUSE_BLOCK_RECORD(Multires16Voxel)
+#undef OCTOFUSE_BLOCK_RECORD
 
 }  // namespace octofuse

@@ -98,6 +98,7 @@ void Octree<VoxelT>::evict_blocks(std::uint32_t* indices, std::size_t count) {
   std::sort(indices, indices + count, [](std::uint32_t a, std::uint32_t b) { return a > b; });
   ++stamp_;
   std::size_t parents = 0;
+  std::size_t empty = 0;  // parents left without children, in scratch_c_
   const int depth = voxel_depth();
   const int leaf = block_level();
   for (std::size_t i = 0; i < count; ++i) {
@@ -114,6 +115,7 @@ void Octree<VoxelT>::evict_blocks(std::uint32_t* indices, std::size_t count) {
     OCTOFUSE_CHECK(parent.children[child] == index);
     parent.children[child] = kNoIndex;
     add_summary_node(block.parent_node, parents);
+    if (parent.childless()) scratch_c_[empty++] = block.parent_node;
     const std::uint32_t last = blocks_.used() - 1;
     if (index != last) {
       Block& moved = blocks_[last];
@@ -130,6 +132,52 @@ void Octree<VoxelT>::evict_blocks(std::uint32_t* indices, std::size_t count) {
   }
   propagate_node_summaries(parents, nullptr, /*reset_unobserved=*/true);
   evicted_ += count;
+  remove_empty_nodes(empty);
+}
+
+template <typename VoxelT>
+void Octree<VoxelT>::remove_empty_nodes(std::size_t empty_count) {
+  // Mark: each listed node (left without children by eviction) goes, and so does every ancestor
+  // that it leaves empty; the root stays. Summaries above are already recomputed (an empty node
+  // reads unobserved), so unlinking changes no survivor's summary.
+  const int depth = voxel_depth();
+  std::uint32_t removed = 0;
+  for (std::size_t i = 0; i < empty_count; ++i) {
+    std::uint32_t n = scratch_c_[i];
+    while (n != root_index() && !nodes_[n].dead() && nodes_[n].childless()) {
+      OctreeNode& node = nodes_[n];
+      node.removed = 1;
+      ++removed;
+      OctreeNode& parent = nodes_[node.parent];
+      const int child = child_index(node.key(), depth);
+      OCTOFUSE_CHECK(parent.children[child] == n);
+      parent.children[child] = kNoIndex;
+      n = node.parent;
+    }
+  }
+  if (removed == 0) return;
+  // Sweep from the top: every index above i is live when i is reached, so the last node that
+  // fills a hole is live. The moved node's parent and children follow it.
+  const int children_are_blocks_level = block_level() - 1;
+  for (std::uint32_t i = nodes_.used(); i-- > 1;) {
+    if (!nodes_[i].dead()) continue;
+    const std::uint32_t last = nodes_.used() - 1;
+    if (i != last) {
+      const OctreeNode moved = nodes_[last];
+      nodes_[i] = moved;
+      nodes_[moved.parent].children[child_index(moved.key(), depth)] = i;
+      for (const std::uint32_t c : moved.children) {
+        if (c == kNoIndex) continue;
+        if (moved.level == children_are_blocks_level) {
+          blocks_[c].parent_node = i;
+        } else {
+          nodes_[c].parent = i;
+        }
+      }
+    }
+    nodes_.pop_back();
+  }
+  nodes_evicted_ += removed;
 }
 
 template <typename VoxelT>
@@ -179,6 +227,8 @@ MapMemory Octree<VoxelT>::memory() const {
   m.refusals = refusals_;
   m.finest_refusals = finest_refusals_;
   m.evicted = evicted_;
+  m.node_refusals = node_refusals_;
+  m.nodes_evicted = nodes_evicted_;
   return m;
 }
 
@@ -190,7 +240,9 @@ void Octree<VoxelT>::reset_contents(bool clear_hash) {
   if (clear_hash) hash_.clear();
   refusals_ = 0;
   finest_refusals_ = 0;
+  node_refusals_ = 0;
   evicted_ = 0;
+  nodes_evicted_ = 0;
   stamp_ = 0;
   Result<std::uint32_t> root = nodes_.allocate();
   OCTOFUSE_CHECK(root.ok() && root.value() == 0);
@@ -224,6 +276,7 @@ void Octree<VoxelT>::allocate_one(const Key& key, AllocationCounts& counts, Allo
   std::uint32_t node = path.node[start];
   path.morton = key.morton;
   path.levels = start + 1;
+  path.fresh_from = kMaxVoxelDepth + 1;
   for (int level = start + 1; level <= key.level; ++level) {
     const Key here = parent_key_at(key, level, depth);
     const int child = child_index(here, depth);
@@ -242,6 +295,7 @@ void Octree<VoxelT>::allocate_one(const Key& key, AllocationCounts& counts, Allo
       if (!b.ok()) {
         ++counts.refused;
         ++refusals_;
+        undo_new_nodes(counts, path);
         return;
       }
       Block& block = blocks_[b.value()];
@@ -258,6 +312,8 @@ void Octree<VoxelT>::allocate_one(const Key& key, AllocationCounts& counts, Allo
     if (!n.ok()) {
       ++counts.refused;
       ++refusals_;
+      ++node_refusals_;
+      undo_new_nodes(counts, path);
       return;
     }
     OctreeNode& fresh = nodes_[n.value()];
@@ -266,10 +322,28 @@ void Octree<VoxelT>::allocate_one(const Key& key, AllocationCounts& counts, Allo
     fresh.level = static_cast<std::uint8_t>(level);
     nodes_[node].children[child] = n.value();
     ++counts.new_nodes;
+    if (path.fresh_from > level) path.fresh_from = level;
     node = n.value();
     path.node[level] = node;
     path.levels = level + 1;
   }
+}
+
+template <typename VoxelT>
+void Octree<VoxelT>::undo_new_nodes(AllocationCounts& counts, AllocationPath& path) {
+  // A refused key leaves no childless chain behind (eviction could never free it): the nodes
+  // this key created are the last ones of the pool, deepest last.
+  const int depth = voxel_depth();
+  for (int level = path.levels - 1; level >= path.fresh_from; --level) {
+    const std::uint32_t n = path.node[level];
+    OCTOFUSE_CHECK(n == nodes_.used() - 1);
+    const OctreeNode& node = nodes_[n];
+    nodes_[node.parent].children[child_index(node.key(), depth)] = kNoIndex;
+    nodes_.pop_back();
+    --counts.new_nodes;
+  }
+  if (path.levels > path.fresh_from) path.levels = path.fresh_from;
+  path.fresh_from = kMaxVoxelDepth + 1;
 }
 
 template <typename VoxelT>

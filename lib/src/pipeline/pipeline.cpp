@@ -274,6 +274,13 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
     OCTOFUSE_TRY(indices);
     eviction_candidates_ = candidates.value();
     eviction_indices_ = indices.value();
+    Result<std::uint8_t*> record =
+        arena.template allocate_array<std::uint8_t>(block_record_max_bytes<VoxelT>());
+    OCTOFUSE_TRY(record);
+    Result<std::uint64_t*> keys = arena.template allocate_array<std::uint64_t>(kStoreKeyCapacity);
+    OCTOFUSE_TRY(keys);
+    store_record_ = record.value();
+    store_keys_ = keys.value();
   }
   OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
   return ok_status();
@@ -338,6 +345,8 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
     evict_low_blocks_ = mark(memory.block_capacity, config.eviction.low_water);
     evict_high_finest_ = mark(memory.finest_capacity, config.eviction.high_water);
     evict_low_finest_ = mark(memory.finest_capacity, config.eviction.low_water);
+    evict_high_nodes_ = mark(memory.node_capacity, config.eviction.high_water);
+    evict_low_nodes_ = mark(memory.node_capacity, config.eviction.low_water);
   }
   team_ = WorkerTeam(config.workers);
   working_camera_ = config.input_camera.downsampled(config.preprocess.downsample_factor);
@@ -503,6 +512,13 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
     T_W_Cref_ = T_W_C_;
     return ok_status();
   }
+  if (store_ != nullptr) {
+    // Stored blocks in the new view come back first (within the frame budgets), so the ray-cast
+    // shows the old map there.
+    ExclusiveHold hold(guard_);
+    StoreReport reloaded;
+    reload_stored(reloaded);
+  }
   // The old reference was seen from elsewhere: ray-cast what the map shows from here, whole.
   if (deadline_.active()) {
     raycaster_.set_step_budget(config_.budget.raycast_steps);
@@ -527,6 +543,17 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
   }
   if (finest_pool && memory.finest_used > evict_high_finest_) {
     over_finest = memory.finest_used - evict_low_finest_;
+  }
+  if (memory.nodes_used > evict_high_nodes_ && memory.blocks_used > 0) {
+    // Inner nodes go with their last block: evict the share of the blocks that the nodes are over
+    // their low mark (the farthest blocks take whole octants with them; a next frame evicts more
+    // if that was not enough).
+    const std::uint64_t over = memory.nodes_used - evict_low_nodes_;
+    const std::uint64_t blocks =
+        (over * memory.blocks_used + memory.nodes_used - 1) / memory.nodes_used;
+    over_blocks =
+        std::max(over_blocks,
+                 static_cast<std::uint32_t>(std::min<std::uint64_t>(blocks, memory.blocks_used)));
   }
   if (over_blocks == 0 && over_finest == 0) return report;
   report.triggered = true;
@@ -558,7 +585,9 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
               return a.morton < b.morton;
             });
   // Evicted blocks fill eviction_indices_ from the front, demoted ones from the back.
-  const std::uint32_t budget = config_.budget.max_evictions;
+  const std::uint32_t budget =
+      store_ != nullptr ? std::min(config_.budget.max_evictions, config_.budget.max_store_writes)
+                        : config_.budget.max_evictions;
   std::uint32_t evicted = 0;
   std::uint32_t demoted = 0;
   for (std::uint32_t i = 0; i < count && (over_blocks > 0 || over_finest > 0); ++i) {
@@ -576,12 +605,129 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
     }
     if (c.has_finest && over_finest > 0) --over_finest;
   }
+  if (store_ != nullptr) spill(evicted);
   // Demote first: eviction moves blocks to other pool indices.
   map_.release_finest(eviction_indices_ + (count - demoted), demoted);
   map_.evict_blocks(eviction_indices_, evicted);
   report.evicted = evicted;
   report.demoted = demoted;
   return report;
+}
+
+// Hands the blocks about to be evicted (the first `count` of eviction_indices_) to the store.
+template <typename VoxelT>
+void Pipeline<VoxelT>::spill(std::uint32_t count) {
+  StoreReport& report = current_.store;
+  for (std::uint32_t i = 0; i < count; ++i) {
+    const typename Map::Block& block = map_.block(eviction_indices_[i]);
+    const Result<std::size_t> size =
+        encode_block_record(block, store_record_, block_record_max_bytes<VoxelT>());
+    const Status put = size.ok()
+                           ? store_->put(morton_encode(block.coords), store_record_, size.value())
+                           : size.status();
+    if (!put.ok()) {
+      ++report.write_failed;
+      continue;
+    }
+    ++report.written;
+    report.bytes_written += size.value();
+  }
+  if (config_.budget.max_store_writes < config_.budget.max_evictions &&
+      count == config_.budget.max_store_writes) {
+    report.budget_hit = true;
+  }
+}
+
+// Stored blocks whose centre projects into the view (within two blocks of its edges, in front of
+// the camera, nearer than the depth range plus a block) come back nearest first, before this
+// frame's integration would map their space afresh, while the pool is below its high-water mark.
+template <typename VoxelT>
+void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
+  const float far_m = config_.fusion.far_m;
+  const float block_m = static_cast<float>(kBlockSide) * map_.voxel_size_m();
+  const Se3f T_W_C = T_W_C_.template cast<float>();
+  const Se3f T_C_W = T_W_C.inverse();
+  const PinholeCamera& cam = working_camera_;
+  // The view's bounding box in block coordinates (camera centre and the far plane's corners).
+  Eigen::Vector3f lo = T_W_C.translation();
+  Eigen::Vector3f hi = lo;
+  const float us[2] = {-0.5f, static_cast<float>(cam.width) - 0.5f};
+  const float vs[2] = {-0.5f, static_cast<float>(cam.height) - 0.5f};
+  for (float u : us) {
+    for (float v : vs) {
+      const Eigen::Vector3f p_W = T_W_C * cam.back_project(u, v, far_m + block_m);
+      lo = lo.cwiseMin(p_W);
+      hi = hi.cwiseMax(p_W);
+    }
+  }
+  const Eigen::Vector3i lo_block = voxel_to_block(map_.point_to_voxel(lo));
+  const Eigen::Vector3i hi_block = voxel_to_block(map_.point_to_voxel(hi));
+  const std::size_t found = store_->find_in_box(lo_block, hi_block, store_keys_, kStoreKeyCapacity);
+  // In view: rank by squared distance (voxels), nearest first, ties by key.
+  const Eigen::Vector3i camera_voxel = map_.point_to_voxel(T_W_C.translation());
+  std::uint32_t candidates = 0;
+  const std::uint32_t memory_capacity = map_.memory().block_capacity;
+  for (std::size_t i = 0; i < found; ++i) {
+    const Eigen::Vector3i coords = morton_decode(store_keys_[i]);
+    const Eigen::Vector3f p_C = T_C_W * map_.block_centre_W(coords);
+    if (!(p_C.z() > 0.0f) || p_C.z() > far_m + block_m) continue;
+    const Eigen::Vector2f px = cam.project(p_C);
+    // Two blocks' width in pixels: integration's bands reach blocks whose centres lie outside.
+    const float m = 2.0f * cam.fx * block_m / std::max(p_C.z(), block_m);
+    if (px.x() < -m || px.y() < -m || px.x() > static_cast<float>(cam.width) + m ||
+        px.y() > static_cast<float>(cam.height) + m) {
+      continue;
+    }
+    const Eigen::Vector3i d =
+        coords * kBlockSide + Eigen::Vector3i::Constant(kBlockSide / 2) - camera_voxel;
+    EvictionCandidate& c = eviction_candidates_[candidates++];
+    c.rank = static_cast<std::uint64_t>(static_cast<std::int64_t>(d.x()) * d.x() +
+                                        static_cast<std::int64_t>(d.y()) * d.y() +
+                                        static_cast<std::int64_t>(d.z()) * d.z());
+    c.morton = store_keys_[i];
+    if (candidates == memory_capacity) break;
+  }
+  std::sort(eviction_candidates_, eviction_candidates_ + candidates,
+            [](const EvictionCandidate& a, const EvictionCandidate& b) {
+              if (a.rank != b.rank) return a.rank < b.rank;
+              return a.morton < b.morton;
+            });
+  // Up to the pool's high-water mark only: filling it further would make this frame's eviction
+  // send blocks just read back (in view, but not yet updated) out again, frame after frame.
+  const std::uint32_t used = map_.memory().blocks_used;
+  const std::uint32_t room = evict_high_blocks_ > used ? evict_high_blocks_ - used : 0;
+  const std::uint32_t budget = std::min(room, config_.budget.max_store_reads);
+  std::uint32_t restored = 0;
+  for (std::uint32_t i = 0; i < candidates; ++i) {
+    if (report.read + report.read_failed + report.remapped == budget) {
+      report.waiting = candidates - i;
+      if (budget == config_.budget.max_store_reads) report.budget_hit = true;
+      break;
+    }
+    const std::uint64_t key = eviction_candidates_[i].morton;
+    const Result<std::size_t> size =
+        store_->take(key, store_record_, block_record_max_bytes<VoxelT>());
+    if (!size.ok()) {
+      ++report.read_failed;
+      continue;
+    }
+    report.bytes_read += size.value();
+    const Result<std::uint32_t> index = restore_block_record(map_, store_record_, size.value());
+    if (index.ok()) {
+      ++report.read;
+      eviction_indices_[restored++] = index.value();
+    } else if (index.status().code() == StatusCode::failed_precondition) {
+      ++report.remapped;
+    } else if (index.status().code() == StatusCode::resource_exhausted) {
+      // A pool is full: it stays stored for a later frame.
+      store_->release(key);
+      report.waiting = candidates - i;
+      break;
+    } else {
+      ++report.read_failed;
+    }
+  }
+  if (restored > 0) map_.propagate_summaries(eviction_indices_, restored);
 }
 
 template <typename VoxelT>
@@ -929,10 +1075,14 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
   {
     // Queries from other threads wait here, and see the map before or after this frame.
     ExclusiveHold hold(guard_);
+    if (store_ != nullptr) reload_stored(stats.store);
     stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index));
+    const std::uint64_t node_refusals_before = map_.memory().node_refusals;
     stats.integration =
         integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
                               static_cast<std::uint32_t>(stats.frame_index), budget, team_);
+    stats.integration.node_refusals =
+        static_cast<std::uint32_t>(map_.memory().node_refusals - node_refusals_before);
     progress.integrated = true;
     t_integrated = clock_.now();
     const Status fused = stats.integration.status;
@@ -965,12 +1115,24 @@ void Pipeline<VoxelT>::carve_free_space() {
                                        static_cast<std::uint32_t>(stats.frame_index), beyond,
                                        config_.validator.far_m);
   const std::uint32_t capacity = free_space_.node_capacity();
-  if (free_space_.node_count() > capacity - capacity / 16) {
+  const FreeSpaceReport& carved = stats.free_space;
+  // The next frame is likely to ask for about what this one did (twice what was refused: a
+  // refused node hides the refinement below it). When that does not fit, or the pool is more than
+  // 15/16 full, the farthest air goes until the pool has room for it with a quarter to spare:
+  // room for at least a quarter of the pool, at most half (a frame's carving is mostly air the
+  // pool already holds; a first view alone may ask for most of the pool).
+  const std::uint64_t demand =
+      std::uint64_t{carved.new_nodes} + 2 * std::uint64_t{carved.pool_refused};
+  const std::uint64_t room = std::min<std::uint64_t>(
+      capacity / 2, std::max<std::uint64_t>(capacity / 4, demand + demand / 4));
+  const std::uint64_t used = free_space_.node_count();
+  if (used > capacity - capacity / 16 || used + demand > capacity) {
     const float min_radius_m = config_.free_space.prune_radius_m > 0.0f
                                    ? config_.free_space.prune_radius_m
                                    : 0.25f * config_.fusion.far_m;
-    stats.free_space.pruned = free_space_.prune_to(T_W_C_.translation().cast<float>(),
-                                                   capacity - capacity / 4, min_radius_m);
+    const std::uint32_t keep = static_cast<std::uint32_t>(capacity - room);
+    stats.free_space.pruned =
+        free_space_.prune_to(T_W_C_.translation().cast<float>(), keep, min_radius_m);
     stats.free_space.nodes_used = free_space_.node_count();
     stats.free_space.bytes_used = free_space_.bytes_used();
   }

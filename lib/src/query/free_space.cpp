@@ -422,6 +422,7 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     const Result<std::uint32_t> fresh = nodes_.allocate();
     if (!fresh.ok()) {
       ++report.refused;
+      ++report.pool_refused;
       return kNoNode;
     }
     ++report.new_nodes;

@@ -125,9 +125,17 @@ TEST_CASE("evicted blocks are gone, every other block is found intact, the pool 
     REQUIRE(same_summary(a.map.node(found).summary, expected.summary));
   }
   REQUIRE(a.map.node(0).summary.observed());
+  // Inner nodes went with their last block: the tree is the kept-only map's, node for node.
+  REQUIRE(a.map.node_count() == b.map.node_count());
+  REQUIRE(memory.nodes_evicted > 0);
+  REQUIRE(a.map.memory().nodes_used + memory.nodes_evicted ==
+          b.map.node_count() + memory.nodes_evicted);
+  // The node over blocks x in {4, 5} alone is gone: the walk stops above it, at a node whose
+  // summary covers kept blocks too.
   const OctantLookup gone = a.map.lookup(Eigen::Vector3i(5, 5, 5) * kBlockSide);
   REQUIRE(gone.node != kNoIndex);
-  REQUIRE_FALSE(a.map.node(gone.node).summary.observed());  // covers blocks x in {4, 5} only
+  REQUIRE(gone.block == kNoIndex);
+  REQUIRE(a.map.node(gone.node).level < a.map.block_level() - 1);
 
   // Evicted space can be allocated again: a fresh, unobserved block at the end of the pool, and
   // the finest levels given back are lent again.
@@ -166,7 +174,89 @@ TEST_CASE("the pool's layout after eviction depends on the evicted set, not the 
   a.map.evict_blocks(rest.data(), rest.size());
   REQUIRE(a.map.block_count() == 0u);
   REQUIRE(a.map.memory().finest_used == 0u);
+  REQUIRE(a.map.node_count() == 1u);  // the root alone
   REQUIRE_FALSE(a.map.node(0).summary.observed());
+}
+
+// Every live node is its parent's child, every block its parent node's child, and the hash
+// finds each block where the tree does.
+template <typename VoxelT>
+void require_tree_consistent(const Octree<VoxelT>& map) {
+  const int depth = map.voxel_depth();
+  for (std::uint32_t i = 1; i < map.node_count(); ++i) {
+    const OctreeNode& n = map.node(i);
+    REQUIRE(n.parent < map.node_count());
+    REQUIRE(map.node(n.parent).children[child_index(n.key(), depth)] == i);
+    REQUIRE(map.find_node_index(n.key()) == i);
+    REQUIRE_FALSE(n.childless());
+  }
+  for (std::uint32_t i = 0; i < map.block_count(); ++i) {
+    const auto& b = map.block(i);
+    const Key key{b.morton, static_cast<std::uint8_t>(map.block_level())};
+    REQUIRE(map.node(b.parent_node).children[child_index(key, depth)] == i);
+    REQUIRE(map.find_block_index(b.coords) == i);
+  }
+}
+
+TEST_CASE("inner nodes go with their last block and come back with it; the node pool stays dense",
+          "[map][octree][evict]") {
+  // Blocks spread over the cube, so each sits under its own chain of inner nodes.
+  MapFixture<MultiresVoxel> a(small_config(64, 64));
+  std::vector<Eigen::Vector3i> coords;
+  for (int i = 0; i < 8; ++i) {
+    coords.emplace_back((i & 1) * 31, ((i >> 1) & 1) * 31, ((i >> 2) & 1) * 31);
+    coords.emplace_back((i & 1) * 31, ((i >> 1) & 1) * 31, 14 + (i >> 2));
+  }
+  for (const Eigen::Vector3i& c : coords) REQUIRE(a.map.allocate_block(c).ok());
+  const std::uint32_t full_nodes = a.map.node_count();
+  require_tree_consistent(a.map);
+  // Evict the first eight (the corners) in two rounds; nodes they alone held go.
+  for (int round = 0; round < 2; ++round) {
+    std::vector<std::uint32_t> evict;
+    for (int k = 4 * round; k < 4 * round + 4; ++k) {
+      evict.push_back(a.map.find_block_index(coords[static_cast<std::size_t>(2 * k)]));
+    }
+    test::AllocationScope scope;
+    a.map.evict_blocks(evict.data(), evict.size());
+    REQUIRE(scope.allocations() == 0);
+    require_tree_consistent(a.map);
+  }
+  REQUIRE(a.map.block_count() == 8u);
+  REQUIRE(a.map.node_count() < full_nodes);
+  REQUIRE(a.map.memory().nodes_evicted == full_nodes - a.map.node_count());
+  // A map that only ever held the remaining blocks has the same number of nodes.
+  MapFixture<MultiresVoxel> b(small_config(64, 64));
+  for (std::size_t k = 1; k < coords.size(); k += 2) REQUIRE(b.map.allocate_block(coords[k]).ok());
+  REQUIRE(a.map.node_count() == b.map.node_count());
+  // They come back with their blocks, and a pool no larger than the full tree suffices again.
+  for (std::size_t k = 0; k < coords.size(); k += 2) REQUIRE(a.map.allocate_block(coords[k]).ok());
+  REQUIRE(a.map.node_count() == full_nodes);
+  require_tree_consistent(a.map);
+}
+
+TEST_CASE("a tiny node pool never refuses a block that evicting another frees nodes for",
+          "[map][octree][evict]") {
+  // Room for one chain of inner nodes (root + 4 levels above the blocks of a 256-voxel cube,
+  // plus a spare): a block far from the last needs nodes only eviction can free.
+  MapFixture<MultiresVoxel> a(small_config(4, 6));
+  const int depth = a.map.voxel_depth();
+  (void)depth;
+  for (int i = 0; i < 20; ++i) {
+    const Eigen::Vector3i c((i * 7) % 32, (i * 13) % 32, (i * 29) % 32);
+    if (a.map.find_block_index(c) != kNoIndex) continue;
+    Result<std::uint32_t> fresh = a.map.allocate_block(c);
+    if (!fresh.ok()) {
+      // Evict everything else (the caller's eviction), then it fits.
+      std::vector<std::uint32_t> all;
+      for (std::uint32_t k = 0; k < a.map.block_count(); ++k) all.push_back(k);
+      a.map.evict_blocks(all.data(), all.size());
+      REQUIRE(a.map.node_count() == 1u);
+      fresh = a.map.allocate_block(c);
+    }
+    REQUIRE(fresh.ok());
+    require_tree_consistent(a.map);
+  }
+  REQUIRE(a.map.memory().nodes_evicted > 0);
 }
 
 TEST_CASE("release_finest keeps a block at scale 1 with the means of its finest voxels",

@@ -51,9 +51,11 @@ struct FreeSpaceConfig {
   float near_m = 0.05f;
   // When a frame leaves the pool more than 15/16 full, the pipeline forgets the free space
   // farthest from the camera (prune_to()) until the pool is at most 3/4 full, so that a long
-  // mission keeps carving where the robot is; never within this distance of the camera (0 = a
-  // quarter of the fusion's far_m). A pool too small for the air around the camera still refuses
-  // nodes.
+  // mission keeps carving where the robot is; not within this distance of the camera (0 = a
+  // quarter of the fusion's far_m) unless the air within it alone overflows the pool. A frame whose
+  // carving was refused nodes (pool full) prunes as well, to leave room for as many nodes as it
+  // asked for; only a frame that asks for more than the whole pool is still refused (counted in
+  // FreeSpaceReport::pool_refused).
   float prune_radius_m = 0.0f;
 };
 
@@ -128,9 +130,10 @@ class FreeOctree {
   // the order of the nodes that stay (children after their parents). Returns the nodes dropped.
   // O(node_count()), no allocation; the root always stays.
   std::uint32_t prune(const Eigen::Vector3f& centre_W, float keep_radius_m);
-  // prune() with the largest radius, to 1 %, that leaves at most `max_nodes`, but no less than
-  // `min_radius_m` (then more may stay). Nothing when at most `max_nodes` are used. Up to 25
-  // walks over the pool.
+  // prune() with the largest radius, to 1 %, that leaves at most `max_nodes`, no less than
+  // `min_radius_m` when that radius leaves at most `max_nodes` (else the radius may shrink to 0;
+  // then the octants containing centre_W may still exceed `max_nodes`). Nothing when at most
+  // `max_nodes` are used. Up to 26 walks over the pool.
   std::uint32_t prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
                          float min_radius_m);
 

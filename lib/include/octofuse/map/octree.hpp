@@ -56,10 +56,18 @@ struct OctreeNode {
   std::uint32_t visit_stamp = 0;    // scratch for propagate_summaries()
   std::uint64_t morton = 0;         // of the minimum corner (finest voxels)
   std::uint8_t level = 0;
-  std::uint8_t padding_[7] = {};
+  std::uint8_t removed = 0;  // scratch mark of evict_blocks(); 0 on every live node
+  std::uint8_t padding_[6] = {};
   NodeSummary summary;
 
   Key key() const { return Key{morton, level}; }
+  bool dead() const { return removed != 0; }
+  bool childless() const {
+    for (const std::uint32_t c : children) {
+      if (c != kNoIndex) return false;
+    }
+    return true;
+  }
 };
 
 // What one allocate() call did.
@@ -86,6 +94,8 @@ struct MapMemory {
   std::uint64_t refusals = 0;
   std::uint64_t finest_refusals = 0;  // of those, finest levels
   std::uint64_t evicted = 0;          // blocks evicted since reserve()/clear()
+  std::uint64_t node_refusals = 0;    // of the refusals, inner nodes (a new block's ancestors)
+  std::uint64_t nodes_evicted = 0;    // inner nodes removed with their last block
 };
 
 // Where a voxel falls in the tree: the deepest allocated octant containing it. `level` is -1
@@ -142,9 +152,12 @@ class Octree {
     OCTOFUSE_TRY(a);
     Result<std::uint32_t*> b = arena.template allocate_array<std::uint32_t>(config.node_capacity);
     OCTOFUSE_TRY(b);
+    Result<std::uint32_t*> c = arena.template allocate_array<std::uint32_t>(config.node_capacity);
+    OCTOFUSE_TRY(c);
     OCTOFUSE_TRY(arena.allocate_bytes(0, kArenaAlignment));
     scratch_a_ = a.value();
     scratch_b_ = b.value();
+    scratch_c_ = c.value();
     config_ = config;
     bytes_reserved_ = arena.bytes_used() - start;
     // A sizer hands out no memory: nothing to initialise, and the octree stays unusable.
@@ -406,9 +419,10 @@ class Octree {
   // of the nodes above them are recomputed from what remains (a node left with nothing observed
   // below it reads unobserved). The block pool stays dense: each hole takes the last block
   // (indices are processed from the highest down, so the result depends only on the set, not on
-  // the order given). Inner nodes stay, empty, for the blocks that come back; they are small
-  // beside blocks and the node pool is sized for the blocks the cube can hold at once.
-  // Not thread-safe, like allocate().
+  // the order given). Inner nodes left without children go with their last block (and come back
+  // with it, through allocate()); the node pool stays dense the same way (the last node moves
+  // into each hole, its parent and children follow), so a node's index may then be below its
+  // parent's (save_map() writes parents first regardless). Not thread-safe, like allocate().
   void evict_blocks(std::uint32_t* indices, std::size_t count);
   // Multires: gives the finest levels of the blocks at the given pool indices back to the finest
   // pool, keeping the blocks at scale 1 (scale 1 is brought up to date from scale 0 first, the
@@ -419,6 +433,8 @@ class Octree {
 
   // Blocks removed by evict_blocks() since reserve()/clear().
   std::uint64_t evicted() const { return evicted_; }
+  // Inner nodes removed by evict_blocks() (with their last block) since reserve()/clear().
+  std::uint64_t nodes_evicted() const { return nodes_evicted_; }
 
   // --- Memory.
   MapMemory memory() const;
@@ -433,10 +449,13 @@ class Octree {
   struct AllocationPath {
     std::uint32_t node[kMaxVoxelDepth + 1] = {0};
     std::uint64_t morton = 0;
-    int levels = 1;  // the root contains every key
+    int levels = 1;                       // the root contains every key
+    int fresh_from = kMaxVoxelDepth + 1;  // first level whose node the current key created
   };
 
   void allocate_one(const Key& key, AllocationCounts& counts, AllocationPath& path);
+  // Removes the nodes the current key created (a pool refused it further down).
+  void undo_new_nodes(AllocationCounts& counts, AllocationPath& path);
 
   // Appends node p to the first level of a summary pass unless this pass has it already.
   void add_summary_node(std::uint32_t p, std::size_t& current_count);
@@ -447,6 +466,9 @@ class Octree {
                                 bool reset_unobserved = false);
 
   void prefetch_children(const OctreeNode& n, bool children_are_blocks) const;
+  // Removes the nodes listed in scratch_c_ (left childless by eviction) and the ancestors each
+  // leaves childless, keeping the node pool dense.
+  void remove_empty_nodes(std::size_t empty_count);
 
   void summarise_node(OctreeNode& n, bool children_are_blocks, bool reset_unobserved);
 
@@ -457,10 +479,13 @@ class Octree {
   BlockHash hash_;
   std::uint32_t* scratch_a_ = nullptr;
   std::uint32_t* scratch_b_ = nullptr;
+  std::uint32_t* scratch_c_ = nullptr;
   std::size_t bytes_reserved_ = 0;
   std::uint64_t refusals_ = 0;
   std::uint64_t finest_refusals_ = 0;
+  std::uint64_t node_refusals_ = 0;
   std::uint64_t evicted_ = 0;
+  std::uint64_t nodes_evicted_ = 0;
   std::uint32_t stamp_ = 0;
   bool reserved_ = false;
 };

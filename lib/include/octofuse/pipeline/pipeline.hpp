@@ -25,6 +25,7 @@
 #include "octofuse/fusion/fusion_config.hpp"
 #include "octofuse/fusion/integrator.hpp"
 #include "octofuse/image/depth_pyramid.hpp"
+#include "octofuse/map/block_store.hpp"
 #include "octofuse/map/octree.hpp"
 #include "octofuse/math/camera.hpp"
 #include "octofuse/math/se3.hpp"
@@ -72,6 +73,10 @@ struct PipelineBudget {
   std::uint64_t max_voxel_updates = ~std::uint64_t{0};
   std::uint64_t raycast_steps = 0;            // 0 = unbounded
   std::uint32_t max_evictions = 0xFFFFFFFFu;  // blocks evicted per frame (EvictionConfig)
+  // With a BlockStore (Pipeline::set_block_store()): records written (evictions beyond wait for
+  // the next frame) and read back per frame, step (2) of the degradation order.
+  std::uint32_t max_store_writes = 2048;
+  std::uint32_t max_store_reads = 512;
   // Index 0 = finest level. When tracking, at least one level must iterate (init() returns
   // invalid_argument otherwise): no iteration would report every frame tracked, unchecked.
   int icp_iterations[kPyramidLevels] = {4, 5, 10};
@@ -89,8 +94,21 @@ struct EvictionConfig {
 struct EvictionReport {
   std::uint32_t evicted = 0;  // blocks removed before this frame's integration
   std::uint32_t demoted = 0;  // blocks kept at scale 1 that gave their finest level back
-  bool triggered = false;     // a pool was above its high-water mark
+  bool triggered = false;     // a pool (blocks, finest levels, inner nodes) was above its mark
   bool budget_hit = false;    // max_evictions stopped it above the low-water mark
+};
+
+// What the block store did in one frame (Pipeline::set_block_store()).
+struct StoreReport {
+  std::uint32_t written = 0;       // evicted blocks handed to the store
+  std::uint32_t write_failed = 0;  // ... that it refused (their state is lost)
+  std::uint32_t read = 0;          // stored blocks in view read back before integration
+  std::uint32_t read_failed = 0;   // damaged records (those blocks are mapped afresh)
+  std::uint32_t remapped = 0;      // stored blocks in view already mapped afresh (record dropped)
+  std::uint32_t waiting = 0;       // stored blocks in view left for a later frame (budget, room)
+  std::uint64_t bytes_written = 0;
+  std::uint64_t bytes_read = 0;
+  bool budget_hit = false;  // max_store_reads or max_store_writes bound
 };
 
 // Where a pose prior may plausibly be, and how far it may move between two frames
@@ -225,6 +243,7 @@ struct FrameStats {
   TrackReport track;  // meaningful when a track was attempted
   bool track_attempted = false;
   EvictionReport eviction;        // before integration
+  StoreReport store;              // with a block store: reads before eviction, writes in it
   IntegrationReport integration;  // meaningful when integrated
   FreeSpaceReport free_space;     // meaningful when integrated with free space enabled
   RaycastStats raycast;
@@ -239,7 +258,7 @@ struct FrameStats {
   double prior_gap_m = 0.0;     // |ICP - prediction| translation, when both exist
   double prior_gap_rad = 0.0;   // and rotation angle
   bool any_budget_hit() const {
-    return budget_icp_hit || eviction.budget_hit || integration.budget_hit ||
+    return budget_icp_hit || eviction.budget_hit || store.budget_hit || integration.budget_hit ||
            raycast.budget_hit() || free_space.budget_hit;
   }
 };
@@ -287,6 +306,14 @@ class Pipeline {
   Status set_pose(const Se3d& T_W_C);
 
   const Se3d& T_W_C() const { return T_W_C_; }
+  // Evicted blocks go to `store` and come back from it when the camera returns (block_store.hpp);
+  // null: evicted blocks are forgotten. failed_precondition without eviction enabled. The store
+  // must outlive its use; set it between frames.
+  Status set_block_store(BlockStore* store) {
+    if (store != nullptr && eviction_candidates_ == nullptr) return StatusCode::failed_precondition;
+    store_ = store;
+    return ok_status();
+  }
   const Map& map() const { return map_; }
   Map& map() { return map_; }
   // The free space carved so far (reserved only when config.free_space.enabled).
@@ -336,6 +363,10 @@ class Pipeline {
   Status reserve(Arena& arena, const PipelineConfig& config);
   // Step (2): evicts blocks when a pool is above its high-water mark (see EvictionConfig).
   EvictionReport evict(std::uint32_t frame_index);
+  // Before step (2): reads back stored blocks in the camera's view (set_block_store()).
+  void reload_stored(StoreReport& report);
+  // In step (2): hands the first `count` blocks of eviction_indices_ to the store.
+  void spill(std::uint32_t count);
   // Sets the tracker's, ray-caster's and free space's budgets from a deadline plan.
   void apply_deadline(const DeadlineReport& plan);
   // What the finished frame did and took, for the deadline's model.
@@ -391,6 +422,12 @@ class Pipeline {
   std::uint32_t evict_low_blocks_ = 0;
   std::uint32_t evict_high_finest_ = 0;
   std::uint32_t evict_low_finest_ = 0;
+  BlockStore* store_ = nullptr;
+  std::uint8_t* store_record_ = nullptr;  // one block record (with eviction)
+  std::uint64_t* store_keys_ = nullptr;   // kStoreKeyCapacity keys found in view
+  static constexpr std::size_t kStoreKeyCapacity = 8192;
+  std::uint32_t evict_high_nodes_ = 0;  // inner-node marks (nodes go with their last block)
+  std::uint32_t evict_low_nodes_ = 0;
   MapGuard guard_;
   std::uint64_t map_version_ = 0;  // frames fused; written under guard_
   PinholeCamera working_camera_;

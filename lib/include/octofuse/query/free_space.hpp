@@ -26,13 +26,14 @@ namespace octofuse {
 struct FreeSpaceReport {
   std::uint32_t node_visits = 0;
   std::uint32_t new_nodes = 0;
-  std::uint32_t marked_free = 0;  // octants marked free this frame
-  std::uint32_t cleared = 0;      // free octants handed down or cleared
-  std::uint32_t refused = 0;      // node allocations refused (pool full or budget)
-  std::uint32_t pruned = 0;       // nodes forgotten after this frame to make room (prune())
-  bool budget_hit = false;        // visits or allocations ran out
-  std::uint32_t nodes_used = 0;   // after this frame
-  std::size_t bytes_used = 0;     // nodes_used * sizeof(FreeNode)
+  std::uint32_t marked_free = 0;   // octants marked free this frame
+  std::uint32_t cleared = 0;       // free octants handed down or cleared
+  std::uint32_t refused = 0;       // node allocations refused (pool full or budget)
+  std::uint32_t pool_refused = 0;  // of those, because the node pool was full
+  std::uint32_t pruned = 0;        // nodes forgotten after this frame to make room (prune())
+  bool budget_hit = false;         // visits or allocations ran out
+  std::uint32_t nodes_used = 0;    // after this frame
+  std::size_t bytes_used = 0;      // nodes_used * sizeof(FreeNode)
 };
 
 // The free-space octree and the carving that writes it.

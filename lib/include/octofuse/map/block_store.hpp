@@ -1,0 +1,65 @@
+#pragma once
+// Where evicted blocks go and come back from: a map larger than its memory. The library does no
+// file I/O: it hands each evicted block over as one record (encode_block_record(), the map file's
+// block record with its checksum) and asks for records back when the camera returns
+// (restore_block_record()); a port keeps them (the host port's block_store_file.hpp: a crash-safe
+// append-only file). The pipeline bounds the records written and read per frame
+// (PipelineBudget::max_store_writes / max_store_reads).
+
+#include <cstddef>
+#include <cstdint>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/error_text.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/core/status.hpp"
+#include "octofuse/map/octree.hpp"
+
+namespace octofuse {
+
+// Keyed by the Morton code of a block's block coordinates (morton_encode(block.coords)).
+class BlockStore {
+ public:
+  // Keeps `record` (size bytes) as the block's newest state, replacing any older one. ok, or the
+  // store's error (the block's state is then lost; the pipeline counts it).
+  virtual Status put(std::uint64_t block_morton, const std::uint8_t* record, std::size_t size) = 0;
+  // Writes to `keys` (at most `capacity`) the keys of stored blocks not in memory whose block
+  // coordinates lie in [lo, hi] (inclusive), in increasing key order; returns how many.
+  virtual std::size_t find_in_box(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi,
+                                  std::uint64_t* keys, std::size_t capacity) = 0;
+  // Copies the block's newest record into `record` (capacity bytes): its size, or out_of_range (not
+  // stored), data_loss (damaged on the medium) or the store's error. The block then counts as in
+  // memory (find_in_box() skips it) until it is put again; its record stays, so a map file written
+  // from the store after a crash still holds it.
+  virtual Result<std::size_t> take(std::uint64_t block_morton, std::uint8_t* record,
+                                   std::size_t capacity) = 0;
+  // The block taken last could not be restored (a pool was full): it counts as stored again.
+  virtual void release(std::uint64_t block_morton) = 0;
+
+ protected:
+  ~BlockStore() = default;
+};
+
+// Most bytes one block record of VoxelT takes.
+template <typename VoxelT>
+std::size_t block_record_max_bytes();
+
+// Writes block `block` of `map` as one record into `out`: its size, or resource_exhausted when
+// `capacity` is less than block_record_max_bytes<VoxelT>().
+template <typename VoxelT>
+Result<std::size_t> encode_block_record(const VoxelBlock<VoxelT>& block, std::uint8_t* out,
+                                        std::size_t capacity);
+
+// Allocates the block a record describes in `map` (creating its inner nodes) and restores its
+// state: its pool index. Its summary is restored; the nodes above are not summarised (call
+// propagate_summaries()). data_loss (the record is damaged or out of range, the map unchanged);
+// out_of_range (outside the cube); failed_precondition when the block is in memory (mapped afresh);
+// resource_exhausted when the block or node pool is full (the map unchanged). With the finest-level
+// pool full, a block recorded with its finest level comes back without it, at scale 1 (brought up
+// to date from scale 0 when needed), as Octree::release_finest() leaves a block.
+template <typename VoxelT>
+Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8_t* record,
+                                           std::size_t size, ErrorText* error = nullptr);
+
+}  // namespace octofuse

@@ -1,0 +1,87 @@
+#pragma once
+// A BlockStore (octofuse/map/block_store.hpp) on a POSIX file: an append-only log of block
+// records keyed by block position, the newest record of a key winning. Each entry is framed
+// (magic, key, size, the block record, a CRC-32 over key, size and record), so a file cut at any
+// byte (power loss, kill -9) reopens with every whole entry: open() drops a torn or damaged tail,
+// truncates the file there and says so in `warning`. The index (key -> newest entry) lives in
+// memory, built by reading the file at open(). Old entries of a key are not reclaimed (the file
+// grows by one record per eviction; a known limit).
+
+#include <cstddef>
+#include <cstdint>
+#include <map>
+
+#include "octofuse/core/error_text.hpp"
+#include "octofuse/map/block_store.hpp"
+#include "octofuse/map/map_io.hpp"
+#include "octofuse/query/free_space.hpp"
+
+namespace octofuse::host {
+
+struct BlockStoreFileStats {
+  std::uint64_t entries = 0;        // whole entries in the file (every version of every key)
+  std::uint64_t keys = 0;           // distinct blocks stored
+  std::uint64_t file_bytes = 0;     // size of the file
+  std::uint64_t bytes_written = 0;  // since open()
+  std::uint64_t bytes_read = 0;     // since open()
+  std::uint64_t dropped_bytes = 0;  // torn or damaged tail dropped by open()
+};
+
+class BlockStoreFile final : public BlockStore {
+ public:
+  BlockStoreFile() = default;
+  ~BlockStoreFile();
+  BlockStoreFile(const BlockStoreFile&) = delete;
+  BlockStoreFile& operator=(const BlockStoreFile&) = delete;
+
+  // Opens `path`, creating it when absent. `geometry` (any bytes, e.g. voxel type, size, depth,
+  // origin) is written into a new file's header and must match an existing one's
+  // (invalid_argument otherwise: the store belongs to another map). ok, with `warning` set when a
+  // torn tail was dropped; unavailable (cannot open, read or truncate), invalid_argument (not a
+  // store, another geometry), each with a one-line `error`.
+  Status open(const char* path, const std::uint8_t* geometry, std::size_t geometry_size,
+              ErrorText* error, ErrorText* warning);
+  void close();
+  bool is_open() const { return fd_ >= 0; }
+
+  Status put(std::uint64_t block_morton, const std::uint8_t* record, std::size_t size) override;
+  std::size_t find_in_box(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi, std::uint64_t* keys,
+                          std::size_t capacity) override;
+  Result<std::size_t> take(std::uint64_t block_morton, std::uint8_t* record,
+                           std::size_t capacity) override;
+  void release(std::uint64_t block_morton) override;
+
+  // Makes what was appended durable (fdatasync): ok or unavailable.
+  Status sync();
+  // Calls fn(key) for every stored key (in memory or not), increasing; read() gives the newest
+  // record of one.
+  template <typename Fn>
+  void for_each_key(Fn&& fn) const {
+    for (const auto& kv : index_) fn(kv.first);
+  }
+  Result<std::size_t> read(std::uint64_t block_morton, std::uint8_t* record, std::size_t capacity);
+  bool in_memory(std::uint64_t block_morton) const;
+  BlockStoreFileStats stats() const;
+
+ private:
+  struct Entry {
+    std::uint64_t offset = 0;  // of the record (after the frame's head)
+    std::uint32_t size = 0;
+    bool in_memory = false;
+  };
+  int fd_ = -1;
+  std::map<std::uint64_t, Entry> index_;
+  std::uint64_t file_bytes_ = 0;
+  BlockStoreFileStats stats_;
+  std::uint8_t* buffer_ = nullptr;  // one framed entry (malloc'd at open())
+};
+
+// The whole map: `map`'s blocks and every stored block not in memory, merged into a map reserved
+// here on the heap, written by save_map_file() (loadable as any map file). ok, resource_exhausted
+// (no memory for the merge), data_loss (a damaged stored record) or save_map_file()'s codes.
+template <typename VoxelT>
+Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
+                                const FreeSpace* free_space, BlockStoreFile& store,
+                                const MapSaveInfo& info, ErrorText* error);
+
+}  // namespace octofuse::host

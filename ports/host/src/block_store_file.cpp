@@ -1,0 +1,323 @@
+#include "octofuse/ports/host/block_store_file.hpp"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/map/keys.hpp"
+#include "octofuse/map/map_io.hpp"
+#include "octofuse/ports/host/map_file.hpp"
+
+#include <cstdlib>
+#include <memory>
+
+namespace octofuse::host {
+namespace {
+
+constexpr std::uint8_t kFileMagic[8] = {'O', 'C', 'T', 'O', 'S', 'T', 'O', 'R'};
+constexpr std::uint32_t kFileVersion = 1;
+constexpr std::uint32_t kEntryMagic = 0x4B4C4246u;  // "FBLK"
+constexpr std::size_t kEntryHead = 4 + 8 + 4;       // magic, key, size
+constexpr std::size_t kMaxGeometry = 256;
+constexpr std::uint32_t kMaxRecord = 1u << 20;
+
+void put_u32(std::uint8_t* p, std::uint32_t v) {
+  for (int i = 0; i < 4; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
+}
+void put_u64(std::uint8_t* p, std::uint64_t v) {
+  for (int i = 0; i < 8; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
+}
+std::uint32_t get_u32(const std::uint8_t* p) {
+  return static_cast<std::uint32_t>(p[0]) | (static_cast<std::uint32_t>(p[1]) << 8) |
+         (static_cast<std::uint32_t>(p[2]) << 16) | (static_cast<std::uint32_t>(p[3]) << 24);
+}
+std::uint64_t get_u64(const std::uint8_t* p) {
+  return static_cast<std::uint64_t>(get_u32(p)) |
+         (static_cast<std::uint64_t>(get_u32(p + 4)) << 32);
+}
+
+bool read_at(int fd, std::uint8_t* p, std::size_t n, std::uint64_t offset) {
+  while (n > 0) {
+    const ssize_t got = ::pread(fd, p, n, static_cast<off_t>(offset));
+    if (got < 0 && errno == EINTR) continue;
+    if (got <= 0) return false;
+    p += got;
+    n -= static_cast<std::size_t>(got);
+    offset += static_cast<std::uint64_t>(got);
+  }
+  return true;
+}
+bool write_at(int fd, const std::uint8_t* p, std::size_t n, std::uint64_t offset) {
+  while (n > 0) {
+    const ssize_t put = ::pwrite(fd, p, n, static_cast<off_t>(offset));
+    if (put < 0 && errno == EINTR) continue;
+    if (put <= 0) return false;
+    p += put;
+    n -= static_cast<std::size_t>(put);
+    offset += static_cast<std::uint64_t>(put);
+  }
+  return true;
+}
+
+}  // namespace
+
+BlockStoreFile::~BlockStoreFile() {
+  close();
+}
+
+void BlockStoreFile::close() {
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+  index_.clear();
+  std::free(buffer_);
+  buffer_ = nullptr;
+}
+
+Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
+                            std::size_t geometry_size, ErrorText* error, ErrorText* warning) {
+  close();
+  stats_ = BlockStoreFileStats();
+  if (warning != nullptr) warning->clear();
+  auto fail = [&](StatusCode code, const char* why) {
+    if (error != nullptr) error->set("%s: %s", path, why);
+    close();
+    return Status(code);
+  };
+  if (geometry_size > kMaxGeometry) return fail(StatusCode::invalid_argument, "geometry too long");
+  buffer_ = static_cast<std::uint8_t*>(std::malloc(kEntryHead + kMaxRecord + 4));
+  if (buffer_ == nullptr) return fail(StatusCode::resource_exhausted, "no memory");
+  fd_ = ::open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd_ < 0) return fail(StatusCode::unavailable, std::strerror(errno));
+  struct stat st;
+  if (::fstat(fd_, &st) != 0 || !S_ISREG(st.st_mode)) {
+    return fail(StatusCode::unavailable, "not a regular file");
+  }
+  const std::uint64_t size = static_cast<std::uint64_t>(st.st_size);
+  const std::size_t header_bytes = sizeof(kFileMagic) + 4 + 4 + geometry_size + 4;
+  std::uint8_t header[16 + kMaxGeometry + 4];
+  std::memcpy(header, kFileMagic, sizeof(kFileMagic));
+  put_u32(header + 8, kFileVersion);
+  put_u32(header + 12, static_cast<std::uint32_t>(geometry_size));
+  if (geometry_size > 0) std::memcpy(header + 16, geometry, geometry_size);
+  put_u32(header + 16 + geometry_size, crc32(header, 16 + geometry_size));
+  if (size < header_bytes) {
+    // New, or cut before its header was whole: nothing in it can be a record.
+    if (size > 0 && warning != nullptr) {
+      warning->set("%s: header torn (%llu bytes); the store starts empty", path,
+                   static_cast<unsigned long long>(size));
+    }
+    if (::ftruncate(fd_, 0) != 0 || !write_at(fd_, header, header_bytes, 0) ||
+        ::fdatasync(fd_) != 0) {
+      return fail(StatusCode::unavailable, "cannot write the header");
+    }
+    file_bytes_ = header_bytes;
+    stats_.file_bytes = file_bytes_;
+    return ok_status();
+  }
+  std::uint8_t found[sizeof(header)];
+  if (!read_at(fd_, found, header_bytes, 0)) return fail(StatusCode::unavailable, "read failed");
+  if (std::memcmp(found, kFileMagic, sizeof(kFileMagic)) != 0) {
+    return fail(StatusCode::invalid_argument, "not a block store");
+  }
+  if (std::memcmp(found, header, header_bytes) != 0) {
+    return fail(StatusCode::invalid_argument,
+                "another version or map geometry (voxel type, size, depth or origin)");
+  }
+  // Index every whole entry; stop at the first torn or damaged one.
+  std::uint64_t offset = header_bytes;
+  std::uint8_t* record = buffer_;
+  while (offset + kEntryHead + 4 <= size) {
+    std::uint8_t head[kEntryHead];
+    if (!read_at(fd_, head, kEntryHead, offset)) break;
+    const std::uint32_t length = get_u32(head + 12);
+    if (get_u32(head) != kEntryMagic || length == 0 || length > kMaxRecord ||
+        offset + kEntryHead + length + 4 > size) {
+      break;
+    }
+    if (!read_at(fd_, record, length + 4, offset + kEntryHead)) break;
+    const std::uint32_t crc = crc32(record, length, crc32(head + 4, 12));
+    if (crc != get_u32(record + length)) break;
+    Entry& e = index_[get_u64(head + 4)];
+    e.offset = offset + kEntryHead;
+    e.size = length;
+    ++stats_.entries;
+    offset += kEntryHead + length + 4;
+  }
+  if (offset < size) {
+    stats_.dropped_bytes = size - offset;
+    if (::ftruncate(fd_, static_cast<off_t>(offset)) != 0 || ::fdatasync(fd_) != 0) {
+      return fail(StatusCode::unavailable, "cannot drop the torn tail");
+    }
+    if (warning != nullptr) {
+      warning->set("%s: dropped %llu bytes of a torn or damaged tail after %llu whole records",
+                   path, static_cast<unsigned long long>(size - offset),
+                   static_cast<unsigned long long>(stats_.entries));
+    }
+  }
+  file_bytes_ = offset;
+  stats_.file_bytes = file_bytes_;
+  return ok_status();
+}
+
+Status BlockStoreFile::put(std::uint64_t block_morton, const std::uint8_t* record,
+                           std::size_t size) {
+  if (fd_ < 0) return StatusCode::failed_precondition;
+  if (size == 0 || size > kMaxRecord) return StatusCode::invalid_argument;
+  std::uint8_t head[kEntryHead];
+  put_u32(head, kEntryMagic);
+  put_u64(head + 4, block_morton);
+  put_u32(head + 12, static_cast<std::uint32_t>(size));
+  std::uint8_t tail[4];
+  put_u32(tail, crc32(record, size, crc32(head + 4, 12)));
+  // Head, record and CRC in one write where possible; a cut anywhere leaves a torn tail that
+  // open() drops.
+  const std::size_t entry_bytes = kEntryHead + size + 4;
+  std::memcpy(buffer_, head, kEntryHead);
+  std::memcpy(buffer_ + kEntryHead, record, size);
+  std::memcpy(buffer_ + kEntryHead + size, tail, 4);
+  if (!write_at(fd_, buffer_, entry_bytes, file_bytes_)) {
+    // Whatever part reached the file is a torn tail: cut it so later entries stay readable (if
+    // that fails too, the next open() drops it).
+    (void)::ftruncate(fd_, static_cast<off_t>(file_bytes_));
+    return StatusCode::unavailable;
+  }
+  Entry& e = index_[block_morton];
+  e.offset = file_bytes_ + kEntryHead;
+  e.size = static_cast<std::uint32_t>(size);
+  e.in_memory = false;
+  file_bytes_ += entry_bytes;
+  ++stats_.entries;
+  stats_.bytes_written += entry_bytes;
+  stats_.file_bytes = file_bytes_;
+  return ok_status();
+}
+
+std::size_t BlockStoreFile::find_in_box(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi,
+                                        std::uint64_t* keys, std::size_t capacity) {
+  std::size_t n = 0;
+  for (const auto& [key, entry] : index_) {
+    if (n == capacity) break;
+    if (entry.in_memory) continue;
+    const Eigen::Vector3i c = morton_decode(key);
+    if ((c.array() < lo.array()).any() || (c.array() > hi.array()).any()) continue;
+    keys[n++] = key;
+  }
+  return n;
+}
+
+Result<std::size_t> BlockStoreFile::read(std::uint64_t block_morton, std::uint8_t* record,
+                                         std::size_t capacity) {
+  const auto it = index_.find(block_morton);
+  if (fd_ < 0 || it == index_.end()) return StatusCode::out_of_range;
+  if (it->second.size > capacity) return StatusCode::resource_exhausted;
+  if (!read_at(fd_, record, it->second.size, it->second.offset)) return StatusCode::unavailable;
+  stats_.bytes_read += it->second.size;
+  return static_cast<std::size_t>(it->second.size);
+}
+
+Result<std::size_t> BlockStoreFile::take(std::uint64_t block_morton, std::uint8_t* record,
+                                         std::size_t capacity) {
+  const Result<std::size_t> size = read(block_morton, record, capacity);
+  if (size.ok()) index_[block_morton].in_memory = true;
+  return size;
+}
+
+void BlockStoreFile::release(std::uint64_t block_morton) {
+  const auto it = index_.find(block_morton);
+  if (it != index_.end()) it->second.in_memory = false;
+}
+
+Status BlockStoreFile::sync() {
+  if (fd_ < 0) return StatusCode::failed_precondition;
+  return ::fdatasync(fd_) == 0 ? ok_status() : Status(StatusCode::unavailable);
+}
+
+bool BlockStoreFile::in_memory(std::uint64_t block_morton) const {
+  const auto it = index_.find(block_morton);
+  return it != index_.end() && it->second.in_memory;
+}
+
+BlockStoreFileStats BlockStoreFile::stats() const {
+  BlockStoreFileStats s = stats_;
+  s.keys = index_.size();
+  return s;
+}
+
+template <typename VoxelT>
+Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
+                                const FreeSpace* free_space, BlockStoreFile& store,
+                                const MapSaveInfo& info, ErrorText* error) {
+  std::size_t extra = 0;
+  store.for_each_key([&](std::uint64_t key) {
+    if (map.find_block_index_morton(key) == kNoIndex) ++extra;
+  });
+  MapConfig config = map.config();
+  config.block_capacity = static_cast<std::uint32_t>(map.block_count() + extra + 1);
+  config.finest_capacity = config.block_capacity;
+  config.node_capacity = config.block_capacity * static_cast<std::uint32_t>(map.block_level()) + 1;
+  const std::size_t bytes = Octree<VoxelT>::bytes_required(config);
+  const std::size_t record_bytes = block_record_max_bytes<VoxelT>();
+  const std::size_t rounded = (bytes + kArenaAlignment - 1) / kArenaAlignment * kArenaAlignment;
+  void* raw = bytes > 0 ? std::aligned_alloc(kArenaAlignment, rounded) : nullptr;
+  const std::unique_ptr<void, void (*)(void*)> owner(raw, std::free);
+  auto* record = static_cast<std::uint8_t*>(std::malloc(record_bytes));
+  const std::unique_ptr<void, void (*)(void*)> record_owner(record, std::free);
+  auto* indices =
+      static_cast<std::uint32_t*>(std::malloc(sizeof(std::uint32_t) * config.block_capacity));
+  const std::unique_ptr<void, void (*)(void*)> indices_owner(indices, std::free);
+  if (raw == nullptr || record == nullptr || indices == nullptr) {
+    if (error != nullptr) error->set("%s: no memory to merge the map with its store", path);
+    return StatusCode::resource_exhausted;
+  }
+  LinearArena arena(raw, bytes);
+  Octree<VoxelT> merged;
+  if (!merged.reserve(arena, config).ok()) return StatusCode::resource_exhausted;
+  std::size_t count = 0;
+  // Blocks in memory first (they are newer than any stored record of theirs), then the stored.
+  for (std::uint32_t i = 0; i < map.block_count(); ++i) {
+    const Result<std::size_t> size = encode_block_record(map.block(i), record, record_bytes);
+    const Result<std::uint32_t> index =
+        size.ok() ? restore_block_record(merged, record, size.value()) : size.status();
+    if (!index.ok()) {
+      if (error != nullptr)
+        error->set("%s: cannot merge a block (%s)", path, index.status().name());
+      return index.status();
+    }
+    indices[count++] = index.value();
+  }
+  Status failed;
+  store.for_each_key([&](std::uint64_t key) {
+    if (!failed.ok() || map.find_block_index_morton(key) != kNoIndex) return;
+    const Result<std::size_t> size = store.read(key, record, record_bytes);
+    ErrorText why;
+    const Result<std::uint32_t> index =
+        size.ok() ? restore_block_record(merged, record, size.value(), &why) : size.status();
+    if (!index.ok()) {
+      if (error != nullptr) {
+        error->set("%s: a stored block cannot be read back (%s%s%s)", path, index.status().name(),
+                   why.empty() ? "" : ": ", why.c_str());
+      }
+      failed = index.status();
+      return;
+    }
+    indices[count++] = index.value();
+  });
+  if (!failed.ok()) return failed;
+  merged.propagate_summaries(indices, count);
+  return save_map_file(path, merged, free_space, info, error);
+}
+
+template Status save_map_file_with_store(const char*, const Octree<TsdfVoxel>&, const FreeSpace*,
+                                         BlockStoreFile&, const MapSaveInfo&, ErrorText*);
+template Status save_map_file_with_store(const char*, const Octree<MultiresVoxel>&,
+                                         const FreeSpace*, BlockStoreFile&, const MapSaveInfo&,
+                                         ErrorText*);
+template Status save_map_file_with_store(const char*, const Octree<Multires16Voxel>&,
+                                         const FreeSpace*, BlockStoreFile&, const MapSaveInfo&,
+                                         ErrorText*);
+
+}  // namespace octofuse::host

@@ -1,0 +1,117 @@
+// Block records for a BlockStore: a block encoded and restored into another map holds the same
+// state, creating its inner nodes; a damaged record, a block already in memory and a full pool
+// leave the map unchanged.
+
+#include "octofuse/map/block_store.hpp"
+
+#include <catch2/catch.hpp>
+#include <vector>
+
+#include "octofuse/map/map_io.hpp"
+#include "unit/map/octree_support.hpp"
+
+namespace octofuse {
+namespace {
+
+template <typename VoxelT>
+void fill_block(Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale) {
+  if (scale == 0) REQUIRE(map.acquire_finest(block).ok());
+  for (int i = scale == 0 ? 0 : kBlockFinestVoxelCount; i < kBlockVoxelCount; ++i) {
+    set_voxel_tsdf(block.voxel(i), static_cast<float>(i % 41) / 20.0f - 1.0f);
+    set_voxel_weight(block.voxel(i), 1.0f + static_cast<float>(i % 5));
+  }
+  block.current_scale = static_cast<std::int8_t>(scale);
+  block.min_scale = static_cast<std::int8_t>(scale);
+  block.mip_scale = static_cast<std::int8_t>(scale);
+  block.last_updated_frame = 77;
+  Octree<VoxelT>::update_block_summary(block);
+}
+
+TEMPLATE_TEST_CASE("a block record restores the block's whole state in another map", "[map][store]",
+                   MultiresVoxel, Multires16Voxel, TsdfVoxel) {
+  using VoxelT = TestType;
+  MapFixture<VoxelT> a(small_config(8, 64));
+  MapFixture<VoxelT> b(small_config(8, 64));
+  const bool split = VoxelBlock<VoxelT>::kSplitFinest;
+  for (int scale : {0, 1}) {
+    CAPTURE(scale);
+    const Eigen::Vector3i coords(3 + scale, 17, 30);
+    Result<std::uint32_t> index = a.map.allocate_block(coords);
+    REQUIRE(index.ok());
+    VoxelBlock<VoxelT>& block = a.map.block(index.value());
+    fill_block(a.map, block, split ? scale : 0);
+    std::vector<std::uint8_t> record(block_record_max_bytes<VoxelT>());
+    const Result<std::size_t> size = encode_block_record(block, record.data(), record.size());
+    REQUIRE(size.ok());
+    REQUIRE(encode_block_record(block, record.data(), size.value() - 1).status().code() ==
+            StatusCode::resource_exhausted);
+
+    // Damaged anywhere: data_loss, nothing allocated.
+    const std::uint32_t nodes = b.map.node_count();
+    for (std::size_t at : {std::size_t{0}, std::size_t{5}, size.value() / 2, size.value() - 1}) {
+      std::vector<std::uint8_t> bad(record.begin(), record.begin() + size.value());
+      bad[at] ^= 0x10;
+      REQUIRE(restore_block_record(b.map, bad.data(), bad.size()).status().code() ==
+              StatusCode::data_loss);
+      REQUIRE(b.map.node_count() == nodes);
+    }
+    REQUIRE(restore_block_record(b.map, record.data(), size.value() - 3).status().code() ==
+            StatusCode::data_loss);
+
+    const Result<std::uint32_t> restored = restore_block_record(b.map, record.data(), size.value());
+    REQUIRE(restored.ok());
+    REQUIRE(b.map.node_count() > nodes);  // its inner nodes came back with it
+    const VoxelBlock<VoxelT>& got = b.map.block(restored.value());
+    REQUIRE(got.coords == coords);
+    REQUIRE(got.current_scale == block.current_scale);
+    REQUIRE(got.min_scale == block.min_scale);
+    REQUIRE(got.mip_scale == block.mip_scale);
+    REQUIRE(got.last_updated_frame == 77u);
+    REQUIRE(got.tsdf_mean == block.tsdf_mean);
+    REQUIRE(got.has_finest() == block.has_finest());
+    for (int i = got.has_finest() || !split ? 0 : kBlockFinestVoxelCount; i < kBlockVoxelCount;
+         ++i) {
+      REQUIRE(voxel_tsdf(got.voxel(i)) == voxel_tsdf(block.voxel(i)));
+      REQUIRE(voxel_weight(got.voxel(i)) == voxel_weight(block.voxel(i)));
+    }
+    // Already in memory: refused, untouched.
+    REQUIRE(restore_block_record(b.map, record.data(), size.value()).status().code() ==
+            StatusCode::failed_precondition);
+  }
+}
+
+TEST_CASE("with the finest-level pool full a block comes back at scale 1, brought up to date",
+          "[map][store]") {
+  MapFixture<MultiresVoxel> a(small_config(8, 64));
+  MapConfig full_config = small_config(8, 64);
+  full_config.finest_capacity = 1;
+  MapFixture<MultiresVoxel> b(full_config);
+  Result<std::uint32_t> index = a.map.allocate_block(Eigen::Vector3i(1, 2, 3));
+  REQUIRE(index.ok());
+  VoxelBlock<MultiresVoxel>& block = a.map.block(index.value());
+  fill_block(a.map, block, 0);
+  block.mip_scale = 0;  // scale 1 not yet brought up to date from scale 0
+  std::vector<std::uint8_t> record(block_record_max_bytes<MultiresVoxel>());
+  const Result<std::size_t> size = encode_block_record(block, record.data(), record.size());
+  REQUIRE(size.ok());
+  // Fill b's one finest level.
+  Result<std::uint32_t> other = b.map.allocate_block(Eigen::Vector3i(5, 5, 5));
+  REQUIRE(other.ok());
+  REQUIRE(b.map.acquire_finest(b.map.block(other.value())).ok());
+  const Result<std::uint32_t> restored = restore_block_record(b.map, record.data(), size.value());
+  REQUIRE(restored.ok());
+  const VoxelBlock<MultiresVoxel>& got = b.map.block(restored.value());
+  REQUIRE_FALSE(got.has_finest());
+  REQUIRE(got.current_scale == 1);
+  REQUIRE(got.mip_scale == 1);
+  // Scale 1 holds the weighted means of the finest voxels: as release_finest() makes them.
+  a.map.release_finest(&index.value(), 1);
+  for (int i = kBlockFinestVoxelCount; i < kBlockVoxelCount; ++i) {
+    REQUIRE(got.voxel(i).x == a.map.block(index.value()).voxel(i).x);
+    REQUIRE(got.voxel(i).y == a.map.block(index.value()).voxel(i).y);
+  }
+  REQUIRE(got.tsdf_mean == a.map.block(index.value()).tsdf_mean);
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -562,6 +562,14 @@ const RunOption kRunOptions[] = {
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.free_space_exact, v); }},
+    {"esdf", nullptr,
+     "keep a distance field for planners (128^3 cells of 2 voxels over\n"
+     "the middle of the cube); --query-points answers free points with it",
+     [](RunOptions& o, const std::string&) {
+       o.esdf = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(o.esdf, v); }},
     {"query-points", "FILE",
      "answer FILE's points (one 'x y z' per line, metres, world frame)\n"
      "against the final map into DIR/queries.txt:\n"

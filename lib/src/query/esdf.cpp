@@ -54,8 +54,10 @@ void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, C
   // A site lies within a cell diagonal of the nearest surface point (both in one cell), and the
   // TSDF places the surface within about a finest voxel.
   error_bound_m_ = 2.0f * kHalfDiagonal * cell_m_ + voxel_m_;
-  const float voxel_cells = 1.0f / static_cast<float>(cell_voxels_);
-  lateral2_cells_ = std::max(0.5f - voxel_cells * voxel_cells, 0.0f);
+  // Sites of a plane's cells lie at most half a cell diagonal of a face beside the foot of the
+  // perpendicular from a point; removing that offset keeps distances near a surface from
+  // exceeding the true ones (and costs far ones nothing: 0.5 / (2 d) cells).
+  lateral2_cells_ = 0.5f;
   const int side = n_ * cell_voxels_;
   const int cube = map.voxels_per_side();
   for (int a_i = 0; a_i < 3; ++a_i) {
@@ -99,8 +101,7 @@ float EsdfField::site_distance(const Cell& cell, const Eigen::Vector3f& q) const
   const float d2 = (q - s * (1.0f / kSiteUnits)).squaredNorm();
   if ((cell.flags & kBoxSite) != 0) return std::sqrt(d2) - kHalfDiagonal;
   // Sites are a cell apart on the surface, so the nearest surface point may lie up to half a
-  // cell diagonal beside the nearest site: remove that offset, less the finest voxel the
-  // contract allows.
+  // face diagonal beside the nearest site: remove that offset.
   return std::sqrt(std::max(d2 - lateral2_cells_, 0.0f));
 }
 
@@ -132,6 +133,7 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
   const int cz = chunk / (chunks_per_side_ * chunks_per_side_);
   const float half_diagonal_m = kHalfDiagonal * cell_m_;
   const float cv = static_cast<float>(cell_voxels_);
+  FreeOctant octant;
   for (int z = cz * kChunkCells; z < (cz + 1) * kChunkCells; ++z) {
     for (int y = cy * kChunkCells; y < (cy + 1) * kChunkCells; ++y) {
       for (int x = cx * kChunkCells; x < (cx + 1) * kChunkCells; ++x) {
@@ -196,7 +198,14 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
           }
         }
         if (!observed && config_.unknown_is_obstacle) {
-          const bool known_free = free_space != nullptr && free_space->find(voxel).free;
+          // Free octants are mostly larger than a cell: look each up once.
+          if (!octant.free || (voxel.array() < octant.min_voxel.array()).any() ||
+              (voxel.array() >= (octant.min_voxel.array() + octant.size_voxels)).any()) {
+            if (free_space != nullptr) octant = free_space->find(voxel);
+          }
+          const bool known_free =
+              octant.free && (voxel.array() >= octant.min_voxel.array()).all() &&
+              (voxel.array() < (octant.min_voxel.array() + octant.size_voxels)).all();
           if (!known_free) {
             site = true;
             box = true;
@@ -218,53 +227,49 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
   }
 }
 
-// Takes `other`'s site into `cell` (centre q, in cells) where it is nearer. Seeds keep their own
-// surface point: a later rebuild copies them where the map did not change, and the 27 cells a
-// query reads hold the neighbours' sites anyway.
-void EsdfField::consider(Cell& cell, const Eigen::Vector3f& q, const Cell& other) const {
-  if ((other.flags & kHasSite) == 0 || (cell.flags & kSeed) != 0) return;
-  if ((cell.flags & kHasSite) != 0) {
-    if (other.sx == cell.sx && other.sy == cell.sy && other.sz == cell.sz &&
-        ((other.flags ^ cell.flags) & kBoxSite) == 0) {
-      return;
-    }
-    if (site_distance(other, q) >= site_distance(cell, q)) return;
+// Takes `other`'s site into `cell` (centre q, in cells, at distance *d from its site) where it
+// is nearer.
+inline void EsdfField::consider(Cell& cell, float* d, const Eigen::Vector3f& q,
+                                const Cell& other) const {
+  if ((other.flags & kHasSite) == 0) return;
+  if (other.sx == cell.sx && other.sy == cell.sy && other.sz == cell.sz &&
+      (cell.flags & kHasSite) != 0 && ((other.flags ^ cell.flags) & kBoxSite) == 0) {
+    return;
   }
+  const float candidate = site_distance(other, q);
+  if (candidate >= *d) return;
+  *d = candidate;
   cell.sx = other.sx;
   cell.sy = other.sy;
   cell.sz = other.sz;
   cell.flags = static_cast<std::uint8_t>(other.flags & (kHasSite | kBoxSite));
 }
 
-// One slice of a sweep along z (dz = +1 forward, -1 backward): sites from the previous slice's
-// 9 neighbours, then a two-pass 2D propagation inside the slice (rows up with both directions
-// along each row, then rows down), so a site reaches every cell of the slice in one sweep.
+// One slice of a sweep along z (dz = +1 forward, -1 backward): the site of the cell before it
+// along z, then a two-pass 2D propagation inside the slice (the row before, then along the row
+// both ways; rows up, then rows down), so a site reaches every cell of the slice in one sweep.
+// Seeds keep their own surface point: a later rebuild copies them where the map did not change,
+// and the 27 cells a query reads hold the neighbours' sites anyway.
 void EsdfField::sweep_slice(int z, int dz) {
   Cell* cells = buffers_[1 - front_];
   const int n = n_;
   const std::size_t slice = static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   Cell* here = cells + static_cast<std::size_t>(z) * slice;
-  auto centre = [z](int x, int y) {
-    return Eigen::Vector3f(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f,
-                           static_cast<float>(z) + 0.5f);
+  const float zc = static_cast<float>(z) + 0.5f;
+  auto distance_of = [&](const Cell& cell, const Eigen::Vector3f& q) {
+    if ((cell.flags & kSeed) != 0) return -1e30f;  // never replaced
+    return (cell.flags & kHasSite) != 0 ? site_distance(cell, q) : 1e30f;
   };
   const int zp = z - dz;
   if (zp >= 0 && zp < n) {
     const Cell* prev = cells + static_cast<std::size_t>(zp) * slice;
     for (int y = 0; y < n; ++y) {
       for (int x = 0; x < n; ++x) {
-        Cell& cell = here[static_cast<std::size_t>(y) * n + x];
-        if ((cell.flags & kSeed) != 0) continue;
-        const Eigen::Vector3f q = centre(x, y);
-        for (int oy = -1; oy <= 1; ++oy) {
-          const int ny = y + oy;
-          if (ny < 0 || ny >= n) continue;
-          for (int ox = -1; ox <= 1; ++ox) {
-            const int nx = x + ox;
-            if (nx < 0 || nx >= n) continue;
-            consider(cell, q, prev[static_cast<std::size_t>(ny) * n + nx]);
-          }
-        }
+        const std::size_t i = static_cast<std::size_t>(y) * n + x;
+        if ((prev[i].flags & kHasSite) == 0 || (here[i].flags & kSeed) != 0) continue;
+        const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
+        float d = distance_of(here[i], q);
+        consider(here[i], &d, q, prev[i]);
       }
     }
   }
@@ -274,18 +279,25 @@ void EsdfField::sweep_slice(int z, int dz) {
       const int y = dy > 0 ? step : n - 1 - step;
       Cell* row = here + static_cast<std::size_t>(y) * n;
       const int yp = y - dy;
-      if (yp >= 0 && yp < n) {
-        const Cell* prev_row = here + static_cast<std::size_t>(yp) * n;
-        for (int x = 0; x < n; ++x) {
-          const Eigen::Vector3f q = centre(x, y);
-          for (int ox = -1; ox <= 1; ++ox) {
-            const int nx = x + ox;
-            if (nx >= 0 && nx < n) consider(row[x], q, prev_row[nx]);
-          }
-        }
+      const Cell* prev_row = yp >= 0 && yp < n ? here + static_cast<std::size_t>(yp) * n : nullptr;
+      const float yc = static_cast<float>(y) + 0.5f;
+      for (int x = 0; x < n; ++x) {
+        Cell& cell = row[x];
+        const bool from_row = prev_row != nullptr && (prev_row[x].flags & kHasSite) != 0;
+        const bool from_left = x > 0 && (row[x - 1].flags & kHasSite) != 0;
+        if ((!from_row && !from_left) || (cell.flags & kSeed) != 0) continue;
+        const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
+        float d = distance_of(cell, q);
+        if (from_row) consider(cell, &d, q, prev_row[x]);
+        if (from_left) consider(cell, &d, q, row[x - 1]);
       }
-      for (int x = 1; x < n; ++x) consider(row[x], centre(x, y), row[x - 1]);
-      for (int x = n - 2; x >= 0; --x) consider(row[x], centre(x, y), row[x + 1]);
+      for (int x = n - 2; x >= 0; --x) {
+        Cell& cell = row[x];
+        if ((row[x + 1].flags & kHasSite) == 0 || (cell.flags & kSeed) != 0) continue;
+        const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
+        float d = distance_of(cell, q);
+        consider(cell, &d, q, row[x + 1]);
+      }
     }
   }
 }

@@ -47,6 +47,7 @@ EsdfConfig field_config() {
   c.enabled = true;
   c.cells_per_side = 64;
   c.cell_voxels = 2;
+  c.max_cell_steps = 0;
   return c;
 }
 

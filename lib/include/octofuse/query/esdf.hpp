@@ -12,9 +12,11 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <type_traits>
 
 #include <Eigen/Core>
 
+#include "octofuse/core/arena.hpp"
 #include "octofuse/core/result.hpp"
 #include "octofuse/core/status.hpp"
 #include "octofuse/map/map_config.hpp"
@@ -35,10 +37,10 @@ struct EsdfConfig {
   // Unknown cells count as obstacles (their whole box) when true; then every update re-seeds
   // the whole window, since carving changes what is unknown.
   bool unknown_is_obstacle = false;
-  // Degradation step (8): cells seeded or swept per frame (in whole 8^3 chunks and slices) (0: no
-  // limit, each update finishes in its frame). A rebuild that does not finish goes on in the next
-  // frames; queries meanwhile see the previous field.
-  std::uint32_t max_cell_steps = 0;
+  // Degradation step (8): cells seeded or swept per frame (in whole 8^3 chunks and slices; a
+  // rebuild is 3 window volumes). A rebuild that does not finish goes on in the next frames;
+  // queries meanwhile see the previous field. 0: no limit (each update finishes in its frame).
+  std::uint32_t max_cell_steps = 1u << 19;
 };
 
 // ok, or invalid_argument naming nothing (the caller names the setting).
@@ -76,7 +78,8 @@ class EsdfField {
     OCTOFUSE_TRY(a);
     Result<Cell*> b = arena.template allocate_array<Cell>(cells);
     OCTOFUSE_TRY(b);
-    setup(config, map, a.value(), b.value());
+    // The sizing pass hands out no memory to clear.
+    if constexpr (!std::is_same<Arena, ArenaSizer>::value) setup(config, map, a.value(), b.value());
     return ok_status();
   }
   bool reserved() const { return buffers_[0] != nullptr; }
@@ -140,7 +143,7 @@ class EsdfField {
                   bool from_map);
   template <typename VoxelT>
   bool chunk_changed(const Octree<VoxelT>& map, int chunk) const;
-  void consider(Cell& cell, const Eigen::Vector3f& q, const Cell& other) const;
+  void consider(Cell& cell, float* d, const Eigen::Vector3f& q, const Cell& other) const;
   void sweep_slice(int z, int dz);
   float site_distance(const Cell& cell, const Eigen::Vector3f& q) const;
   EsdfAnswer answer_unguarded(const Eigen::Vector3f& p_W) const;

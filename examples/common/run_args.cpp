@@ -564,7 +564,8 @@ const RunOption kRunOptions[] = {
      [](const RunOptions& o, std::string* v) { return flag(o.free_space_exact, v); }},
     {"esdf", nullptr,
      "keep a distance field for planners (128^3 cells of 2 voxels over\n"
-     "the middle of the cube); --query-points answers free points with it",
+     "the middle of the cube, unknown space as obstacle); --query-points\n"
+     "answers free points with it",
      [](RunOptions& o, const std::string&) {
        o.esdf = true;
        return std::string();

@@ -39,8 +39,9 @@ struct Options {
   bool plan = false;
   long points = 0;
   float radius_m = 0.3f;
-  Eigen::Vector3f start_W = Eigen::Vector3f(1.2f, -1.3f, 1.3f);
-  Eigen::Vector3f goal_W = Eigen::Vector3f(-1.2f, 1.3f, 1.3f);
+  // Across the room's table, over the lamp, inside the camera's orbit.
+  Eigen::Vector3f start_W = Eigen::Vector3f(0.9f, -0.9f, 1.4f);
+  Eigen::Vector3f goal_W = Eigen::Vector3f(-0.9f, 0.9f, 1.4f);
   int replan_every = 30;
   float lattice_m = 0.08f;
   std::uint32_t budget = 1u << 19;
@@ -69,9 +70,12 @@ bool parse_point(const char* text, Eigen::Vector3f* out) {
 // A* over a cubic lattice of `step_m` inside [lo, hi], 26 neighbours; usable(p) says whether a
 // node or an edge sample may be occupied by the sphere's centre. Returns the path (empty: none).
 template <typename Usable>
-std::vector<Eigen::Vector3f> plan_path(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi,
+std::vector<Eigen::Vector3f> plan_path(const Eigen::Vector3f& window_lo, const Eigen::Vector3f& hi,
                                        float step_m, const Eigen::Vector3f& start,
                                        const Eigen::Vector3f& goal, const Usable& usable) {
+  // The lattice passes through the start.
+  const Eigen::Vector3f lo =
+      start - ((start - window_lo) / step_m).array().floor().matrix() * step_m;
   const Eigen::Vector3i size = ((hi - lo) / step_m).cast<int>() + Eigen::Vector3i::Ones();
   const long count = static_cast<long>(size.x()) * size.y() * size.z();
   auto index_of = [&](const Eigen::Vector3i& c) {
@@ -179,7 +183,6 @@ int main(int argc, char** argv) {
     auto value = [&]() { return argv[++i]; };
     if (arg == "--plan") {
       o.plan = true;
-      o.unknown_obstacle = true;
     } else if (arg == "--unknown-obstacle") {
       o.unknown_obstacle = true;
     } else if (!has_value) {
@@ -326,6 +329,13 @@ int main(int argc, char** argv) {
         });
     if (path.empty()) {
       std::printf("final: no path through known free space\n");
+      for (const Eigen::Vector3f& p : {o.start_W, o.goal_W}) {
+        const PointAnswer a = query.point(p).value();
+        const EsdfAnswer d = field.distance(p).value();
+        std::printf("  %.2f %.2f %.2f: %s, field lower bound %.3f m\n", static_cast<double>(p.x()),
+                    static_cast<double>(p.y()), static_cast<double>(p.z()),
+                    point_state_name(a.state), static_cast<double>(d.lower_bound_m));
+      }
       rc = 1;
     } else {
       const double clearance = path_clearance(scene, path);

@@ -443,10 +443,12 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
   const Eigen::Vector3f away = q - s;
   const float length = away.norm();
   out.has_distance = true;
-  out.distance_m = std::max(best, 0.0f) * cell_m_;
+  // A surface beyond the window's faces may be nearer than any site: no more than the distance
+  // to those faces.
+  out.distance_m = std::min(std::max(best, 0.0f) * cell_m_, window_bound);
   if (length > 0.0f) out.gradient = away / length;
   out.error_bound_m = error_bound_m_;
-  out.lower_bound_m = std::min(std::max(out.distance_m - error_bound_m_, 0.0f), window_bound);
+  out.lower_bound_m = std::max(out.distance_m - error_bound_m_, 0.0f);
   return out;
 }
 

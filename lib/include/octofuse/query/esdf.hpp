@@ -50,9 +50,12 @@ struct EsdfAnswer {
   // False: the point lies outside the window, or no surface lies in the 27 cells around it (then
   // lower_bound_m alone says something: the distance to the window's faces inside the cube).
   bool has_distance = false;
-  float distance_m = 0.0f;     // to the nearest known surface point (or obstacle cell)
+  // To the nearest known surface point (or obstacle cell), at most the distance to the window's
+  // faces inside the cube (surfaces beyond them are not in the field).
+  float distance_m = 0.0f;
   float error_bound_m = 0.0f;  // the nearest observed surface is at least distance - this away
-  float lower_bound_m = 0.0f;  // max(0, distance - error bound), or the window bound
+  // max(0, distance - error bound); with no site near, the distance to the window's faces.
+  float lower_bound_m = 0.0f;
   // Unit vector away from the nearest surface point (zero without a distance).
   Eigen::Vector3f gradient = Eigen::Vector3f::Zero();
   std::uint64_t map_version = 0;  // the map version the field was built from

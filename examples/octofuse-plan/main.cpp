@@ -44,7 +44,7 @@ struct Options {
   Eigen::Vector3f goal_W = Eigen::Vector3f(-0.9f, 0.9f, 1.4f);
   int replan_every = 30;
   float lattice_m = 0.08f;
-  std::uint32_t budget = 1u << 19;
+  std::uint32_t budget = 1u << 18;
   bool unknown_obstacle = false;
   int cells = 128;
 };
@@ -318,6 +318,12 @@ int main(int argc, char** argv) {
       frames, total_ms / frames, esdf_ms / frames, 100.0 * esdf_ms / total_ms,
       static_cast<double>(esdf_steps) / frames, published, budget_hits);
   mapper.pipeline().flush_esdf();
+  const MapMemory memory = pipeline.map().memory();
+  std::printf("map: %u blocks, %.1f MB in use; the field's %.1f MB are %.1f %% of that\n",
+              memory.blocks_used, static_cast<double>(memory.bytes_used) / 1e6,
+              static_cast<double>(bytes_with - bytes_without) / 1e6,
+              100.0 * static_cast<double>(bytes_with - bytes_without) /
+                  static_cast<double>(memory.bytes_used));
 
   int rc = 0;
   if (o.plan) {
@@ -395,6 +401,11 @@ int main(int argc, char** argv) {
         if (!(g.norm() > 0.5)) break;
         q -= d0 * g.normalized();
       }
+      // ... and inside the field's window (beyond it the field caps its distances).
+      if ((q.cast<float>().array() < lo.array()).any() ||
+          (q.cast<float>().array() > hi.array()).any()) {
+        return false;
+      }
       const PointState s = query.point(q.cast<float>()).value().state;
       return s == PointState::near || s == PointState::inside;
     };
@@ -448,7 +459,8 @@ int main(int argc, char** argv) {
         "DISTANCE above exact %ld\n",
         o.points, observed, unsafe, unsafe_unseen, worst, over_bound, free_over);
     std::printf(
-        "RMSE within 1 m of a surface the map saw (of the first 200000 points) %.4f m (mean %.4f, "
+        "RMSE within 1 m of a surface the map saw, in the window (of the first 200000 points) %.4f "
+        "m (mean %.4f, "
         "%ld "
         "points), within mu %.4f m (%ld points)\n",
         std::sqrt(close_sq / std::max(close, 1L)), close_bias / std::max(close, 1L), close,

@@ -40,7 +40,7 @@ struct EsdfConfig {
   // Degradation step (8): cells seeded or swept per frame (in whole 8^3 chunks and slices; a
   // rebuild is 3 window volumes). A rebuild that does not finish goes on in the next frames;
   // queries meanwhile see the previous field. 0: no limit (each update finishes in its frame).
-  std::uint32_t max_cell_steps = 1u << 19;
+  std::uint32_t max_cell_steps = 1u << 18;
 };
 
 // ok, or invalid_argument naming nothing (the caller names the setting).

@@ -960,7 +960,7 @@ template <typename VoxelT>
 void Pipeline<VoxelT>::update_esdf(FrameProgress& progress) {
   if (!esdf_.reserved()) return;
   FrameStats& stats = current_;
-  if (stats.eviction.evicted > 0) esdf_.mark_all_dirty();
+  if (stats.eviction.evicted > 0 || stats.eviction.demoted > 0) esdf_.mark_all_dirty();
   stats.esdf =
       esdf_.update(map_, free_space_.reserved() ? &free_space_ : nullptr, config_.fusion.mu_m,
                    static_cast<std::uint32_t>(stats.frame_index), map_version_);

@@ -112,10 +112,19 @@ bool EsdfField::chunk_changed(const Octree<VoxelT>& map, int chunk) const {
   const int cz = chunk / (chunks_per_side_ * chunks_per_side_);
   const int side_voxels = kChunkCells * cell_voxels_;
   const Eigen::Vector3i lo = window_min_voxel_ + Eigen::Vector3i(cx, cy, cz) * side_voxels;
-  for (int z = 0; z < side_voxels; z += kBlockSide) {
-    for (int y = 0; y < side_voxels; y += kBlockSide) {
-      for (int x = 0; x < side_voxels; x += kBlockSide) {
-        const VoxelBlock<VoxelT>* block = map.find_block_at_voxel(lo + Eigen::Vector3i(x, y, z));
+  // Every block the chunk's cells sample: the chunk need not be block-aligned, and trilinear
+  // samples at its border cells read the voxels one beyond it.
+  Eigen::Vector3i b0;
+  Eigen::Vector3i b1;
+  for (int a = 0; a < 3; ++a) {
+    b0[a] = std::max(lo[a] - 1, 0) / kBlockSide;
+    b1[a] = std::min(lo[a] + side_voxels, map.voxels_per_side() - 1) / kBlockSide;
+  }
+  for (int z = b0.z(); z <= b1.z(); ++z) {
+    for (int y = b0.y(); y <= b1.y(); ++y) {
+      for (int x = b0.x(); x <= b1.x(); ++x) {
+        const VoxelBlock<VoxelT>* block =
+            map.find_block_at_voxel(Eigen::Vector3i(x, y, z) * kBlockSide);
         if (block != nullptr && block->last_updated_frame > published_start_frame_) return true;
       }
     }
@@ -351,13 +360,14 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
           if (guard_ != nullptr) {
             ExclusiveHold hold(*guard_);
             front_ = 1 - front_;
+            published_version_ = rebuild_version_;
           } else {
             front_ = 1 - front_;
+            published_version_ = rebuild_version_;
           }
         }
         front_valid_ = true;
         have_published_ = true;
-        published_version_ = rebuild_version_;
         published_start_frame_ = rebuild_start_frame_;
         phase_ = Phase::idle;
         report.published = true;

@@ -118,6 +118,7 @@ class EsdfField {
   int cells_per_side() const { return n_; }
   // The bound every answer's distance is within (see lib/README.md).
   float error_bound_m() const { return error_bound_m_; }
+  // The map version of the published field (from the mapping thread; readers get it in answers).
   std::uint64_t published_version() const { return published_version_; }
 
  private:

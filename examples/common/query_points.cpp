@@ -2,6 +2,7 @@
 
 #include "octofuse/ports/host/atomic_file.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -64,7 +65,7 @@ bool load_query_points(const std::string& path, std::vector<Eigen::Vector3f>* po
 
 template <typename VoxelT>
 bool write_query_answers(const MapQuery<VoxelT>& query, const std::vector<Eigen::Vector3f>& points,
-                         const std::string& path, std::string* error) {
+                         const std::string& path, std::string* error, const EsdfField* field) {
   // Whole or not at all: a kill mid-write leaves no half-answered file.
   host::AtomicFile file;
   if (!file.open(path.c_str()).ok()) {
@@ -78,10 +79,15 @@ bool write_query_answers(const MapQuery<VoxelT>& query, const std::vector<Eigen:
       *error = std::string("query failed: ") + answer.status().name();
       return false;
     }
+    float distance_m = answer.value().distance_m;
+    if (answer.value().state == PointState::free && field != nullptr && field->reserved()) {
+      // Both are lower bounds on the distance to the nearest surface seen: keep the larger.
+      const Result<EsdfAnswer> far = field->distance(p);
+      if (far.ok()) distance_m = std::max(distance_m, far.value().lower_bound_m);
+    }
     std::fprintf(out, "%.6f %.6f %.6f %s %.6f\n", static_cast<double>(p.x()),
                  static_cast<double>(p.y()), static_cast<double>(p.z()),
-                 point_state_name(answer.value().state),
-                 static_cast<double>(answer.value().distance_m));
+                 point_state_name(answer.value().state), static_cast<double>(distance_m));
   }
   if (!file.commit().ok()) {
     *error = file.last_error();
@@ -91,12 +97,12 @@ bool write_query_answers(const MapQuery<VoxelT>& query, const std::vector<Eigen:
 }
 
 template bool write_query_answers(const MapQuery<TsdfVoxel>&, const std::vector<Eigen::Vector3f>&,
-                                  const std::string&, std::string*);
+                                  const std::string&, std::string*, const EsdfField*);
 template bool write_query_answers(const MapQuery<MultiresVoxel>&,
                                   const std::vector<Eigen::Vector3f>&, const std::string&,
-                                  std::string*);
+                                  std::string*, const EsdfField*);
 template bool write_query_answers(const MapQuery<Multires16Voxel>&,
                                   const std::vector<Eigen::Vector3f>&, const std::string&,
-                                  std::string*);
+                                  std::string*, const EsdfField*);
 
 }  // namespace octofuse::examples

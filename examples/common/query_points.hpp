@@ -7,6 +7,7 @@
 
 #include <Eigen/Core>
 
+#include "octofuse/query/esdf.hpp"
 #include "octofuse/query/map_query.hpp"
 
 namespace octofuse::examples {
@@ -17,9 +18,11 @@ bool load_query_points(const std::string& path, std::vector<Eigen::Vector3f>* po
                        std::string* error);
 
 // Answers every point and writes `path`; false with `error` when it cannot be written or a query
-// fails.
+// fails. With a distance field (query/esdf.hpp), a free point's DISTANCE is the larger of the
+// two lower bounds: the free octant's and the field's distance less its error bound.
 template <typename VoxelT>
 bool write_query_answers(const MapQuery<VoxelT>& query, const std::vector<Eigen::Vector3f>& points,
-                         const std::string& path, std::string* error);
+                         const std::string& path, std::string* error,
+                         const EsdfField* field = nullptr);
 
 }  // namespace octofuse::examples

@@ -587,6 +587,15 @@ const RunOption kRunOptions[] = {
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.free_space_exact, v); }},
+    {"esdf", nullptr,
+     "keep a distance field for planners (128^3 cells of 2 voxels over\n"
+     "the middle of the cube, unknown space as obstacle); --query-points\n"
+     "answers free points with it",
+     [](RunOptions& o, const std::string&) {
+       o.esdf = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(o.esdf, v); }},
     {"query-points", "FILE",
      "answer FILE's points (one 'x y z' per line, metres, world frame)\n"
      "against the final map into DIR/queries.txt:\n"

@@ -484,8 +484,9 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
     return rc;
   }
   if (!options.query_points_path.empty() && !options.out_dir.empty()) {
+    if (pipeline.esdf().reserved()) pipeline.flush_esdf();
     if (write_query_answers(pipeline.query(), query_points, join(options.out_dir, "queries.txt"),
-                            &error)) {
+                            &error, &pipeline.esdf())) {
       summary->files_written.push_back("queries.txt");
     } else {
       late_failure(error);

@@ -333,6 +333,14 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
   config.eviction = options.eviction;
   config.free_space.enabled = options.free_space;
   config.free_space.exact_silhouettes = options.free_space_exact;
+  if (options.esdf) {
+    // The window over the middle of the cube, at most 128 cells of 2 voxels a side; unknown
+    // space counts as obstacle, so a free point's distance bounds unseen surfaces too.
+    config.esdf.enabled = true;
+    config.esdf.unknown_is_obstacle = true;
+    config.esdf.cell_voxels = 2;
+    config.esdf.cells_per_side = std::min(128, config.map.voxels_per_side() / 2);
+  }
   if (load_map && loaded.free_node_count > 0) {
     // The saved free space is read with the settings it was carved with (its distance bounds
     // depend on the margin), in a pool that holds it.

@@ -125,6 +125,11 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
   if (!validate(config.free_space).ok()) {
     return bad("free_space (finite margins >= 0, max_free_count >= 1, visit budget > 0)");
   }
+  if (config.esdf.enabled && !validate(config.esdf, config.map).ok()) {
+    return bad(
+        "esdf (cells_per_side a multiple of 8 in [8, 1016], cell_voxels 1/2/4/8, window "
+        "within the map's cube, centre finite or NaN)");
+  }
   const EvictionConfig& e = config.eviction;
   if (e.enabled && !(e.low_water > 0.0f && e.low_water < e.high_water && e.high_water <= 1.0f)) {
     return bad("eviction marks must satisfy 0 < low_water < high_water <= 1");
@@ -264,6 +269,10 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
     OCTOFUSE_TRY(working_beyond);
     working_beyond_far_ =
         ImageView<std::uint8_t>(working_beyond.value(), working_width, working_height);
+  }
+  if (config.esdf.enabled) {
+    OCTOFUSE_TRY(esdf_.reserve(arena, config.esdf, config.map));
+    esdf_.set_guard(&guard_);
   }
   if (config.eviction.enabled) {
     const std::uint32_t blocks = config.map.block_capacity;
@@ -482,6 +491,7 @@ Status Pipeline<VoxelT>::reset() {
     ExclusiveHold hold(guard_);
     map_.clear();
     if (free_space_.reserved()) free_space_.clear();
+    if (esdf_.reserved()) esdf_.clear();
     ++map_version_;
   }
   validator_.restart_stream();
@@ -1098,7 +1108,23 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
   stats.times.integrate_ms = elapsed_ms(progress.t_last, t_integrated);
   stats.times.free_space_ms = elapsed_ms(t_integrated, t_carved);
   progress.t_last = t_carved;
+  update_esdf(progress);
   return stats.integration.status;
+}
+
+// Step (8): the distance field follows the changed map within its cell budget, outside the
+// guard (only this thread writes the map); it publishes under the guard.
+template <typename VoxelT>
+void Pipeline<VoxelT>::update_esdf(FrameProgress& progress) {
+  if (!esdf_.reserved()) return;
+  FrameStats& stats = current_;
+  if (stats.eviction.evicted > 0 || stats.eviction.demoted > 0) esdf_.mark_all_dirty();
+  stats.esdf =
+      esdf_.update(map_, free_space_.reserved() ? &free_space_ : nullptr, config_.fusion.mu_m,
+                   static_cast<std::uint32_t>(stats.frame_index), map_version_);
+  const std::int64_t t_done = clock_.now();
+  stats.times.esdf_ms = elapsed_ms(progress.t_last, t_done);
+  progress.t_last = t_done;
 }
 
 // The free space this frame saw; when its pool runs full, the free space farthest from the camera

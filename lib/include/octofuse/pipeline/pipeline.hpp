@@ -31,6 +31,7 @@
 #include "octofuse/math/se3.hpp"
 #include "octofuse/pipeline/clock.hpp"
 #include "octofuse/pipeline/cost_model.hpp"
+#include "octofuse/query/esdf.hpp"
 #include "octofuse/query/free_space.hpp"
 #include "octofuse/query/map_guard.hpp"
 #include "octofuse/query/map_query.hpp"
@@ -138,6 +139,8 @@ struct PipelineConfig {
   // node_capacity 0 takes max(map node capacity, block capacity) nodes (40 bytes each);
   // clearance_m 0 takes mu / 2 and occlusion_clear_m 0 takes 4 mu.
   FreeSpaceConfig free_space;
+  // Distance field for planners (query/esdf.hpp), updated after carving; its budget is step (8).
+  EsdfConfig esdf;
   EvictionConfig eviction;
   // A per-frame time limit the budgets are derived from (0 = off: the budgets above as they are).
   DeadlineConfig deadline;
@@ -208,6 +211,7 @@ struct StageTimes {
   double track_ms = 0.0;
   double integrate_ms = 0.0;
   double free_space_ms = 0.0;
+  double esdf_ms = 0.0;
   double raycast_ms = 0.0;
   double total_ms = 0.0;
 };
@@ -246,6 +250,7 @@ struct FrameStats {
   StoreReport store;              // with a block store: reads before eviction, writes in it
   IntegrationReport integration;  // meaningful when integrated
   FreeSpaceReport free_space;     // meaningful when integrated with free space enabled
+  EsdfReport esdf;                // meaningful when integrated with the distance field enabled
   RaycastStats raycast;
   bool budget_icp_hit = false;  // ICP stopped by its iteration budget on some level
   DeadlineReport deadline;      // the budgets a frame deadline derived, and what it gave up
@@ -259,7 +264,7 @@ struct FrameStats {
   double prior_gap_rad = 0.0;   // and rotation angle
   bool any_budget_hit() const {
     return budget_icp_hit || eviction.budget_hit || store.budget_hit || integration.budget_hit ||
-           raycast.budget_hit() || free_space.budget_hit;
+           raycast.budget_hit() || free_space.budget_hit || esdf.budget_hit;
   }
 };
 
@@ -327,6 +332,15 @@ class Pipeline {
                             config_.fusion.mu_m, &guard_, &map_version_);
   }
   const MapGuard& guard() const { return guard_; }
+  // The distance field (reserved only when config.esdf.enabled; answers nothing otherwise), safe
+  // to query from other threads while process() runs.
+  const EsdfField& esdf() const { return esdf_; }
+  // Brings the distance field up to the map now, without its budget (after the last frame).
+  EsdfReport flush_esdf() {
+    return esdf_.flush(map_, free_space_.reserved() ? &free_space_ : nullptr, config_.fusion.mu_m,
+                       static_cast<std::uint32_t>(frame_index_ > 0 ? frame_index_ - 1 : 0),
+                       map_version_);
+  }
   const PipelineConfig& config() const { return config_; }
   const WorkerTeam& team() const { return team_; }
   // The last ray-cast (world frame) and its scale image, at the working resolution.
@@ -385,6 +399,7 @@ class Pipeline {
   void gate_on_prediction(const Se3d& prediction, Se3d& estimate, PoseOrigin& origin);
   Status fuse_frame(FrameProgress& progress);
   void carve_free_space();
+  void update_esdf(FrameProgress& progress);
   Status cast_reference_view(FrameProgress& progress);
   Status finish_frame(const FrameProgress& progress, FrameResult result, Status status,
                       FrameStats* stats_out);
@@ -407,6 +422,7 @@ class Pipeline {
   Integrator<VoxelT> integrator_;
   Raycaster<VoxelT> raycaster_;
   FreeSpace free_space_;
+  EsdfField esdf_;
   DeadlineController deadline_;
   FrameStats current_;
   // Eviction ranking scratch, one entry per block slot (only when eviction is enabled).

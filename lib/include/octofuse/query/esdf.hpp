@@ -1,0 +1,196 @@
+#pragma once
+// Euclidean distance field for planners: the distance from any point of a window around the map
+// to the nearest observed surface, with its gradient and an error bound, from memory reserved at
+// init. Each cell of a fixed grid holds the nearest surface point ("site") it knows: seeded at
+// sub-voxel precision where the TSDF crosses zero (the cell centre projected onto the surface
+// along the gradient), propagated by two sweeps along z with a 2D pass in each slice (vector
+// propagation), and read at a query point as the nearest site among its cell's 27. Updates rebuild
+// the field in a back buffer, a budgeted number of cells per frame, re-seeding only the chunks
+// whose blocks changed, and publish it whole under the MapGuard; queries read the last published
+// field. lib/README.md ("Distance field") gives the error bound and the degradation step.
+
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <type_traits>
+
+#include <Eigen/Core>
+
+#include "octofuse/core/arena.hpp"
+#include "octofuse/core/result.hpp"
+#include "octofuse/core/status.hpp"
+#include "octofuse/map/map_config.hpp"
+#include "octofuse/map/octree.hpp"
+#include "octofuse/query/free_space.hpp"
+#include "octofuse/query/map_guard.hpp"
+
+namespace octofuse {
+
+struct EsdfConfig {
+  bool enabled = false;
+  // Window of cells_per_side^3 cells (a multiple of 8, 8..1016), each cell_voxels finest voxels
+  // on a side (1, 2, 4 or 8). 16 bytes a cell (two buffers of 8).
+  int cells_per_side = 128;
+  int cell_voxels = 2;
+  // World point the window is centred on (clamped into the map's cube); NaN: the cube's centre.
+  Eigen::Vector3f centre_W = Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN());
+  // Unknown cells count as obstacles (their whole box) when true; then every update re-seeds
+  // the whole window, since carving changes what is unknown.
+  bool unknown_is_obstacle = false;
+  // Degradation step (8): cells seeded or swept per frame (in whole 8^3 chunks and slices; a
+  // rebuild is 3 window volumes). A rebuild that does not finish goes on in the next frames;
+  // queries meanwhile see the previous field. 0: no limit (each update finishes in its frame).
+  std::uint32_t max_cell_steps = 1u << 18;
+};
+
+// ok, or invalid_argument naming nothing (the caller names the setting).
+Status validate(const EsdfConfig& config, const MapConfig& map);
+
+struct EsdfAnswer {
+  // False: the point lies outside the window, or no surface lies in the 27 cells around it (then
+  // lower_bound_m alone says something: the distance to the window's faces inside the cube).
+  bool has_distance = false;
+  // To the nearest known surface point (or obstacle cell), at most the distance to the window's
+  // faces inside the cube (surfaces beyond them are not in the field).
+  float distance_m = 0.0f;
+  float error_bound_m = 0.0f;  // the nearest observed surface is at least distance - this away
+  // max(0, distance - error bound); with no site near, the distance to the window's faces.
+  float lower_bound_m = 0.0f;
+  // Unit vector away from the nearest surface point (zero without a distance).
+  Eigen::Vector3f gradient = Eigen::Vector3f::Zero();
+  std::uint64_t map_version = 0;  // the map version the field was built from
+};
+
+struct EsdfReport {
+  std::uint32_t cell_steps = 0;       // cells seeded or swept this frame
+  std::uint32_t chunks_reseeded = 0;  // 8^3-cell chunks seeded from the map this frame
+  bool budget_hit = false;            // stopped at max_cell_steps with the rebuild unfinished
+  bool published = false;             // a rebuild finished and became the queried field
+  bool rebuilding = false;            // a rebuild is in progress after this frame
+};
+
+class EsdfField {
+ public:
+  static std::size_t bytes_required(const EsdfConfig& config);
+
+  template <typename Arena>
+  Status reserve(Arena& arena, const EsdfConfig& config, const MapConfig& map) {
+    OCTOFUSE_TRY(validate(config, map));
+    const std::size_t cells = cell_count(config.cells_per_side);
+    Result<Cell*> a = arena.template allocate_array<Cell>(cells);
+    OCTOFUSE_TRY(a);
+    Result<Cell*> b = arena.template allocate_array<Cell>(cells);
+    OCTOFUSE_TRY(b);
+    // The sizing pass hands out no memory to clear.
+    if constexpr (!std::is_same<Arena, ArenaSizer>::value) setup(config, map, a.value(), b.value());
+    return ok_status();
+  }
+  bool reserved() const { return buffers_[0] != nullptr; }
+  const EsdfConfig& config() const { return config_; }
+
+  // Queries hold `guard` shared; updates hold it exclusively to publish. May be null.
+  void set_guard(const MapGuard* guard) { guard_ = guard; }
+
+  // Advances the field after frame `frame` changed the map (integration, carving) to
+  // `map_version`, within the cell budget. Reads the map without the guard: call it from the
+  // thread that writes the map. Allocates nothing.
+  template <typename VoxelT>
+  EsdfReport update(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
+                    std::uint32_t frame, std::uint64_t map_version);
+  // Finishes the rebuild in progress (and starts one when the map changed) without a budget.
+  template <typename VoxelT>
+  EsdfReport flush(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
+                   std::uint32_t frame, std::uint64_t map_version);
+  // The next rebuild seeds every chunk afresh (after eviction removed blocks).
+  void mark_all_dirty() { all_dirty_ = true; }
+  // Forgets everything (the map was reset). The caller holds the guard exclusively.
+  void clear();
+
+  // invalid_argument for a non-finite point.
+  Result<EsdfAnswer> distance(const Eigen::Vector3f& p_W) const;
+  // `count` points into `out` (holding the guard once); invalid_argument if any is non-finite
+  // (those answers stay default).
+  Status distances(const Eigen::Vector3f* points_W, std::size_t count, EsdfAnswer* out) const;
+
+  // Window geometry: its minimum corner (world), cell edge (m), cells per side.
+  Eigen::Vector3f window_min_W() const { return window_min_W_; }
+  float cell_m() const { return cell_m_; }
+  int cells_per_side() const { return n_; }
+  // The bound every answer's distance is within (see lib/README.md).
+  float error_bound_m() const { return error_bound_m_; }
+  // The map version of the published field (from the mapping thread; readers get it in answers).
+  std::uint64_t published_version() const { return published_version_; }
+
+ private:
+  // Site in 1/64 cell units from the window's minimum corner.
+  struct Cell {
+    std::uint16_t sx = 0;
+    std::uint16_t sy = 0;
+    std::uint16_t sz = 0;
+    std::uint8_t flags = 0;
+    std::uint8_t pad = 0;
+  };
+  static constexpr std::uint8_t kHasSite = 1;
+  static constexpr std::uint8_t kBoxSite = 2;  // the site is an obstacle cell's centre
+  static constexpr std::uint8_t kSeed = 4;     // seeded from this cell's own map data
+  enum class Phase : std::uint8_t { idle, seed, forward, backward };
+
+  static std::size_t cell_count(int n) {
+    return static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
+  }
+  void setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b);
+  template <typename VoxelT>
+  EsdfReport advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
+                     std::uint32_t frame, std::uint64_t map_version, std::uint64_t budget);
+  template <typename VoxelT>
+  void seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m, int chunk,
+                  bool from_map);
+  template <typename VoxelT>
+  bool chunk_changed(const Octree<VoxelT>& map, int chunk) const;
+  void consider(Cell& cell, float* d, const Eigen::Vector3f& q, const Cell& other) const;
+  void sweep_slice(int z, int dz);
+  float site_distance(const Cell& cell, const Eigen::Vector3f& q) const;
+  EsdfAnswer answer_unguarded(const Eigen::Vector3f& p_W) const;
+
+  EsdfConfig config_;
+  Cell* buffers_[2] = {nullptr, nullptr};
+  int front_ = 0;  // the published buffer
+  int n_ = 0;
+  int chunks_per_side_ = 0;
+  int cell_voxels_ = 1;
+  Eigen::Vector3i window_min_voxel_ = Eigen::Vector3i::Zero();
+  Eigen::Vector3f window_min_W_ = Eigen::Vector3f::Zero();
+  float voxel_m_ = 0.0f;
+  float cell_m_ = 0.0f;
+  float error_bound_m_ = 0.0f;
+  float lateral2_cells_ = 0.0f;  // squared offset removed from surface-site distances
+  // Window faces inside the cube (beyond them surfaces are not in the field), per axis lo/hi.
+  bool open_face_[3][2] = {{false, false}, {false, false}, {false, false}};
+  const MapGuard* guard_ = nullptr;
+
+  Phase phase_ = Phase::idle;
+  int cursor_ = 0;  // next chunk (seed) or slice (sweeps)
+  bool all_dirty_ = true;
+  bool rebuild_all_ = true;  // the rebuild in progress seeds every chunk from the map
+  bool front_valid_ = false;
+  std::uint32_t rebuild_start_frame_ = 0;    // frame the rebuild in progress started at
+  std::uint32_t published_start_frame_ = 0;  // frame the published field's rebuild started at
+  std::uint64_t rebuild_version_ = 0;        // map version the rebuild in progress reads
+  std::uint64_t published_version_ = 0;
+  bool have_published_ = false;
+};
+
+extern template EsdfReport EsdfField::update(const Octree<TsdfVoxel>&, const FreeSpace*, float,
+                                             std::uint32_t, std::uint64_t);
+extern template EsdfReport EsdfField::update(const Octree<MultiresVoxel>&, const FreeSpace*, float,
+                                             std::uint32_t, std::uint64_t);
+extern template EsdfReport EsdfField::update(const Octree<Multires16Voxel>&, const FreeSpace*,
+                                             float, std::uint32_t, std::uint64_t);
+extern template EsdfReport EsdfField::flush(const Octree<TsdfVoxel>&, const FreeSpace*, float,
+                                            std::uint32_t, std::uint64_t);
+extern template EsdfReport EsdfField::flush(const Octree<MultiresVoxel>&, const FreeSpace*, float,
+                                            std::uint32_t, std::uint64_t);
+extern template EsdfReport EsdfField::flush(const Octree<Multires16Voxel>&, const FreeSpace*, float,
+                                            std::uint32_t, std::uint64_t);
+
+}  // namespace octofuse

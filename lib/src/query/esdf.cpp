@@ -1,0 +1,496 @@
+#include "octofuse/query/esdf.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "octofuse/map/interpolation.hpp"
+
+namespace octofuse {
+
+namespace {
+constexpr float kSiteUnits = 64.0f;          // site coordinates per cell
+constexpr float kHalfDiagonal = 0.8660254f;  // sqrt(3) / 2, in cells
+constexpr int kChunkCells = 8;
+
+bool finite(const Eigen::Vector3f& v) {
+  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
+
+std::uint16_t to_site_units(float cells, int n) {
+  const float units = std::floor(cells * kSiteUnits + 0.5f);
+  const float top = static_cast<float>(n) * kSiteUnits - 1.0f;
+  return static_cast<std::uint16_t>(units < 0.0f ? 0.0f : units > top ? top : units);
+}
+}  // namespace
+
+Status validate(const EsdfConfig& config, const MapConfig& map) {
+  const int n = config.cells_per_side;
+  const int c = config.cell_voxels;
+  if (n < 8 || n > 1016 || n % kChunkCells != 0) return Status(StatusCode::invalid_argument);
+  if (c != 1 && c != 2 && c != 4 && c != 8) return Status(StatusCode::invalid_argument);
+  if (static_cast<long>(n) * c > static_cast<long>(map.voxels_per_side())) {
+    return Status(StatusCode::invalid_argument);
+  }
+  const Eigen::Vector3f& centre = config.centre_W;
+  const bool all_nan = std::isnan(centre.x()) && std::isnan(centre.y()) && std::isnan(centre.z());
+  if (!all_nan && !finite(centre)) return Status(StatusCode::invalid_argument);
+  return ok_status();
+}
+
+std::size_t EsdfField::bytes_required(const EsdfConfig& config) {
+  const std::size_t cells = cell_count(config.cells_per_side);
+  return 2 * cells * sizeof(Cell) + 2 * alignof(Cell);
+}
+
+void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b) {
+  config_ = config;
+  buffers_[0] = a;
+  buffers_[1] = b;
+  n_ = config.cells_per_side;
+  chunks_per_side_ = n_ / kChunkCells;
+  cell_voxels_ = config.cell_voxels;
+  voxel_m_ = map.voxel_size_m;
+  cell_m_ = voxel_m_ * static_cast<float>(cell_voxels_);
+  // A site lies within a cell diagonal of the nearest surface point (both in one cell), and the
+  // TSDF places the surface within about a finest voxel.
+  error_bound_m_ = 2.0f * kHalfDiagonal * cell_m_ + voxel_m_;
+  // Sites of a plane's cells lie at most half a cell diagonal of a face beside the foot of the
+  // perpendicular from a point; removing that offset keeps distances near a surface from
+  // exceeding the true ones (and costs far ones nothing: 0.5 / (2 d) cells).
+  lateral2_cells_ = 0.5f;
+  const int side = n_ * cell_voxels_;
+  const int cube = map.voxels_per_side();
+  for (int a_i = 0; a_i < 3; ++a_i) {
+    int lo = (cube - side) / 2;
+    if (!std::isnan(config.centre_W[a_i])) {
+      const float centre_voxels = (config.centre_W[a_i] - map.origin_W[a_i]) / voxel_m_;
+      const float start = centre_voxels - 0.5f * static_cast<float>(side);
+      const float clamped =
+          std::max(0.0f, std::min(static_cast<float>(cube - side), std::floor(start)));
+      lo = static_cast<int>(clamped);
+    }
+    lo -= lo % cell_voxels_;  // cells on the map's cell grid
+    window_min_voxel_[a_i] = lo;
+    window_min_W_[a_i] = map.origin_W[a_i] + static_cast<float>(lo) * voxel_m_;
+    open_face_[a_i][0] = lo > 0;
+    open_face_[a_i][1] = lo + side < cube;
+  }
+  clear();
+}
+
+void EsdfField::clear() {
+  const std::size_t cells = cell_count(n_);
+  for (int b = 0; b < 2; ++b) {
+    for (std::size_t i = 0; i < cells; ++i) buffers_[b][i] = Cell();
+  }
+  phase_ = Phase::idle;
+  cursor_ = 0;
+  all_dirty_ = true;
+  rebuild_all_ = true;
+  front_valid_ = false;
+  have_published_ = false;
+  rebuild_start_frame_ = 0;
+  published_start_frame_ = 0;
+  rebuild_version_ = 0;
+  published_version_ = 0;
+}
+
+float EsdfField::site_distance(const Cell& cell, const Eigen::Vector3f& q) const {
+  const Eigen::Vector3f s(static_cast<float>(cell.sx), static_cast<float>(cell.sy),
+                          static_cast<float>(cell.sz));
+  const float d2 = (q - s * (1.0f / kSiteUnits)).squaredNorm();
+  if ((cell.flags & kBoxSite) != 0) return std::sqrt(d2) - kHalfDiagonal;
+  // Sites are a cell apart on the surface, so the nearest surface point may lie up to half a
+  // face diagonal beside the nearest site: remove that offset.
+  return std::sqrt(std::max(d2 - lateral2_cells_, 0.0f));
+}
+
+template <typename VoxelT>
+bool EsdfField::chunk_changed(const Octree<VoxelT>& map, int chunk) const {
+  const int cx = chunk % chunks_per_side_;
+  const int cy = (chunk / chunks_per_side_) % chunks_per_side_;
+  const int cz = chunk / (chunks_per_side_ * chunks_per_side_);
+  const int side_voxels = kChunkCells * cell_voxels_;
+  const Eigen::Vector3i lo = window_min_voxel_ + Eigen::Vector3i(cx, cy, cz) * side_voxels;
+  // Every block the chunk's cells sample: the chunk need not be block-aligned, and trilinear
+  // samples at its border cells read the voxels one beyond it.
+  Eigen::Vector3i b0;
+  Eigen::Vector3i b1;
+  for (int a = 0; a < 3; ++a) {
+    b0[a] = std::max(lo[a] - 1, 0) / kBlockSide;
+    b1[a] = std::min(lo[a] + side_voxels, map.voxels_per_side() - 1) / kBlockSide;
+  }
+  for (int z = b0.z(); z <= b1.z(); ++z) {
+    for (int y = b0.y(); y <= b1.y(); ++y) {
+      for (int x = b0.x(); x <= b1.x(); ++x) {
+        const VoxelBlock<VoxelT>* block =
+            map.find_block_at_voxel(Eigen::Vector3i(x, y, z) * kBlockSide);
+        if (block != nullptr && block->last_updated_frame > published_start_frame_) return true;
+      }
+    }
+  }
+  return false;
+}
+
+template <typename VoxelT>
+void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
+                           int chunk, bool from_map) {
+  Cell* back = buffers_[1 - front_];
+  const Cell* front = buffers_[front_];
+  const int cx = chunk % chunks_per_side_;
+  const int cy = (chunk / chunks_per_side_) % chunks_per_side_;
+  const int cz = chunk / (chunks_per_side_ * chunks_per_side_);
+  const float half_diagonal_m = kHalfDiagonal * cell_m_;
+  const float cv = static_cast<float>(cell_voxels_);
+  FreeOctant octant;
+  for (int z = cz * kChunkCells; z < (cz + 1) * kChunkCells; ++z) {
+    for (int y = cy * kChunkCells; y < (cy + 1) * kChunkCells; ++y) {
+      for (int x = cx * kChunkCells; x < (cx + 1) * kChunkCells; ++x) {
+        const std::size_t index =
+            (static_cast<std::size_t>(z) * n_ + static_cast<std::size_t>(y)) * n_ + x;
+        Cell out;
+        if (!from_map) {
+          if ((front[index].flags & kSeed) != 0) out = front[index];
+          back[index] = out;
+          continue;
+        }
+        // Cell centre in continuous finest-voxel coordinates, and in the world.
+        const Eigen::Vector3f q =
+            window_min_voxel_.cast<float>() +
+            (Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) +
+             Eigen::Vector3f::Constant(0.5f)) *
+                cv;
+        const Eigen::Vector3f p_W = map.config().origin_W + q * voxel_m_;
+        const Eigen::Vector3i voxel(static_cast<int>(std::floor(q.x())),
+                                    static_cast<int>(std::floor(q.y())),
+                                    static_cast<int>(std::floor(q.z())));
+        const VoxelBlock<VoxelT>* block = map.find_block_at_voxel(voxel);
+        bool observed = false;
+        bool box = false;
+        bool site = false;
+        Eigen::Vector3f site_W = p_W;
+        if (block != nullptr) {
+          TsdfSample sample;
+          if (sample_tsdf(map, p_W, block, sample)) {
+            observed = true;
+            float d_m = sample.tsdf * mu_m;
+            Eigen::Vector3f g = sample.gradient * mu_m;
+            const float slope = g.norm();
+            if (sample.tsdf > -1.0f && sample.tsdf < 1.0f && slope > 0.2f) {
+              // Ray distances exceed Euclidean ones by the gradient's length on slanted surfaces.
+              if (slope > 1.0f) {
+                d_m /= slope;
+                g /= slope;
+              }
+              if (std::abs(d_m) <= half_diagonal_m + voxel_m_) {
+                site = true;
+                site_W = p_W - d_m * g / g.squaredNorm();
+              } else if (d_m < 0.0f) {
+                site = true;
+                box = true;
+              }
+            } else if (sample.tsdf <= 0.0f) {
+              site = true;
+              box = true;
+            }
+          } else {
+            const VoxelT& v = block->at_voxel(voxel, block_read_scale(*block));
+            if (voxel_observed(v)) {
+              observed = true;
+              const float d_m = voxel_tsdf(v) * mu_m;
+              // No gradient here: the whole cell is the obstacle where a surface may cross it.
+              if (d_m <= half_diagonal_m + voxel_m_) {
+                site = true;
+                box = true;
+              }
+            }
+          }
+        }
+        if (!observed && config_.unknown_is_obstacle) {
+          // Free octants are mostly larger than a cell: look each up once.
+          if (!octant.free || (voxel.array() < octant.min_voxel.array()).any() ||
+              (voxel.array() >= (octant.min_voxel.array() + octant.size_voxels)).any()) {
+            if (free_space != nullptr) octant = free_space->find(voxel);
+          }
+          const bool known_free =
+              octant.free && (voxel.array() >= octant.min_voxel.array()).all() &&
+              (voxel.array() < (octant.min_voxel.array() + octant.size_voxels)).all();
+          if (!known_free) {
+            site = true;
+            box = true;
+          }
+        }
+        if (site) {
+          const Eigen::Vector3f s_cells =
+              box ? Eigen::Vector3f(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f,
+                                    static_cast<float>(z) + 0.5f)
+                  : (site_W - window_min_W_) / cell_m_;
+          out.sx = to_site_units(s_cells.x(), n_);
+          out.sy = to_site_units(s_cells.y(), n_);
+          out.sz = to_site_units(s_cells.z(), n_);
+          out.flags = static_cast<std::uint8_t>(kHasSite | kSeed | (box ? kBoxSite : 0));
+        }
+        back[index] = out;
+      }
+    }
+  }
+}
+
+// Takes `other`'s site into `cell` (centre q, in cells, at distance *d from its site) where it
+// is nearer.
+inline void EsdfField::consider(Cell& cell, float* d, const Eigen::Vector3f& q,
+                                const Cell& other) const {
+  if ((other.flags & kHasSite) == 0) return;
+  if (other.sx == cell.sx && other.sy == cell.sy && other.sz == cell.sz &&
+      (cell.flags & kHasSite) != 0 && ((other.flags ^ cell.flags) & kBoxSite) == 0) {
+    return;
+  }
+  const float candidate = site_distance(other, q);
+  if (candidate >= *d) return;
+  *d = candidate;
+  cell.sx = other.sx;
+  cell.sy = other.sy;
+  cell.sz = other.sz;
+  cell.flags = static_cast<std::uint8_t>(other.flags & (kHasSite | kBoxSite));
+}
+
+// One slice of a sweep along z (dz = +1 forward, -1 backward): the site of the cell before it
+// along z, then a two-pass 2D propagation inside the slice (the row before, then along the row
+// both ways; rows up, then rows down), so a site reaches every cell of the slice in one sweep.
+// Seeds keep their own surface point: a later rebuild copies them where the map did not change,
+// and the 27 cells a query reads hold the neighbours' sites anyway.
+void EsdfField::sweep_slice(int z, int dz) {
+  Cell* cells = buffers_[1 - front_];
+  const int n = n_;
+  const std::size_t slice = static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
+  Cell* here = cells + static_cast<std::size_t>(z) * slice;
+  const float zc = static_cast<float>(z) + 0.5f;
+  auto distance_of = [&](const Cell& cell, const Eigen::Vector3f& q) {
+    if ((cell.flags & kSeed) != 0) return -1e30f;  // never replaced
+    return (cell.flags & kHasSite) != 0 ? site_distance(cell, q) : 1e30f;
+  };
+  const int zp = z - dz;
+  if (zp >= 0 && zp < n) {
+    const Cell* prev = cells + static_cast<std::size_t>(zp) * slice;
+    for (int y = 0; y < n; ++y) {
+      for (int x = 0; x < n; ++x) {
+        const std::size_t i = static_cast<std::size_t>(y) * n + x;
+        if ((prev[i].flags & kHasSite) == 0 || (here[i].flags & kSeed) != 0) continue;
+        const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
+        float d = distance_of(here[i], q);
+        consider(here[i], &d, q, prev[i]);
+      }
+    }
+  }
+  for (int pass = 0; pass < 2; ++pass) {
+    const int dy = pass == 0 ? 1 : -1;
+    for (int step = 0; step < n; ++step) {
+      const int y = dy > 0 ? step : n - 1 - step;
+      Cell* row = here + static_cast<std::size_t>(y) * n;
+      const int yp = y - dy;
+      const Cell* prev_row = yp >= 0 && yp < n ? here + static_cast<std::size_t>(yp) * n : nullptr;
+      const float yc = static_cast<float>(y) + 0.5f;
+      for (int x = 0; x < n; ++x) {
+        Cell& cell = row[x];
+        const bool from_row = prev_row != nullptr && (prev_row[x].flags & kHasSite) != 0;
+        const bool from_left = x > 0 && (row[x - 1].flags & kHasSite) != 0;
+        if ((!from_row && !from_left) || (cell.flags & kSeed) != 0) continue;
+        const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
+        float d = distance_of(cell, q);
+        if (from_row) consider(cell, &d, q, prev_row[x]);
+        if (from_left) consider(cell, &d, q, row[x - 1]);
+      }
+      for (int x = n - 2; x >= 0; --x) {
+        Cell& cell = row[x];
+        if ((row[x + 1].flags & kHasSite) == 0 || (cell.flags & kSeed) != 0) continue;
+        const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
+        float d = distance_of(cell, q);
+        consider(cell, &d, q, row[x + 1]);
+      }
+    }
+  }
+}
+
+template <typename VoxelT>
+EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
+                              std::uint32_t frame, std::uint64_t map_version,
+                              std::uint64_t budget) {
+  EsdfReport report;
+  if (!reserved()) return report;
+  std::uint64_t steps = 0;
+  const int chunks = chunks_per_side_ * chunks_per_side_ * chunks_per_side_;
+  const std::uint64_t slice_cells = static_cast<std::uint64_t>(n_) * static_cast<std::uint64_t>(n_);
+  for (;;) {
+    if (phase_ == Phase::idle) {
+      if (have_published_ && map_version == published_version_ && !all_dirty_) break;
+      if (have_published_ && map_version == rebuild_version_ && !all_dirty_) break;
+      phase_ = Phase::seed;
+      cursor_ = 0;
+      rebuild_start_frame_ = frame;
+      rebuild_version_ = map_version;
+      rebuild_all_ = all_dirty_ || !front_valid_ || config_.unknown_is_obstacle;
+      all_dirty_ = false;
+    }
+    if (steps >= budget) {
+      report.budget_hit = true;
+      break;
+    }
+    if (phase_ == Phase::seed) {
+      const bool from_map = rebuild_all_ || chunk_changed(map, cursor_);
+      seed_chunk(map, free_space, mu_m, cursor_, from_map);
+      if (from_map) ++report.chunks_reseeded;
+      steps += kChunkCells * kChunkCells * kChunkCells;
+      if (++cursor_ == chunks) {
+        phase_ = Phase::forward;
+        cursor_ = 0;
+      }
+    } else if (phase_ == Phase::forward) {
+      sweep_slice(cursor_, 1);
+      steps += slice_cells;
+      if (++cursor_ == n_) {
+        phase_ = Phase::backward;
+        cursor_ = n_ - 1;
+      }
+    } else {
+      sweep_slice(cursor_, -1);
+      steps += slice_cells;
+      if (--cursor_ < 0) {
+        {
+          // Readers see the old field or the new one, never a mix.
+          if (guard_ != nullptr) {
+            ExclusiveHold hold(*guard_);
+            front_ = 1 - front_;
+            published_version_ = rebuild_version_;
+          } else {
+            front_ = 1 - front_;
+            published_version_ = rebuild_version_;
+          }
+        }
+        front_valid_ = true;
+        have_published_ = true;
+        published_start_frame_ = rebuild_start_frame_;
+        phase_ = Phase::idle;
+        report.published = true;
+        // One rebuild per call at most: the next frame starts the next one.
+        break;
+      }
+    }
+  }
+  report.cell_steps = static_cast<std::uint32_t>(std::min<std::uint64_t>(steps, 0xFFFFFFFFu));
+  report.rebuilding = phase_ != Phase::idle;
+  return report;
+}
+
+template <typename VoxelT>
+EsdfReport EsdfField::update(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
+                             std::uint32_t frame, std::uint64_t map_version) {
+  const std::uint64_t budget =
+      config_.max_cell_steps > 0 ? config_.max_cell_steps : ~static_cast<std::uint64_t>(0);
+  return advance(map, free_space, mu_m, frame, map_version, budget);
+}
+
+template <typename VoxelT>
+EsdfReport EsdfField::flush(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
+                            std::uint32_t frame, std::uint64_t map_version) {
+  EsdfReport report = advance(map, free_space, mu_m, frame, map_version, ~std::uint64_t(0));
+  if (!report.published || map_version != published_version_) {
+    const EsdfReport again = advance(map, free_space, mu_m, frame, map_version, ~std::uint64_t(0));
+    report.cell_steps += again.cell_steps;
+    report.chunks_reseeded += again.chunks_reseeded;
+    report.published = report.published || again.published;
+    report.rebuilding = again.rebuilding;
+  }
+  return report;
+}
+
+EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
+  EsdfAnswer out;
+  out.map_version = published_version_;
+  const Eigen::Vector3f q = (p_W - window_min_W_) / cell_m_;  // in cells
+  const float n = static_cast<float>(n_);
+  if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < n && q.y() < n && q.z() < n)) {
+    return out;
+  }
+  // Surfaces beyond the window's faces inside the cube are not in the field.
+  float window_bound = 1e30f;
+  for (int a = 0; a < 3; ++a) {
+    if (open_face_[a][0]) window_bound = std::min(window_bound, q[a]);
+    if (open_face_[a][1]) window_bound = std::min(window_bound, n - q[a]);
+  }
+  window_bound *= cell_m_;
+  const int x = static_cast<int>(q.x());
+  const int y = static_cast<int>(q.y());
+  const int z = static_cast<int>(q.z());
+  const Cell* cells = buffers_[front_];
+  float best = 1e30f;
+  const Cell* best_cell = nullptr;
+  for (int dz = -1; dz <= 1; ++dz) {
+    for (int dy = -1; dy <= 1; ++dy) {
+      for (int dx = -1; dx <= 1; ++dx) {
+        const int nx = x + dx;
+        const int ny = y + dy;
+        const int nz = z + dz;
+        if (nx < 0 || ny < 0 || nz < 0 || nx >= n_ || ny >= n_ || nz >= n_) continue;
+        const Cell& c =
+            cells[(static_cast<std::size_t>(nz) * n_ + static_cast<std::size_t>(ny)) * n_ + nx];
+        if ((c.flags & kHasSite) == 0) continue;
+        const float d = site_distance(c, q);
+        if (d < best) {
+          best = d;
+          best_cell = &c;
+        }
+      }
+    }
+  }
+  if (best_cell == nullptr) {
+    out.lower_bound_m = window_bound < 1e29f ? window_bound : 0.0f;
+    return out;
+  }
+  const Eigen::Vector3f s =
+      Eigen::Vector3f(static_cast<float>(best_cell->sx), static_cast<float>(best_cell->sy),
+                      static_cast<float>(best_cell->sz)) *
+      (1.0f / kSiteUnits);
+  const Eigen::Vector3f away = q - s;
+  const float length = away.norm();
+  out.has_distance = true;
+  // A surface beyond the window's faces may be nearer than any site: no more than the distance
+  // to those faces.
+  out.distance_m = std::min(std::max(best, 0.0f) * cell_m_, window_bound);
+  if (length > 0.0f) out.gradient = away / length;
+  out.error_bound_m = error_bound_m_;
+  out.lower_bound_m = std::max(out.distance_m - error_bound_m_, 0.0f);
+  return out;
+}
+
+Result<EsdfAnswer> EsdfField::distance(const Eigen::Vector3f& p_W) const {
+  if (!finite(p_W)) return Status(StatusCode::invalid_argument);
+  SharedHold hold(guard_);
+  if (!reserved()) return EsdfAnswer();
+  return answer_unguarded(p_W);
+}
+
+Status EsdfField::distances(const Eigen::Vector3f* points_W, std::size_t count,
+                            EsdfAnswer* out) const {
+  SharedHold hold(guard_);
+  Status status = ok_status();
+  for (std::size_t i = 0; i < count; ++i) {
+    if (!finite(points_W[i])) {
+      status = Status(StatusCode::invalid_argument);
+      continue;
+    }
+    out[i] = reserved() ? answer_unguarded(points_W[i]) : EsdfAnswer();
+  }
+  return status;
+}
+
+#define OCTOFUSE_ESDF_INSTANTIATE(VoxelT)                                               \
+  template EsdfReport EsdfField::update(const Octree<VoxelT>&, const FreeSpace*, float, \
+                                        std::uint32_t, std::uint64_t);                  \
+  template EsdfReport EsdfField::flush(const Octree<VoxelT>&, const FreeSpace*, float,  \
+                                       std::uint32_t, std::uint64_t);
+OCTOFUSE_ESDF_INSTANTIATE(TsdfVoxel)
+OCTOFUSE_ESDF_INSTANTIATE(MultiresVoxel)
+OCTOFUSE_ESDF_INSTANTIATE(Multires16Voxel)
+#undef OCTOFUSE_ESDF_INSTANTIATE
+
+}  // namespace octofuse

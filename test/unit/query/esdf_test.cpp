@@ -1,0 +1,269 @@
+// The distance field against analytic scenes written straight into the map: a sphere over a
+// floor, whose exact distance is known everywhere.
+#include "octofuse/query/esdf.hpp"
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include <catch2/catch.hpp>
+
+#include "support/aligned_buffer.hpp"
+#include "support/analytic_map.hpp"
+
+namespace octofuse {
+namespace {
+
+constexpr float kVoxel_m = 0.02f;
+constexpr float kMu_m = 0.08f;
+
+struct Scene {
+  Eigen::Vector3f centre = Eigen::Vector3f(0.1f, -0.05f, 0.2f);
+  float radius = 0.3f;
+  float floor_z = -0.8f;
+  bool with_sphere = true;
+  bool with_box = false;  // a second object added later
+  float operator()(const Eigen::Vector3f& p) const {
+    float d = p.z() - floor_z;
+    if (with_sphere) d = std::min(d, (p - centre).norm() - radius);
+    if (with_box) {
+      const Eigen::Vector3f q =
+          (p - Eigen::Vector3f(-0.6f, 0.5f, -0.4f)).cwiseAbs() - Eigen::Vector3f(0.15f, 0.1f, 0.2f);
+      const float outside = q.cwiseMax(0.0f).norm();
+      const float inside = std::min(q.maxCoeff(), 0.0f);
+      d = std::min(d, outside + inside);
+    }
+    return d;
+  }
+};
+
+MapConfig map_config() {
+  return MapConfig::centred(Eigen::Vector3f::Zero(), kVoxel_m, 7, 40000, 40000);
+}
+
+EsdfConfig field_config() {
+  EsdfConfig c;
+  c.enabled = true;
+  c.cells_per_side = 64;
+  c.cell_voxels = 2;
+  c.max_cell_steps = 0;
+  return c;
+}
+
+struct Field {
+  explicit Field(const EsdfConfig& config) : memory(EsdfField::bytes_required(config)) {
+    REQUIRE(field.reserve(memory.arena(), config, map_config()).ok());
+    REQUIRE(memory.arena().bytes_used() <= memory.bytes());
+  }
+  test::ArenaBuffer memory;
+  EsdfField field;
+};
+
+struct Errors {
+  long points = 0;
+  long unsafe = 0;      // reported distance above the exact one by more than a finest voxel
+  long over_bound = 0;  // lower bound above the exact distance
+  long answered = 0;
+  long close = 0;         // within 1 m of a surface
+  double close_sq = 0.0;  // squared error there
+  long far_gradient = 0;
+  long bad_gradient = 0;
+};
+
+template <typename Sdf>
+Errors measure(const EsdfField& field, const Sdf& sdf, int count) {
+  Errors e;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(-1.27f, 1.27f);
+  for (int i = 0; i < count; ++i) {
+    const Eigen::Vector3f p(u(rng), u(rng), u(rng));
+    const float exact = sdf(p);
+    if (exact <= 0.0f) continue;  // inside: the field answers distances to surfaces outside
+    ++e.points;
+    const Result<EsdfAnswer> r = field.distance(p);
+    REQUIRE(r.ok());
+    const EsdfAnswer& a = r.value();
+    if (!a.has_distance) continue;
+    ++e.answered;
+    if (a.distance_m > exact + kVoxel_m) ++e.unsafe;
+    if (a.lower_bound_m > exact) ++e.over_bound;
+    if (exact < 1.0f) {
+      ++e.close;
+      e.close_sq += (a.distance_m - exact) * (a.distance_m - exact);
+    }
+    if (exact > 0.2f) {
+      // Exact gradient by central differences.
+      Eigen::Vector3f g;
+      for (int k = 0; k < 3; ++k) {
+        Eigen::Vector3f h = Eigen::Vector3f::Zero();
+        h[k] = 1e-3f;
+        g[k] = (sdf(p + h) - sdf(p - h)) / 2e-3f;
+      }
+      if (g.norm() > 0.9f) {
+        ++e.far_gradient;
+        if (a.gradient.dot(g.normalized()) < 0.95f) ++e.bad_gradient;
+      }
+    }
+  }
+  return e;
+}
+
+TEST_CASE("the field's distances against a sphere over a floor: safe, accurate, with gradients") {
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  const Scene scene;
+  test::fill_band(owned.map, kMu_m, scene, [](const Eigen::Vector3i&) { return 0; });
+  Field f(field_config());
+  const EsdfReport report = f.field.flush(owned.map, nullptr, kMu_m, 1, 1);
+  REQUIRE(report.published);
+  CHECK(f.field.published_version() == 1);
+
+  const Errors e = measure(f.field, scene, 40000);
+  REQUIRE(e.points > 20000);
+  CHECK(e.answered == e.points);  // the window covers the cube and every point sees a surface
+  CHECK(e.unsafe == 0);
+  CHECK(e.over_bound == 0);
+  const double rmse = std::sqrt(e.close_sq / static_cast<double>(e.close));
+  INFO("rmse " << rmse << " m over " << e.close << " points");
+  CHECK(rmse <= 0.5 * kVoxel_m);
+  REQUIRE(e.far_gradient > 1000);
+  // Off only next to the medial surface, where the nearest surface switches.
+  CHECK(e.bad_gradient * 200 <= e.far_gradient);
+
+  // Points next to the surfaces, by hand: above the sphere's top, above the floor.
+  const EsdfAnswer top = f.field.distance(scene.centre + Eigen::Vector3f(0, 0, 0.5f)).value();
+  CHECK(top.distance_m == Approx(0.2f).margin(kVoxel_m));
+  CHECK(top.gradient.z() > 0.99f);
+  const EsdfAnswer floor = f.field.distance(Eigen::Vector3f(-1.0f, -1.0f, -0.5f)).value();
+  CHECK(floor.distance_m == Approx(0.3f).margin(kVoxel_m));
+  CHECK(floor.gradient.z() > 0.99f);
+  CHECK(floor.lower_bound_m <= 0.3f);
+  CHECK(floor.lower_bound_m >= 0.3f - f.field.error_bound_m() - kVoxel_m);
+}
+
+TEST_CASE("an update re-seeds only what changed and matches a rebuild from scratch") {
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  Scene scene;
+  test::fill_band(owned.map, kMu_m, scene, [](const Eigen::Vector3i&) { return 0; });
+  Field f(field_config());
+  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 0, 1).published);
+  // Nothing changed: no work.
+  CHECK(f.field.update(owned.map, nullptr, kMu_m, 1, 1).cell_steps == 0);
+
+  // A box appears at frame 5: its blocks are newer than the published field.
+  Scene with_box = scene;
+  with_box.with_box = true;
+  const int blocks_before = static_cast<int>(owned.map.block_count());
+  const int blocks_per_side = owned.map.voxels_per_side() / kBlockSide;
+  for (int z = 0; z < blocks_per_side; ++z) {
+    for (int y = 0; y < blocks_per_side; ++y) {
+      for (int x = 0; x < blocks_per_side; ++x) {
+        const Eigen::Vector3i coords(x, y, z);
+        const Eigen::Vector3f c = owned.map.block_centre_W(coords);
+        const float reach = kMu_m + 0.5f * std::sqrt(3.0f) * map_config().block_size_m();
+        if (std::fabs(with_box(c)) > reach || std::fabs(scene(c)) <= reach) continue;
+        const Result<std::uint32_t> index = owned.map.allocate_block(coords);
+        REQUIRE(index.ok());
+        test::fill_block(owned.map, owned.map.block(index.value()), 0, kMu_m, with_box);
+        owned.map.block(index.value()).last_updated_frame = 5;
+      }
+    }
+  }
+  REQUIRE(static_cast<int>(owned.map.block_count()) > blocks_before);
+  const EsdfReport report = f.field.update(owned.map, nullptr, kMu_m, 5, 2);
+  CHECK(report.published);
+  CHECK(report.chunks_reseeded > 0);
+  CHECK(report.chunks_reseeded < 64);  // of 512: only around the box
+
+  // The same as a field built from nothing over the final map.
+  Field fresh(field_config());
+  REQUIRE(fresh.field.flush(owned.map, nullptr, kMu_m, 5, 2).published);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-1.27f, 1.27f);
+  for (int i = 0; i < 5000; ++i) {
+    const Eigen::Vector3f p(u(rng), u(rng), u(rng));
+    const EsdfAnswer a = f.field.distance(p).value();
+    const EsdfAnswer b = fresh.field.distance(p).value();
+    REQUIRE(a.has_distance == b.has_distance);
+    REQUIRE(a.distance_m == b.distance_m);
+  }
+  const Errors e = measure(f.field, with_box, 20000);
+  CHECK(e.unsafe == 0);
+  CHECK(e.over_bound == 0);
+}
+
+TEST_CASE("a budget spreads a rebuild over frames; queries see the old field until it is whole") {
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  const Scene scene;
+  test::fill_band(owned.map, kMu_m, scene, [](const Eigen::Vector3i&) { return 0; });
+  EsdfConfig config = field_config();
+  config.max_cell_steps = 20000;
+  Field budgeted(config);
+  Field whole(field_config());
+  REQUIRE(whole.field.flush(owned.map, nullptr, kMu_m, 0, 1).published);
+  int frames = 0;
+  const Eigen::Vector3f p(-1.0f, -1.0f, -0.5f);
+  for (;;) {
+    const EsdfReport r = budgeted.field.update(owned.map, nullptr, kMu_m, 0, 1);
+    ++frames;
+    CHECK(r.cell_steps <= config.max_cell_steps + 512u);
+    if (r.published) break;
+    CHECK(r.budget_hit);
+    CHECK(!budgeted.field.distance(p).value().has_distance);  // nothing published yet
+    REQUIRE(frames < 100);
+  }
+  // 512 chunks seeded and 2 sweeps of 64^3 cells, 20000 a frame (and at most a chunk more).
+  CHECK(frames >= 3 * 64 * 64 * 64 / (20000 + 512));
+  CHECK(frames <= 3 * 64 * 64 * 64 / 20000 + 1);
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(-1.27f, 1.27f);
+  for (int i = 0; i < 5000; ++i) {
+    const Eigen::Vector3f q(u(rng), u(rng), u(rng));
+    REQUIRE(budgeted.field.distance(q).value().distance_m ==
+            whole.field.distance(q).value().distance_m);
+  }
+}
+
+TEST_CASE("unknown as obstacle: distances to the nearest unobserved cell too") {
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  const Scene scene;
+  test::fill_band(owned.map, kMu_m, scene, [](const Eigen::Vector3i&) { return 0; });
+  EsdfConfig config = field_config();
+  config.unknown_is_obstacle = true;
+  Field f(config);
+  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 0, 1).published);
+  // Without free space everything outside the band blocks is unknown: a point in a band block
+  // just above the floor is within a block of unknown space.
+  const EsdfAnswer a = f.field.distance(Eigen::Vector3f(-1.0f, -1.0f, -0.75f)).value();
+  REQUIRE(a.has_distance);
+  CHECK(a.distance_m <= 0.05f + kVoxel_m);
+}
+
+TEST_CASE("bad configurations and points are refused") {
+  EsdfConfig c = field_config();
+  c.cells_per_side = 60;
+  CHECK(validate(c, map_config()).code() == StatusCode::invalid_argument);
+  c = field_config();
+  c.cell_voxels = 3;
+  CHECK(validate(c, map_config()).code() == StatusCode::invalid_argument);
+  c = field_config();
+  c.cells_per_side = 128;  // 256 voxels > the 128 of the cube
+  CHECK(validate(c, map_config()).code() == StatusCode::invalid_argument);
+  c = field_config();
+  c.centre_W = Eigen::Vector3f(0.0f, std::numeric_limits<float>::infinity(), 0.0f);
+  CHECK(validate(c, map_config()).code() == StatusCode::invalid_argument);
+
+  Field f(field_config());
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  CHECK(f.field.distance(Eigen::Vector3f(nan, 0, 0)).status().code() ==
+        StatusCode::invalid_argument);
+  std::vector<Eigen::Vector3f> points = {Eigen::Vector3f::Zero(), Eigen::Vector3f(0, nan, 0)};
+  std::vector<EsdfAnswer> out(2);
+  CHECK(f.field.distances(points.data(), points.size(), out.data()).code() ==
+        StatusCode::invalid_argument);
+  // Outside the window (and the cube): no distance.
+  CHECK(!f.field.distance(Eigen::Vector3f(5.0f, 0.0f, 0.0f)).value().has_distance);
+}
+
+}  // namespace
+}  // namespace octofuse

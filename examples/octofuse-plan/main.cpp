@@ -27,6 +27,7 @@
 #include "octofuse/pipeline/mapper.hpp"
 #include "octofuse/pipeline/steady_clock.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
+#include "sim_visibility.hpp"
 
 using namespace octofuse;
 
@@ -370,21 +371,7 @@ int main(int argc, char** argv) {
     }
     const PinholeCamera camera = source->intrinsics();
     auto in_view = [&](const Eigen::Vector3d& p_W) {
-      for (const Se3d& T : T_C_W) {
-        const Eigen::Vector3d p_C = T * p_W;
-        if (p_C.z() < 0.4 || p_C.z() > 4.0) continue;
-        const double u = camera.fx * p_C.x() / p_C.z() + camera.cx;
-        const double v = camera.fy * p_C.y() / p_C.z() + camera.cy;
-        if (u < 0.0 || v < 0.0 || u > camera.width - 1.0 || v > camera.height - 1.0) continue;
-        const Eigen::Vector3d o_W = T.inverse().translation();
-        const double length = (p_W - o_W).norm();
-        const Eigen::Vector3d d_W = (p_W - o_W) / length;
-        double t = 0.0;
-        double cos_incidence = 0.0;
-        if (scene.intersect(o_W, d_W, 20.0, &t, &cos_incidence) < 0 || t <= length) continue;
-        if ((T * (o_W + t * d_W)).z() <= 4.0) return true;
-      }
-      return false;
+      return examples::seen_through(scene, T_C_W, camera, p_W);
     };
     // Whether the map observed the scene's surface point nearest to p (a few projection steps
     // along the exact distance's gradient).

@@ -22,6 +22,7 @@
 #include "cli.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
 #include "runner.hpp"
+#include "sim_visibility.hpp"
 
 namespace {
 
@@ -136,23 +137,7 @@ int run_scene(const std::string& name, long frames, long sample_points, float vo
       T_C_W.push_back(truth->ground_truth_T_W_C(i).inverse());
     }
     auto in_view = [&](const Eigen::Vector3d& p_W) {
-      for (const octofuse::Se3d& T : T_C_W) {
-        const Eigen::Vector3d p_C = T * p_W;
-        if (p_C.z() < 0.4 || p_C.z() > 4.0) continue;
-        const double u = camera.fx * p_C.x() / p_C.z() + camera.cx;
-        const double v = camera.fy * p_C.y() / p_C.z() + camera.cy;
-        if (u < 0.0 || v < 0.0 || u > camera.width - 1.0 || v > camera.height - 1.0) continue;
-        // Seen through: nothing before the point, and a surface behind it within the depth
-        // range (else that pixel had no depth).
-        const Eigen::Vector3d o_W = T.inverse().translation();
-        const double length = (p_W - o_W).norm();
-        const Eigen::Vector3d d_W = (p_W - o_W) / length;
-        double t = 0.0;
-        double cos_incidence = 0.0;
-        if (scene.intersect(o_W, d_W, 20.0, &t, &cos_incidence) < 0 || t <= length) continue;
-        if ((T * (o_W + t * d_W)).z() <= 4.0) return true;
-      }
-      return false;
+      return octofuse::examples::seen_through(scene, T_C_W, camera, p_W);
     };
     for (long i = 0; i < sample_points; ++i) {
       const Eigen::Vector3d p_W = origin + side * Eigen::Vector3d(unit(rng), unit(rng), unit(rng));

@@ -418,6 +418,7 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
     if (run->store != nullptr) {
       StoreReport& t = summary->store_total;
       t.written += stats.store.written;
+      t.unchanged += stats.store.unchanged;
       t.write_failed += stats.store.write_failed;
       t.read += stats.store.read;
       t.read_failed += stats.store.read_failed;

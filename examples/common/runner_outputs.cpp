@@ -68,6 +68,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("node_refusals").value(static_cast<std::uint64_t>(s.integration.node_refusals));
   json.key("free_space_refused").value(static_cast<std::uint64_t>(s.free_space.pool_refused));
   json.key("store_written").value(static_cast<std::uint64_t>(s.store.written));
+  json.key("store_unchanged").value(static_cast<std::uint64_t>(s.store.unchanged));
   json.key("store_write_failed").value(static_cast<std::uint64_t>(s.store.write_failed));
   json.key("store_read").value(static_cast<std::uint64_t>(s.store.read));
   json.key("store_read_failed").value(static_cast<std::uint64_t>(s.store.read_failed));
@@ -250,6 +251,7 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   json.key("nodes_evicted").value(summary->map_memory.nodes_evicted);
   json.key("free_space_refusals").value(summary->free_space_refusals);
   json.key("store_written").value(static_cast<std::uint64_t>(summary->store_total.written));
+  json.key("store_unchanged").value(static_cast<std::uint64_t>(summary->store_total.unchanged));
   json.key("store_write_failed")
       .value(static_cast<std::uint64_t>(summary->store_total.write_failed));
   json.key("store_read").value(static_cast<std::uint64_t>(summary->store_total.read));

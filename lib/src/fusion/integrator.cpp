@@ -900,6 +900,7 @@ std::uint32_t Integrator<VoxelT>::integrate_blocks(Octree<VoxelT>& map, const Fr
       VoxelBlock<VoxelT>& block = map.block(pool_entry_block(order[i]));
       integrate_block(block, pool_entry_scale(order[i]), f, tally);
       block.last_updated_frame = frame_index;
+      block.stored_clean = 0;
       // For step 5, while the header is in the cache.
       block_indices_[i] = block.parent_node;
     }

@@ -1140,6 +1140,7 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   block.tsdf_max = fields.summary[1];
   block.tsdf_mean = fields.summary[2];
   block.weight_mean = fields.summary[3];
+  block.stored_clean = 1;
   if (fields.has_finest && !demote) {
     std::copy(scratch, scratch + kBlockFinestVoxelCount, block.scale_begin(0));
   }

@@ -630,6 +630,12 @@ void Pipeline<VoxelT>::spill(std::uint32_t count) {
   StoreReport& report = current_.store;
   for (std::uint32_t i = 0; i < count; ++i) {
     const typename Map::Block& block = map_.block(eviction_indices_[i]);
+    if (block.stored_clean != 0) {
+      // Read back and not integrated since: the store's record is still its state.
+      store_->release(morton_encode(block.coords));
+      ++report.unchanged;
+      continue;
+    }
     const Result<std::size_t> size =
         encode_block_record(block, store_record_, block_record_max_bytes<VoxelT>());
     const Status put = size.ok()

@@ -34,7 +34,9 @@ class BlockStore {
   // from the store after a crash still holds it.
   virtual Result<std::size_t> take(std::uint64_t block_morton, std::uint8_t* record,
                                    std::size_t capacity) = 0;
-  // The block taken last could not be restored (a pool was full): it counts as stored again.
+  // The block's record is its state again: the block taken last could not be restored (a pool
+  // was full), or it was evicted unchanged since take() (no need to write it again). It counts as
+  // stored again.
   virtual void release(std::uint64_t block_morton) = 0;
 
  protected:

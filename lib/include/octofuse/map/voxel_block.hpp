@@ -77,7 +77,9 @@ struct VoxelBlock {
   // Multires: levels current_scale..mip_scale hold the eq. 4 means of the level below (levels
   // above mip_scale may be stale: up-propagation is lazy). -1 until the first integration.
   std::int8_t mip_scale = kNeverIntegrated;
-  std::uint8_t padding_ = 0;
+  // 1 while the block is as restore_block_record() brought it back from a block store (integration
+  // clears it): evicting it again needs no write, the store still holds its state.
+  std::uint8_t stored_clean = 0;
   // Summary of the observed voxels at current_scale, kept by the integrator for empty-space
   // skipping: min and max normalised TSDF (1 / -1 when nothing is observed, so min > max).
   float tsdf_min = 1.0f;

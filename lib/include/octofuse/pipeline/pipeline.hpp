@@ -102,6 +102,7 @@ struct EvictionReport {
 // What the block store did in one frame (Pipeline::set_block_store()).
 struct StoreReport {
   std::uint32_t written = 0;       // evicted blocks handed to the store
+  std::uint32_t unchanged = 0;     // evicted blocks unchanged since read back: no write needed
   std::uint32_t write_failed = 0;  // ... that it refused (their state is lost)
   std::uint32_t read = 0;          // stored blocks in view read back before integration
   std::uint32_t read_failed = 0;   // damaged records (those blocks are mapped afresh)

@@ -128,6 +128,8 @@ struct RunSummary {
   StoreReport store_total;
   std::uint64_t store_file_bytes = 0;
   std::uint64_t store_keys = 0;
+  std::uint64_t store_live_bytes = 0;   // the newest record of every block
+  std::uint64_t store_compactions = 0;  // finished in this run
   std::size_t mesh_vertices = 0;
   std::size_t mesh_triangles = 0;
   std::vector<Eigen::Vector3f> mesh_positions;  // with keep_mesh

@@ -305,6 +305,7 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
   DepthFrame frame;
   FrameWarnings warnings;
   bool store_sync_warned = false;
+  bool store_compact_warned = false;
   bool store_write_warned = false;
   const PipelineBudget default_budget;
   for (int level = 0; level < kPyramidLevels; ++level) {
@@ -430,6 +431,16 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
         store_sync_warned = true;
         std::fprintf(stderr, "warning: %s: sync failed; the store may lose recent blocks\n",
                      options.map_file_path.c_str());
+      }
+      // Old versions of blocks are reclaimed a little per frame: at most twice what this frame
+      // wrote plus 256 KiB of copying, so a compaction always catches up with the writes.
+      ErrorText compact_error;
+      const std::size_t compact_budget =
+          static_cast<std::size_t>(2 * stats.store.bytes_written) + (std::size_t{256} << 10);
+      if (!run->store->compact_step(compact_budget, &compact_error).ok() && !store_compact_warned) {
+        store_compact_warned = true;
+        std::fprintf(stderr, "warning: %s (the store keeps growing until one succeeds)\n",
+                     compact_error.c_str());
       }
       if (stats.store.write_failed > 0 && !store_write_warned) {
         store_write_warned = true;

@@ -261,6 +261,8 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   json.key("store_bytes_read").value(summary->store_total.bytes_read);
   json.key("store_file_bytes").value(summary->store_file_bytes);
   json.key("store_keys").value(summary->store_keys);
+  json.key("store_live_bytes").value(summary->store_live_bytes);
+  json.key("store_compactions").value(summary->store_compactions);
   json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
   json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));
   json.key("mesh_triangles").value(static_cast<std::uint64_t>(summary->mesh_triangles));
@@ -457,6 +459,8 @@ int close_run(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>*
     const host::BlockStoreFileStats store = run->store->stats();
     summary->store_file_bytes = store.file_bytes;
     summary->store_keys = store.keys;
+    summary->store_live_bytes = store.live_bytes;
+    summary->store_compactions = store.compactions;
   }
   if (options.deadline_ms > 0.0) {
     summary->deadline_model = pipeline.cost_model();

@@ -289,6 +289,8 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
   json.key("wall_s").value(run.wall_s);
   json.key("store_file_bytes").value(run.summary.store_file_bytes);
   json.key("store_keys").value(run.summary.store_keys);
+  json.key("store_live_bytes").value(run.summary.store_live_bytes);
+  json.key("store_compactions").value(run.summary.store_compactions);
   json.key("rss_end_first_pass_mb").value(run.rss_end_first_pass_mb);
   json.key("max_rss_after_first_pass_mb").value(run.max_rss_after_first_pass_mb);
   json.key("rss_growth_after_first_pass_mb").value(run.growth_mb());

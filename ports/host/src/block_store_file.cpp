@@ -1,6 +1,7 @@
 #include "octofuse/ports/host/block_store_file.hpp"
 
 #include <fcntl.h>
+#include <libgen.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -70,6 +71,7 @@ BlockStoreFile::~BlockStoreFile() {
 }
 
 void BlockStoreFile::close() {
+  abandon_compaction();
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
   index_.clear();
@@ -81,6 +83,8 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
                             std::size_t geometry_size, ErrorText* error, ErrorText* warning) {
   close();
   stats_ = BlockStoreFileStats();
+  live_bytes_ = 0;
+  path_ = path;
   if (warning != nullptr) warning->clear();
   auto fail = [&](StatusCode code, const char* why) {
     if (error != nullptr) error->set("%s: %s", path, why);
@@ -90,6 +94,8 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
   if (geometry_size > kMaxGeometry) return fail(StatusCode::invalid_argument, "geometry too long");
   buffer_ = static_cast<std::uint8_t*>(std::malloc(kEntryHead + kMaxRecord + 4));
   if (buffer_ == nullptr) return fail(StatusCode::resource_exhausted, "no memory");
+  // A compaction's copy left by a cut: FILE itself is whole.
+  (void)::unlink((path_ + ".compact").c_str());
   fd_ = ::open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd_ < 0) return fail(StatusCode::unavailable, std::strerror(errno));
   struct stat st;
@@ -98,6 +104,8 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
   }
   const std::uint64_t size = static_cast<std::uint64_t>(st.st_size);
   const std::size_t header_bytes = sizeof(kFileMagic) + 4 + 4 + geometry_size + 4;
+  header_bytes_ = header_bytes;
+  live_bytes_ = header_bytes;
   std::uint8_t header[16 + kMaxGeometry + 4];
   std::memcpy(header, kFileMagic, sizeof(kFileMagic));
   put_u32(header + 8, kFileVersion);
@@ -142,6 +150,8 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
     const std::uint32_t crc = crc32(record, length, crc32(head + 4, 12));
     if (crc != get_u32(record + length)) break;
     Entry& e = index_[get_u64(head + 4)];
+    if (e.size > 0) live_bytes_ -= kEntryHead + e.size + 4;
+    live_bytes_ += kEntryHead + length + 4;
     e.offset = offset + kEntryHead;
     e.size = length;
     ++stats_.entries;
@@ -186,6 +196,13 @@ Status BlockStoreFile::put(std::uint64_t block_morton, const std::uint8_t* recor
     return StatusCode::unavailable;
   }
   Entry& e = index_[block_morton];
+  if (e.size > 0) live_bytes_ -= kEntryHead + e.size + 4;
+  live_bytes_ += entry_bytes;
+  if (compact_fd_ >= 0 && (e.size == 0 || e.copy_offset != 0)) {
+    // New, or copied already: its newest record is not in the copy.
+    e.copy_offset = 0;
+    ++uncopied_;
+  }
   e.offset = file_bytes_ + kEntryHead;
   e.size = static_cast<std::uint32_t>(size);
   e.in_memory = false;
@@ -244,7 +261,97 @@ bool BlockStoreFile::in_memory(std::uint64_t block_morton) const {
 BlockStoreFileStats BlockStoreFile::stats() const {
   BlockStoreFileStats s = stats_;
   s.keys = index_.size();
+  s.live_bytes = live_bytes_;
   return s;
+}
+
+void BlockStoreFile::abandon_compaction() {
+  if (compact_fd_ < 0) return;
+  ::close(compact_fd_);
+  compact_fd_ = -1;
+  (void)::unlink((path_ + ".compact").c_str());
+  for (auto& kv : index_) kv.second.copy_offset = 0;
+}
+
+Status BlockStoreFile::compact_step(std::size_t max_bytes, ErrorText* error) {
+  if (fd_ < 0) return StatusCode::failed_precondition;
+  const std::string copy_path = path_ + ".compact";
+  auto fail = [&](const char* why) {
+    if (error != nullptr) error->set("%s: compaction abandoned: %s", copy_path.c_str(), why);
+    abandon_compaction();
+    return Status(StatusCode::unavailable);
+  };
+  if (compact_fd_ < 0) {
+    if (file_bytes_ < compact_min_bytes_ || file_bytes_ <= 2 * live_bytes_) return ok_status();
+    compact_fd_ = ::open(copy_path.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (compact_fd_ < 0) {
+      if (error != nullptr) {
+        error->set("%s: cannot start a compaction: %s", copy_path.c_str(), std::strerror(errno));
+      }
+      return StatusCode::unavailable;
+    }
+    std::uint8_t header[16 + kMaxGeometry + 4];
+    if (!read_at(fd_, header, header_bytes_, 0) ||
+        !write_at(compact_fd_, header, header_bytes_, 0)) {
+      return fail("cannot copy the header");
+    }
+    copy_bytes_ = header_bytes_;
+    copy_cursor_ = 0;
+    uncopied_ = index_.size();
+  }
+  std::size_t copied = 0;
+  bool restarted = false;
+  while (copied < max_bytes && uncopied_ > 0) {
+    auto it = index_.lower_bound(copy_cursor_);
+    while (it != index_.end() && it->second.copy_offset != 0) ++it;
+    if (it == index_.end()) {
+      if (restarted) {
+        uncopied_ = 0;  // a whole turn found nothing left to copy
+        break;
+      }
+      copy_cursor_ = 0;  // keys put again behind the cursor since it passed them
+      restarted = true;
+      continue;
+    }
+    restarted = false;
+    Entry& e = it->second;
+    const std::size_t entry_bytes = kEntryHead + e.size + 4;
+    if (!read_at(fd_, buffer_, entry_bytes, e.offset - kEntryHead)) return fail("read failed");
+    if (get_u32(buffer_ + kEntryHead + e.size) !=
+        crc32(buffer_ + kEntryHead, e.size, crc32(buffer_ + 4, 12))) {
+      return fail("a record is damaged on the medium");
+    }
+    if (!write_at(compact_fd_, buffer_, entry_bytes, copy_bytes_)) return fail("write failed");
+    e.copy_offset = copy_bytes_ + kEntryHead;
+    copy_bytes_ += entry_bytes;
+    copied += entry_bytes;
+    stats_.compact_bytes += entry_bytes;
+    --uncopied_;
+    copy_cursor_ = it->first + 1;
+    if (copy_cursor_ == 0) copy_cursor_ = it->first;  // the largest key: wrap on the next turn
+  }
+  if (uncopied_ > 0) return ok_status();
+  // Every newest record is in the copy: make it durable, then put it in FILE's place.
+  if (::fdatasync(compact_fd_) != 0) return fail("sync failed");
+  if (::rename(copy_path.c_str(), path_.c_str()) != 0) return fail(std::strerror(errno));
+  std::string folder = path_;
+  const int dir_fd = ::open(::dirname(&folder[0]), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir_fd >= 0) {
+    (void)::fsync(dir_fd);  // the rename itself survives a power cut
+    ::close(dir_fd);
+  }
+  ::close(fd_);
+  fd_ = compact_fd_;
+  compact_fd_ = -1;
+  for (auto& kv : index_) {
+    kv.second.offset = kv.second.copy_offset;
+    kv.second.copy_offset = 0;
+  }
+  file_bytes_ = copy_bytes_;
+  stats_.file_bytes = file_bytes_;
+  stats_.entries = index_.size();
+  ++stats_.compactions;
+  return ok_status();
 }
 
 template <typename VoxelT>

@@ -160,6 +160,132 @@ TEST_CASE("a store cut at any byte or damaged in its tail reopens with every who
   for (int i = 0; i < 5; ++i) REQUIRE(holds(store, key_of(i), 0));
 }
 
+TEST_CASE(
+    "compaction keeps the newest record of every key while puts go on, and shrinks the file") {
+  const std::string dir = test::make_test_dir("block-store-compact");
+  const std::string path = dir + "/store";
+  host::BlockStoreFile store;
+  ErrorText warning;
+  REQUIRE(open_store(store, path, &warning).ok());
+  store.set_compact_min_bytes(0);
+  std::vector<int> newest(260, -1);
+  auto put = [&](int k, int version) {
+    const std::vector<std::uint8_t> r = record_of(key_of(k), version);
+    REQUIRE(store.put(key_of(k), r.data(), r.size()).ok());
+    newest[static_cast<std::size_t>(k)] = version;
+  };
+  for (int version = 0; version < 10; ++version) {
+    for (int k = 0; k < 200; ++k) put(k, version);
+  }
+  // Two keys in memory: compaction must keep them out of find_in_box().
+  std::vector<std::uint8_t> scratch(4096);
+  REQUIRE(store.take(key_of(3), scratch.data(), scratch.size()).ok());
+  REQUIRE(store.take(key_of(150), scratch.data(), scratch.size()).ok());
+  const std::uint64_t before = store.stats().file_bytes;
+  REQUIRE(before > 9 * store.stats().live_bytes);
+  ErrorText error;
+  std::mt19937 rng(3);
+  int steps = 0;
+  do {
+    REQUIRE(store.compact_step(700, &error).ok());
+    ++steps;
+    // Puts between steps: keys already copied, keys not yet copied, new keys, taken keys.
+    for (int i = 0; i < 3; ++i) {
+      const int k = std::uniform_int_distribution<int>(0, 259)(rng);
+      put(k, newest[static_cast<std::size_t>(k)] + 1);
+    }
+    REQUIRE(steps < 10000);
+  } while (store.compacting());
+  CAPTURE(steps);
+  REQUIRE(steps > 10);  // done a little at a time
+  const host::BlockStoreFileStats s = store.stats();
+  REQUIRE(s.compactions == 1);
+  REQUIRE(s.file_bytes < before / 3);
+  REQUIRE(!test::file_exists(path + ".compact"));
+  auto check_all = [&](host::BlockStoreFile& st) {
+    for (int k = 0; k < 260; ++k) {
+      if (newest[static_cast<std::size_t>(k)] < 0) continue;
+      CAPTURE(k);
+      REQUIRE(holds(st, key_of(k), newest[static_cast<std::size_t>(k)]));
+    }
+  };
+  check_all(store);
+  std::vector<std::uint64_t> keys(512);
+  const std::size_t found = store.find_in_box(Eigen::Vector3i::Constant(-1000),
+                                              Eigen::Vector3i::Constant(1000), keys.data(), 512);
+  std::size_t stored = 0;
+  for (int k = 0; k < 260; ++k) {
+    if (newest[static_cast<std::size_t>(k)] >= 0 && !store.in_memory(key_of(k))) ++stored;
+  }
+  REQUIRE(found == stored);
+  REQUIRE(stored < 260);  // the taken keys not put since stay out
+  store.close();
+  host::BlockStoreFile reopened;
+  REQUIRE(open_store(reopened, path, &warning).ok());
+  REQUIRE(warning.empty());
+  check_all(reopened);
+  // A fully compacted file holds the newest record of each key and nothing else.
+  reopened.set_compact_min_bytes(0);
+  while (reopened.stats().file_bytes <= 2 * reopened.stats().live_bytes) {
+    const std::vector<std::uint8_t> r = record_of(key_of(9), newest[9] + 1);
+    REQUIRE(reopened.put(key_of(9), r.data(), r.size()).ok());
+    newest[9] += 1;
+  }
+  do {
+    REQUIRE(reopened.compact_step(1u << 20, &error).ok());
+  } while (reopened.compacting());
+  REQUIRE(reopened.stats().file_bytes == reopened.stats().live_bytes);
+  check_all(reopened);
+}
+
+TEST_CASE("a writer killed mid-compaction loses no record it had written") {
+  const std::string dir = test::make_test_dir("block-store-compact-kill");
+  std::mt19937 rng(11);
+  for (int trial = 0; trial < 5; ++trial) {
+    CAPTURE(trial);
+    const std::string path = dir + "/store" + std::to_string(trial);
+    int fds[2];
+    REQUIRE(::pipe(fds) == 0);
+    const pid_t child = ::fork();
+    REQUIRE(child >= 0);
+    if (child == 0) {
+      ::close(fds[0]);
+      host::BlockStoreFile store;
+      if (!store.open(path.c_str(), kGeometry, sizeof(kGeometry), nullptr, nullptr).ok()) {
+        ::_exit(2);
+      }
+      store.set_compact_min_bytes(0);
+      for (int i = 0;; ++i) {
+        const std::vector<std::uint8_t> r = record_of(key_of(i % 200), i / 200);
+        if (!store.put(key_of(i % 200), r.data(), r.size()).ok()) ::_exit(3);
+        if (!store.compact_step(300, nullptr).ok()) ::_exit(5);
+        const std::int32_t done = i;
+        if (::write(fds[1], &done, sizeof(done)) != sizeof(done)) ::_exit(4);
+      }
+    }
+    ::close(fds[1]);
+    const int wait_for = std::uniform_int_distribution<int>(500, 4000)(rng);
+    std::int32_t last = -1;
+    std::int32_t got = 0;
+    while (last < wait_for && ::read(fds[0], &got, sizeof(got)) == sizeof(got)) last = got;
+    ::kill(child, SIGKILL);
+    int status = 0;
+    ::waitpid(child, &status, 0);
+    while (::read(fds[0], &got, sizeof(got)) == sizeof(got)) last = got;
+    ::close(fds[0]);
+    REQUIRE(WIFSIGNALED(status));
+    host::BlockStoreFile store;
+    ErrorText warning;
+    REQUIRE(open_store(store, path, &warning).ok());
+    REQUIRE(!test::file_exists(path + ".compact"));
+    for (int k = 0; k < 200 && k <= last; ++k) {
+      const int newest = (last - k) / 200;
+      CAPTURE(k, newest, last);
+      REQUIRE((holds(store, key_of(k), newest) || holds(store, key_of(k), newest + 1)));
+    }
+  }
+}
+
 TEST_CASE("a writer killed with SIGKILL at random instants loses no record it had written") {
   const std::string dir = test::make_test_dir("block-store-kill");
   std::mt19937 rng(7);

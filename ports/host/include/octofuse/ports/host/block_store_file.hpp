@@ -4,12 +4,17 @@
 // (magic, key, size, the block record, a CRC-32 over key, size and record), so a file cut at any
 // byte (power loss, kill -9) reopens with every whole entry: open() drops a torn or damaged tail,
 // truncates the file there and says so in `warning`. The index (key -> newest entry) lives in
-// memory, built by reading the file at open(). Old entries of a key are not reclaimed (the file
-// grows by one record per eviction; a known limit).
+// memory, built by reading the file at open(). Old entries of a key are reclaimed by compaction
+// (compact_step(), a bounded amount of copying per call): when the file holds more than twice the
+// newest records' bytes (and at least set_compact_min_bytes(), 8 MiB), their newest records are copied into
+// FILE.compact, a few per call, while puts go on appending to FILE; once every newest record is in
+// the copy, it is synced and renamed over FILE. A cut at any instant leaves FILE whole (open()
+// removes a stale FILE.compact) or the finished copy.
 
 #include <cstddef>
 #include <cstdint>
 #include <map>
+#include <string>
 
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/map/block_store.hpp"
@@ -25,6 +30,9 @@ struct BlockStoreFileStats {
   std::uint64_t bytes_written = 0;  // since open()
   std::uint64_t bytes_read = 0;     // since open()
   std::uint64_t dropped_bytes = 0;  // torn or damaged tail dropped by open()
+  std::uint64_t live_bytes = 0;     // header and the newest entry of every key
+  std::uint64_t compactions = 0;    // finished since open()
+  std::uint64_t compact_bytes = 0;  // copied by compaction since open()
 };
 
 class BlockStoreFile final : public BlockStore {
@@ -53,6 +61,14 @@ class BlockStoreFile final : public BlockStore {
 
   // Makes what was appended durable (fdatasync): ok or unavailable.
   Status sync();
+  // Compaction starts when the file exceeds twice the live bytes and this many bytes (default 8 MiB).
+  void set_compact_min_bytes(std::uint64_t bytes) { compact_min_bytes_ = bytes; }
+  // One step of compaction: starts one when the file is due, copies newest records into the copy
+  // until about `max_bytes` were copied, and finishes it (sync, rename) when every newest record is
+  // there. ok (also when nothing was due), or unavailable with a one-line `error` (the compaction
+  // is abandoned and FILE stays as it was; a later step starts again).
+  Status compact_step(std::size_t max_bytes, ErrorText* error);
+  bool compacting() const { return compact_fd_ >= 0; }
   // Calls fn(key) for every stored key (in memory or not), increasing; read() gives the newest
   // record of one.
   template <typename Fn>
@@ -68,8 +84,18 @@ class BlockStoreFile final : public BlockStore {
     std::uint64_t offset = 0;  // of the record (after the frame's head)
     std::uint32_t size = 0;
     bool in_memory = false;
+    std::uint64_t copy_offset = 0;  // of the record in the compaction's copy; 0: not copied
   };
+  void abandon_compaction();
   int fd_ = -1;
+  int compact_fd_ = -1;  // the copy being written, or -1
+  std::uint64_t compact_min_bytes_ = std::uint64_t{8} << 20;
+  std::string path_;     // FILE
+  std::uint64_t header_bytes_ = 0;
+  std::uint64_t live_bytes_ = 0;   // header + the newest entry of every key
+  std::uint64_t copy_bytes_ = 0;   // size of the copy so far
+  std::uint64_t copy_cursor_ = 0;  // next key to look at
+  std::uint64_t uncopied_ = 0;     // keys whose newest record is not in the copy yet
   std::map<std::uint64_t, Entry> index_;
   std::uint64_t file_bytes_ = 0;
   BlockStoreFileStats stats_;

@@ -371,12 +371,14 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
   summary->arena_bytes = bytes;
   if (!options.map_file_path.empty()) {
     // The store belongs to one map geometry: voxel type, size, depth and origin.
-    std::uint8_t geometry[1 + 4 * 5];
-    geometry[0] = static_cast<std::uint8_t>(map_voxel_type<VoxelT>());
     const MapConfig& map = pipeline.map().config();
-    const float fields[5] = {map.voxel_size_m, static_cast<float>(map.voxel_depth),
-                             map.origin_W.x(), map.origin_W.y(), map.origin_W.z()};
-    std::memcpy(geometry + 1, fields, sizeof(fields));
+    host::StoreGeometry store_geometry;
+    store_geometry.voxel_type = map_voxel_type<VoxelT>();
+    store_geometry.voxel_size_m = map.voxel_size_m;
+    store_geometry.voxel_depth = map.voxel_depth;
+    store_geometry.origin_W = map.origin_W;
+    std::uint8_t geometry[host::kStoreGeometryBytes];
+    host::encode_store_geometry(store_geometry, geometry);
     run->store = std::make_unique<host::BlockStoreFile>();
     ErrorText store_error;
     ErrorText warning;

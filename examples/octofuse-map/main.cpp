@@ -1,6 +1,8 @@
-// octofuse-map: looks into a saved map (octofuse-replay --save-map). `info FILE` checks the whole
-// file and prints its format version, voxel type and size, blocks per scale, free-space nodes and
-// memory; `mesh FILE OUT.ply` meshes it as octofuse-replay's mesh.ply.
+// octofuse-map: looks into a saved map (octofuse-replay --save-map) or a block store
+// (--map-file). `info FILE` checks the whole file and prints its format version, voxel type and
+// size, blocks per scale, free-space nodes and memory; `mesh FILE OUT.ply` meshes it as
+// octofuse-replay's mesh.ply. A store holds the blocks a run evicted (after a crash, what it had
+// not saved otherwise); it is read without being changed.
 
 #include <sys/stat.h>
 
@@ -14,6 +16,7 @@
 #include "cli.hpp"
 #include "host_memory.hpp"
 #include "octofuse/mesh/mesher.hpp"
+#include "octofuse/ports/host/block_store_file.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/ply.hpp"
 #include "octofuse/query/free_space.hpp"
@@ -31,9 +34,11 @@ struct Command {
 const Command kCommands[] = {
     {"info", "FILE",
      "check FILE whole and print its format version, voxel type and size,\n"
-     "cube, blocks per scale, free-space nodes and the memory they take"},
+     "cube, blocks per scale, free-space nodes and the memory they take;\n"
+     "FILE is a map file (--save-map) or a block store (--map-file)"},
     {"mesh", "FILE OUT.ply",
-     "write FILE's surface as a binary PLY (as octofuse-replay's mesh.ply)"},
+     "write FILE's surface (a map file or a block store) as a binary PLY\n"
+     "(as octofuse-replay's mesh.ply)"},
 };
 
 struct MeshArgs {
@@ -72,6 +77,97 @@ using examples::VectorMeshSink;
 // Heap memory for a map exactly as large as the file needs.
 using MapBuffer = examples::AlignedBuffer;
 
+// Blocks per current scale, and never fused.
+template <typename VoxelT>
+void print_blocks(const Octree<VoxelT>& map) {
+  std::uint32_t per_scale[kMaxBlockScale + 1] = {};
+  std::uint32_t never = 0;
+  map.for_each_block([&](const VoxelBlock<VoxelT>& b) {
+    if (b.integrated()) {
+      ++per_scale[b.current_scale];
+    } else {
+      ++never;
+    }
+  });
+  const MapMemory memory = map.memory();
+  std::printf("inner nodes     %u\n", memory.nodes_used);
+  std::printf("blocks          %u\n", memory.blocks_used);
+  for (int s = 0; s <= kMaxBlockScale; ++s) {
+    std::printf("  at scale %d     %u\n", s, per_scale[s]);
+  }
+  std::printf("  never fused   %u\n", never);
+  if (Octree<VoxelT>::kSplitFinest) {
+    std::printf("finest levels   %u\n", memory.finest_used);
+  }
+}
+
+template <typename VoxelT>
+int write_mesh(const Octree<VoxelT>& map, const char* out_path, MeshReadScale read_scale) {
+  MeshConfig mesh_config;
+  mesh_config.read_scale = read_scale;
+  mesh_config.vertex_capacity = static_cast<std::uint32_t>(
+      std::clamp<std::uint64_t>(std::uint64_t{96} * map.block_count(), 1u << 16, 1u << 23));
+  const std::size_t mesh_bytes = Mesher<VoxelT>::bytes_required(mesh_config);
+  MapBuffer mesh_buffer(mesh_bytes);
+  LinearArena mesh_arena(mesh_buffer.data, mesh_bytes);
+  Mesher<VoxelT> mesher;
+  if (mesh_buffer.data == nullptr || !mesher.reserve(mesh_arena, mesh_config).ok()) {
+    return error_exit("cannot reserve the mesher");
+  }
+  VectorMeshSink sink;
+  const Result<MeshStats> meshed = mesher.extract(map, sink);
+  if (!meshed.ok()) {
+    std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
+  }
+  host::MeshView mesh;
+  mesh.vertices = sink.positions.data();
+  mesh.vertex_count = sink.positions.size();
+  mesh.indices = sink.indices.data();
+  mesh.triangle_count = sink.indices.size() / 3;
+  mesh.vertex_scale = sink.scales.data();
+  ErrorText ply_error;
+  if (!host::write_ply(out_path, mesh, &ply_error).ok()) return error_exit(ply_error.c_str());
+  std::printf("wrote %s (%zu vertices, %zu triangles)\n", out_path, mesh.vertex_count,
+              mesh.triangle_count);
+  return 0;
+}
+
+// A block store: its blocks merged into one map (on the heap), then as for a map file.
+template <typename VoxelT>
+int run_store(const std::string& command, const char* path, host::BlockStoreFile& store,
+              const host::StoreGeometry& geometry, const char* out_path, MeshReadScale read_scale) {
+  MapConfig config;
+  config.voxel_size_m = geometry.voxel_size_m;
+  config.voxel_depth = geometry.voxel_depth;
+  config.origin_W = geometry.origin_W;
+  std::unique_ptr<host::HeapMap<VoxelT>> merged;
+  ErrorText error;
+  if (!host::merge_map_with_store<VoxelT>(nullptr, config, store, path, &merged, &error).ok()) {
+    return error_exit(error.c_str());
+  }
+  const Octree<VoxelT>& map = merged->map;
+  if (command != "info") return write_mesh(map, out_path, read_scale);
+  const host::BlockStoreFileStats stats = store.stats();
+  std::printf("file            %s (%llu bytes, a block store, every record checked)\n", path,
+              static_cast<unsigned long long>(stats.file_bytes + stats.dropped_bytes));
+  std::printf("records         %llu, of %llu blocks (%llu bytes of newest records)\n",
+              static_cast<unsigned long long>(stats.entries),
+              static_cast<unsigned long long>(stats.keys),
+              static_cast<unsigned long long>(stats.live_bytes));
+  std::printf("voxel type      %s\n", map_voxel_type_name(geometry.voxel_type));
+  std::printf("voxel size      %g m\n", static_cast<double>(geometry.voxel_size_m));
+  std::printf(
+      "cube            %d voxels per side (%g m), origin %g %g %g m\n", 1 << geometry.voxel_depth,
+      static_cast<double>(geometry.voxel_size_m) * (1 << geometry.voxel_depth),
+      static_cast<double>(geometry.origin_W.x()), static_cast<double>(geometry.origin_W.y()),
+      static_cast<double>(geometry.origin_W.z()));
+  print_blocks(map);
+  std::printf("free space      not stored\n");
+  std::printf("memory          %.2f MB (blocks, finest levels and nodes)\n",
+              static_cast<double>(map.memory().bytes_used) / 1048576.0);
+  return 0;
+}
+
 template <typename VoxelT>
 int run(const std::string& command, const char* path, const MapFileHeader& header,
         const char* out_path, MeshReadScale read_scale) {
@@ -109,15 +205,6 @@ int run(const std::string& command, const char* path, const MapFileHeader& heade
   }
 
   if (command == "info") {
-    std::uint32_t per_scale[kMaxBlockScale + 1] = {};
-    std::uint32_t never = 0;
-    map.for_each_block([&](const VoxelBlock<VoxelT>& b) {
-      if (b.integrated()) {
-        ++per_scale[b.current_scale];
-      } else {
-        ++never;
-      }
-    });
     const MapMemory memory = map.memory();
     struct stat st;
     const long long file_bytes = ::stat(path, &st) == 0 ? static_cast<long long>(st.st_size) : -1;
@@ -133,15 +220,7 @@ int run(const std::string& command, const char* path, const MapFileHeader& heade
                 static_cast<double>(header.origin_W.x()), static_cast<double>(header.origin_W.y()),
                 static_cast<double>(header.origin_W.z()));
     std::printf("frames          %llu\n", static_cast<unsigned long long>(header.frames));
-    std::printf("inner nodes     %u\n", memory.nodes_used);
-    std::printf("blocks          %u\n", memory.blocks_used);
-    for (int s = 0; s <= kMaxBlockScale; ++s) {
-      std::printf("  at scale %d     %u\n", s, per_scale[s]);
-    }
-    std::printf("  never fused   %u\n", never);
-    if (Octree<VoxelT>::kSplitFinest) {
-      std::printf("finest levels   %u\n", memory.finest_used);
-    }
+    print_blocks(map);
     if (free_space.reserved()) {
       std::printf(
           "free space      %u nodes, %zu bytes (octants of %d voxels and up, margin %g m)\n",
@@ -155,33 +234,7 @@ int run(const std::string& command, const char* path, const MapFileHeader& heade
     return 0;
   }
 
-  MeshConfig mesh_config;
-  mesh_config.read_scale = read_scale;
-  mesh_config.vertex_capacity = static_cast<std::uint32_t>(
-      std::clamp<std::uint64_t>(std::uint64_t{96} * map.block_count(), 1u << 16, 1u << 23));
-  const std::size_t mesh_bytes = Mesher<VoxelT>::bytes_required(mesh_config);
-  MapBuffer mesh_buffer(mesh_bytes);
-  LinearArena mesh_arena(mesh_buffer.data, mesh_bytes);
-  Mesher<VoxelT> mesher;
-  if (mesh_buffer.data == nullptr || !mesher.reserve(mesh_arena, mesh_config).ok()) {
-    return error_exit("cannot reserve the mesher");
-  }
-  VectorMeshSink sink;
-  const Result<MeshStats> meshed = mesher.extract(map, sink);
-  if (!meshed.ok()) {
-    std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
-  }
-  host::MeshView mesh;
-  mesh.vertices = sink.positions.data();
-  mesh.vertex_count = sink.positions.size();
-  mesh.indices = sink.indices.data();
-  mesh.triangle_count = sink.indices.size() / 3;
-  mesh.vertex_scale = sink.scales.data();
-  ErrorText ply_error;
-  if (!host::write_ply(out_path, mesh, &ply_error).ok()) return error_exit(ply_error.c_str());
-  std::printf("wrote %s (%zu vertices, %zu triangles)\n", out_path, mesh.vertex_count,
-              mesh.triangle_count);
-  return 0;
+  return write_mesh(map, out_path, read_scale);
 }
 
 }  // namespace
@@ -224,6 +277,27 @@ int main(int argc, char** argv) {
     return 2;
   }
   ErrorText error;
+  if (host::is_block_store_file(path)) {
+    host::BlockStoreFile store;
+    ErrorText warning;
+    if (!store.open(path, nullptr, 0, &error, &warning).ok()) {
+      std::fprintf(stderr, "error: %s\n", error.c_str());
+      return 1;
+    }
+    if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
+    host::StoreGeometry geometry;
+    if (!host::decode_store_geometry(store.geometry(), store.geometry_size(), &geometry)) {
+      std::fprintf(stderr, "error: %s: the store's map geometry is out of range\n", path);
+      return 1;
+    }
+    if (geometry.voxel_type == MapVoxelType::multires) {
+      return run_store<MultiresVoxel>(command, path, store, geometry, out_path, read_scale);
+    }
+    if (geometry.voxel_type == MapVoxelType::multires16) {
+      return run_store<Multires16Voxel>(command, path, store, geometry, out_path, read_scale);
+    }
+    return run_store<TsdfVoxel>(command, path, store, geometry, out_path, read_scale);
+  }
   const Result<MapFileHeader> header = host::read_map_file_header(path, &error);
   if (!header.ok()) {
     std::fprintf(stderr, "error: %s\n", error.c_str());

@@ -102,6 +102,29 @@ expect_error every "--save-every needs --save-map" "${replay}" --save-every 3
 expect_error pose "--initial-pose needs" "${replay}" --initial-pose 1,2,3,0,0,0,5
 expect_error command "unknown command" "${map}" show "${work}/a.ofmap"
 
+# A block store (--map-file) of a run whose map memory holds a fraction of the room: octofuse-map
+# reads it as it is (nothing written, a torn tail only warned about) and refuses a damaged header.
+"${replay}" --source sim:room --voxel-size 0.04 --gt-poses --quiet --frames 60 --map-memory 1 \
+  --map-file "${work}/k.store" --out "${work}/k" >"${work}/k.out" 2>&1 ||
+  fail "--map-file run: $(cat "${work}/k.out")"
+cp "${work}/k.store" "${work}/k.copy"
+"${map}" info "${work}/k.store" >"${work}/kinfo.out" 2>&1 || fail "store info: $(cat "${work}/kinfo.out")"
+grep -q "a block store, every record checked" "${work}/kinfo.out" || fail "store info: not read as a store"
+grep -q "^blocks          [1-9][0-9]*$" "${work}/kinfo.out" || fail "store info: no blocks"
+grep -q "^voxel size      0.04 m$" "${work}/kinfo.out" || fail "store info: no voxel size"
+cmp -s "${work}/k.store" "${work}/k.copy" || fail "store info changed the store"
+"${map}" mesh "${work}/k.store" "${work}/k_store.ply" >/dev/null 2>&1 || fail "store mesh failed"
+[[ $(stat -c %s "${work}/k_store.ply") -gt 1000 ]] || fail "store mesh is empty"
+size=$(stat -c %s "${work}/k.store")
+head -c $((size - 10)) "${work}/k.store" >"${work}/kcut.store"
+"${map}" info "${work}/kcut.store" >"${work}/kcut.out" 2>"${work}/kcut.err" ||
+  fail "cut store: $(cat "${work}/kcut.err")"
+grep -q "^warning: .*torn or damaged tail" "${work}/kcut.err" || fail "cut store: no warning"
+[[ $(stat -c %s "${work}/kcut.store") -eq $((size - 10)) ]] || fail "cut store: info truncated it"
+cp "${work}/k.store" "${work}/kbad.store"
+printf '\xff' | dd of="${work}/kbad.store" bs=1 seek=20 conv=notrunc status=none
+expect_error storebad "kbad.store: block store header damaged" "${map}" info "${work}/kbad.store"
+
 if [[ -n "${live}" ]]; then
   "${live}" "${common[@]}" --frames 100000 --out "${work}/l" --save-map "${work}/live.ofmap" \
     >"${work}/live.out" 2>&1 &

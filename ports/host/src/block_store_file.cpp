@@ -91,18 +91,42 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
     close();
     return Status(code);
   };
+  const bool read_only = geometry == nullptr;
+  read_only_ = read_only;
   if (geometry_size > kMaxGeometry) return fail(StatusCode::invalid_argument, "geometry too long");
   buffer_ = static_cast<std::uint8_t*>(std::malloc(kEntryHead + kMaxRecord + 4));
   if (buffer_ == nullptr) return fail(StatusCode::resource_exhausted, "no memory");
   // A compaction's copy left by a cut: FILE itself is whole.
-  (void)::unlink((path_ + ".compact").c_str());
-  fd_ = ::open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (!read_only) (void)::unlink((path_ + ".compact").c_str());
+  fd_ = read_only ? ::open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK)
+                  : ::open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd_ < 0) return fail(StatusCode::unavailable, std::strerror(errno));
   struct stat st;
   if (::fstat(fd_, &st) != 0 || !S_ISREG(st.st_mode)) {
     return fail(StatusCode::unavailable, "not a regular file");
   }
   const std::uint64_t size = static_cast<std::uint64_t>(st.st_size);
+  if (read_only) {
+    // The geometry is the file's own: read and check its header.
+    std::uint8_t head[16];
+    if (size < 20 || !read_at(fd_, head, 16, 0) ||
+        std::memcmp(head, kFileMagic, sizeof(kFileMagic)) != 0) {
+      return fail(StatusCode::invalid_argument, "not a block store");
+    }
+    if (get_u32(head + 8) != kFileVersion) {
+      return fail(StatusCode::invalid_argument, "a block store of another version");
+    }
+    geometry_size = get_u32(head + 12);
+    if (geometry_size > kMaxGeometry || size < 16 + geometry_size + 4 ||
+        !read_at(fd_, geometry_, geometry_size + 4, 16) ||
+        get_u32(geometry_ + geometry_size) != crc32(geometry_, geometry_size, crc32(head, 16))) {
+      return fail(StatusCode::data_loss, "block store header damaged");
+    }
+    geometry = geometry_;
+  } else if (geometry_size > 0) {
+    std::memcpy(geometry_, geometry, geometry_size);
+  }
+  geometry_size_ = geometry_size;
   const std::size_t header_bytes = sizeof(kFileMagic) + 4 + 4 + geometry_size + 4;
   header_bytes_ = header_bytes;
   live_bytes_ = header_bytes;
@@ -114,6 +138,7 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
   put_u32(header + 16 + geometry_size, crc32(header, 16 + geometry_size));
   if (size < header_bytes) {
     // New, or cut before its header was whole: nothing in it can be a record.
+    if (read_only) return fail(StatusCode::invalid_argument, "not a block store");
     if (size > 0 && warning != nullptr) {
       warning->set("%s: header torn (%llu bytes); the store starts empty", path,
                    static_cast<unsigned long long>(size));
@@ -157,7 +182,14 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
     ++stats_.entries;
     offset += kEntryHead + length + 4;
   }
-  if (offset < size) {
+  if (offset < size && read_only) {
+    stats_.dropped_bytes = size - offset;
+    if (warning != nullptr) {
+      warning->set("%s: %llu bytes of a torn or damaged tail after %llu whole records (ignored)",
+                   path, static_cast<unsigned long long>(size - offset),
+                   static_cast<unsigned long long>(stats_.entries));
+    }
+  } else if (offset < size) {
     stats_.dropped_bytes = size - offset;
     if (::ftruncate(fd_, static_cast<off_t>(offset)) != 0 || ::fdatasync(fd_) != 0) {
       return fail(StatusCode::unavailable, "cannot drop the torn tail");
@@ -175,7 +207,7 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
 
 Status BlockStoreFile::put(std::uint64_t block_morton, const std::uint8_t* record,
                            std::size_t size) {
-  if (fd_ < 0) return StatusCode::failed_precondition;
+  if (fd_ < 0 || read_only_) return StatusCode::failed_precondition;
   if (size == 0 || size > kMaxRecord) return StatusCode::invalid_argument;
   std::uint8_t head[kEntryHead];
   put_u32(head, kEntryMagic);
@@ -274,7 +306,7 @@ void BlockStoreFile::abandon_compaction() {
 }
 
 Status BlockStoreFile::compact_step(std::size_t max_bytes, ErrorText* error) {
-  if (fd_ < 0) return StatusCode::failed_precondition;
+  if (fd_ < 0 || read_only_) return StatusCode::failed_precondition;
   const std::string copy_path = path_ + ".compact";
   auto fail = [&](const char* why) {
     if (error != nullptr) error->set("%s: compaction abandoned: %s", copy_path.c_str(), why);
@@ -354,41 +386,101 @@ Status BlockStoreFile::compact_step(std::size_t max_bytes, ErrorText* error) {
   return ok_status();
 }
 
+bool is_block_store_file(const char* path) {
+  // Non-blocking: a FIFO without a writer must not hang the caller (only regular files count).
+  const int fd = ::open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+  if (fd < 0) return false;
+  struct stat st;
+  std::uint8_t magic[sizeof(kFileMagic)];
+  const bool read =
+      ::fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && read_at(fd, magic, sizeof(magic), 0);
+  ::close(fd);
+  return read && std::memcmp(magic, kFileMagic, sizeof(kFileMagic)) == 0;
+}
+
+void encode_store_geometry(const StoreGeometry& geometry, std::uint8_t* out) {
+  out[0] = static_cast<std::uint8_t>(geometry.voxel_type);
+  const float fields[5] = {geometry.voxel_size_m, static_cast<float>(geometry.voxel_depth),
+                           geometry.origin_W.x(), geometry.origin_W.y(), geometry.origin_W.z()};
+  for (int i = 0; i < 5; ++i) {
+    std::uint32_t bits;
+    std::memcpy(&bits, &fields[i], 4);
+    put_u32(out + 1 + 4 * i, bits);
+  }
+}
+
+bool decode_store_geometry(const std::uint8_t* bytes, std::size_t size, StoreGeometry* out) {
+  if (size != kStoreGeometryBytes) return false;
+  float fields[5];
+  for (int i = 0; i < 5; ++i) {
+    const std::uint32_t bits = get_u32(bytes + 1 + 4 * i);
+    std::memcpy(&fields[i], &bits, 4);
+  }
+  StoreGeometry g;
+  if (bytes[0] < static_cast<std::uint8_t>(MapVoxelType::single_res) ||
+      bytes[0] > static_cast<std::uint8_t>(MapVoxelType::multires16)) {
+    return false;
+  }
+  g.voxel_type = static_cast<MapVoxelType>(bytes[0]);
+  g.voxel_size_m = fields[0];
+  if (!(fields[1] >= 0.0f && fields[1] <= 64.0f) ||
+      fields[1] != static_cast<float>(static_cast<int>(fields[1]))) {
+    return false;
+  }
+  g.voxel_depth = static_cast<int>(fields[1]);
+  g.origin_W = Eigen::Vector3f(fields[2], fields[3], fields[4]);
+  MapConfig config;
+  config.voxel_size_m = g.voxel_size_m;
+  config.voxel_depth = g.voxel_depth;
+  config.origin_W = g.origin_W;
+  if (!validate(config).ok() || !g.origin_W.allFinite()) return false;
+  *out = g;
+  return true;
+}
+
 template <typename VoxelT>
-Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
-                                const FreeSpace* free_space, BlockStoreFile& store,
-                                const MapSaveInfo& info, ErrorText* error) {
+Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry,
+                            BlockStoreFile& store, const char* path,
+                            std::unique_ptr<HeapMap<VoxelT>>* out, ErrorText* error) {
+  auto find = [&](std::uint64_t key) {
+    return map != nullptr ? map->find_block_index_morton(key) : kNoIndex;
+  };
   std::size_t extra = 0;
   store.for_each_key([&](std::uint64_t key) {
-    if (map.find_block_index_morton(key) == kNoIndex) ++extra;
+    if (find(key) == kNoIndex) ++extra;
   });
-  MapConfig config = map.config();
-  config.block_capacity = static_cast<std::uint32_t>(map.block_count() + extra + 1);
+  MapConfig config = map != nullptr ? map->config() : geometry;
+  const std::size_t in_memory = map != nullptr ? map->block_count() : 0;
+  config.block_capacity = static_cast<std::uint32_t>(in_memory + extra + 1);
   config.finest_capacity = config.block_capacity;
-  config.node_capacity = config.block_capacity * static_cast<std::uint32_t>(map.block_level()) + 1;
+  config.node_capacity =
+      config.block_capacity * static_cast<std::uint32_t>(config.block_level()) + 1;
   const std::size_t bytes = Octree<VoxelT>::bytes_required(config);
   const std::size_t record_bytes = block_record_max_bytes<VoxelT>();
   const std::size_t rounded = (bytes + kArenaAlignment - 1) / kArenaAlignment * kArenaAlignment;
-  void* raw = bytes > 0 ? std::aligned_alloc(kArenaAlignment, rounded) : nullptr;
-  const std::unique_ptr<void, void (*)(void*)> owner(raw, std::free);
+  auto merged = std::make_unique<HeapMap<VoxelT>>();
+  merged->memory.reset(bytes > 0 ? std::aligned_alloc(kArenaAlignment, rounded) : nullptr);
   auto* record = static_cast<std::uint8_t*>(std::malloc(record_bytes));
   const std::unique_ptr<void, void (*)(void*)> record_owner(record, std::free);
   auto* indices =
       static_cast<std::uint32_t*>(std::malloc(sizeof(std::uint32_t) * config.block_capacity));
   const std::unique_ptr<void, void (*)(void*)> indices_owner(indices, std::free);
-  if (raw == nullptr || record == nullptr || indices == nullptr) {
+  if (merged->memory == nullptr || record == nullptr || indices == nullptr) {
     if (error != nullptr) error->set("%s: no memory to merge the map with its store", path);
     return StatusCode::resource_exhausted;
   }
-  LinearArena arena(raw, bytes);
-  Octree<VoxelT> merged;
-  if (!merged.reserve(arena, config).ok()) return StatusCode::resource_exhausted;
+  LinearArena arena(merged->memory.get(), bytes);
+  if (!merged->map.reserve(arena, config).ok()) {
+    if (error != nullptr) error->set("%s: cannot reserve the merged map", path);
+    return StatusCode::resource_exhausted;
+  }
   std::size_t count = 0;
   // Blocks in memory first (they are newer than any stored record of theirs), then the stored.
-  for (std::uint32_t i = 0; i < map.block_count(); ++i) {
-    const Result<std::size_t> size = encode_block_record(map.block(i), record, record_bytes);
+  for (std::size_t i = 0; i < in_memory; ++i) {
+    const Result<std::size_t> size =
+        encode_block_record(map->block(static_cast<std::uint32_t>(i)), record, record_bytes);
     const Result<std::uint32_t> index =
-        size.ok() ? restore_block_record(merged, record, size.value()) : size.status();
+        size.ok() ? restore_block_record(merged->map, record, size.value()) : size.status();
     if (!index.ok()) {
       if (error != nullptr)
         error->set("%s: cannot merge a block (%s)", path, index.status().name());
@@ -398,11 +490,11 @@ Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
   }
   Status failed;
   store.for_each_key([&](std::uint64_t key) {
-    if (!failed.ok() || map.find_block_index_morton(key) != kNoIndex) return;
+    if (!failed.ok() || find(key) != kNoIndex) return;
     const Result<std::size_t> size = store.read(key, record, record_bytes);
     ErrorText why;
     const Result<std::uint32_t> index =
-        size.ok() ? restore_block_record(merged, record, size.value(), &why) : size.status();
+        size.ok() ? restore_block_record(merged->map, record, size.value(), &why) : size.status();
     if (!index.ok()) {
       if (error != nullptr) {
         error->set("%s: a stored block cannot be read back (%s%s%s)", path, index.status().name(),
@@ -414,9 +506,28 @@ Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
     indices[count++] = index.value();
   });
   if (!failed.ok()) return failed;
-  merged.propagate_summaries(indices, count);
-  return save_map_file(path, merged, free_space, info, error);
+  merged->map.propagate_summaries(indices, count);
+  *out = std::move(merged);
+  return ok_status();
 }
+
+template <typename VoxelT>
+Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
+                                const FreeSpace* free_space, BlockStoreFile& store,
+                                const MapSaveInfo& info, ErrorText* error) {
+  std::unique_ptr<HeapMap<VoxelT>> merged;
+  OCTOFUSE_TRY(merge_map_with_store(&map, map.config(), store, path, &merged, error));
+  return save_map_file(path, merged->map, free_space, info, error);
+}
+
+#define OCTOFUSE_MERGE_WITH_STORE(VoxelT)                                                        \
+  template Status merge_map_with_store(const Octree<VoxelT>*, const MapConfig&, BlockStoreFile&, \
+                                       const char*, std::unique_ptr<HeapMap<VoxelT>>*,           \
+                                       ErrorText*);
+OCTOFUSE_MERGE_WITH_STORE(TsdfVoxel)
+OCTOFUSE_MERGE_WITH_STORE(MultiresVoxel)
+OCTOFUSE_MERGE_WITH_STORE(Multires16Voxel)
+#undef OCTOFUSE_MERGE_WITH_STORE
 
 template Status save_map_file_with_store(const char*, const Octree<TsdfVoxel>&, const FreeSpace*,
                                          BlockStoreFile&, const MapSaveInfo&, ErrorText*);

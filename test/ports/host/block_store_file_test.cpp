@@ -10,7 +10,9 @@
 
 #include <algorithm>
 #include <catch2/catch.hpp>
+#include <cmath>
 #include <cstdio>
+#include <limits>
 #include <random>
 #include <string>
 #include <vector>
@@ -284,6 +286,47 @@ TEST_CASE("a writer killed mid-compaction loses no record it had written") {
       REQUIRE((holds(store, key_of(k), newest) || holds(store, key_of(k), newest + 1)));
     }
   }
+}
+
+TEST_CASE("a store's map geometry round-trips and out-of-range geometries are refused") {
+  host::StoreGeometry g;
+  g.voxel_type = MapVoxelType::multires16;
+  g.voxel_size_m = 0.01f;
+  g.voxel_depth = 10;
+  g.origin_W = Eigen::Vector3f(-6.25f, 1.5f, -2.0f);
+  std::uint8_t bytes[host::kStoreGeometryBytes];
+  host::encode_store_geometry(g, bytes);
+  // The voxel type, then five little-endian floats (0.01f is 0x3C23D70A).
+  REQUIRE(bytes[0] == 3);
+  REQUIRE(bytes[1] == 0x0A);
+  REQUIRE(bytes[4] == 0x3C);
+  host::StoreGeometry back;
+  REQUIRE(host::decode_store_geometry(bytes, sizeof(bytes), &back));
+  REQUIRE(back.voxel_type == g.voxel_type);
+  REQUIRE(back.voxel_size_m == g.voxel_size_m);
+  REQUIRE(back.voxel_depth == g.voxel_depth);
+  REQUIRE(back.origin_W == g.origin_W);
+  REQUIRE_FALSE(host::decode_store_geometry(bytes, sizeof(bytes) - 1, &back));
+  auto refused = [&](host::StoreGeometry bad, std::uint8_t type = 3) {
+    std::uint8_t b[host::kStoreGeometryBytes];
+    host::encode_store_geometry(bad, b);
+    b[0] = type;
+    return !host::decode_store_geometry(b, sizeof(b), &back);
+  };
+  REQUIRE(refused(g, 0));
+  REQUIRE(refused(g, 4));
+  host::StoreGeometry bad = g;
+  bad.voxel_size_m = std::nanf("");
+  REQUIRE(refused(bad));
+  bad = g;
+  bad.voxel_size_m = 1e-9f;
+  REQUIRE(refused(bad));
+  bad = g;
+  bad.voxel_depth = 40;
+  REQUIRE(refused(bad));
+  bad = g;
+  bad.origin_W.x() = std::numeric_limits<float>::infinity();
+  REQUIRE(refused(bad));
 }
 
 TEST_CASE("a writer killed with SIGKILL at random instants loses no record it had written") {

@@ -6,14 +6,16 @@
 // truncates the file there and says so in `warning`. The index (key -> newest entry) lives in
 // memory, built by reading the file at open(). Old entries of a key are reclaimed by compaction
 // (compact_step(), a bounded amount of copying per call): when the file holds more than twice the
-// newest records' bytes (and at least set_compact_min_bytes(), 8 MiB), their newest records are copied into
-// FILE.compact, a few per call, while puts go on appending to FILE; once every newest record is in
-// the copy, it is synced and renamed over FILE. A cut at any instant leaves FILE whole (open()
-// removes a stale FILE.compact) or the finished copy.
+// newest records' bytes (and at least set_compact_min_bytes(), 8 MiB), their newest records are
+// copied into FILE.compact, a few per call, while puts go on appending to FILE; once every newest
+// record is in the copy, it is synced and renamed over FILE. A cut at any instant leaves FILE whole
+// (open() removes a stale FILE.compact) or the finished copy.
 
 #include <cstddef>
 #include <cstdint>
+#include <cstdlib>
 #include <map>
+#include <memory>
 #include <string>
 
 #include "octofuse/core/error_text.hpp"
@@ -46,9 +48,13 @@ class BlockStoreFile final : public BlockStore {
   // origin) is written into a new file's header and must match an existing one's
   // (invalid_argument otherwise: the store belongs to another map). ok, with `warning` set when a
   // torn tail was dropped; unavailable (cannot open, read or truncate), invalid_argument (not a
-  // store, another geometry), each with a one-line `error`.
+  // store, another geometry), each with a one-line `error`. With `geometry` null the store is
+  // opened read only, with the geometry its header holds (geometry()): nothing is written, a torn
+  // tail is ignored (and warned about), put() and compact_step() refuse.
   Status open(const char* path, const std::uint8_t* geometry, std::size_t geometry_size,
               ErrorText* error, ErrorText* warning);
+  const std::uint8_t* geometry() const { return geometry_; }
+  std::size_t geometry_size() const { return geometry_size_; }
   void close();
   bool is_open() const { return fd_ >= 0; }
 
@@ -61,7 +67,8 @@ class BlockStoreFile final : public BlockStore {
 
   // Makes what was appended durable (fdatasync): ok or unavailable.
   Status sync();
-  // Compaction starts when the file exceeds twice the live bytes and this many bytes (default 8 MiB).
+  // Compaction starts when the file exceeds twice the live bytes and this many bytes (default 8
+  // MiB).
   void set_compact_min_bytes(std::uint64_t bytes) { compact_min_bytes_ = bytes; }
   // One step of compaction: starts one when the file is due, copies newest records into the copy
   // until about `max_bytes` were copied, and finishes it (sync, rename) when every newest record is
@@ -89,8 +96,11 @@ class BlockStoreFile final : public BlockStore {
   void abandon_compaction();
   int fd_ = -1;
   int compact_fd_ = -1;  // the copy being written, or -1
+  bool read_only_ = false;
+  std::uint8_t geometry_[256 + 4] = {};  // with room for the header's CRC
+  std::size_t geometry_size_ = 0;
   std::uint64_t compact_min_bytes_ = std::uint64_t{8} << 20;
-  std::string path_;     // FILE
+  std::string path_;  // FILE
   std::uint64_t header_bytes_ = 0;
   std::uint64_t live_bytes_ = 0;   // header + the newest entry of every key
   std::uint64_t copy_bytes_ = 0;   // size of the copy so far
@@ -102,9 +112,41 @@ class BlockStoreFile final : public BlockStore {
   std::uint8_t* buffer_ = nullptr;  // one framed entry (malloc'd at open())
 };
 
-// The whole map: `map`'s blocks and every stored block not in memory, merged into a map reserved
-// here on the heap, written by save_map_file() (loadable as any map file). ok, resource_exhausted
-// (no memory for the merge), data_loss (a damaged stored record) or save_map_file()'s codes.
+// Whether `path` starts as a block store does (its magic); false when it cannot be read.
+bool is_block_store_file(const char* path);
+
+// The map geometry a store is made for, as its header's geometry bytes (the voxel type, then the
+// voxel size, the cube depth and the origin as little-endian floats): a store opened with another
+// map's geometry is refused, and a store opened read only says what map it holds.
+struct StoreGeometry {
+  MapVoxelType voxel_type = MapVoxelType::multires;
+  float voxel_size_m = 0.0f;
+  int voxel_depth = 0;
+  Eigen::Vector3f origin_W = Eigen::Vector3f::Zero();
+};
+constexpr std::size_t kStoreGeometryBytes = 1 + 4 * 5;
+void encode_store_geometry(const StoreGeometry& geometry, std::uint8_t* out);
+// false when the bytes are not a geometry a map can have (type, size, depth or origin).
+bool decode_store_geometry(const std::uint8_t* bytes, std::size_t size, StoreGeometry* out);
+
+// A map reserved on the heap, with its memory.
+template <typename VoxelT>
+struct HeapMap {
+  std::unique_ptr<void, void (*)(void*)> memory{nullptr, std::free};
+  Octree<VoxelT> map;
+};
+
+// `map`'s blocks (none when null) and every stored block not in memory, merged into a map of
+// `geometry` (map's own when given) reserved here on the heap. ok, resource_exhausted (no memory
+// for the merge) or data_loss (a damaged stored record), with a one-line `error` naming `path`.
+template <typename VoxelT>
+Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry,
+                            BlockStoreFile& store, const char* path,
+                            std::unique_ptr<HeapMap<VoxelT>>* out, ErrorText* error);
+
+// The whole map: `map`'s blocks and every stored block not in memory, merged, written by
+// save_map_file() (loadable as any map file). ok, merge_map_with_store()'s or save_map_file()'s
+// codes.
 template <typename VoxelT>
 Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
                                 const FreeSpace* free_space, BlockStoreFile& store,

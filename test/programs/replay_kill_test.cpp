@@ -8,11 +8,14 @@
 #include <catch2/catch.hpp>
 #include <chrono>
 #include <cstdio>
+#include <memory>
 #include <random>
 #include <string>
 #include <thread>
 #include <vector>
 
+#include "octofuse/ports/host/block_store_file.hpp"
+#include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/ply.hpp"
 #include "octofuse/ports/host/trajectory_io.hpp"
 #include "replay_process.hpp"
@@ -136,6 +139,82 @@ TEST_CASE("octofuse-replay killed at random moments leaves only complete files",
   CHECK((status == 128 + SIGKILL || status == 0));
   check_outputs(out, reference, &seen);
   CHECK(test::read_file(out + "/trajectory.txt") == whole);
+}
+
+// A store left by a killed run opens (a torn tail dropped with a warning), and the blocks in it
+// merge into a map that saves and loads.
+void check_store(const std::string& path, const std::string& map_path) {
+  host::BlockStoreFile store;
+  ErrorText error;
+  ErrorText warning;
+  REQUIRE(store.open(path.c_str(), nullptr, 0, &error, &warning).ok());
+  host::StoreGeometry geometry;
+  REQUIRE(host::decode_store_geometry(store.geometry(), store.geometry_size(), &geometry));
+  REQUIRE(geometry.voxel_type == MapVoxelType::multires);
+  MapConfig config;
+  config.voxel_size_m = geometry.voxel_size_m;
+  config.voxel_depth = geometry.voxel_depth;
+  config.origin_W = geometry.origin_W;
+  std::unique_ptr<host::HeapMap<MultiresVoxel>> merged;
+  INFO(error.c_str());
+  REQUIRE(host::merge_map_with_store<MultiresVoxel>(nullptr, config, store, path.c_str(), &merged,
+                                                    &error)
+              .ok());
+  REQUIRE(merged->map.block_count() == store.stats().keys);
+  MapSaveInfo info;
+  info.frames = 1;
+  info.mu_m = 0.1f;
+  // save_map_file() reads the whole file back as the loader does before it claims success.
+  REQUIRE(host::save_map_file(map_path.c_str(), merged->map, info, &error).ok());
+}
+
+TEST_CASE("octofuse-replay --map-file killed at random moments leaves a store that loads",
+          "[programs][store]") {
+  const std::string dir = test::make_test_dir("replay-kill-store");
+  REQUIRE(!dir.empty());
+  // A map memory for a fraction of the room: blocks are evicted into the store from early on.
+  auto args = [&](const std::string& name) {
+    return std::vector<std::string>{"--source",
+                                    "sim:room",
+                                    "--frames",
+                                    "40",
+                                    "--voxel-size",
+                                    "0.04",
+                                    "--gt-poses",
+                                    "--map-memory",
+                                    "1",
+                                    "--map-file",
+                                    dir + "/" + name + ".store",
+                                    "--out",
+                                    dir + "/" + name,
+                                    "--quiet"};
+  };
+  const auto start = std::chrono::steady_clock::now();
+  const test::RunResult full = test::run_replay(args("reference"), dir + "/reference.log");
+  const double run_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  INFO(full.output);
+  REQUIRE(full.exit_status == 0);
+  check_store(dir + "/reference.store", dir + "/reference.ofmap");
+  std::mt19937 rng(kSeed);
+  std::uniform_real_distribution<double> moment(0.2 * run_s, 1.0 * run_s);
+  int killed = 0;
+  for (int k = 0; k < kKills; ++k) {
+    const std::string name = "kill" + std::to_string(k);
+    const double after_s = moment(rng);
+    CAPTURE(k, after_s, run_s);
+    const test::Child child = test::start_replay(args(name), dir + "/" + name + ".log");
+    REQUIRE(child.pid > 0);
+    std::this_thread::sleep_for(std::chrono::duration<double>(after_s));
+    ::kill(child.pid, SIGKILL);
+    const int status = test::wait_for(child);
+    CHECK((status == 128 + SIGKILL || status == 0));
+    killed += status == 128 + SIGKILL;
+    if (test::file_exists(dir + "/" + name + ".store")) {
+      check_store(dir + "/" + name + ".store", dir + "/" + name + ".ofmap");
+    }
+  }
+  CHECK(killed >= kKills / 3);
 }
 
 TEST_CASE("octofuse-replay on SIGTERM finishes the frame and writes everything", "[programs]") {

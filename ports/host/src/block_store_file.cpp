@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdio>
 #include <cstring>
 
 #include "octofuse/core/arena.hpp"
@@ -84,7 +85,12 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
   close();
   stats_ = BlockStoreFileStats();
   live_bytes_ = 0;
-  path_ = path;
+  if (std::strlen(path) >= kMaxPath) {
+    if (error != nullptr) error->set("block store path longer than %zu bytes", kMaxPath - 1);
+    return StatusCode::invalid_argument;
+  }
+  std::snprintf(path_, sizeof(path_), "%s", path);
+  std::snprintf(copy_path_, sizeof(copy_path_), "%s.compact", path);
   if (warning != nullptr) warning->clear();
   auto fail = [&](StatusCode code, const char* why) {
     if (error != nullptr) error->set("%s: %s", path, why);
@@ -97,7 +103,7 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
   buffer_ = static_cast<std::uint8_t*>(std::malloc(kEntryHead + kMaxRecord + 4));
   if (buffer_ == nullptr) return fail(StatusCode::resource_exhausted, "no memory");
   // A compaction's copy left by a cut: FILE itself is whole.
-  if (!read_only) (void)::unlink((path_ + ".compact").c_str());
+  if (!read_only) (void)::unlink(copy_path_);
   fd_ = read_only ? ::open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK)
                   : ::open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd_ < 0) return fail(StatusCode::unavailable, std::strerror(errno));
@@ -301,24 +307,24 @@ void BlockStoreFile::abandon_compaction() {
   if (compact_fd_ < 0) return;
   ::close(compact_fd_);
   compact_fd_ = -1;
-  (void)::unlink((path_ + ".compact").c_str());
+  (void)::unlink(copy_path_);
   for (auto& kv : index_) kv.second.copy_offset = 0;
 }
 
 Status BlockStoreFile::compact_step(std::size_t max_bytes, ErrorText* error) {
   if (fd_ < 0 || read_only_) return StatusCode::failed_precondition;
-  const std::string copy_path = path_ + ".compact";
+  const char* copy_path = copy_path_;
   auto fail = [&](const char* why) {
-    if (error != nullptr) error->set("%s: compaction abandoned: %s", copy_path.c_str(), why);
+    if (error != nullptr) error->set("%s: compaction abandoned: %s", copy_path, why);
     abandon_compaction();
     return Status(StatusCode::unavailable);
   };
   if (compact_fd_ < 0) {
     if (file_bytes_ < compact_min_bytes_ || file_bytes_ <= 2 * live_bytes_) return ok_status();
-    compact_fd_ = ::open(copy_path.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    compact_fd_ = ::open(copy_path, O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
     if (compact_fd_ < 0) {
       if (error != nullptr) {
-        error->set("%s: cannot start a compaction: %s", copy_path.c_str(), std::strerror(errno));
+        error->set("%s: cannot start a compaction: %s", copy_path, std::strerror(errno));
       }
       return StatusCode::unavailable;
     }
@@ -365,9 +371,10 @@ Status BlockStoreFile::compact_step(std::size_t max_bytes, ErrorText* error) {
   if (uncopied_ > 0) return ok_status();
   // Every newest record is in the copy: make it durable, then put it in FILE's place.
   if (::fdatasync(compact_fd_) != 0) return fail("sync failed");
-  if (::rename(copy_path.c_str(), path_.c_str()) != 0) return fail(std::strerror(errno));
-  std::string folder = path_;
-  const int dir_fd = ::open(::dirname(&folder[0]), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (::rename(copy_path, path_) != 0) return fail(std::strerror(errno));
+  char folder[kMaxPath];
+  std::snprintf(folder, sizeof(folder), "%s", path_);
+  const int dir_fd = ::open(::dirname(folder), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dir_fd >= 0) {
     (void)::fsync(dir_fd);  // the rename itself survives a power cut
     ::close(dir_fd);

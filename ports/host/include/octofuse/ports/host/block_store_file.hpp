@@ -16,7 +16,6 @@
 #include <cstdlib>
 #include <map>
 #include <memory>
-#include <string>
 
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/map/block_store.hpp"
@@ -100,7 +99,10 @@ class BlockStoreFile final : public BlockStore {
   std::uint8_t geometry_[256 + 4] = {};  // with room for the header's CRC
   std::size_t geometry_size_ = 0;
   std::uint64_t compact_min_bytes_ = std::uint64_t{8} << 20;
-  std::string path_;  // FILE
+  // FILE and FILE.compact (fixed buffers: the port uses no exception-throwing std::string).
+  static constexpr std::size_t kMaxPath = 4096;
+  char path_[kMaxPath] = {};
+  char copy_path_[kMaxPath + 8] = {};
   std::uint64_t header_bytes_ = 0;
   std::uint64_t live_bytes_ = 0;   // header + the newest entry of every key
   std::uint64_t copy_bytes_ = 0;   // size of the copy so far

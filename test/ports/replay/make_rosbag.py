@@ -7,7 +7,10 @@ definitions (little-endian, packed, strings and variable arrays with a u32 lengt
 sequence number first in every std_msgs/Header). Exit 77 when python3-rosbag (or, for lz4 chunks,
 python3-roslz4) is missing, so the caller can skip.
 
-The frame dump is make_bag.py's (its docstring has the layout).
+The frame dump is make_bag.py's (its docstring has the layout). With a DUMP ending in .mcap
+(an unchunked MCAP of ROS 2 messages, such as octofuse-replay --record writes), its Image,
+CameraInfo and PoseStamped messages are converted from CDR to ROS 1 and written on the same
+topics with their log times.
 
 usage: make_rosbag.py DUMP OUT.bag [--compression none|bz2|lz4] [--chunk-threshold BYTES]
        [--encoding 16UC1|32FC1|mono16] [--pose tf|odometry|pose_stamped|none] [--tum]
@@ -152,6 +155,106 @@ def imu_msg(seq, stamp_ns):
     return bytes(c.buf)
 
 
+class CdrReader:
+    """ROS 2 CDR, little-endian: fields aligned to their size after the 4-byte header."""
+
+    def __init__(self, data):
+        if data[:2] != b"\x00\x01":
+            raise SystemExit("make_rosbag: only little-endian CDR")
+        self.data = data
+        self.pos = 4
+
+    def take(self, fmt, size):
+        self.pos += (size - (self.pos - 4) % size) % size
+        v = struct.unpack_from("<" + fmt, self.data, self.pos)[0]
+        self.pos += size
+        return v
+
+    def u8(self):
+        return self.take("B", 1)
+
+    def u32(self):
+        return self.take("I", 4)
+
+    def f64(self):
+        return self.take("d", 8)
+
+    def string(self):
+        n = self.u32()
+        s = self.data[self.pos:self.pos + n - 1].decode()
+        self.pos += n
+        return s
+
+    def bytes(self):
+        n = self.u32()
+        b = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return b
+
+    def header(self, out, seq):
+        sec = self.take("i", 4)
+        nsec = self.u32()
+        out.header(seq, sec * 1000000000 + nsec, self.string())
+
+
+def ros1_from_cdr(type_name, data, seq):
+    """A ROS 2 message of the types --record writes, serialised again for ROS 1."""
+    c = CdrReader(data)
+    out = Ros1()
+    c.header(out, seq)
+    if type_name == "sensor_msgs/Image":
+        out.u32(c.u32())  # height
+        out.u32(c.u32())  # width
+        out.string(c.string())
+        out.u8(c.u8())
+        out.u32(c.u32())  # step
+        out.bytes(c.bytes())
+    elif type_name == "sensor_msgs/CameraInfo":
+        out.u32(c.u32())
+        out.u32(c.u32())
+        out.string(c.string())
+        n = c.u32()
+        out.u32(n)
+        for _ in range(n + 9 + 9 + 12):
+            out.f64(c.f64())
+        for _ in range(6):
+            out.u32(c.u32())
+        out.u8(c.u8())
+    elif type_name == "geometry_msgs/PoseStamped":
+        for _ in range(7):
+            out.f64(c.f64())
+    else:
+        return None
+    return bytes(out.buf)
+
+
+def convert_mcap(args, write):
+    """The messages of an unchunked MCAP, as ROS 1 messages."""
+    with open(args.dump, "rb") as f:
+        data = f.read()
+    schemas, channels, seqs = {}, {}, {}
+    pos = 8
+    while pos + 9 <= len(data):
+        opcode, size = struct.unpack_from("<BQ", data, pos)
+        body = data[pos + 9:pos + 9 + size]
+        if opcode == 0x03:
+            sid, n = struct.unpack_from("<HI", body, 0)
+            schemas[sid] = body[6:6 + n].decode().replace("/msg/", "/")
+        elif opcode == 0x04:
+            cid, sid, n = struct.unpack_from("<HHI", body, 0)
+            channels[cid] = (body[8:8 + n].decode(), schemas[sid])
+        elif opcode == 0x05:
+            cid, _, log_ns, _ = struct.unpack_from("<HIQQ", body, 0)
+            topic, type_name = channels[cid]
+            seqs[cid] = seqs.get(cid, -1) + 1
+            message = ros1_from_cdr(type_name, body[22:], seqs[cid])
+            if message is not None:
+                write(topic, type_name, message, log_ns)
+        elif opcode in (0x0F, 0x02):
+            break
+        pos += 9 + size
+
+
 def main(argv):
     ap = argparse.ArgumentParser()
     ap.add_argument("dump")
@@ -183,6 +286,13 @@ def main(argv):
         t = genpy.Time(stamp_ns // 1000000000, stamp_ns % 1000000000)
         bag.write(topic, (type_name, data, MD5[type_name], Type(type_name)), t, raw=True)
 
+    if args.dump.endswith(".mcap"):
+        compression = {"none": rosbag.Compression.NONE, "bz2": rosbag.Compression.BZ2,
+                       "lz4": rosbag.Compression.LZ4}[args.compression]
+        with rosbag.Bag(args.out, "w", compression=compression,
+                        chunk_threshold=args.chunk_threshold) as bag:
+            convert_mcap(args, lambda *m: write(bag, *m))
+        return
     width, height, k4, frames = read_dump(args.dump)
     encoding = "32FC1" if args.tum else args.encoding
     depth_topic = "/camera/depth/image" if args.tum else "/camera/depth/image_raw"

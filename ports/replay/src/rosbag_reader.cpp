@@ -49,10 +49,10 @@ struct View {
 void* bz2_alloc(void* opaque, int n, int m) {
   auto* scratch = static_cast<RosbagReader::Scratch*>(opaque);
   if (n < 0 || m < 0) return nullptr;
-  const std::size_t bytes = static_cast<std::size_t>(n) * static_cast<std::size_t>(m);
+  const std::uint64_t bytes = static_cast<std::uint64_t>(n) * static_cast<std::uint64_t>(m);
   const std::size_t start = align_up(scratch->used, 16);
   if (start > scratch->size || bytes > scratch->size - start) return nullptr;
-  scratch->used = start + bytes;
+  scratch->used = start + static_cast<std::size_t>(bytes);
   return scratch->base + start;
 }
 void bz2_free(void*, void*) {}
@@ -632,8 +632,10 @@ McapNext RosbagReader::next(McapMessage* message) {
       done_ = true;
       return McapNext::error;
     }
-    std::size_t want = static_cast<std::size_t>(complete ? data_size : file_size_ - data_offset);
-    if (want > limits_.max_record_bytes) want = limits_.max_record_bytes;
+    // In 64 bits before the clamp: what is left of the file may exceed a 32-bit size_t.
+    std::uint64_t available = complete ? data_size : file_size_ - data_offset;
+    if (available > limits_.max_record_bytes) available = limits_.max_record_bytes;
+    const std::size_t want = static_cast<std::size_t>(available);
     if (!read_at(data_offset, record_, want, &got) && complete) {
       error_.set("rosbag: read error at byte %llu", static_cast<unsigned long long>(data_offset));
       done_ = true;

@@ -774,3 +774,36 @@ TEST_CASE("rosbag: bad input gets one clear error", "[replay][bag][rosbag]") {
           StatusCode::invalid_argument);
   }
 }
+
+TEST_CASE("rosbag: a bag of 7-Scenes frames gives their trajectory",
+          "[replay][bag][rosbag][data]") {
+  const char* data_dir = std::getenv("OCTOFUSE_TEST_DATA_DIR");
+  if (data_dir == nullptr || data_dir[0] == '\0') {
+    WARN("OCTOFUSE_TEST_DATA_DIR is not set: skipping the 7-Scenes ROS 1 bag test");
+    return;
+  }
+  constexpr int kFrames = 4;
+  const std::string spec = std::string("7scenes:") + data_dir + "/7scenes-redkitchen";
+  octofuse::replay::ReplayConfig config;
+  octofuse::ErrorText error;
+  REQUIRE(octofuse::replay::parse_replay_spec(spec.c_str(), &config, &error).ok());
+  octofuse::replay::ReplaySource seven(config);
+  REQUIRE(seven.open().ok());
+  Fixture fixture(keep_frames(seven, kFrames));
+  const std::string path = fixture.rosbag("7scenes.bag", "--compression lz4");
+  if (path.empty()) return;
+  std::unique_ptr<BagSource> bag = open_rosbag(path);
+  REQUIRE(bag->open().ok());
+  // 7-Scenes' rotations are orthonormal to about 6e-5 only; a quaternion makes them exact.
+  check_same_frames(*bag, fixture.kept, 1, true, 1e-4);
+
+  octofuse::replay::ReplaySource again(config);
+  REQUIRE(again.open().ok());
+  std::unique_ptr<BagSource> bag_again = open_rosbag(path);
+  REQUIRE(bag_again->open().ok());
+  const Eigen::Matrix4d first = fixture.kept.frames[0].T_W_C;
+  const std::vector<Eigen::Matrix4d> from_folder = track(again, again.intrinsics(), first, kFrames);
+  const std::vector<Eigen::Matrix4d> from_bag = track(*bag_again, bag_again->intrinsics(), first);
+  REQUIRE(from_bag.size() == from_folder.size());
+  for (std::size_t i = 0; i < from_bag.size(); ++i) CHECK(from_bag[i] == from_folder[i]);
+}

@@ -274,6 +274,7 @@ void RosbagReader::rewind() {
   chunk_records_ = nullptr;
   chunk_size_ = chunk_pos_ = 0;
   chunk_cut_ = false;
+  chunk_unfinished_ = false;
   last_time_ns_ = 0;
   messages_ = out_of_order_ = 0;
   warning_.clear();
@@ -379,6 +380,7 @@ bool RosbagReader::load_chunk(const Header& header, const std::uint8_t* data, st
   chunk_offset_ = offset_;
   chunk_pos_ = 0;
   chunk_cut_ = !complete;
+  chunk_unfinished_ = false;
   if (named("none")) {
     chunk_records_ = data;
     chunk_size_ = size;
@@ -502,7 +504,9 @@ McapNext RosbagReader::next(McapMessage* message) {
         chunk_records_ = nullptr;
         if (chunk_cut_) {
           offset_ = chunk_offset_;
-          note_truncation("inside a chunk");
+          note_truncation(chunk_unfinished_ ? "an unfinished chunk: the recorder did not close "
+                                              "the bag"
+                                            : "inside a chunk");
           return McapNext::truncated;
         }
         break;
@@ -522,7 +526,9 @@ McapNext RosbagReader::next(McapMessage* message) {
         chunk_records_ = nullptr;
         if (chunk_cut_) {
           offset_ = chunk_offset_;
-          note_truncation("inside a chunk");
+          note_truncation(chunk_unfinished_ ? "an unfinished chunk: the recorder did not close "
+                                              "the bag"
+                                            : "inside a chunk");
           return McapNext::truncated;
         }
         error_.set("rosbag: chunk at byte %llu: a record runs past the chunk's end",
@@ -615,14 +621,27 @@ McapNext RosbagReader::next(McapMessage* message) {
     }
     if (header.op == kOpChunk && complete && data_size == 0 && header.has_size &&
         header.size == 0) {
-      // A chunk whose recorder never came back to write its size: an uncompressed one's
-      // records follow as they are; a compressed one's length is unknown.
+      // A chunk whose recorder never came back to write its sizes: an uncompressed one's
+      // records follow as they are; a compressed one's stream runs to the end of the file, of
+      // a length unknown: decoded as far as it goes, as a cut chunk.
       if (header.compression.size == 4 && std::memcmp(header.compression.data, "none", 4) == 0) {
         offset_ = data_offset;
         continue;
       }
-      note_truncation("an unfinished compressed chunk: the recorder did not close the bag");
-      return McapNext::truncated;
+      Header open_chunk = header;
+      open_chunk.size = limits_.max_chunk_bytes > 0xFFFFFFFFu
+                            ? 0xFFFFFFFFu
+                            : static_cast<std::uint32_t>(limits_.max_chunk_bytes);
+      std::uint64_t rest = file_size_ - data_offset;
+      if (rest > limits_.max_record_bytes) rest = limits_.max_record_bytes;
+      (void)read_at(data_offset, record_, static_cast<std::size_t>(rest), &got);
+      if (!load_chunk(open_chunk, record_, got, false)) {
+        done_ = true;
+        return McapNext::error;
+      }
+      chunk_unfinished_ = true;
+      offset_ = file_size_;
+      continue;
     }
     if (complete && data_size > limits_.max_record_bytes) {
       error_.set(

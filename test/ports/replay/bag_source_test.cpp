@@ -650,6 +650,80 @@ TEST_CASE("rosbag: a bag cut at any byte replays to its last whole message",
   }
 }
 
+namespace {
+
+// A bag as a killed recorder leaves it: the bag header's index position 0, the last chunk's
+// sizes never written (0, as rosbag writes them first), the file ending with that chunk's data.
+std::string as_never_closed(std::string bytes) {
+  auto le32 = [&](std::size_t at) {
+    std::uint32_t v = 0;
+    std::memcpy(&v, bytes.data() + at, 4);
+    return v;
+  };
+  // The value of field `name` in the record header at `header` (`size` bytes); npos if none.
+  auto field = [&](std::size_t header, std::uint32_t size, const std::string& name) {
+    for (std::size_t pos = header; pos + 4 <= header + size;) {
+      const std::uint32_t n = le32(pos);
+      if (bytes.compare(pos + 4, name.size() + 1, name + "=") == 0) {
+        return pos + 4 + name.size() + 1;
+      }
+      pos += 4 + n;
+    }
+    return std::string::npos;
+  };
+  const std::size_t index_pos = field(17, le32(13), "index_pos");
+  REQUIRE(index_pos != std::string::npos);
+  std::memset(&bytes[index_pos], 0, 8);
+  std::size_t last_chunk = 0;
+  for (std::size_t pos = 13; pos + 8 <= bytes.size();) {
+    const std::uint32_t header = le32(pos);
+    if (bytes[field(pos + 4, header, "op")] == 0x05) last_chunk = pos;
+    pos += 8 + header + le32(pos + 4 + header);
+  }
+  REQUIRE(last_chunk > 0);
+  const std::uint32_t header = le32(last_chunk);
+  const std::size_t end = last_chunk + 8 + header + le32(last_chunk + 4 + header);
+  const std::size_t size = field(last_chunk + 4, header, "size");
+  REQUIRE(size != std::string::npos);
+  std::memset(&bytes[size], 0, 4);
+  std::memset(&bytes[last_chunk + 4 + header], 0, 4);
+  return bytes.substr(0, end);
+}
+
+}  // namespace
+
+TEST_CASE("rosbag: a bag its recorder never closed replays with a warning",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  const char* options[] = {"--compression none", "--compression bz2", "--compression lz4",
+                           "--compression lz4 --chunk-threshold 1"};
+  std::vector<std::pair<std::string, std::string>> jobs;
+  for (const char* o : options) jobs.push_back({"u" + std::to_string(jobs.size()) + ".bag", o});
+  const std::vector<std::string> paths = fixture.rosbags(jobs);
+  for (std::size_t n = 0; n < paths.size(); ++n) {
+    INFO(options[n]);
+    const std::string path = fixture.dir + "/unclosed.bag";
+    write_text(path, as_never_closed(read_bytes(paths[n])));
+    std::unique_ptr<BagSource> bag = open_rosbag(path);
+    {
+      const octofuse::Status opened = bag->open();
+      INFO(bag->last_error());
+      REQUIRE(opened.ok());
+    }
+    octofuse::DepthFrame frame;
+    std::size_t frames = 0;
+    NextFrame next;
+    while ((next = bag->next(frame)).outcome == FrameOutcome::frame) {
+      const KeptFrame& k = fixture.kept.frames.at(frames);
+      CHECK(std::memcmp(frame.depth_raw.data, k.depth.data(), k.depth.size() * 2) == 0);
+      ++frames;
+    }
+    CHECK(frames == fixture.kept.frames.size());
+    CHECK(next.status.code() == StatusCode::data_loss);
+    CHECK(std::strstr(bag->last_error(), "the recorder did not close the bag") != nullptr);
+  }
+}
+
 TEST_CASE("rosbag: bad input gets one clear error", "[replay][bag][rosbag]") {
   Fixture fixture(sim_frames());
   // One run of the writer for every case (sections would run it again each).

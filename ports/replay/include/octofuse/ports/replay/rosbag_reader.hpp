@@ -101,6 +101,7 @@ class RosbagReader {
   std::size_t chunk_size_ = 0;
   std::size_t chunk_pos_ = 0;
   bool chunk_cut_ = false;
+  bool chunk_unfinished_ = false;  // its sizes were never written: the recorder was killed
   std::uint64_t chunk_offset_ = 0;
 
   std::uint64_t last_time_ns_ = 0;

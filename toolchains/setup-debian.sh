@@ -12,6 +12,8 @@ packages=(
   libpng-dev libopenni2-dev libcamera-dev libv4l-dev
   # robot recordings (MCAP chunks) and the independent bag writer the tests use
   libzstd-dev liblz4-dev python3-zstandard python3-lz4
+  # ROS 1 bags (bz2 chunks) and ROS 1's own bag writer, which the tests make fixtures with
+  libbz2-dev python3-rosbag python3-roslz4
   # cross compilers for ARM boards and qemu-user to run the tests
   g++-aarch64-linux-gnu g++-arm-linux-gnueabihf
   libgcc-12-dev-arm64-cross libgcc-12-dev-armhf-cross

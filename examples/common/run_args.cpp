@@ -359,8 +359,9 @@ const RunOption kRunOptions[] = {
     {"odometry", "FILE",
      "the vehicle's poses as a prior for ICP: a TUM trajectory (camera to\n"
      "world, interpolated to each frame's time; the first frame's pose\n"
-     "anchors it), a bag's poses (mcap:FILE[?pose=TOPIC], Odometry or\n"
-     "PoseStamped), or sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
+     "anchors it), a bag's poses (mcap:FILE or rosbag:FILE [?pose=TOPIC],\n"
+     "Odometry or PoseStamped), or\n"
+     "sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
      "for a drifting noisy odometry of the source's ground truth\n"
      "(default 1 %/m drift); writes DIR/odometry.txt",
      [](RunOptions& o, const std::string& v) {

@@ -94,18 +94,22 @@ bool check_outputs(const RunOptions& options, std::string* error) {
     outputs.push_back({options.deadline_calibration, "--deadline-calibration"});
   }
   std::vector<Output> inputs;
-  // A bag given as a source or odometry is a file behind its "mcap:" prefix and "?" options.
-  auto bag_file = [](const std::string& spec) {
-    return spec.substr(
-        5, spec.find('?') == std::string::npos ? std::string::npos : spec.find('?') - 5);
+  // A bag given as a source or odometry is a file behind its "mcap:" or "rosbag:" prefix and
+  // "?" options.
+  auto is_bag = [](const std::string& spec) {
+    return spec.rfind("mcap:", 0) == 0 || spec.rfind("rosbag:", 0) == 0;
   };
-  if (options.source_spec.rfind("mcap:", 0) == 0) {
+  auto bag_file = [](const std::string& spec) {
+    const std::size_t start = spec.find(':') + 1;
+    const std::size_t query = spec.find('?');
+    return spec.substr(start, query == std::string::npos ? std::string::npos : query - start);
+  };
+  if (is_bag(options.source_spec)) {
     inputs.push_back({bag_file(options.source_spec), "--source"});
   }
   if (!options.odometry.empty() && !odometry_is_sim(options)) {
     inputs.push_back(
-        {options.odometry.rfind("mcap:", 0) == 0 ? bag_file(options.odometry) : options.odometry,
-         "--odometry"});
+        {is_bag(options.odometry) ? bag_file(options.odometry) : options.odometry, "--odometry"});
   }
   if (!options.query_points_path.empty()) {
     inputs.push_back({options.query_points_path, "--query-points"});
@@ -440,7 +444,7 @@ int read_odometry(const RunOptions& options, RunInputs* inputs) {
 #endif
   if (!odometry_sim && !options.odometry.empty()) {
     ErrorText odometry_error;
-    if (options.odometry.rfind("mcap:", 0) == 0) {
+    if (options.odometry.rfind("mcap:", 0) == 0 || options.odometry.rfind("rosbag:", 0) == 0) {
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
       // A bag's Odometry or PoseStamped topic (mcap:FILE?pose=TOPIC).
       replay::BagConfig bag;

@@ -39,6 +39,7 @@ std::string supported_sources() {
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
   out += "                       tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE (recordings)\n";
   out += "                       mcap:FILE[?depth=T&info=T&pose=T&world=F&buffer=MB] (ROS 2 bag)\n";
+  out += "                       rosbag:FILE[?same options] (ROS 1 bag, format 2.0)\n";
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
   out += "                       openni2[:URI] | oni:FILE (OpenNI2 camera or recording)\n";
@@ -97,7 +98,7 @@ std::unique_ptr<DepthSource> make_source(const std::string& spec, const SourceOp
   }
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
-  if (starts_with(spec, "mcap:")) {
+  if (starts_with(spec, "mcap:") || starts_with(spec, "rosbag:")) {
     replay::BagConfig config;
     if (!replay::parse_bag_spec(spec.c_str(), &config, &text).ok()) {
       *error = text.c_str();
@@ -169,6 +170,7 @@ int list_bag(const std::string& path) {
     return 2;
   }
   std::memcpy(config.path, path.c_str(), path.size() + 1);
+  config.format = replay::BagFormat::automatic;  // MCAP or ROS 1, by the magic
   replay::BagSource bag(config);
   if (!bag.scan().ok()) {
     std::fprintf(stderr, "error: %s\n", bag.last_error());

@@ -1,8 +1,8 @@
 #pragma once
 // Turns a source spec from the command line into a DepthSource:
 //   sim:desk | sim:room | tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE
-//   | mcap:FILE[?depth=T&info=T&pose=T&world=F] | oni:FILE | openni2[:URI] | v4l2:/dev/videoN |
-//   libcamera[:ID]
+//   | mcap:FILE[?depth=T&info=T&pose=T&world=F] | rosbag:FILE[?...] | oni:FILE | openni2[:URI] |
+//   v4l2:/dev/videoN | libcamera[:ID]
 // Live and recorded-camera specs exist only when their port was built.
 
 #include <memory>

@@ -1,7 +1,7 @@
 // What reading a bag costs: open() (the first pass over the file) and next() over every frame,
 // in CPU time, with the frames per second, the MB/s of file read and the memory the reader holds.
 //
-//   bench_bag mcap:FILE[?options]   (Release build)
+//   bench_bag mcap:FILE[?options] | rosbag:FILE[?options]   (Release build)
 
 #include <sys/stat.h>
 
@@ -20,7 +20,7 @@ double cpu_s() {
 
 int main(int argc, char** argv) {
   if (argc != 2) {
-    std::fprintf(stderr, "usage: bench_bag mcap:FILE\n");
+    std::fprintf(stderr, "usage: bench_bag mcap:FILE | rosbag:FILE\n");
     return 2;
   }
   octofuse::replay::BagConfig config;

@@ -28,7 +28,10 @@ BagSource::Kind kind_of(const McapChannel& channel) {
   if (is_type(s, "sensor_msgs", "Image")) return BagSource::Kind::image;
   if (is_type(s, "sensor_msgs", "CompressedImage")) return BagSource::Kind::compressed;
   if (is_type(s, "sensor_msgs", "CameraInfo")) return BagSource::Kind::camera_info;
-  if (is_type(s, "tf2_msgs", "TFMessage")) return BagSource::Kind::tf;
+  // ROS 1's tf/tfMessage is tf2_msgs/TFMessage on the wire.
+  if (is_type(s, "tf2_msgs", "TFMessage") || is_type(s, "tf", "tfMessage")) {
+    return BagSource::Kind::tf;
+  }
   if (is_type(s, "nav_msgs", "Odometry")) return BagSource::Kind::odometry;
   if (is_type(s, "geometry_msgs", "PoseStamped")) return BagSource::Kind::pose;
   return BagSource::Kind::other;
@@ -51,15 +54,21 @@ bool host_is_big_endian() {
 }  // namespace
 
 Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
-  if (!starts_with(spec, "mcap:")) {
-    error->set("bag: '%s' is not mcap:FILE", spec);
+  const char* name = "mcap";
+  if (starts_with(spec, "mcap:")) {
+    config->format = BagFormat::mcap;
+  } else if (starts_with(spec, "rosbag:")) {
+    config->format = BagFormat::rosbag;
+    name = "rosbag";
+  } else {
+    error->set("bag: '%s' is not mcap:FILE or rosbag:FILE", spec);
     return StatusCode::invalid_argument;
   }
-  const char* path = spec + 5;
+  const char* path = spec + std::strlen(name) + 1;
   const char* query = std::strchr(path, '?');
   const std::size_t path_size = query ? static_cast<std::size_t>(query - path) : std::strlen(path);
   if (path_size == 0 || !copy_value(path, path_size, config->path, sizeof(config->path))) {
-    error->set("mcap: needs a file (at most %zu bytes)", sizeof(config->path) - 1);
+    error->set("%s: needs a file (at most %zu bytes)", name, sizeof(config->path) - 1);
     return StatusCode::invalid_argument;
   }
   while (query != nullptr) {
@@ -68,7 +77,7 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     const char* eq = std::strchr(key, '=');
     const std::size_t item = end ? static_cast<std::size_t>(end - key) : std::strlen(key);
     if (eq == nullptr || eq > key + item) {
-      error->set("mcap: option '%.*s' needs KEY=VALUE", static_cast<int>(item), key);
+      error->set("%s: option '%.*s' needs KEY=VALUE", name, static_cast<int>(item), key);
       return StatusCode::invalid_argument;
     }
     const std::size_t key_size = static_cast<std::size_t>(eq - key);
@@ -83,7 +92,7 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
               ? std::strtol(number, &end_number, 10)
               : 0;
       if (end_number == nullptr || *end_number != '\0' || mb < 1 || mb > 1024) {
-        error->set("mcap: buffer=MB needs 1 to 1024");
+        error->set("%s: buffer=MB needs 1 to 1024", name);
         return StatusCode::invalid_argument;
       }
       config->limits.max_record_bytes = static_cast<std::size_t>(mb) << 20;
@@ -97,13 +106,13 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     if (key_size == 4 && std::strncmp(key, "pose", 4) == 0) out = config->pose_topic;
     if (key_size == 5 && std::strncmp(key, "world", 5) == 0) out = config->world_frame;
     if (out == nullptr) {
-      error->set("mcap: unknown option '%.*s' (depth, info, pose, world, buffer)",
+      error->set("%s: unknown option '%.*s' (depth, info, pose, world, buffer)", name,
                  static_cast<int>(key_size), key);
       return StatusCode::invalid_argument;
     }
     if (value_size == 0 || !copy_value(value, value_size, out, BagConfig::kMaxName)) {
-      error->set("mcap: option '%.*s' needs a value of 1 to %zu bytes", static_cast<int>(key_size),
-                 key, BagConfig::kMaxName - 1);
+      error->set("%s: option '%.*s' needs a value of 1 to %zu bytes", name,
+                 static_cast<int>(key_size), key, BagConfig::kMaxName - 1);
       return StatusCode::invalid_argument;
     }
     query = end;
@@ -148,14 +157,15 @@ Status BagSource::scan() {
   error_.clear();
   scan_warning_.clear();
   if (config_.limits.max_channels > kMaxChannels) {
-    error_.set("mcap: at most %d channels", kMaxChannels);
+    error_.set("%s: at most %d channels", prefix(), kMaxChannels);
     return StatusCode::invalid_argument;
   }
-  Status status = reader_.open(config_.path, config_.limits);
+  Status status = reader_.open(config_.path, config_.format, config_.limits);
   if (!status.ok()) {
     error_.set("%s", reader_.error());
     return status;
   }
+  config_.format = reader_.format();  // chosen by the magic when it was automatic
   for (int i = 0; i < kMaxChannels; ++i) {
     counts_[i] = first_ns_[i] = last_ns_[i] = 0;
     first_width_[i] = first_height_[i] = 0;
@@ -183,13 +193,14 @@ Status BagSource::scan() {
     last_ns_[c] = message.log_time_ns;
     if (kinds_[c] == Kind::image && first_width_[c] == 0) {
       RosImage image;
-      if (decode_image(message.data, message.size, RosWire::cdr, &image)) {
+      if (decode_image(message.data, message.size, reader_.wire(), &image)) {
         first_width_[c] = static_cast<int>(image.width);
         first_height_[c] = static_cast<int>(image.height);
       }
     }
     if (kinds_[c] == Kind::camera_info && !have_info_[c]) {
-      have_info_[c] = decode_camera_info(message.data, message.size, RosWire::cdr, &first_info_[c]);
+      have_info_[c] =
+          decode_camera_info(message.data, message.size, reader_.wire(), &first_info_[c]);
       if (have_info_[c]) {
         // The view points into the reader's buffer: keep a copy of the model's name.
         const RosString& model = first_info_[c].distortion_model;
@@ -218,8 +229,8 @@ Status BagSource::choose_topics() {
     depth_channel_ = find_topic(config_.depth_topic);
     if (depth_channel_ < 0 ||
         (kinds_[depth_channel_] != Kind::image && kinds_[depth_channel_] != Kind::compressed)) {
-      error_.set("mcap: no sensor_msgs/msg/Image or CompressedImage topic '%s' in %s (see --list)",
-                 config_.depth_topic, config_.path);
+      error_.set("%s: no sensor_msgs/msg/Image or CompressedImage topic '%s' in %s (see --list)",
+                 prefix(), config_.depth_topic, config_.path);
       return StatusCode::invalid_argument;
     }
   } else {
@@ -250,12 +261,15 @@ Status BagSource::choose_topics() {
       depth_channel_ = depth;
     }
     if (depth_channel_ < 0) {
-      error_.set(
-          images == 0
-              ? "mcap: %s has no sensor_msgs/msg/Image (or compressedDepth) messages (see --list)"
-              : "mcap: %s has several image topics; choose one with mcap:FILE?depth=TOPIC "
-                "(see --list)",
-          config_.path);
+      if (images == 0) {
+        error_.set("%s: %s has no sensor_msgs/msg/Image (or compressedDepth) messages (see --list)",
+                   prefix(), config_.path);
+      } else {
+        error_.set(
+            "%s: %s has several image topics; choose one with %s:FILE?depth=TOPIC "
+            "(see --list)",
+            prefix(), config_.path, prefix());
+      }
       return StatusCode::invalid_argument;
     }
   }
@@ -266,7 +280,7 @@ Status BagSource::choose_topics() {
   if (config_.info_topic[0] != '\0') {
     info_channel_ = find_topic(config_.info_topic);
     if (info_channel_ < 0 || kinds_[info_channel_] != Kind::camera_info) {
-      error_.set("mcap: no sensor_msgs/msg/CameraInfo topic '%s' in %s", config_.info_topic,
+      error_.set("%s: no sensor_msgs/msg/CameraInfo topic '%s' in %s", prefix(), config_.info_topic,
                  config_.path);
       return StatusCode::invalid_argument;
     }
@@ -296,17 +310,17 @@ Status BagSource::choose_topics() {
   } else {
     if (info_channel_ < 0 || !have_info_[info_channel_]) {
       error_.set(
-          "mcap: no camera info for %s in %s; choose one with mcap:FILE?info=TOPIC or give "
+          "%s: no camera info for %s in %s; choose one with %s:FILE?info=TOPIC or give "
           "--intrinsics",
-          depth_topic_, config_.path);
+          prefix(), depth_topic_, config_.path, prefix());
       return StatusCode::invalid_argument;
     }
     const RosCameraInfo& info = first_info_[info_channel_];
     if (info.max_abs_distortion != 0.0) {
       error_.set(
-          "mcap: camera info on %s has %s distortion (largest coefficient %g); octofuse "
+          "%s: camera info on %s has %s distortion (largest coefficient %g); octofuse "
           "takes rectified depth only: rectify it, or give --intrinsics to use it as is",
-          reader_.channel_at(info_channel_).topic,
+          prefix(), reader_.channel_at(info_channel_).topic,
           info_model_[info_channel_][0] ? info_model_[info_channel_] : "unnamed",
           info.max_abs_distortion);
       return StatusCode::invalid_argument;
@@ -318,7 +332,7 @@ Status BagSource::choose_topics() {
     intrinsics_.width = static_cast<int>(info.width);
     intrinsics_.height = static_cast<int>(info.height);
     if (!(intrinsics_.fx > 0.0f && intrinsics_.fy > 0.0f)) {
-      error_.set("mcap: camera info on %s has no focal length (K[0], K[4] not > 0)",
+      error_.set("%s: camera info on %s has no focal length (K[0], K[4] not > 0)", prefix(),
                  reader_.channel_at(info_channel_).topic);
       return StatusCode::invalid_argument;
     }
@@ -329,7 +343,7 @@ Status BagSource::choose_topics() {
   }
   if (intrinsics_.width <= 0 || intrinsics_.height <= 0 || intrinsics_.width > config_.max_width ||
       intrinsics_.height > config_.max_height) {
-    error_.set("mcap: depth images of %dx%d on %s (at most %dx%d)", intrinsics_.width,
+    error_.set("%s: depth images of %dx%d on %s (at most %dx%d)", prefix(), intrinsics_.width,
                intrinsics_.height, depth_topic_, config_.max_width, config_.max_height);
     return StatusCode::resource_exhausted;
   }
@@ -344,8 +358,8 @@ Status BagSource::choose_topics() {
     const int c = find_topic(config_.pose_topic);
     if (c < 0 ||
         (kinds_[c] != Kind::odometry && kinds_[c] != Kind::pose && kinds_[c] != Kind::tf)) {
-      error_.set("mcap: no Odometry, PoseStamped or TFMessage topic '%s' in %s", config_.pose_topic,
-                 config_.path);
+      error_.set("%s: no Odometry, PoseStamped or TFMessage topic '%s' in %s", prefix(),
+                 config_.pose_topic, config_.path);
       return StatusCode::invalid_argument;
     }
     if (kinds_[c] == Kind::tf) {
@@ -363,8 +377,8 @@ Status BagSource::choose_topics() {
       }
     }
     if (poses > 1) {
-      error_.set("mcap: %s has several pose topics; choose one with mcap:FILE?pose=TOPIC",
-                 config_.path);
+      error_.set("%s: %s has several pose topics; choose one with %s:FILE?pose=TOPIC", prefix(),
+                 config_.path, prefix());
       return StatusCode::invalid_argument;
     }
     if (poses == 1) {
@@ -385,7 +399,7 @@ Status BagSource::open() {
       config_.max_height > 16384 || config_.ring_size < 1 || config_.ring_size > 64 ||
       config_.max_tf_frames < 1 || config_.max_tf_frames > 4096 ||
       !(config_.depth_units_per_m >= 0.0f)) {
-    error_.set("mcap: invalid configuration");
+    error_.set("%s: invalid configuration", prefix());
     close();
     return StatusCode::invalid_argument;
   }
@@ -405,7 +419,7 @@ Status BagSource::open() {
   memory_bytes_ = sizer.bytes_used();
   memory_ = std::aligned_alloc(kArenaAlignment, align_up(memory_bytes_, kArenaAlignment));
   if (memory_ == nullptr) {
-    error_.set("mcap: cannot reserve %zu bytes", memory_bytes_);
+    error_.set("%s: cannot reserve %zu bytes", prefix(), memory_bytes_);
     close();
     return StatusCode::resource_exhausted;
   }
@@ -671,7 +685,7 @@ NextFrame BagSource::convert_compressed(const RosCompressedImage& image, std::in
 
 NextFrame BagSource::next(DepthFrame& frame) {
   if (!open_) {
-    error_.set("mcap: next() before a successful open()");
+    error_.set("%s: next() before a successful open()", prefix());
     return NextFrame::failed(StatusCode::failed_precondition);
   }
   McapMessage message;
@@ -691,7 +705,7 @@ NextFrame BagSource::next(DepthFrame& frame) {
     if (kind == Kind::tf) {
       RosTfReader tf;
       RosPose transform;
-      if (!tf.begin(message.data, message.size, RosWire::cdr)) continue;
+      if (!tf.begin(message.data, message.size, reader_.wire())) continue;
       for (std::uint32_t i = 0; i < tf.count() && tf.next(&transform); ++i) tf_update(transform);
       continue;
     }
@@ -699,8 +713,8 @@ NextFrame BagSource::next(DepthFrame& frame) {
       RosPose pose;
       const bool decoded =
           kind == Kind::odometry
-              ? decode_odometry(message.data, message.size, RosWire::cdr, &pose)
-              : decode_pose_stamped(message.data, message.size, RosWire::cdr, &pose);
+              ? decode_odometry(message.data, message.size, reader_.wire(), &pose)
+              : decode_pose_stamped(message.data, message.size, reader_.wire(), &pose);
       if (decoded && pose_to_se3(pose, &T_W_B_)) {
         have_pose_ = true;
         const RosString& child = pose.child_frame;
@@ -713,7 +727,7 @@ NextFrame BagSource::next(DepthFrame& frame) {
     if (c != depth_channel_) continue;
     if (kind == Kind::compressed) {
       RosCompressedImage compressed;
-      if (!decode_compressed_image(message.data, message.size, RosWire::cdr, &compressed)) {
+      if (!decode_compressed_image(message.data, message.size, reader_.wire(), &compressed)) {
         error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/CompressedImage",
                    config_.path, static_cast<unsigned long long>(message.sequence), depth_topic_);
         return NextFrame::skipped(StatusCode::data_loss);
@@ -721,7 +735,7 @@ NextFrame BagSource::next(DepthFrame& frame) {
       return convert_compressed(compressed, static_cast<std::int64_t>(message.log_time_ns), frame);
     }
     RosImage image;
-    if (!decode_image(message.data, message.size, RosWire::cdr, &image)) {
+    if (!decode_image(message.data, message.size, reader_.wire(), &image)) {
       error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/Image", config_.path,
                  static_cast<unsigned long long>(message.sequence), depth_topic_);
       return NextFrame::skipped(StatusCode::data_loss);
@@ -733,8 +747,8 @@ NextFrame BagSource::next(DepthFrame& frame) {
 Status read_bag_poses(const BagConfig& config,
                       void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
                       void* context, ErrorText* error) {
-  McapReader reader;
-  Status status = reader.open(config.path, config.limits);
+  BagReader reader;
+  Status status = reader.open(config.path, config.format, config.limits);
   if (!status.ok()) {
     error->set("%s", reader.error());
     return status;
@@ -763,9 +777,10 @@ Status read_bag_poses(const BagConfig& config,
       break;
     }
     RosPose pose;
-    const bool decoded = kind == BagSource::Kind::odometry
-                             ? decode_odometry(message.data, message.size, RosWire::cdr, &pose)
-                             : decode_pose_stamped(message.data, message.size, RosWire::cdr, &pose);
+    const bool decoded =
+        kind == BagSource::Kind::odometry
+            ? decode_odometry(message.data, message.size, reader.wire(), &pose)
+            : decode_pose_stamped(message.data, message.size, reader.wire(), &pose);
     Se3d T;
     if (!decoded || !pose_to_se3(pose, &T)) {
       error->set("%s: pose message %llu on %s is malformed or not a rotation", config.path,
@@ -778,8 +793,8 @@ Status read_bag_poses(const BagConfig& config,
     ++poses;
   }
   if (other != nullptr) {
-    error->set("%s has several pose topics (%s, %s); choose one with mcap:FILE?pose=TOPIC",
-               config.path, chosen->topic, other->topic);
+    error->set("%s has several pose topics (%s, %s); choose one with %s:FILE?pose=TOPIC",
+               config.path, chosen->topic, other->topic, reader.name());
     return StatusCode::invalid_argument;
   }
   if (poses == 0) {

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "octofuse/sensor/depth_source.hpp"
@@ -89,6 +90,34 @@ inline int make_bag(const std::string& dump, const std::string& bag, const std::
   const int rc = std::system(command.c_str());
   return rc < 0 ? rc : WEXITSTATUS(rc);
 #endif
+}
+
+// Runs make_rosbag.py (a ROS 1 bag through python3-rosbag); its exit status (77: python3-rosbag
+// or the compression's module is missing).
+inline int make_rosbag(const std::string& dump, const std::string& bag,
+                       const std::string& options) {
+#if !defined(OCTOFUSE_PYTHON) || !defined(OCTOFUSE_MAKE_ROSBAG)
+  (void)dump;
+  (void)bag;
+  (void)options;
+  return 77;
+#else
+  const std::string command = std::string(OCTOFUSE_PYTHON) + " " + OCTOFUSE_MAKE_ROSBAG + " " +
+                              dump + " " + bag + " " + options;
+  const int rc = std::system(command.c_str());
+  return rc < 0 ? rc : WEXITSTATUS(rc);
+#endif
+}
+
+// Several ROS 1 bags of one dump in one run of make_rosbag.py: {path, options} each.
+inline int make_rosbags(const std::string& dump,
+                        const std::vector<std::pair<std::string, std::string>>& bags) {
+  const std::string batch = dump + ".batch";
+  {
+    std::ofstream out(batch);
+    for (const auto& bag : bags) out << dump << " " << bag.first << " " << bag.second << "\n";
+  }
+  return make_rosbag("--batch", batch, "");
 }
 
 }  // namespace octofuse::test

@@ -34,10 +34,11 @@ KeptFrames sim_frames() {
   return keep_frames(sim, kSimFrames);
 }
 
-std::unique_ptr<BagSource> open_bag(const std::string& path, const char* query = "") {
+std::unique_ptr<BagSource> open_bag(const std::string& path, const char* query = "",
+                                    const char* scheme = "mcap:") {
   BagConfig config;
   octofuse::ErrorText error;
-  const std::string spec = "mcap:" + path + query;
+  const std::string spec = scheme + path + query;
   REQUIRE(octofuse::replay::parse_bag_spec(spec.c_str(), &config, &error).ok());
   return std::make_unique<BagSource>(config);
 }
@@ -134,6 +135,27 @@ struct Fixture {
     }
     REQUIRE(rc == 0);
     return path;
+  }
+  // ROS 1 bags (make_rosbag.py, in one run): {name, options} each. Their paths, or none when
+  // python3-rosbag or roslz4 is missing (the case skips).
+  std::vector<std::string> rosbags(const std::vector<std::pair<std::string, std::string>>& bags) {
+    std::vector<std::pair<std::string, std::string>> jobs;
+    std::vector<std::string> paths;
+    for (const auto& bag : bags) {
+      paths.push_back(dir + "/" + bag.first);
+      jobs.push_back({paths.back(), bag.second});
+    }
+    const int rc = make_rosbags(dump, jobs);
+    if (rc == 77) {
+      WARN("make_rosbag.py: python3-rosbag or roslz4 missing, case skipped");
+      return {};
+    }
+    REQUIRE(rc == 0);
+    return paths;
+  }
+  std::string rosbag(const std::string& name, const std::string& options) {
+    const std::vector<std::string> paths = rosbags({{name, options}});
+    return paths.empty() ? std::string() : paths[0];
   }
 };
 
@@ -424,6 +446,434 @@ TEST_CASE("mcap: a bag of 7-Scenes frames gives their trajectory", "[replay][bag
   octofuse::replay::ReplaySource again(config);
   REQUIRE(again.open().ok());
   std::unique_ptr<BagSource> bag_again = open_bag(path);
+  REQUIRE(bag_again->open().ok());
+  const Eigen::Matrix4d first = fixture.kept.frames[0].T_W_C;
+  const std::vector<Eigen::Matrix4d> from_folder = track(again, again.intrinsics(), first, kFrames);
+  const std::vector<Eigen::Matrix4d> from_bag = track(*bag_again, bag_again->intrinsics(), first);
+  REQUIRE(from_bag.size() == from_folder.size());
+  for (std::size_t i = 0; i < from_bag.size(); ++i) CHECK(from_bag[i] == from_folder[i]);
+}
+
+// ROS 1 bags (rosbag:FILE), written by ROS 1's own Python writer (python3-rosbag).
+
+namespace {
+
+std::unique_ptr<BagSource> open_rosbag(const std::string& path, const char* query = "") {
+  return open_bag(path, query, "rosbag:");
+}
+
+}  // namespace
+
+TEST_CASE("rosbag: sim frames come back the same in every compression and layout",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  struct Variant {
+    const char* options;
+    const char* depth_topic;
+    int units_ratio;
+    bool poses;
+  };
+  const Variant variants[] = {
+      {"--compression none", "/camera/depth/image_raw", 1, true},
+      {"--compression bz2", "/camera/depth/image_raw", 1, true},
+      {"--compression lz4", "/camera/depth/image_raw", 1, true},
+      // A chunk per message, as a bag of large images is.
+      {"--compression bz2 --chunk-threshold 1", "/camera/depth/image_raw", 1, true},
+      {"--compression none --chunk-threshold 1 --pose odometry", "/camera/depth/image_raw", 1,
+       true},
+      {"--compression lz4 --pose pose_stamped --encoding mono16", "/camera/depth/image_raw", 1,
+       true},
+      {"--compression none --pose none", "/camera/depth/image_raw", 1, false},
+      {"--compression bz2 --encoding 32FC1", "/camera/depth/image_raw", 5, true},
+      // TUM RGB-D's layout: 32FC1 on /camera/depth/image, a colour image, two camera infos, an
+      // IMU, tf/tfMessage with leading-slash frames chained down to the optical frame.
+      {"--compression bz2 --tum", "/camera/depth/image", 5, true},
+  };
+  std::vector<std::pair<std::string, std::string>> jobs;
+  for (const Variant& v : variants)
+    jobs.push_back({"v" + std::to_string(jobs.size()) + ".bag", v.options});
+  const std::vector<std::string> paths = fixture.rosbags(jobs);
+  for (std::size_t n = 0; n < paths.size(); ++n) {
+    const Variant& v = variants[n];
+    const std::string& path = paths[n];
+    INFO(v.options);
+    std::unique_ptr<BagSource> bag = open_rosbag(path);
+    {
+      const octofuse::Status opened = bag->open();
+      INFO(bag->last_error());
+      REQUIRE(opened.ok());
+    }
+    CHECK(std::strcmp(bag->depth_topic(), v.depth_topic) == 0);
+    check_same_frames(*bag, fixture.kept, v.units_ratio, v.poses);
+    CHECK(bag->frames_without_pose() == 0);
+  }
+}
+
+TEST_CASE("rosbag: the same frames as the MCAP bag of them, bit for bit", "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  const std::string mcap = fixture.bag("same.mcap", "--compression none");
+  const std::string ros1 = fixture.rosbag("same.bag", "--compression bz2");
+  if (ros1.empty()) return;
+  std::unique_ptr<BagSource> a = open_bag(mcap);
+  std::unique_ptr<BagSource> b = open_rosbag(ros1);
+  REQUIRE(a->open().ok());
+  REQUIRE(b->open().ok());
+  const KeptFrames from_mcap = keep_frames(*a, 100);
+  const KeptFrames from_ros1 = keep_frames(*b, 100);
+  REQUIRE(from_mcap.frames.size() == static_cast<std::size_t>(kSimFrames));
+  REQUIRE(from_ros1.frames.size() == from_mcap.frames.size());
+  for (std::size_t i = 0; i < from_mcap.frames.size(); ++i) {
+    CHECK(from_ros1.frames[i].depth == from_mcap.frames[i].depth);
+    CHECK(from_ros1.frames[i].timestamp_us == from_mcap.frames[i].timestamp_us);
+    CHECK(from_ros1.frames[i].metres_per_unit == from_mcap.frames[i].metres_per_unit);
+    CHECK(from_ros1.frames[i].T_W_C == from_mcap.frames[i].T_W_C);
+  }
+}
+
+TEST_CASE("rosbag: a bag of sim frames gives the same trajectory as the sim",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  const std::string path = fixture.rosbag("same.bag", "--compression lz4");
+  if (path.empty()) return;
+  octofuse::sim::SimSource sim(small_sim(kSimFrames));
+  REQUIRE(sim.open().ok());
+  std::unique_ptr<BagSource> bag = open_rosbag(path);
+  REQUIRE(bag->open().ok());
+  const Eigen::Matrix4d first = fixture.kept.frames[0].T_W_C;
+  const std::vector<Eigen::Matrix4d> from_sim = track(sim, sim.intrinsics(), first);
+  const std::vector<Eigen::Matrix4d> from_bag = track(*bag, bag->intrinsics(), first);
+  REQUIRE(from_sim.size() == static_cast<std::size_t>(kSimFrames));
+  REQUIRE(from_bag.size() == from_sim.size());
+  for (std::size_t i = 0; i < from_sim.size(); ++i) CHECK(from_bag[i] == from_sim[i]);
+}
+
+TEST_CASE("rosbag: next() after open() does not allocate", "[replay][bag][rosbag]") {
+  if (!octofuse::test::counts_malloc()) return;  // the sanitizers own malloc
+  Fixture fixture(sim_frames());
+  for (const std::string& path :
+       fixture.rosbags({{"a0.bag", "--compression none"},
+                        {"a1.bag", "--compression bz2"},
+                        {"a2.bag", "--compression lz4"},
+                        {"a3.bag", "--compression bz2 --chunk-threshold 1"}})) {
+    INFO(path);
+    std::unique_ptr<BagSource> bag = open_rosbag(path);
+    REQUIRE(bag->open().ok());
+    octofuse::DepthFrame frame;
+    int frames = 0;
+    octofuse::test::AllocationScope scope;
+    while (bag->next(frame).outcome == FrameOutcome::frame) ++frames;
+    CHECK(scope.allocations() == 0);
+    CHECK(frames == kSimFrames);
+  }
+}
+
+TEST_CASE("rosbag: a bag's odometry poses for the prior", "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  std::vector<Eigen::Matrix4d> poses;
+  auto collect = [](void* context, std::int64_t, const octofuse::Se3d& T) {
+    static_cast<std::vector<Eigen::Matrix4d>*>(context)->push_back(T.matrix());
+  };
+  const std::string path = fixture.rosbag("odom.bag", "--compression bz2 --pose odometry");
+  if (path.empty()) return;
+  BagConfig config;
+  octofuse::ErrorText error;
+  REQUIRE(octofuse::replay::parse_bag_spec(("rosbag:" + path).c_str(), &config, &error).ok());
+  REQUIRE(octofuse::replay::read_bag_poses(config, collect, &poses, &error).ok());
+  REQUIRE(poses.size() == fixture.kept.frames.size());
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    CHECK((poses[i] - fixture.kept.frames[i].T_W_C).cwiseAbs().maxCoeff() < 1e-12);
+  }
+}
+
+TEST_CASE("rosbag: a bag cut at any byte replays to its last whole message",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  // A compressed chunk is a compressed stream: cut inside it, what its last whole compressed
+  // block holds is read (bzip2's blocks are up to 900 kB, so often nothing). With a chunk per
+  // message (as images larger than the chunk threshold are) or uncompressed chunks, a cut loses
+  // only the message it went through.
+  struct Variant {
+    const char* options;
+    bool to_last_message;
+  };
+  const Variant variants[] = {{"--compression none", true},
+                              {"--compression bz2", false},
+                              {"--compression lz4", false},
+                              {"--compression lz4 --chunk-threshold 1", true},
+                              {"--compression bz2 --chunk-threshold 1", true},
+                              {"--compression none --chunk-threshold 1", true}};
+  std::vector<std::pair<std::string, std::string>> jobs;
+  for (const Variant& v : variants)
+    jobs.push_back({"w" + std::to_string(jobs.size()) + ".bag", v.options});
+  const std::vector<std::string> paths = fixture.rosbags(jobs);
+  for (std::size_t n = 0; n < paths.size(); ++n) {
+    const Variant& v = variants[n];
+    const std::string& whole = paths[n];
+    INFO(v.options);
+    const std::string bytes = read_bytes(whole);
+    const std::string cut = fixture.dir + "/cut.bag";
+    std::size_t previous_frames = 0;
+    int cuts = 0;
+    for (std::size_t size = 0; size < bytes.size(); size += 1 + size / 8, ++cuts) {
+      INFO("cut at " << size);
+      write_text(cut, bytes.substr(0, size));
+      std::unique_ptr<BagSource> bag = open_rosbag(cut);
+      const octofuse::Status opened = bag->open();
+      if (!opened.ok()) {
+        // Cut before a whole camera info and image: one clear error, and no frame later on.
+        CHECK(std::strlen(bag->last_error()) > 0);
+        CHECK(previous_frames == 0);
+        continue;
+      }
+      octofuse::DepthFrame frame;
+      std::size_t frames = 0;
+      NextFrame next;
+      while ((next = bag->next(frame)).outcome == FrameOutcome::frame) {
+        const KeptFrame& k = fixture.kept.frames.at(frames);
+        CHECK(frame.timestamp_us == k.timestamp_us);
+        CHECK(std::memcmp(frame.depth_raw.data, k.depth.data(), k.depth.size() * 2) == 0);
+        ++frames;
+      }
+      CHECK(next.outcome == FrameOutcome::end_of_stream);
+      if (next.status.code() == StatusCode::end_of_stream) {
+        // Cut in the index section: every message was read.
+        CHECK(frames == fixture.kept.frames.size());
+      } else {
+        CHECK(next.status.code() == StatusCode::data_loss);
+        CHECK(std::strstr(bag->last_error(), "cut short at byte") != nullptr);
+      }
+      CHECK(frames >= previous_frames);
+      previous_frames = frames;
+    }
+    CHECK(cuts > 40);
+    if (v.to_last_message) CHECK(previous_frames + 1 >= fixture.kept.frames.size());
+  }
+}
+
+namespace {
+
+// A bag as a killed recorder leaves it: the bag header's index position 0, the last chunk's
+// sizes never written (0, as rosbag writes them first), the file ending with that chunk's data.
+std::string as_never_closed(std::string bytes) {
+  auto le32 = [&](std::size_t at) {
+    std::uint32_t v = 0;
+    std::memcpy(&v, bytes.data() + at, 4);
+    return v;
+  };
+  // The value of field `name` in the record header at `header` (`size` bytes); npos if none.
+  auto field = [&](std::size_t header, std::uint32_t size, const std::string& name) {
+    for (std::size_t pos = header; pos + 4 <= header + size;) {
+      const std::uint32_t n = le32(pos);
+      if (bytes.compare(pos + 4, name.size() + 1, name + "=") == 0) {
+        return pos + 4 + name.size() + 1;
+      }
+      pos += 4 + n;
+    }
+    return std::string::npos;
+  };
+  const std::size_t index_pos = field(17, le32(13), "index_pos");
+  REQUIRE(index_pos != std::string::npos);
+  std::memset(&bytes[index_pos], 0, 8);
+  std::size_t last_chunk = 0;
+  for (std::size_t pos = 13; pos + 8 <= bytes.size();) {
+    const std::uint32_t header = le32(pos);
+    if (bytes[field(pos + 4, header, "op")] == 0x05) last_chunk = pos;
+    pos += 8 + header + le32(pos + 4 + header);
+  }
+  REQUIRE(last_chunk > 0);
+  const std::uint32_t header = le32(last_chunk);
+  const std::size_t end = last_chunk + 8 + header + le32(last_chunk + 4 + header);
+  const std::size_t size = field(last_chunk + 4, header, "size");
+  REQUIRE(size != std::string::npos);
+  std::memset(&bytes[size], 0, 4);
+  std::memset(&bytes[last_chunk + 4 + header], 0, 4);
+  return bytes.substr(0, end);
+}
+
+}  // namespace
+
+TEST_CASE("rosbag: a bag its recorder never closed replays with a warning",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  const char* options[] = {"--compression none", "--compression bz2", "--compression lz4",
+                           "--compression lz4 --chunk-threshold 1"};
+  std::vector<std::pair<std::string, std::string>> jobs;
+  for (const char* o : options) jobs.push_back({"u" + std::to_string(jobs.size()) + ".bag", o});
+  const std::vector<std::string> paths = fixture.rosbags(jobs);
+  for (std::size_t n = 0; n < paths.size(); ++n) {
+    INFO(options[n]);
+    const std::string path = fixture.dir + "/unclosed.bag";
+    write_text(path, as_never_closed(read_bytes(paths[n])));
+    std::unique_ptr<BagSource> bag = open_rosbag(path);
+    {
+      const octofuse::Status opened = bag->open();
+      INFO(bag->last_error());
+      REQUIRE(opened.ok());
+    }
+    octofuse::DepthFrame frame;
+    std::size_t frames = 0;
+    NextFrame next;
+    while ((next = bag->next(frame)).outcome == FrameOutcome::frame) {
+      const KeptFrame& k = fixture.kept.frames.at(frames);
+      CHECK(std::memcmp(frame.depth_raw.data, k.depth.data(), k.depth.size() * 2) == 0);
+      ++frames;
+    }
+    CHECK(frames == fixture.kept.frames.size());
+    CHECK(next.status.code() == StatusCode::data_loss);
+    CHECK(std::strstr(bag->last_error(), "the recorder did not close the bag") != nullptr);
+  }
+}
+
+TEST_CASE("rosbag: bad input gets one clear error", "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  // One run of the writer for every case (sections would run it again each).
+  const std::vector<std::string> bags = fixture.rosbags(
+      {{"good.bag", "--compression none --chunk-threshold 1"}, {"bz.bag", "--compression bz2"}});
+  if (bags.empty()) return;
+  const std::string& good = bags[0];
+  const std::string bytes = read_bytes(good);
+  {  // not a bag
+    const std::string path = fixture.dir + "/x.bag";
+    write_text(path, "not a bag at all");
+    std::unique_ptr<BagSource> bag = open_rosbag(path);
+    CHECK(bag->open().code() == StatusCode::data_loss);
+    CHECK(std::strstr(bag->last_error(), "not a ROS 1 bag") != nullptr);
+  }
+  {  // an MCAP file given as rosbag:
+    const std::string path = fixture.bag("m.mcap", "--compression none");
+    std::unique_ptr<BagSource> bag = open_rosbag(path);
+    CHECK(bag->open().code() == StatusCode::data_loss);
+    CHECK(std::strstr(bag->last_error(), "not a ROS 1 bag") != nullptr);
+  }
+  {  // another format version
+    const std::string path = fixture.dir + "/v12.bag";
+    write_text(path, "#ROSBAG V1.2\n" + bytes.substr(13));
+    std::unique_ptr<BagSource> bag = open_rosbag(path);
+    CHECK(bag->open().code() == StatusCode::data_loss);
+    CHECK(std::strstr(bag->last_error(), "format '1.2' is not supported") != nullptr);
+  }
+  {  // a missing file
+    std::unique_ptr<BagSource> bag = open_rosbag(fixture.dir + "/none.bag");
+    CHECK(bag->open().code() == StatusCode::unavailable);
+  }
+  {  // a depth topic that is not there
+    std::unique_ptr<BagSource> bag = open_rosbag(good, "?depth=/nope");
+    CHECK(bag->open().code() == StatusCode::invalid_argument);
+    CHECK(std::strstr(bag->last_error(), "rosbag: no sensor_msgs/msg/Image") != nullptr);
+    CHECK(std::strstr(bag->last_error(), "/nope") != nullptr);
+  }
+  {  // a chunk larger than the buffer: the error says how to raise it
+    const std::string& path = bags[1];
+    octofuse::replay::RosbagReader reader;
+    octofuse::replay::McapLimits limits;
+    limits.max_chunk_bytes = 4096;  // a 160 x 120 frame alone is 38 kB
+    REQUIRE(reader.open(path.c_str(), limits).ok());
+    octofuse::replay::McapMessage message;
+    octofuse::replay::McapNext got;
+    while ((got = reader.next(&message)) == octofuse::replay::McapNext::message) {
+    }
+    CHECK(got == octofuse::replay::McapNext::error);
+    CHECK(std::strstr(reader.error(), "raise it with ?buffer=MB") != nullptr);
+  }
+  {  // corrupt bz2 data
+    std::string corrupt = read_bytes(bags[1]);
+    for (std::size_t i = 5000; i < 5100 && i < corrupt.size(); ++i) corrupt[i] = 'x';
+    const std::string path = fixture.dir + "/corrupt.bag";
+    write_text(path, corrupt);
+    std::unique_ptr<BagSource> bag = open_rosbag(path);
+    CHECK(bag->open().code() == StatusCode::data_loss);
+    CHECK(std::strstr(bag->last_error(), "corrupt bz2 data") != nullptr);
+  }
+  {  // every record's header or data length flipped: an error or a warning, never a crash
+    // Record boundaries, found as the reader would: magic, bag header, then chunks whose
+    // records are loose (uncompressed).
+    auto le32 = [&](std::size_t at) {
+      std::uint32_t v = 0;
+      std::memcpy(&v, bytes.data() + at, 4);
+      return v;
+    };
+    std::vector<std::size_t> length_fields;
+    std::size_t pos = 13;
+    while (pos + 8 <= bytes.size()) {
+      const std::uint32_t header = le32(pos);
+      length_fields.push_back(pos);
+      length_fields.push_back(pos + 4 + header);
+      const std::uint32_t data = le32(pos + 4 + header);
+      const bool chunk = bytes.find(std::string("op=\x05", 4), pos + 4) < pos + 4 + header;
+      pos += 8 + header + (chunk ? 0 : data);  // into a chunk's records
+    }
+    REQUIRE(length_fields.size() > 20);
+    const std::string path = fixture.dir + "/flipped.bag";
+    int errors = 0, warnings = 0;
+    for (const std::size_t at : length_fields) {
+      for (const std::uint8_t flip : {0x01, 0x80}) {
+        std::string changed = bytes;
+        changed[at + (flip == 0x80 ? 3 : 0)] ^= static_cast<char>(flip);
+        write_text(path, changed);
+        std::unique_ptr<BagSource> bag = open_rosbag(path);
+        if (!bag->open().ok()) {
+          CHECK(std::strlen(bag->last_error()) > 0);
+          ++errors;
+          continue;
+        }
+        octofuse::DepthFrame frame;
+        NextFrame next;
+        int frames = 0;
+        while ((next = bag->next(frame)).outcome != FrameOutcome::end_of_stream &&
+               next.outcome != FrameOutcome::error && frames < 100) {
+          frames += next.outcome == FrameOutcome::frame;
+          if (next.outcome == FrameOutcome::skip) CHECK(std::strlen(bag->last_error()) > 0);
+        }
+        CHECK(frames <= kSimFrames);
+        if (next.status.code() != StatusCode::end_of_stream) {
+          CHECK(std::strlen(bag->last_error()) > 0);
+          ++warnings;
+        }
+      }
+    }
+    CHECK(errors + warnings > 0);
+  }
+  {  // spec
+    BagConfig config;
+    octofuse::ErrorText error;
+    REQUIRE(
+        octofuse::replay::parse_bag_spec("rosbag:a.bag?depth=/d&buffer=2", &config, &error).ok());
+    CHECK(config.format == octofuse::replay::BagFormat::rosbag);
+    CHECK(std::strcmp(config.path, "a.bag") == 0);
+    CHECK(std::strcmp(config.depth_topic, "/d") == 0);
+    CHECK(octofuse::replay::parse_bag_spec("rosbag:", &config, &error).code() ==
+          StatusCode::invalid_argument);
+    CHECK(std::strstr(error.c_str(), "rosbag: needs a file") != nullptr);
+    CHECK(octofuse::replay::parse_bag_spec("bag:x", &config, &error).code() ==
+          StatusCode::invalid_argument);
+  }
+}
+
+TEST_CASE("rosbag: a bag of 7-Scenes frames gives their trajectory",
+          "[replay][bag][rosbag][data]") {
+  const char* data_dir = std::getenv("OCTOFUSE_TEST_DATA_DIR");
+  if (data_dir == nullptr || data_dir[0] == '\0') {
+    WARN("OCTOFUSE_TEST_DATA_DIR is not set: skipping the 7-Scenes ROS 1 bag test");
+    return;
+  }
+  constexpr int kFrames = 4;
+  const std::string spec = std::string("7scenes:") + data_dir + "/7scenes-redkitchen";
+  octofuse::replay::ReplayConfig config;
+  octofuse::ErrorText error;
+  REQUIRE(octofuse::replay::parse_replay_spec(spec.c_str(), &config, &error).ok());
+  octofuse::replay::ReplaySource seven(config);
+  REQUIRE(seven.open().ok());
+  Fixture fixture(keep_frames(seven, kFrames));
+  const std::string path = fixture.rosbag("7scenes.bag", "--compression lz4");
+  if (path.empty()) return;
+  std::unique_ptr<BagSource> bag = open_rosbag(path);
+  REQUIRE(bag->open().ok());
+  // 7-Scenes' rotations are orthonormal to about 6e-5 only; a quaternion makes them exact.
+  check_same_frames(*bag, fixture.kept, 1, true, 1e-4);
+
+  octofuse::replay::ReplaySource again(config);
+  REQUIRE(again.open().ok());
+  std::unique_ptr<BagSource> bag_again = open_rosbag(path);
   REQUIRE(bag_again->open().ok());
   const Eigen::Matrix4d first = fixture.kept.frames[0].T_W_C;
   const std::vector<Eigen::Matrix4d> from_folder = track(again, again.intrinsics(), first, kFrames);

@@ -1,7 +1,9 @@
 #pragma once
 // DepthSource for robot recordings, read without ROS:
 //   mcap:FILE[?depth=TOPIC&info=TOPIC&pose=TOPIC&world=FRAME]
-// an MCAP file (rosbag2's default storage) with ROS 2 CDR messages:
+//   rosbag:FILE[?...the same options]
+// an MCAP file (rosbag2's default storage) with ROS 2 CDR messages, or a ROS 1 bag (format 2.0)
+// with the same types in ROS 1 serialisation ("sensor_msgs/Image"; TF also as tf/tfMessage):
 //   depth  sensor_msgs/msg/Image: 16UC1 or mono16 (millimetres unless a depth scale is given),
 //          32FC1 (metres, NaN for no data; stored at 5000 units/m unless a scale is given);
 //          or sensor_msgs/msg/CompressedImage from compressed_depth_image_transport
@@ -24,6 +26,7 @@
 
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/math/se3.hpp"
+#include "octofuse/ports/replay/bag_reader.hpp"
 #include "octofuse/ports/replay/mcap_reader.hpp"
 #include "octofuse/ports/replay/png_depth.hpp"
 #include "octofuse/ports/replay/ros_messages.hpp"
@@ -35,6 +38,7 @@ struct BagConfig {
   static constexpr std::size_t kMaxPath = 512;
   static constexpr std::size_t kMaxName = McapChannel::kMaxName;
 
+  BagFormat format = BagFormat::mcap;  // automatic: by the file's magic (for --list)
   char path[kMaxPath] = {};
   char depth_topic[kMaxName] = {};  // empty: chosen automatically
   char info_topic[kMaxName] = {};
@@ -52,7 +56,8 @@ struct BagConfig {
   McapLimits limits;
 };
 
-// Fills `config` from "mcap:FILE?key=value&..." (keys depth, info, pose, world).
+// Fills `config` from "mcap:FILE?key=value&..." or "rosbag:FILE?..." (keys depth, info, pose,
+// world, buffer).
 // invalid_argument for another prefix, an empty path, an unknown key or a value too long.
 Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
 
@@ -127,7 +132,9 @@ class BagSource final : public DepthSource {
   BagConfig config_;
   ErrorText error_;
   ErrorText scan_warning_;
-  McapReader reader_;
+  const char* prefix() const { return config_.format == BagFormat::rosbag ? "rosbag" : "mcap"; }
+
+  BagReader reader_;
   bool open_ = false;
   bool scanned_ = false;
 

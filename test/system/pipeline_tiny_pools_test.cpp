@@ -196,13 +196,16 @@ TEST_CASE("with a block store, evicted blocks come back when the camera returns"
   config.budget.max_store_reads = 4096;
   MemoryStore store;
   const TinyRun stored = run_tiny(sim_config, config, &store);  // (the test's store allocates)
-  std::uint64_t written = 0, unchanged = 0, read = 0, remapped = 0, read_late = 0;
+  std::uint64_t written = 0, unchanged = 0, read = 0, remapped = 0, read_late = 0, refused = 0;
   for (std::size_t i = 0; i < stored.stats.size(); ++i) {
     const StoreReport& r = stored.stats[i].store;
     REQUIRE(r.write_failed == 0);
     REQUIRE(r.read_failed == 0);
     written += r.written;
     unchanged += r.unchanged;
+    // No new block refused in this orbit (blocks, not finest levels).
+    refused +=
+        stored.stats[i].integration.pool_refusals - stored.stats[i].integration.finest_refusals;
     read += r.read;
     remapped += r.remapped;
     if (i >= stored.stats.size() * 3 / 4) read_late += r.read;
@@ -216,6 +219,7 @@ TEST_CASE("with a block store, evicted blocks come back when the camera returns"
   REQUIRE(store.puts == written);
   REQUIRE(store.releases >= unchanged);
   REQUIRE(stored.clean_differing == 0);
+  REQUIRE(refused == 0);
   REQUIRE(unchanged > 0);  // walls read back at the end of the orbit and evicted again unseen
   REQUIRE(read_late > 0);  // the first walls came back at the end of the orbit
   REQUIRE(read >= 2 * remapped);  // most came back before integration mapped them afresh

@@ -89,6 +89,7 @@ bool check_outputs(const RunOptions& options, std::string* error) {
   }
   if (!options.save_map_path.empty()) outputs.push_back({options.save_map_path, "--save-map"});
   if (!options.record.empty()) outputs.push_back({options.record, "--record"});
+  if (!options.map_file_path.empty()) outputs.push_back({options.map_file_path, "--map-file"});
   if (options.deadline_ms > 0.0 && !options.deadline_calibration.empty() &&
       !options.deadline_freeze) {
     outputs.push_back({options.deadline_calibration, "--deadline-calibration"});

@@ -185,6 +185,23 @@ TEST_CASE("octofuse-replay: output paths are checked before the first frame", "[
     CHECK(has(error_line(run), "is the file of --out's trajectory.txt"));
     CHECK(test::read_file(out + "/trajectory.txt") == "kept\n");
   }
+  SECTION("a block store over one of the run's outputs, a folder or a file that is no store") {
+    expect_refused({"--map-memory", "1", "--map-file", dir}, "--map-file: ");
+    expect_refused({"--map-memory", "1", "--map-file", dir + "/missing/s.store"}, "--map-file: ");
+    write_text(dir + "/notes.txt", "keep\n");  // shorter than a store's header
+    expect_refused({"--map-memory", "1", "--map-file", dir + "/notes.txt"}, "not a block store");
+    CHECK(test::read_file(dir + "/notes.txt") == "keep\n");
+    REQUIRE(::mkdir(out.c_str(), 0755) == 0);
+    write_text(out + "/trajectory.txt", "kept\n");
+    const test::RunResult run =
+        test::run_replay({"--frames", "2", "--quiet", "--map-memory", "1", "--out", out,
+                          "--map-file", out + "/trajectory.txt"},
+                         log);
+    INFO(run.output);
+    CHECK(run.exit_status == 1);
+    CHECK(has(error_line(run), "is the file of --out's trajectory.txt"));
+    CHECK(test::read_file(out + "/trajectory.txt") == "kept\n");
+  }
   SECTION("--out naming a file") {
     write_text(dir + "/plain", "x");
     const test::RunResult run =

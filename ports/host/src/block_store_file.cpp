@@ -143,8 +143,13 @@ Status BlockStoreFile::open(const char* path, const std::uint8_t* geometry,
   if (geometry_size > 0) std::memcpy(header + 16, geometry, geometry_size);
   put_u32(header + 16 + geometry_size, crc32(header, 16 + geometry_size));
   if (size < header_bytes) {
-    // New, or cut before its header was whole: nothing in it can be a record.
+    // New, or cut before its header was whole: nothing in it can be a record. Anything else this
+    // short is not a store, and is not ours to overwrite.
     if (read_only) return fail(StatusCode::invalid_argument, "not a block store");
+    std::uint8_t start[sizeof(header)];
+    if (size > 0 && (!read_at(fd_, start, size, 0) || std::memcmp(start, header, size) != 0)) {
+      return fail(StatusCode::invalid_argument, "not a block store (refusing to overwrite it)");
+    }
     if (size > 0 && warning != nullptr) {
       warning->set("%s: header torn (%llu bytes); the store starts empty", path,
                    static_cast<unsigned long long>(size));

@@ -329,6 +329,27 @@ TEST_CASE("a store's map geometry round-trips and out-of-range geometries are re
   REQUIRE(refused(bad));
 }
 
+TEST_CASE("a short file that is not the start of a store is refused and left as it is") {
+  const std::string dir = test::make_test_dir("block-store-short");
+  const std::string notes = dir + "/notes.txt";
+  test::write_text(notes, "keep\n");
+  host::BlockStoreFile store;
+  ErrorText warning;
+  REQUIRE(open_store(store, notes, &warning).code() == StatusCode::invalid_argument);
+  REQUIRE(test::read_bytes(notes) == "keep\n");
+  // A store cut inside its header is the start of one: it starts empty, with a warning.
+  const std::string path = dir + "/store";
+  {
+    host::BlockStoreFile whole;
+    REQUIRE(open_store(whole, path, &warning).ok());
+  }
+  const std::string header = test::read_bytes(path);
+  test::write_text(path, header.substr(0, 10));
+  REQUIRE(open_store(store, path, &warning).ok());
+  REQUIRE(!warning.empty());
+  REQUIRE(test::read_bytes(path) == header);
+}
+
 TEST_CASE("a writer killed with SIGKILL at random instants loses no record it had written") {
   const std::string dir = test::make_test_dir("block-store-kill");
   std::mt19937 rng(7);

@@ -1,4 +1,5 @@
 #include "config_file.hpp"
+#include "octofuse/ports/host/read_file.hpp"
 
 #include <cstdio>
 
@@ -64,7 +65,7 @@ bool parse_config_text(const std::string& text, const std::string& name,
 
 bool read_config_file(const std::string& path, std::vector<ConfigEntry>* entries,
                       std::string* error) {
-  std::FILE* file = std::fopen(path.c_str(), "rb");
+  std::FILE* file = host::open_regular_for_reading(path.c_str());
   if (file == nullptr) {
     *error = "cannot open config file '" + path + "'";
     return false;

@@ -1,4 +1,5 @@
 #include "deadline_calibration.hpp"
+#include "octofuse/ports/host/read_file.hpp"
 
 #include <charconv>
 #include <cstdio>
@@ -98,7 +99,7 @@ bool parse_deadline_calibration(const std::string& text, const std::string& name
 }
 
 bool read_deadline_calibration(const std::string& path, CostModel* model, std::string* error) {
-  std::FILE* file = std::fopen(path.c_str(), "rb");
+  std::FILE* file = host::open_regular_for_reading(path.c_str());
   if (file == nullptr) {
     *error = "cannot read deadline calibration " + path;
     return false;

@@ -1,5 +1,7 @@
 #include "query_points.hpp"
 
+#include <sys/stat.h>
+
 #include "octofuse/ports/host/atomic_file.hpp"
 
 #include <algorithm>
@@ -27,6 +29,12 @@ bool parse_number(const std::string& token, float* out) {
 
 bool load_query_points(const std::string& path, std::vector<Eigen::Vector3f>* points,
                        std::string* error) {
+  // A FIFO or device would block the open or never end: regular files only.
+  struct stat info;
+  if (::stat(path.c_str(), &info) == 0 && !S_ISREG(info.st_mode)) {
+    *error = "cannot read query points from " + path + ": not a regular file";
+    return false;
+  }
   std::ifstream in(path);
   if (!in) {
     *error = "cannot read query points from " + path;

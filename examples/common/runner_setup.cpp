@@ -224,9 +224,9 @@ int open_inputs(const RunOptions& options, RunSummary* summary, RunInputs* input
   // The deadline's starting model: the calibration file when there is one (frozen: it must be).
   CostModel& deadline_model = inputs->deadline_model;
   if (!options.deadline_calibration.empty()) {
-    std::FILE* probe = std::fopen(options.deadline_calibration.c_str(), "rb");
-    const bool absent = probe == nullptr && errno == ENOENT;
-    if (probe != nullptr) std::fclose(probe);
+    struct stat probe;
+    const bool absent =
+        ::stat(options.deadline_calibration.c_str(), &probe) != 0 && errno == ENOENT;
     if (!absent || options.deadline_freeze) {
       if (!read_deadline_calibration(options.deadline_calibration, &deadline_model, &error)) {
         return error_exit(error);

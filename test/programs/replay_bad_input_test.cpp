@@ -211,6 +211,40 @@ TEST_CASE("octofuse-replay: output paths are checked before the first frame", "[
   }
 }
 
+TEST_CASE("octofuse-replay: a FIFO where a file is read is refused at once", "[programs]") {
+  // Opening a FIFO with no writer blocks; every file the program reads is opened without waiting
+  // and must be a regular file.
+  const std::string dir = test::make_test_dir("replay-fifo");
+  const std::string fifo = dir + "/fifo";
+  REQUIRE(::mkfifo(fifo.c_str(), 0644) == 0);
+  const std::string log = dir + "/log.txt";
+  const std::vector<std::vector<std::string>> cases = {
+      {"--source", "mcap:" + fifo},
+      {"--source", "rosbag:" + fifo},
+      {"--source", "raw:" + fifo},
+      {"--odometry", fifo},
+      {"--load-map", fifo},
+      {"--query-points", fifo},
+      {"--config", fifo},
+      {"--deadline-ms", "30", "--deadline-calibration", fifo, "--deadline-freeze"},
+  };
+  for (std::vector<std::string> args : cases) {
+    CAPTURE(args[0], args[1]);
+    for (const char* a : {"--frames", "2", "--voxel-size", "0.04", "--quiet", "--out"}) {
+      args.push_back(a);
+    }
+    args.push_back(dir + "/out");
+    const test::RunResult run = test::run_replay(args, log);
+    INFO(run.output);
+    CHECK(run.exit_status != 0);
+    CHECK(run.exit_status < 128);  // an error, not a signal
+    CHECK(has(error_line(run), "error: "));
+  }
+  struct stat st;
+  REQUIRE(::stat(fifo.c_str(), &st) == 0);
+  CHECK(S_ISFIFO(st.st_mode));
+}
+
 TEST_CASE("octofuse-replay: a run that fails before its first frame leaves no output",
           "[programs]") {
   const std::string dir = test::make_test_dir("replay-early");

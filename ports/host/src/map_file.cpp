@@ -1,4 +1,5 @@
 #include "octofuse/ports/host/map_file.hpp"
+#include "octofuse/ports/host/read_file.hpp"
 
 #include <cerrno>
 #include <cstdio>
@@ -37,7 +38,7 @@ class FileSource final : public ByteSource {
 // Closes on every path out.
 struct OpenFile {
   std::FILE* file = nullptr;
-  explicit OpenFile(const char* path) : file(std::fopen(path, "rb")) {}
+  explicit OpenFile(const char* path) : file(open_regular_for_reading(path)) {}
   ~OpenFile() {
     if (file != nullptr) std::fclose(file);
   }
@@ -46,7 +47,7 @@ struct OpenFile {
 };
 
 Status cannot_open(const char* path, ErrorText* error) {
-  if (error != nullptr) error->set("%s: cannot open (%s)", path, std::strerror(errno));
+  if (error != nullptr) error->set("%s: cannot open (%s)", path, open_failure_text(errno));
   return StatusCode::unavailable;
 }
 

@@ -1,4 +1,5 @@
 #include "octofuse/ports/host/ply.hpp"
+#include "octofuse/ports/host/read_file.hpp"
 
 #include "octofuse/ports/host/atomic_file.hpp"
 #include "octofuse/ports/host/host_buffer.hpp"
@@ -92,9 +93,9 @@ Status write_ply(const char* path, const MeshView& mesh, ErrorText* error) {
 Status read_ply_into(const char* path, const PlyMeshTarget& target, ErrorText* error) {
   ErrorText scratch;
   ErrorText& err = error != nullptr ? *error : scratch;
-  std::FILE* file = std::fopen(path, "rb");
+  std::FILE* file = open_regular_for_reading(path);
   if (file == nullptr) {
-    err.set("%s: cannot open (%s)", path, std::strerror(errno));
+    err.set("%s: cannot open (%s)", path, open_failure_text(errno));
     return StatusCode::unavailable;
   }
   FileCloser closer{file};

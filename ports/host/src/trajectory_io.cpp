@@ -1,4 +1,5 @@
 #include "octofuse/ports/host/trajectory_io.hpp"
+#include "octofuse/ports/host/read_file.hpp"
 
 #include <algorithm>
 #include <cerrno>
@@ -79,9 +80,9 @@ Status for_each_tum_pose(const char* path, TimedPoseSink sink, void* context, Er
   ErrorText& err = error != nullptr ? *error : scratch;
   bool have_previous = false;
   double previous_s = 0.0;
-  std::FILE* file = std::fopen(path, "r");
+  std::FILE* file = open_regular_for_reading(path);
   if (file == nullptr) {
-    err.set("%s: cannot open (%s)", path, std::strerror(errno));
+    err.set("%s: cannot open (%s)", path, open_failure_text(errno));
     return StatusCode::unavailable;
   }
   char line[1024];

@@ -17,7 +17,7 @@ Status BagReader::open(const char* path, BagFormat format, const McapLimits& lim
   close();
   error_.clear();
   if (format == BagFormat::automatic) {
-    const int fd = ::open(path, O_RDONLY | O_CLOEXEC);
+    const int fd = ::open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
     if (fd < 0) {
       error_.set("%s: cannot open: %s", path, std::strerror(errno));
       return StatusCode::unavailable;

@@ -63,7 +63,7 @@ struct TextFile {
 };
 
 Status read_text_file(const char* path, TextFile* file, ErrorText* error) {
-  const int fd = ::open(path, O_RDONLY);
+  const int fd = ::open(path, O_RDONLY | O_NONBLOCK);
   if (fd < 0) {
     error->set("%s: cannot open (%s)", path, std::strerror(errno));
     return StatusCode::unavailable;
@@ -526,7 +526,7 @@ Status ReplaySource::open_raw() {
   const char* file = config_.path;
   metres_per_unit_ =
       1.0f / (config_.depth_units_per_m > 0.0f ? config_.depth_units_per_m : 1000.0f);
-  raw_fd_ = ::open(file, O_RDONLY);
+  raw_fd_ = ::open(file, O_RDONLY | O_NONBLOCK);
   if (raw_fd_ < 0) {
     error_.set("%s: cannot open (%s)", file, std::strerror(errno));
     return StatusCode::unavailable;
@@ -614,7 +614,7 @@ bool ReplaySource::frame_path(std::size_t index, char* out, std::size_t capacity
 }
 
 Status ReplaySource::read_into_file_buffer(const char* path, std::size_t* size) {
-  const int fd = ::open(path, O_RDONLY);
+  const int fd = ::open(path, O_RDONLY | O_NONBLOCK);
   if (fd < 0) {
     error_.set("%s: cannot open (%s)", path, std::strerror(errno));
     return StatusCode::unavailable;

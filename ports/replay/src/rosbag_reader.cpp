@@ -171,7 +171,7 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
     return StatusCode::invalid_argument;
   }
   limits_ = limits;
-  fd_ = ::open(path, O_RDONLY | O_CLOEXEC);
+  fd_ = ::open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
   if (fd_ < 0) {
     error_.set("%s: cannot open: %s", path, std::strerror(errno));
     return StatusCode::unavailable;

@@ -13,6 +13,7 @@
 #include "octofuse/map/keys.hpp"
 #include "octofuse/map/map_io.hpp"
 #include "octofuse/ports/host/map_file.hpp"
+#include "octofuse/ports/host/read_file.hpp"
 
 #include <cstdlib>
 #include <memory>
@@ -399,14 +400,11 @@ Status BlockStoreFile::compact_step(std::size_t max_bytes, ErrorText* error) {
 }
 
 bool is_block_store_file(const char* path) {
-  // Non-blocking: a FIFO without a writer must not hang the caller (only regular files count).
-  const int fd = ::open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
-  if (fd < 0) return false;
-  struct stat st;
+  std::FILE* file = open_regular_for_reading(path);
+  if (file == nullptr) return false;
   std::uint8_t magic[sizeof(kFileMagic)];
-  const bool read =
-      ::fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && read_at(fd, magic, sizeof(magic), 0);
-  ::close(fd);
+  const bool read = std::fread(magic, 1, sizeof(magic), file) == sizeof(magic);
+  std::fclose(file);
   return read && std::memcmp(magic, kFileMagic, sizeof(kFileMagic)) == 0;
 }
 

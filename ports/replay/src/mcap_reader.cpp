@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <cstring>
 
+#include "little_endian.hpp"
 #include "octofuse/core/arena.hpp"
 
 #if defined(OCTOFUSE_REPLAY_HAVE_ZSTD)
@@ -29,16 +30,9 @@ constexpr std::uint8_t kOpMessage = 0x05;
 constexpr std::uint8_t kOpChunk = 0x06;
 constexpr std::uint8_t kOpDataEnd = 0x0F;
 
-std::uint16_t le16(const std::uint8_t* p) {
-  return static_cast<std::uint16_t>(p[0] | (p[1] << 8));
-}
-std::uint32_t le32(const std::uint8_t* p) {
-  return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
-         (std::uint32_t{p[3]} << 24);
-}
-std::uint64_t le64(const std::uint8_t* p) {
-  return std::uint64_t{le32(p)} | (std::uint64_t{le32(p + 4)} << 32);
-}
+using detail::le16;
+using detail::le32;
+using detail::le64;
 
 // Bounds-checked walk over a record's fields.
 struct Fields {

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <cstring>
 
+#include "little_endian.hpp"
 #include "octofuse/core/arena.hpp"
 
 #if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
@@ -31,13 +32,8 @@ constexpr std::size_t kMaxHeaderBytes = 64u << 10;
 // bzip2's decompressor: its state (about 64 KiB) and one block of up to 900 kB as 32-bit entries.
 constexpr std::size_t kBz2ScratchBytes = (4u << 20) + (128u << 10);
 
-std::uint32_t le32(const std::uint8_t* p) {
-  return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
-         (std::uint32_t{p[3]} << 24);
-}
-std::uint64_t le64(const std::uint8_t* p) {
-  return std::uint64_t{le32(p)} | (std::uint64_t{le32(p + 4)} << 32);
-}
+using detail::le32;
+using detail::le64;
 
 struct View {
   const std::uint8_t* data = nullptr;

@@ -1,5 +1,6 @@
 // The live view's page: self-contained (no script, style or font from anywhere else), it polls
-// /state.json twice a second and reloads /render.bmp when the frame changes.
+// /state.json twice a second and reloads /render.bmp when the frame changes (and /slice.bmp,
+// the distance field's slice, when the field or the camera's height changes).
 
 #include "live_server.hpp"
 
@@ -31,6 +32,10 @@ img { image-rendering: pixelated; min-width: 320px; min-height: 240px; backgroun
 <div class="panel"><h2>Ray-cast, coloured by scale</h2><img id="render" alt="ray-cast">
 <div class="key"><span style="background:#d33"></span>0<span style="background:#3a3"></span>1
 <span style="background:#36c"></span>2<span style="background:#cc3"></span>3</div></div>
+<div class="panel" id="slicePanel" hidden><h2>Distance field at the camera's height
+(<span id="sliceZ">-</span> m), from above, x right, y up</h2><img id="slice" alt="distance field slice">
+<div class="key"><span style="background:#f00"></span>0 m<span style="background:#7fff80"></span><span id="sliceMid">-</span>
+<span style="background:#00f"></span><span id="sliceMax">-</span> or more<span style="background:#808080"></span>unknown</div></div>
 <div class="panel"><h2>Trajectory from above</h2>
 <canvas id="trajectory" width="320" height="320"></canvas></div>
 </div>
@@ -43,7 +48,7 @@ img { image-rendering: pixelated; min-width: 320px; min-height: 240px; backgroun
 <script>
 "use strict";
 const colours = ["#888", "#1f77b4", "#2ca02c", "#d62728"];
-let shownFrame = -1;
+let shownFrame = -1, shownSlice = "";
 function drawTrajectory(p) {
   // From above: the two world axes the camera moved along most (height varies least).
   const c = document.getElementById("trajectory"), g = c.getContext("2d");
@@ -99,6 +104,17 @@ async function tick() {
     if (s.width > 0 && s.frame !== shownFrame) {
       shownFrame = s.frame;
       document.getElementById("render").src = "/render.bmp?frame=" + s.frame;
+    }
+    if (s.slice_width > 0) {
+      const key = s.slice_version + "@" + s.slice_z_m;
+      document.getElementById("slicePanel").hidden = false;
+      document.getElementById("sliceZ").textContent = s.slice_z_m.toFixed(2);
+      document.getElementById("sliceMid").textContent = (s.slice_max_m / 2).toFixed(2) + " m";
+      document.getElementById("sliceMax").textContent = s.slice_max_m.toFixed(2) + " m";
+      if (key !== shownSlice) {
+        shownSlice = key;
+        document.getElementById("slice").src = "/slice.bmp?v=" + encodeURIComponent(key);
+      }
     }
     drawTrajectory(s.trajectory_p_W);
     drawStages(s.stage_ms);

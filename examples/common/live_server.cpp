@@ -352,6 +352,11 @@ std::string LiveServer::respond(const std::string& request) {
     if (bmp.empty()) return error_response("404 Not Found");
     return http_response("200 OK", "image/bmp", bmp);
   }
+  if (path == "/slice.bmp") {
+    const std::string bmp = slice_bmp();
+    if (bmp.empty()) return error_response("404 Not Found");
+    return http_response("200 OK", "image/bmp", bmp);
+  }
   return error_response("404 Not Found");
 }
 
@@ -375,6 +380,10 @@ std::string LiveServer::state_json() {
   json.key("block_capacity").value(static_cast<std::uint64_t>(s.block_capacity));
   json.key("width").value(s.width);
   json.key("height").value(s.height);
+  json.key("slice_width").value(s.slice_width);
+  json.key("slice_z_m").value(std::round(static_cast<double>(s.slice_z_m) * 1e3) / 1e3);
+  json.key("slice_max_m").value(static_cast<double>(s.slice_max_m));
+  json.key("slice_version").value(s.slice_version);
   json.key("stage_ms").begin_array();
   // Microseconds and tenths of a millimetre are plenty for a plot, and keep the text short.
   for (const float ms : s.stage_ms) json.value(std::round(static_cast<double>(ms) * 1e3) / 1e3);
@@ -386,37 +395,47 @@ std::string LiveServer::state_json() {
   return std::string(json.c_str(), json.size());
 }
 
-std::string LiveServer::render_bmp() {
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (serving_generation_ != latest_generation_) {
-      serving_ = latest_;
-      serving_generation_ = latest_generation_;
-    }
+void LiveServer::take_latest() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (serving_generation_ != latest_generation_) {
+    serving_ = latest_;
+    serving_generation_ = latest_generation_;
   }
-  const LiveSnapshot& s = serving_;
-  if (s.width <= 0 || s.height <= 0 ||
-      s.rgb.size() != static_cast<std::size_t>(s.width) * static_cast<std::size_t>(s.height) * 3) {
+}
+
+std::string LiveServer::render_bmp() {
+  take_latest();
+  return bmp_bytes(serving_.width, serving_.height, serving_.rgb);
+}
+
+std::string LiveServer::slice_bmp() {
+  take_latest();
+  return bmp_bytes(serving_.slice_width, serving_.slice_height, serving_.slice_rgb);
+}
+
+std::string bmp_bytes(int width, int height, const std::vector<std::uint8_t>& rgb) {
+  if (width <= 0 || height <= 0 ||
+      rgb.size() != static_cast<std::size_t>(width) * static_cast<std::size_t>(height) * 3) {
     return std::string();
   }
   // 24-bit BMP: BGR, rows bottom first, each padded to 4 bytes.
-  const std::size_t row_bytes = (static_cast<std::size_t>(s.width) * 3 + 3) / 4 * 4;
-  const std::size_t pixel_bytes = row_bytes * static_cast<std::size_t>(s.height);
+  const std::size_t row_bytes = (static_cast<std::size_t>(width) * 3 + 3) / 4 * 4;
+  const std::size_t pixel_bytes = row_bytes * static_cast<std::size_t>(height);
   std::string out(54 + pixel_bytes, '\0');
   out[0] = 'B';
   out[1] = 'M';
   put_u32(out, 2, static_cast<std::uint32_t>(out.size()));
   put_u32(out, 10, 54);
   put_u32(out, 14, 40);
-  put_u32(out, 18, static_cast<std::uint32_t>(s.width));
-  put_u32(out, 22, static_cast<std::uint32_t>(s.height));
+  put_u32(out, 18, static_cast<std::uint32_t>(width));
+  put_u32(out, 22, static_cast<std::uint32_t>(height));
   out[26] = 1;   // planes
   out[28] = 24;  // bits per pixel
   put_u32(out, 34, static_cast<std::uint32_t>(pixel_bytes));
-  for (int y = 0; y < s.height; ++y) {
-    const std::uint8_t* src = s.rgb.data() + static_cast<std::size_t>(y) * s.width * 3;
-    char* dst = &out[54 + static_cast<std::size_t>(s.height - 1 - y) * row_bytes];
-    for (int x = 0; x < s.width; ++x) {
+  for (int y = 0; y < height; ++y) {
+    const std::uint8_t* src = rgb.data() + static_cast<std::size_t>(y) * width * 3;
+    char* dst = &out[54 + static_cast<std::size_t>(height - 1 - y) * row_bytes];
+    for (int x = 0; x < width; ++x) {
       dst[3 * x + 0] = static_cast<char>(src[3 * x + 2]);
       dst[3 * x + 1] = static_cast<char>(src[3 * x + 1]);
       dst[3 * x + 2] = static_cast<char>(src[3 * x + 0]);

@@ -33,6 +33,14 @@ struct LiveSnapshot {
   int width = 0;
   int height = 0;
   std::vector<std::uint8_t> rgb;  // the last ray-cast shaded by scale, rows top first
+  // With a distance field (--esdf): a horizontal slice of it at the camera's height
+  // (esdf_slice.hpp), rows top first; slice_width 0: none.
+  int slice_width = 0;
+  int slice_height = 0;
+  float slice_z_m = 0.0f;
+  float slice_max_m = 0.0f;  // the distance shown blue
+  std::uint64_t slice_version = 0;  // map version of the field the slice shows
+  std::vector<std::uint8_t> slice_rgb;
 };
 
 struct LiveServerLimits {
@@ -82,6 +90,8 @@ class LiveServer {
   std::string respond(const std::string& request);
   std::string state_json();
   std::string render_bmp();
+  std::string slice_bmp();
+  void take_latest();
 
   int listen_fd_ = -1;
   int port_ = 0;
@@ -104,6 +114,9 @@ class LiveServer {
   std::atomic<std::uint64_t> refused_{0};
   std::atomic<std::uint64_t> timed_out_{0};
 };
+
+// A 24-bit BMP of `rgb` (rows top first); empty when the sizes do not match.
+std::string bmp_bytes(int width, int height, const std::vector<std::uint8_t>& rgb);
 
 // The page served at "/" (exposed for tests).
 const char* live_page_html();

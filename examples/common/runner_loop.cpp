@@ -7,6 +7,7 @@
 #include <memory>
 #include <string>
 
+#include "esdf_slice.hpp"
 #include "octofuse/render/shade.hpp"
 #include "runner_steps.hpp"
 
@@ -221,7 +222,29 @@ struct FrameDisplay {
   long frames_since_status = 0;
   std::chrono::steady_clock::time_point last_status = std::chrono::steady_clock::now();
   bool show_progress = false;
+  std::chrono::steady_clock::time_point last_slice;  // the distance field's slice, once a second
+  EsdfSliceImage slice;
 };
+
+// The distance field's slice at the camera's height into the snapshot (with --esdf).
+template <typename VoxelT>
+void fill_slice(const Pipeline<VoxelT>& pipeline, EsdfSliceImage* slice, LiveSnapshot* snapshot) {
+  constexpr float kSliceMax_m = 1.0f;
+  const MapQuery<VoxelT> query = pipeline.query();
+  auto observed = [&](const Eigen::Vector3f& p_W) {
+    const Result<PointAnswer> a = query.point(p_W);
+    return a.ok() && a.value().state != PointState::unknown &&
+           a.value().state != PointState::outside;
+  };
+  const float z_W = static_cast<float>(pipeline.reference_T_W_C().translation().z());
+  esdf_slice(pipeline.esdf(), z_W, kSliceMax_m, observed, slice);
+  snapshot->slice_width = slice->width;
+  snapshot->slice_height = slice->height;
+  snapshot->slice_z_m = slice->z_W;
+  snapshot->slice_max_m = kSliceMax_m;
+  snapshot->slice_version = pipeline.esdf().published_version();
+  snapshot->slice_rgb = slice->rgb;
+}
 
 template <typename VoxelT>
 int show_frame(const RunOptions& options, const Pipeline<VoxelT>& pipeline,
@@ -249,6 +272,12 @@ int show_frame(const RunOptions& options, const Pipeline<VoxelT>& pipeline,
     if (since_s >= 0.1) {
       fill_snapshot(pipeline, summary, processed,
                     static_cast<double>(frames_since_publish) / since_s, &snapshot_rgb, &snapshot);
+      // A slice costs a point query and a field query a cell (tens of milliseconds).
+      if (pipeline.esdf().reserved() &&
+          std::chrono::duration<double>(now - display->last_slice).count() >= 1.0) {
+        fill_slice(pipeline, &display->slice, &snapshot);
+        display->last_slice = now;
+      }
       server->publish(snapshot);
       frames_since_publish = 0;
       last_publish = now;

@@ -48,6 +48,7 @@ struct Options {
   std::uint32_t budget = 1u << 18;
   bool unknown_obstacle = false;
   int cells = 128;
+  int show_unsafe = 0;  // print the first N unsafe points with what the map holds around them
 };
 
 int usage(const char* why) {
@@ -55,7 +56,7 @@ int usage(const char* why) {
                "error: %s\nusage: octofuse-plan [--scene desk|room] [--voxel M] [--frames N] "
                "[--cells N] [--budget CELLS] [--unknown-obstacle] [--plan [--start X,Y,Z] [--goal "
                "X,Y,Z] [--radius M] "
-               "[--replan-every N] [--lattice M]] [--points N]\n",
+               "[--replan-every N] [--lattice M]] [--points N [--show-unsafe N]]\n",
                why);
   return 2;
 }
@@ -217,6 +218,8 @@ int main(int argc, char** argv) {
       o.budget = static_cast<std::uint32_t>(std::strtoul(value(), nullptr, 10));
     } else if (arg == "--cells") {
       o.cells = std::atoi(value());
+    } else if (arg == "--show-unsafe") {
+      o.show_unsafe = std::atoi(value());
     } else {
       return usage(("unknown option: " + arg).c_str());
     }
@@ -375,7 +378,7 @@ int main(int argc, char** argv) {
     };
     // Whether the map observed the scene's surface point nearest to p (a few projection steps
     // along the exact distance's gradient).
-    auto nearest_surface_seen = [&](const Eigen::Vector3f& p) {
+    auto nearest_surface_point = [&](const Eigen::Vector3f& p) {
       Eigen::Vector3d q = p.cast<double>();
       for (int it = 0; it < 4; ++it) {
         const double d0 = scene.distance_m(q);
@@ -388,6 +391,10 @@ int main(int argc, char** argv) {
         if (!(g.norm() > 0.5)) break;
         q -= d0 * g.normalized();
       }
+      return q;
+    };
+    auto nearest_surface_seen = [&](const Eigen::Vector3f& p) {
+      const Eigen::Vector3d q = nearest_surface_point(p);
       // ... and inside the field's window (beyond it the field caps its distances).
       if ((q.cast<float>().array() < lo.array()).any() ||
           (q.cast<float>().array() > hi.array()).any()) {
@@ -422,7 +429,29 @@ int main(int argc, char** argv) {
       worst = std::max(worst, over);
       if (over > voxel) {
         ++unsafe;
-        if (!nearest_surface_seen(p)) ++unsafe_unseen;
+        const bool unseen = !nearest_surface_seen(p);
+        if (unseen) ++unsafe_unseen;
+        if (unsafe <= o.show_unsafe) {
+          // The point, the field's answer and the surface point it implies, the exact nearest
+          // surface point and what the map and the field read there.
+          const Eigen::Vector3f q = nearest_surface_point(p).cast<float>();
+          const PointAnswer at_q = query.point(q).value();
+          const EsdfAnswer field_q = field.distance(q).value();
+          const Eigen::Vector3f c = (p - lo) / field.cell_m();
+          std::printf(
+              "unsafe %ld: p %.3f %.3f %.3f (cell %d %d %d) %s %.3f, exact %.4f, field %.4f "
+              "gradient %.2f %.2f %.2f; nearest surface %.3f %.3f %.3f%s: map %s %.4f, field "
+              "%.4f\n",
+              unsafe, static_cast<double>(p.x()), static_cast<double>(p.y()),
+              static_cast<double>(p.z()), static_cast<int>(c.x()), static_cast<int>(c.y()),
+              static_cast<int>(c.z()), point_state_name(a.state),
+              static_cast<double>(a.distance_m), exact, static_cast<double>(d.distance_m),
+              static_cast<double>(d.gradient.x()), static_cast<double>(d.gradient.y()),
+              static_cast<double>(d.gradient.z()), static_cast<double>(q.x()),
+              static_cast<double>(q.y()), static_cast<double>(q.z()), unseen ? " (unseen)" : "",
+              point_state_name(at_q.state), static_cast<double>(at_q.distance_m),
+              static_cast<double>(field_q.distance_m));
+        }
       }
       if (static_cast<double>(d.lower_bound_m) > exact) ++over_bound;
       if (a.state == PointState::free &&

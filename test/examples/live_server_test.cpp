@@ -113,7 +113,8 @@ TEST_CASE("The live server serves the page, the state and the ray-cast", "[examp
   CHECK(state ==
         "{\"frame\":7,\"fps\":12.5,\"tracking\":\"tracked\",\"map_bytes_used\":3145728,"
         "\"map_bytes_reserved\":67108864,\"blocks_used\":10,\"block_capacity\":1000,\"width\":3,"
-        "\"height\":2,\"stage_ms\":[1,2,3,4.5],\"trajectory_p_W\":[0,0.5,1]}");
+        "\"height\":2,\"slice_width\":0,\"slice_z_m\":0,\"slice_max_m\":0,\"slice_version\":0,"
+        "\"stage_ms\":[1,2,3,4.5],\"trajectory_p_W\":[0,0.5,1]}");
 
   const std::string bmp =
       body_of(http_exchange(server->port(), "GET /render.bmp?frame=7 HTTP/1.0\n\n"));
@@ -124,6 +125,26 @@ TEST_CASE("The live server serves the page, the state and the ray-cast", "[examp
   const std::string top_row("\x00\x00\xFF\x00\xFF\x00\xFF\x00\x00\x00\x00\x00", 12);
   CHECK(bmp.substr(54, 12) == bottom_row);
   CHECK(bmp.substr(66, 12) == top_row);
+
+  // The distance field's slice (--esdf): none in this snapshot, then one of 2 x 1 pixels.
+  CHECK(body_of(http_exchange(server->port(), "GET /slice.bmp HTTP/1.0\r\n\r\n")) ==
+        "404 Not Found\n");
+  LiveSnapshot with_slice = test_snapshot(8);
+  with_slice.slice_width = 2;
+  with_slice.slice_height = 1;
+  with_slice.slice_z_m = 1.25f;
+  with_slice.slice_max_m = 1.0f;
+  with_slice.slice_version = 5;
+  with_slice.slice_rgb = {255, 0, 0, 128, 128, 128};
+  REQUIRE(server->publish(with_slice));
+  const std::string slice_state =
+      body_of(http_exchange(server->port(), "GET /state.json HTTP/1.0\r\n\r\n"));
+  CHECK(slice_state.find("\"slice_width\":2,\"slice_z_m\":1.25,\"slice_max_m\":1,"
+                         "\"slice_version\":5") != std::string::npos);
+  const std::string slice =
+      body_of(http_exchange(server->port(), "GET /slice.bmp?v=5 HTTP/1.0\r\n\r\n"));
+  REQUIRE(slice.size() == 54u + 8u);  // one row of 6 bytes padded to 8
+  CHECK(slice.substr(54, 8) == std::string("\x00\x00\xFF\x80\x80\x80\x00\x00", 8));
 }
 
 TEST_CASE("The mesh on demand: asked for, made by the loop, taken once", "[examples][live]") {

@@ -10,6 +10,9 @@ namespace octofuse {
 namespace {
 constexpr float kSiteUnits = 64.0f;          // site coordinates per cell
 constexpr float kHalfDiagonal = 0.8660254f;  // sqrt(3) / 2, in cells
+// Surface sites lie about a cell apart on the surface, so every surface point lies within half a
+// face diagonal of one: each site stands for the disc of that radius around it.
+constexpr float kDiscRadius = 0.70710678f;
 constexpr int kChunkCells = 8;
 
 bool finite(const Eigen::Vector3f& v) {
@@ -39,13 +42,50 @@ Status validate(const EsdfConfig& config, const MapConfig& map) {
 
 std::size_t EsdfField::bytes_required(const EsdfConfig& config) {
   const std::size_t cells = cell_count(config.cells_per_side);
-  return 2 * cells * sizeof(Cell) + 2 * alignof(Cell);
+  return 2 * cells * sizeof(Cell) + 2 * alignof(Cell) + 3 * kNormalCodes * sizeof(float) +
+         alignof(float);
 }
 
-void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b) {
+// Octahedral code of a direction (sign ignored by the disc distance, kept anyway).
+int EsdfField::encode_normal(const Eigen::Vector3f& n) {
+  const float l1 = std::abs(n.x()) + std::abs(n.y()) + std::abs(n.z());
+  if (!(l1 > 0.0f)) return kNoNormal;
+  float u = n.x() / l1;
+  float v = n.y() / l1;
+  if (n.z() < 0.0f) {
+    const float fu = (1.0f - std::abs(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+    const float fv = (1.0f - std::abs(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+    u = fu;
+    v = fv;
+  }
+  const float top = static_cast<float>(kNormalSteps - 1);
+  const int i = static_cast<int>(std::floor((u + 1.0f) * 0.5f * top + 0.5f));
+  const int j = static_cast<int>(std::floor((v + 1.0f) * 0.5f * top + 0.5f));
+  return std::min(std::max(i, 0), kNormalSteps - 1) * kNormalSteps +
+         std::min(std::max(j, 0), kNormalSteps - 1);
+}
+
+void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b,
+                      float* normals) {
   config_ = config;
   buffers_[0] = a;
   buffers_[1] = b;
+  const float top = static_cast<float>(kNormalSteps - 1);
+  for (int code = 0; code < kNormalCodes; ++code) {
+    Eigen::Vector3f n(0.0f, 0.0f, 1.0f);
+    if (code < kNormalSteps * kNormalSteps) {
+      const float u = static_cast<float>(code / kNormalSteps) / top * 2.0f - 1.0f;
+      const float v = static_cast<float>(code % kNormalSteps) / top * 2.0f - 1.0f;
+      n = Eigen::Vector3f(u, v, 1.0f - std::abs(u) - std::abs(v));
+      if (n.z() < 0.0f) {
+        n.x() = (1.0f - std::abs(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+        n.y() = (1.0f - std::abs(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+      }
+      n.normalize();
+    }
+    for (int k = 0; k < 3; ++k) normals[3 * code + k] = n[k];
+  }
+  normals_ = normals;
   n_ = config.cells_per_side;
   chunks_per_side_ = n_ / kChunkCells;
   cell_voxels_ = config.cell_voxels;
@@ -54,10 +94,6 @@ void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, C
   // A site lies within a cell diagonal of the nearest surface point (both in one cell), and the
   // TSDF places the surface within about a finest voxel.
   error_bound_m_ = 2.0f * kHalfDiagonal * cell_m_ + voxel_m_;
-  // Sites of a plane's cells lie at most half a cell diagonal of a face beside the foot of the
-  // perpendicular from a point; removing that offset keeps distances near a surface from
-  // exceeding the true ones (and costs far ones nothing: 0.5 / (2 d) cells).
-  lateral2_cells_ = 0.5f;
   const int side = n_ * cell_voxels_;
   const int cube = map.voxels_per_side();
   for (int a_i = 0; a_i < 3; ++a_i) {
@@ -95,14 +131,38 @@ void EsdfField::clear() {
   published_version_ = 0;
 }
 
-float EsdfField::site_distance(const Cell& cell, const Eigen::Vector3f& q) const {
+float EsdfField::site_distance(const Cell& cell, const Eigen::Vector3f& q,
+                               Eigen::Vector3f* away) const {
   const Eigen::Vector3f s(static_cast<float>(cell.sx), static_cast<float>(cell.sy),
                           static_cast<float>(cell.sz));
-  const float d2 = (q - s * (1.0f / kSiteUnits)).squaredNorm();
-  if ((cell.flags & kBoxSite) != 0) return std::sqrt(d2) - kHalfDiagonal;
-  // Sites are a cell apart on the surface, so the nearest surface point may lie up to half a
-  // face diagonal beside the nearest site: remove that offset.
-  return std::sqrt(std::max(d2 - lateral2_cells_, 0.0f));
+  const Eigen::Vector3f v = q - s * (1.0f / kSiteUnits);
+  const int code = normal_code(cell);
+  if ((cell.flags & kBoxSite) != 0 || code >= kNormalSteps * kNormalSteps) {
+    const float d = v.norm();
+    if (away != nullptr) *away = d > 0.0f ? (v / d).eval() : Eigen::Vector3f::Zero();
+    if ((cell.flags & kBoxSite) != 0) return d - kHalfDiagonal;
+    // No normal: the nearest surface point may lie up to the disc's radius beside the site.
+    return std::sqrt(std::max(d * d - kDiscRadius * kDiscRadius, 0.0f));
+  }
+  // The distance to the site's disc: across the normal, and beyond the disc's rim beside it.
+  const Eigen::Vector3f n(normals_[3 * code], normals_[3 * code + 1], normals_[3 * code + 2]);
+  const float h = v.dot(n);
+  const Eigen::Vector3f lateral = v - h * n;
+  const float rho = lateral.norm();
+  Eigen::Vector3f w = h * n;
+  if (rho > kDiscRadius) w += lateral * (1.0f - kDiscRadius / rho);
+  const float d = w.norm();
+  if (away != nullptr) *away = d > 0.0f ? (w / d).eval() : Eigen::Vector3f::Zero();
+  return d;
+}
+
+// Propagation keeps each cell's nearest site by the plain distance (boxes less their half
+// diagonal); queries take the disc distance over the 27 cells around a point.
+float EsdfField::propagation_distance(const Cell& cell, const Eigen::Vector3f& q) const {
+  const Eigen::Vector3f s(static_cast<float>(cell.sx), static_cast<float>(cell.sy),
+                          static_cast<float>(cell.sz));
+  const float d = (q - s * (1.0f / kSiteUnits)).norm();
+  return (cell.flags & kBoxSite) != 0 ? d - kHalfDiagonal : d;
 }
 
 template <typename VoxelT>
@@ -168,10 +228,23 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         bool observed = false;
         bool box = false;
         bool site = false;
+        int normal = kNoNormal;
         Eigen::Vector3f site_W = p_W;
         if (block != nullptr) {
+          // The trilinear sample needs all 8 voxels around its point observed: where the
+          // cell's centre lacks one (the edge of what the camera saw, a scale boundary), a
+          // point a quarter cell towards each corner may have them.
           TsdfSample sample;
-          if (sample_tsdf(map, p_W, block, sample)) {
+          Eigen::Vector3f at_W = p_W;
+          bool sampled = sample_tsdf(map, p_W, block, sample);
+          for (int corner = 0; !sampled && corner < 8; ++corner) {
+            const Eigen::Vector3f offset((corner & 1) ? 0.25f : -0.25f,
+                                         (corner & 2) ? 0.25f : -0.25f,
+                                         (corner & 4) ? 0.25f : -0.25f);
+            at_W = p_W + offset * cell_m_;
+            sampled = sample_tsdf(map, at_W, sample);
+          }
+          if (sampled) {
             observed = true;
             float d_m = sample.tsdf * mu_m;
             Eigen::Vector3f g = sample.gradient * mu_m;
@@ -184,7 +257,8 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
               }
               if (std::abs(d_m) <= half_diagonal_m + voxel_m_) {
                 site = true;
-                site_W = p_W - d_m * g / g.squaredNorm();
+                site_W = at_W - d_m * g / g.squaredNorm();
+                normal = encode_normal(g);
               } else if (d_m < 0.0f) {
                 site = true;
                 box = true;
@@ -229,6 +303,7 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
           out.sy = to_site_units(s_cells.y(), n_);
           out.sz = to_site_units(s_cells.z(), n_);
           out.flags = static_cast<std::uint8_t>(kHasSite | kSeed | (box ? kBoxSite : 0));
+          set_normal_code(out, box ? kNoNormal : normal);
         }
         back[index] = out;
       }
@@ -242,16 +317,18 @@ inline void EsdfField::consider(Cell& cell, float* d, const Eigen::Vector3f& q,
                                 const Cell& other) const {
   if ((other.flags & kHasSite) == 0) return;
   if (other.sx == cell.sx && other.sy == cell.sy && other.sz == cell.sz &&
-      (cell.flags & kHasSite) != 0 && ((other.flags ^ cell.flags) & kBoxSite) == 0) {
+      (cell.flags & kHasSite) != 0 && ((other.flags ^ cell.flags) & ~kSeed) == 0 &&
+      other.normal_hi == cell.normal_hi) {
     return;
   }
-  const float candidate = site_distance(other, q);
+  const float candidate = propagation_distance(other, q);
   if (candidate >= *d) return;
   *d = candidate;
   cell.sx = other.sx;
   cell.sy = other.sy;
   cell.sz = other.sz;
-  cell.flags = static_cast<std::uint8_t>(other.flags & (kHasSite | kBoxSite));
+  cell.flags = static_cast<std::uint8_t>(other.flags & ~kSeed);
+  cell.normal_hi = other.normal_hi;
 }
 
 // One slice of a sweep along z (dz = +1 forward, -1 backward): the site of the cell before it
@@ -267,7 +344,7 @@ void EsdfField::sweep_slice(int z, int dz) {
   const float zc = static_cast<float>(z) + 0.5f;
   auto distance_of = [&](const Cell& cell, const Eigen::Vector3f& q) {
     if ((cell.flags & kSeed) != 0) return -1e30f;  // never replaced
-    return (cell.flags & kHasSite) != 0 ? site_distance(cell, q) : 1e30f;
+    return (cell.flags & kHasSite) != 0 ? propagation_distance(cell, q) : 1e30f;
   };
   const int zp = z - dz;
   if (zp >= 0 && zp < n) {
@@ -424,6 +501,7 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
   const Cell* cells = buffers_[front_];
   float best = 1e30f;
   const Cell* best_cell = nullptr;
+  Eigen::Vector3f best_away = Eigen::Vector3f::Zero();
   for (int dz = -1; dz <= 1; ++dz) {
     for (int dy = -1; dy <= 1; ++dy) {
       for (int dx = -1; dx <= 1; ++dx) {
@@ -434,10 +512,12 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
         const Cell& c =
             cells[(static_cast<std::size_t>(nz) * n_ + static_cast<std::size_t>(ny)) * n_ + nx];
         if ((c.flags & kHasSite) == 0) continue;
-        const float d = site_distance(c, q);
+        Eigen::Vector3f away;
+        const float d = site_distance(c, q, &away);
         if (d < best) {
           best = d;
           best_cell = &c;
+          best_away = away;
         }
       }
     }
@@ -446,17 +526,11 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
     out.lower_bound_m = window_bound < 1e29f ? window_bound : 0.0f;
     return out;
   }
-  const Eigen::Vector3f s =
-      Eigen::Vector3f(static_cast<float>(best_cell->sx), static_cast<float>(best_cell->sy),
-                      static_cast<float>(best_cell->sz)) *
-      (1.0f / kSiteUnits);
-  const Eigen::Vector3f away = q - s;
-  const float length = away.norm();
   out.has_distance = true;
   // A surface beyond the window's faces may be nearer than any site: no more than the distance
   // to those faces.
   out.distance_m = std::min(std::max(best, 0.0f) * cell_m_, window_bound);
-  if (length > 0.0f) out.gradient = away / length;
+  out.gradient = best_away;
   out.error_bound_m = error_bound_m_;
   out.lower_bound_m = std::max(out.distance_m - error_bound_m_, 0.0f);
   return out;

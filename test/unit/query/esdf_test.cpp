@@ -141,6 +141,73 @@ TEST_CASE("the field's distances against a sphere over a floor: safe, accurate, 
   CHECK(floor.lower_bound_m >= 0.3f - f.field.error_bound_m() - kVoxel_m);
 }
 
+// A box over the floor, its corners off the cells' grid; `rounding` rounds its edges and
+// corners (m), as fusion does: a fused TSDF cuts a corner by most of a voxel.
+struct BoxScene {
+  Eigen::Vector3f centre = Eigen::Vector3f(0.13f, -0.07f, -0.31f);
+  Eigen::Vector3f half = Eigen::Vector3f(0.237f, 0.151f, 0.183f);
+  float floor_z = -0.8f;
+  float rounding = 0.0f;
+  float operator()(const Eigen::Vector3f& p) const {
+    const Eigen::Vector3f q =
+        (p - centre).cwiseAbs() - half + Eigen::Vector3f::Constant(rounding);
+    const float box = q.cwiseMax(0.0f).norm() + std::min(q.maxCoeff(), 0.0f) - rounding;
+    return std::min(p.z() - floor_z, box);
+  }
+};
+
+TEST_CASE("next to a box's corners and edges the field stays within a voxel above the exact") {
+  // Sites sit about a cell apart on the faces, none on the corner itself: a point out along a
+  // corner's diagonal is nearer the corner than any site by up to half a cell. Each site stands
+  // for the disc of surface around it, so the distance is to the nearest disc.
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  const BoxScene scene;
+  BoxScene fused = scene;
+  fused.rounding = kVoxel_m;
+  test::fill_band(owned.map, kMu_m, fused, [](const Eigen::Vector3i&) { return 0; });
+  Field f(field_config());
+  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 1, 1).published);
+  long points = 0, unsafe = 0, band = 0;
+  double band_sq = 0.0, worst = -1.0;
+  for (int corner = 0; corner < 8; ++corner) {
+    const Eigen::Vector3f sign((corner & 1) ? 1.0f : -1.0f, (corner & 2) ? 1.0f : -1.0f,
+                               (corner & 4) ? 1.0f : -1.0f);
+    const Eigen::Vector3f c = scene.centre + scene.half.cwiseProduct(sign);
+    // Out from the corner, the edges and the faces next to it, 1 to 40 cm.
+    for (int k = 1; k <= 400; ++k) {
+      const float t = 0.001f * static_cast<float>(k);
+      for (int dir = 1; dir < 8; ++dir) {
+        const Eigen::Vector3f axes((dir & 1) ? sign.x() : 0.0f, (dir & 2) ? sign.y() : 0.0f,
+                                   (dir & 4) ? sign.z() : 0.0f);
+        const Eigen::Vector3f p = c + t * axes.normalized() + Eigen::Vector3f(0.003f, -0.002f, 0.001f);
+        const float exact = scene(p);
+        if (exact <= 0.0f) continue;
+        const EsdfAnswer a = f.field.distance(p).value();
+        REQUIRE(a.has_distance);
+        ++points;
+        worst = std::max(worst, static_cast<double>(a.distance_m - exact));
+        if (a.distance_m > exact + kVoxel_m) ++unsafe;
+        if (exact < kMu_m) {
+          ++band;
+          band_sq += (a.distance_m - exact) * (a.distance_m - exact);
+        }
+      }
+    }
+  }
+  INFO("worst over " << worst << " m, band RMSE " << std::sqrt(band_sq / band) << " m over "
+                     << band << " points");
+  REQUIRE(points > 20000);
+  CHECK(unsafe == 0);
+  // Low by up to the disc radius where a disc reaches past an edge.
+  CHECK(std::sqrt(band_sq / band) <= kVoxel_m);
+  const Errors e = measure(f.field, scene, 40000);
+  CHECK(e.unsafe == 0);
+  CHECK(e.over_bound == 0);
+  const double rmse = std::sqrt(e.close_sq / static_cast<double>(e.close));
+  INFO("rmse " << rmse);
+  CHECK(rmse <= 0.5 * kVoxel_m);
+}
+
 TEST_CASE("an update re-seeds only what changed and matches a rebuild from scratch") {
   test::OwnedMap<TsdfVoxel> owned(map_config());
   Scene scene;

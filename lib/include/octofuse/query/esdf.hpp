@@ -4,7 +4,8 @@
 // init. Each cell of a fixed grid holds the nearest surface point ("site") it knows: seeded at
 // sub-voxel precision where the TSDF crosses zero (the cell centre projected onto the surface
 // along the gradient), propagated by two sweeps along z with a 2D pass in each slice (vector
-// propagation), and read at a query point as the nearest site among its cell's 27. Updates rebuild
+// propagation), and read at a query point as the nearest among its cell's 27 sites, each surface
+// site standing for the disc of surface around it across its normal. Updates rebuild
 // the field in a back buffer, a budgeted number of cells per frame, re-seeding only the chunks
 // whose blocks changed, and publish it whole under the MapGuard; queries read the last published
 // field. lib/README.md ("Distance field") gives the error bound and the degradation step.
@@ -81,8 +82,12 @@ class EsdfField {
     OCTOFUSE_TRY(a);
     Result<Cell*> b = arena.template allocate_array<Cell>(cells);
     OCTOFUSE_TRY(b);
+    Result<float*> normals = arena.template allocate_array<float>(3 * kNormalCodes);
+    OCTOFUSE_TRY(normals);
     // The sizing pass hands out no memory to clear.
-    if constexpr (!std::is_same<Arena, ArenaSizer>::value) setup(config, map, a.value(), b.value());
+    if constexpr (!std::is_same<Arena, ArenaSizer>::value) {
+      setup(config, map, a.value(), b.value(), normals.value());
+    }
     return ok_status();
   }
   bool reserved() const { return buffers_[0] != nullptr; }
@@ -122,23 +127,34 @@ class EsdfField {
   std::uint64_t published_version() const { return published_version_; }
 
  private:
-  // Site in 1/64 cell units from the window's minimum corner.
+  // Site in 1/64 cell units from the window's minimum corner. A surface site stands for the disc
+  // of surface around it (radius kDiscRadius cells) across its normal, kept as an octahedral code
+  // of 13 bits: flags' top 5 bits and normal_hi.
   struct Cell {
     std::uint16_t sx = 0;
     std::uint16_t sy = 0;
     std::uint16_t sz = 0;
     std::uint8_t flags = 0;
-    std::uint8_t pad = 0;
+    std::uint8_t normal_hi = 0;
   };
   static constexpr std::uint8_t kHasSite = 1;
   static constexpr std::uint8_t kBoxSite = 2;  // the site is an obstacle cell's centre
   static constexpr std::uint8_t kSeed = 4;     // seeded from this cell's own map data
+  static constexpr int kNormalSteps = 90;      // octahedral grid per axis
+  static constexpr int kNormalCodes = 8192;    // 13 bits; kNoNormal: none
+  static constexpr int kNoNormal = kNormalCodes - 1;
+  static int normal_code(const Cell& c) { return (c.flags >> 3) | (c.normal_hi << 5); }
+  static void set_normal_code(Cell& c, int code) {
+    c.flags = static_cast<std::uint8_t>((c.flags & 7) | ((code & 31) << 3));
+    c.normal_hi = static_cast<std::uint8_t>(code >> 5);
+  }
+  static int encode_normal(const Eigen::Vector3f& n);
   enum class Phase : std::uint8_t { idle, seed, forward, backward };
 
   static std::size_t cell_count(int n) {
     return static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   }
-  void setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b);
+  void setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b, float* normals);
   template <typename VoxelT>
   EsdfReport advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                      std::uint32_t frame, std::uint64_t map_version, std::uint64_t budget);
@@ -149,11 +165,16 @@ class EsdfField {
   bool chunk_changed(const Octree<VoxelT>& map, int chunk) const;
   void consider(Cell& cell, float* d, const Eigen::Vector3f& q, const Cell& other) const;
   void sweep_slice(int z, int dz);
-  float site_distance(const Cell& cell, const Eigen::Vector3f& q) const;
+  // Plain distance to the site (a box's less its half diagonal), in cells: what propagation keeps.
+  float propagation_distance(const Cell& cell, const Eigen::Vector3f& q) const;
+  // The distance to the site's disc (or box), in cells, and the direction away from its nearest
+  // point: what queries answer.
+  float site_distance(const Cell& cell, const Eigen::Vector3f& q, Eigen::Vector3f* away) const;
   EsdfAnswer answer_unguarded(const Eigen::Vector3f& p_W) const;
 
   EsdfConfig config_;
   Cell* buffers_[2] = {nullptr, nullptr};
+  const float* normals_ = nullptr;  // unit vector of each normal code (3 floats)
   int front_ = 0;  // the published buffer
   int n_ = 0;
   int chunks_per_side_ = 0;
@@ -163,7 +184,6 @@ class EsdfField {
   float voxel_m_ = 0.0f;
   float cell_m_ = 0.0f;
   float error_bound_m_ = 0.0f;
-  float lateral2_cells_ = 0.0f;  // squared offset removed from surface-site distances
   // Window faces inside the cube (beyond them surfaces are not in the field), per axis lo/hi.
   bool open_face_[3][2] = {{false, false}, {false, false}, {false, false}};
   const MapGuard* guard_ = nullptr;

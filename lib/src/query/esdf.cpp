@@ -230,13 +230,15 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         bool site = false;
         int normal = kNoNormal;
         Eigen::Vector3f site_W = p_W;
-        if (block != nullptr) {
+        // With unknown space as obstacle, a cell whose centre is unobserved stays one.
+        if (block != nullptr || !config_.unknown_is_obstacle) {
           // The trilinear sample needs all 8 voxels around its point observed: where the
-          // cell's centre lacks one (the edge of what the camera saw, a scale boundary), a
-          // point a quarter cell towards each corner may have them.
+          // cell's centre lacks one (the edge of what the camera saw, a scale boundary, a block
+          // never allocated beside a surface), a point a quarter cell towards each corner may
+          // have them.
           TsdfSample sample;
           Eigen::Vector3f at_W = p_W;
-          bool sampled = sample_tsdf(map, p_W, block, sample);
+          bool sampled = block != nullptr && sample_tsdf(map, p_W, block, sample);
           for (int corner = 0; !sampled && corner < 8; ++corner) {
             const Eigen::Vector3f offset((corner & 1) ? 0.25f : -0.25f,
                                          (corner & 2) ? 0.25f : -0.25f,
@@ -267,7 +269,7 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
               site = true;
               box = true;
             }
-          } else {
+          } else if (block != nullptr) {
             const VoxelT& v = block->at_voxel(voxel, block_read_scale(*block));
             if (voxel_observed(v)) {
               observed = true;

@@ -208,6 +208,43 @@ TEST_CASE("next to a box's corners and edges the field stays within a voxel abov
   CHECK(rmse <= 0.5 * kVoxel_m);
 }
 
+TEST_CASE("a bar thinner than a voxel is in the field though its TSDF never crosses zero") {
+  // Across a bar of 1.2 cm at 2 cm voxels the sampled TSDF stays positive and nearly flat: no
+  // zero crossing to project onto, no gradient to project along. The cell is an obstacle then.
+  struct Bar {
+    Eigen::Vector3f centre = Eigen::Vector3f(0.01f, 0.013f, 0.21f);
+    Eigen::Vector3f half = Eigen::Vector3f(0.6f, 0.006f, 0.006f);
+    float operator()(const Eigen::Vector3f& p) const {
+      const Eigen::Vector3f q = (p - centre).cwiseAbs() - half;
+      const float bar = q.cwiseMax(0.0f).norm() + std::min(q.maxCoeff(), 0.0f);
+      return std::min(p.z() + 0.8f, bar);
+    }
+  };
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  const Bar bar;
+  test::fill_band(owned.map, kMu_m, bar, [](const Eigen::Vector3i&) { return 0; });
+  Field f(field_config());
+  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 1, 1).published);
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<float> along(-0.5f, 0.5f);
+  std::uniform_real_distribution<float> across(-0.3f, 0.3f);
+  long points = 0, unsafe = 0;
+  float worst = -1.0f;
+  for (int i = 0; i < 20000; ++i) {
+    const Eigen::Vector3f p = bar.centre + Eigen::Vector3f(along(rng), across(rng), across(rng));
+    const float exact = bar(p);
+    if (exact <= 0.0f) continue;
+    const EsdfAnswer a = f.field.distance(p).value();
+    REQUIRE(a.has_distance);
+    ++points;
+    worst = std::max(worst, a.distance_m - exact);
+    if (a.distance_m > exact + kVoxel_m) ++unsafe;
+  }
+  INFO("worst over " << worst << " m");
+  REQUIRE(points > 19000);
+  CHECK(unsafe == 0);
+}
+
 TEST_CASE("an update re-seeds only what changed and matches a rebuild from scratch") {
   test::OwnedMap<TsdfVoxel> owned(map_config());
   Scene scene;

@@ -43,8 +43,7 @@ bool esdf_slice(const EsdfField& field, float z_W, float max_m, const Observed& 
   out->width = n;
   out->height = n;
   out->z_W = z_W;
-  out->rgb.assign(static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * 3,
-                  kSliceUnknownGrey);
+  out->rgb.assign(static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * 3, kSliceUnknownGrey);
   std::vector<Eigen::Vector3f> points(static_cast<std::size_t>(n));
   std::vector<EsdfAnswer> answers(static_cast<std::size_t>(n));
   for (int row = 0; row < n; ++row) {

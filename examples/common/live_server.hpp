@@ -38,7 +38,7 @@ struct LiveSnapshot {
   int slice_width = 0;
   int slice_height = 0;
   float slice_z_m = 0.0f;
-  float slice_max_m = 0.0f;  // the distance shown blue
+  float slice_max_m = 0.0f;         // the distance shown blue
   std::uint64_t slice_version = 0;  // map version of the field the slice shows
   std::vector<std::uint8_t> slice_rgb;
 };

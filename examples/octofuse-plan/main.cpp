@@ -459,13 +459,12 @@ int main(int argc, char** argv) {
               "%.4f\n",
               unsafe, static_cast<double>(p.x()), static_cast<double>(p.y()),
               static_cast<double>(p.z()), static_cast<int>(c.x()), static_cast<int>(c.y()),
-              static_cast<int>(c.z()), point_state_name(a.state),
-              static_cast<double>(a.distance_m), exact, static_cast<double>(d.distance_m),
-              static_cast<double>(d.gradient.x()), static_cast<double>(d.gradient.y()),
-              static_cast<double>(d.gradient.z()), static_cast<double>(q.x()),
-              static_cast<double>(q.y()), static_cast<double>(q.z()), unseen ? " (unseen)" : "",
-              point_state_name(at_q.state), static_cast<double>(at_q.distance_m),
-              static_cast<double>(field_q.distance_m));
+              static_cast<int>(c.z()), point_state_name(a.state), static_cast<double>(a.distance_m),
+              exact, static_cast<double>(d.distance_m), static_cast<double>(d.gradient.x()),
+              static_cast<double>(d.gradient.y()), static_cast<double>(d.gradient.z()),
+              static_cast<double>(q.x()), static_cast<double>(q.y()), static_cast<double>(q.z()),
+              unseen ? " (unseen)" : "", point_state_name(at_q.state),
+              static_cast<double>(at_q.distance_m), static_cast<double>(field_q.distance_m));
         }
       }
       if (static_cast<double>(d.lower_bound_m) > exact) ++over_bound;

@@ -28,8 +28,8 @@ struct SphereOverFloor {
 };
 
 TEST_CASE("the distance field's slice shows the field's distances by colour, unknown grey") {
-  const MapConfig map_config = MapConfig::centred(Eigen::Vector3f::Zero(), kVoxel_m, 7, 40000,
-                                                  40000);
+  const MapConfig map_config =
+      MapConfig::centred(Eigen::Vector3f::Zero(), kVoxel_m, 7, 40000, 40000);
   test::OwnedMap<TsdfVoxel> owned(map_config);
   const SphereOverFloor scene;
   test::fill_band(owned.map, kMu_m, scene, [](const Eigen::Vector3i&) { return 0; });

@@ -149,8 +149,7 @@ struct BoxScene {
   float floor_z = -0.8f;
   float rounding = 0.0f;
   float operator()(const Eigen::Vector3f& p) const {
-    const Eigen::Vector3f q =
-        (p - centre).cwiseAbs() - half + Eigen::Vector3f::Constant(rounding);
+    const Eigen::Vector3f q = (p - centre).cwiseAbs() - half + Eigen::Vector3f::Constant(rounding);
     const float box = q.cwiseMax(0.0f).norm() + std::min(q.maxCoeff(), 0.0f) - rounding;
     return std::min(p.z() - floor_z, box);
   }
@@ -179,7 +178,8 @@ TEST_CASE("next to a box's corners and edges the field stays within a voxel abov
       for (int dir = 1; dir < 8; ++dir) {
         const Eigen::Vector3f axes((dir & 1) ? sign.x() : 0.0f, (dir & 2) ? sign.y() : 0.0f,
                                    (dir & 4) ? sign.z() : 0.0f);
-        const Eigen::Vector3f p = c + t * axes.normalized() + Eigen::Vector3f(0.003f, -0.002f, 0.001f);
+        const Eigen::Vector3f p =
+            c + t * axes.normalized() + Eigen::Vector3f(0.003f, -0.002f, 0.001f);
         const float exact = scene(p);
         if (exact <= 0.0f) continue;
         const EsdfAnswer a = f.field.distance(p).value();
@@ -194,8 +194,8 @@ TEST_CASE("next to a box's corners and edges the field stays within a voxel abov
       }
     }
   }
-  INFO("worst over " << worst << " m, band RMSE " << std::sqrt(band_sq / band) << " m over "
-                     << band << " points");
+  INFO("worst over " << worst << " m, band RMSE " << std::sqrt(band_sq / band) << " m over " << band
+                     << " points");
   REQUIRE(points > 20000);
   CHECK(unsafe == 0);
   // Low by up to the disc radius where a disc reaches past an edge.

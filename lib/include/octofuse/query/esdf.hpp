@@ -175,7 +175,7 @@ class EsdfField {
   EsdfConfig config_;
   Cell* buffers_[2] = {nullptr, nullptr};
   const float* normals_ = nullptr;  // unit vector of each normal code (3 floats)
-  int front_ = 0;  // the published buffer
+  int front_ = 0;                   // the published buffer
   int n_ = 0;
   int chunks_per_side_ = 0;
   int cell_voxels_ = 1;

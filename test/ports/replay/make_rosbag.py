@@ -9,7 +9,7 @@ python3-roslz4) is missing, so the caller can skip.
 
 The frame dump is make_bag.py's (its docstring has the layout). With a DUMP ending in .mcap
 (an unchunked MCAP of ROS 2 messages, such as octofuse-replay --record writes), its Image,
-CameraInfo and PoseStamped messages are converted from CDR to ROS 1 and written on the same
+CameraInfo, PoseStamped and Odometry messages are converted from CDR to ROS 1 and written on the same
 topics with their log times.
 
 usage: make_rosbag.py DUMP OUT.bag [--compression none|bz2|lz4] [--chunk-threshold BYTES]
@@ -222,6 +222,10 @@ def ros1_from_cdr(type_name, data, seq):
         out.u8(c.u8())
     elif type_name == "geometry_msgs/PoseStamped":
         for _ in range(7):
+            out.f64(c.f64())
+    elif type_name == "nav_msgs/Odometry":
+        out.string(c.string())  # child_frame_id
+        for _ in range(7 + 36 + 6 + 36):
             out.f64(c.f64())
     else:
         return None

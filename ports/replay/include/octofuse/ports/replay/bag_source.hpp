@@ -44,6 +44,8 @@ struct BagConfig {
   char info_topic[kMaxName] = {};
   char pose_topic[kMaxName] = {};
   char world_frame[kMaxName] = {};  // TF only; empty: the root of the depth frame's chain
+  // read_bag_poses from TF: the odometry's frame; empty: a frame named "odom" on the chain.
+  char odometry_frame[kMaxName] = {};
 
   bool has_intrinsics = false;     // use `intrinsics` instead of the camera info
   PinholeCamera intrinsics;        // width/height 0: taken from the first image
@@ -102,6 +104,10 @@ class BagSource final : public DepthSource {
   BagTopic topic(int index) const;
   const char* scan_warning() const { return scan_warning_.c_str(); }
 
+  // read_bag_poses' work: scans the bag, chooses the odometry and streams its poses.
+  Status read_odometry(void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
+                       void* context);
+
   // Frames whose pose could not be found (no TF chain to the world, no pose yet).
   std::uint64_t frames_without_pose() const { return frames_without_pose_; }
   std::size_t bytes_reserved() const { return memory_bytes_ + reader_.bytes_reserved(); }
@@ -119,6 +125,10 @@ class BagSource final : public DepthSource {
 
  private:
   Status choose_topics();
+  Status choose_depth_topic();
+  int find_topic(const char* name) const;
+  Status read_tf_poses(void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
+                       void* context);
   int tf_find(const char* name, std::size_t size, bool insert);
   void tf_update(const RosPose& transform);
   bool tf_chain(int from, int to, Se3d* T_to_from) const;

@@ -276,6 +276,90 @@ TEST_CASE("mcap: a bag's odometry poses for the prior", "[replay][bag]") {
   CHECK(std::strstr(error.c_str(), "no Odometry or PoseStamped") != nullptr);
 }
 
+// make_bag.py's --pose odom_tf: map -> odom (MAP_ODOM) -> body -> camera_depth (BODY_CAMERA).
+namespace {
+Eigen::Matrix4d map_odom() {
+  const double c = std::cos(30.0 * M_PI / 180.0), s = std::sin(30.0 * M_PI / 180.0);
+  Eigen::Matrix4d T;
+  T << c, -s, 0, 1.0, s, c, 0, 2.0, 0, 0, 1, 0, 0, 0, 0, 1;
+  return T;
+}
+}  // namespace
+
+TEST_CASE("bag: the odometry prior from a robot's TF tree (map -> odom -> body -> camera)",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  struct Collected {
+    std::vector<std::int64_t> stamps_ns;
+    std::vector<Eigen::Matrix4d> poses;
+  } collected;
+  auto collect = [](void* context, std::int64_t stamp_ns, const octofuse::Se3d& T) {
+    static_cast<Collected*>(context)->stamps_ns.push_back(stamp_ns);
+    static_cast<Collected*>(context)->poses.push_back(T.matrix());
+  };
+  const Eigen::Matrix4d odom_map = map_odom().inverse();
+  std::vector<std::string> specs;
+  const std::string mcap = fixture.bag("odom_tf.mcap", "--compression none --pose odom_tf");
+  if (!mcap.empty()) specs.push_back("mcap:" + mcap);
+  const std::string ros1 = fixture.rosbag("odom_tf.bag", "--compression lz4 --pose odom_tf");
+  if (!ros1.empty()) specs.push_back("rosbag:" + ros1);
+  for (const std::string& spec : specs) {
+    // The odom frame found on the chain, or named; the map frame named gives the ground truth.
+    for (const char* query : {"", "?tf=odom", "?tf=/odom", "?tf=map"}) {
+      INFO(spec << query);
+      const bool map = std::strcmp(query, "?tf=map") == 0;
+      BagConfig config;
+      octofuse::ErrorText error;
+      REQUIRE(octofuse::replay::parse_bag_spec((spec + query).c_str(), &config, &error).ok());
+      collected = Collected();
+      REQUIRE(octofuse::replay::read_bag_poses(config, collect, &collected, &error).ok());
+      REQUIRE(collected.poses.size() == fixture.kept.frames.size());
+      for (std::size_t i = 0; i < collected.poses.size(); ++i) {
+        const KeptFrame& k = fixture.kept.frames[i];
+        CHECK(collected.stamps_ns[i] == k.timestamp_us * 1000);
+        const Eigen::Matrix4d want = map ? k.T_W_C : Eigen::Matrix4d(odom_map * k.T_W_C);
+        CHECK((collected.poses[i] - want).cwiseAbs().maxCoeff() < 1e-9);
+      }
+    }
+    {  // a frame that is not on the chain: one clear error naming the chain
+      BagConfig config;
+      octofuse::ErrorText error;
+      REQUIRE(
+          octofuse::replay::parse_bag_spec((spec + "?tf=base_link").c_str(), &config, &error).ok());
+      CHECK(octofuse::replay::read_bag_poses(config, collect, &collected, &error).code() ==
+            StatusCode::invalid_argument);
+      CHECK(std::strstr(error.c_str(),
+                        "to 'base_link' (the chain: camera_depth -> body -> odom "
+                        "-> map)") != nullptr);
+    }
+    // As the source, the same TF gives the ground truth (chained to the root, map).
+    std::unique_ptr<BagSource> bag =
+        open_bag(spec.substr(spec.find(':') + 1), "", spec.substr(0, spec.find(':') + 1).c_str());
+    REQUIRE(bag->open().ok());
+    check_same_frames(*bag, fixture.kept, 1, true, 1e-9);
+  }
+  {  // TF without an odom frame (world -> body -> camera): the error says how to name one
+    const std::string path = fixture.bag("tf_world.mcap", "--compression none --pose tf");
+    BagConfig config;
+    octofuse::ErrorText error;
+    REQUIRE(octofuse::replay::parse_bag_spec(("mcap:" + path).c_str(), &config, &error).ok());
+    CHECK(octofuse::replay::read_bag_poses(config, collect, &collected, &error).code() ==
+          StatusCode::invalid_argument);
+    CHECK(std::strstr(error.c_str(),
+                      "(camera_depth -> body -> world) has no 'odom' frame; name "
+                      "the odometry's frame with mcap:FILE?tf=FRAME") != nullptr);
+    REQUIRE(
+        octofuse::replay::parse_bag_spec(("mcap:" + path + "?tf=world").c_str(), &config, &error)
+            .ok());
+    collected = Collected();
+    REQUIRE(octofuse::replay::read_bag_poses(config, collect, &collected, &error).ok());
+    REQUIRE(collected.poses.size() == fixture.kept.frames.size());
+    for (std::size_t i = 0; i < collected.poses.size(); ++i) {
+      CHECK((collected.poses[i] - fixture.kept.frames[i].T_W_C).cwiseAbs().maxCoeff() < 1e-9);
+    }
+  }
+}
+
 TEST_CASE("mcap: a bag of sim frames gives the same trajectory as the sim", "[replay][bag]") {
   Fixture fixture(sim_frames());
   const std::string path = fixture.bag("same.mcap", "--compression zstd");

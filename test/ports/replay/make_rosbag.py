@@ -13,7 +13,7 @@ CameraInfo, PoseStamped and Odometry messages are converted from CDR to ROS 1 an
 topics with their log times.
 
 usage: make_rosbag.py DUMP OUT.bag [--compression none|bz2|lz4] [--chunk-threshold BYTES]
-       [--encoding 16UC1|32FC1|mono16] [--pose tf|odometry|pose_stamped|none] [--tum]
+       [--encoding 16UC1|32FC1|mono16] [--pose tf|odom_tf|odometry|pose_stamped|none] [--tum]
        [--distortion K1]
        make_rosbag.py --batch FILE   (one "DUMP OUT.bag [options]" a line: one interpreter start,
                                       which with rosbag's imports is most of the time, for many)
@@ -28,7 +28,7 @@ import shlex
 import struct
 import sys
 
-from make_bag import IDENTITY, quaternion, read_dump
+from make_bag import BODY_CAMERA, IDENTITY, MAP_ODOM, odom_body, quaternion, read_dump
 
 MD5 = {
     "sensor_msgs/Image": "060021388200f6f0f447d0fcd9c64743",
@@ -266,7 +266,8 @@ def main(argv):
     ap.add_argument("--compression", default="none", choices=["none", "bz2", "lz4"])
     ap.add_argument("--chunk-threshold", type=int, default=768 * 1024)
     ap.add_argument("--encoding", default="16UC1", choices=["16UC1", "32FC1", "mono16"])
-    ap.add_argument("--pose", default="tf", choices=["tf", "odometry", "pose_stamped", "none"])
+    ap.add_argument("--pose", default="tf",
+                    choices=["tf", "odom_tf", "odometry", "pose_stamped", "none"])
     ap.add_argument("--tum", action="store_true")
     ap.add_argument("--distortion", type=float, default=0.0)
     args = ap.parse_args(argv)
@@ -321,6 +322,13 @@ def main(argv):
                 transforms = [(stamp, "body", frame, IDENTITY)]
                 if has_pose:
                     transforms.insert(0, (stamp, "world", "body", T))
+                write(bag, "/tf", tf_type, tf_msg(transforms), stamp)
+            elif args.pose == "odom_tf":
+                # ROS 1 bags keep static transforms on /tf too, repeated.
+                transforms = [(stamp, "/body", frame, BODY_CAMERA)]
+                if has_pose:
+                    transforms = [(stamp, "/map", "/odom", MAP_ODOM),
+                                  (stamp, "/odom", "/body", odom_body(T))] + transforms
                 write(bag, "/tf", tf_type, tf_msg(transforms), stamp)
             elif has_pose and args.pose == "odometry":
                 write(bag, "/odom", "nav_msgs/Odometry", odometry_msg(i, stamp, T), stamp)

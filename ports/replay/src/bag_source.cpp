@@ -95,6 +95,23 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     const std::size_t key_size = static_cast<std::size_t>(eq - key);
     const char* value = eq + 1;
     const std::size_t value_size = item - key_size - 1;
+    if (key_size == 7 && std::strncmp(key, "reorder", 7) == 0) {
+      // Megabytes of the reorder window that puts messages in log-time order; 0: file order.
+      char number[16] = {};
+      char* end_number = nullptr;
+      const long mb =
+          value_size < sizeof(number) && copy_value(value, value_size, number, sizeof(number))
+              ? std::strtol(number, &end_number, 10)
+              : -1;
+      if (end_number == nullptr || end_number == number || *end_number != '\0' || mb < 0 ||
+          mb > 4096) {
+        error->set("%s: reorder=MB needs 0 to 4096", name);
+        return StatusCode::invalid_argument;
+      }
+      config->limits.reorder_bytes = static_cast<std::size_t>(mb) << 20;
+      query = end;
+      continue;
+    }
     if (key_size == 6 && std::strncmp(key, "buffer", 6) == 0) {
       // Megabytes for each of the reader's two buffers (record and chunk).
       char number[16] = {};
@@ -119,7 +136,7 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     if (key_size == 5 && std::strncmp(key, "world", 5) == 0) out = config->world_frame;
     if (key_size == 2 && std::strncmp(key, "tf", 2) == 0) out = config->odometry_frame;
     if (out == nullptr) {
-      error->set("%s: unknown option '%.*s' (depth, info, pose, world, tf, buffer)", name,
+      error->set("%s: unknown option '%.*s' (depth, info, pose, world, tf, buffer, reorder)", name,
                  static_cast<int>(key_size), key);
       return StatusCode::invalid_argument;
     }
@@ -225,7 +242,31 @@ Status BagSource::scan() {
     }
   }
   scanned_ = true;
+  if (reader_.out_of_order() > 0) note_disorder(&scan_warning_);
   return ok_status();
+}
+
+// What the log-time order could not fix, appended to `text` (empty or a cut's warning).
+void BagSource::note_disorder(ErrorText* text) const {
+  // Short: ErrorText holds 256 characters, and it may follow a cut's warning.
+  char line[128];
+  if (reader_.reorder_bytes() > 0) {
+    const std::size_t bytes = reader_.reorder_bytes();
+    const bool mib = bytes % (std::size_t{1} << 20) == 0;
+    std::snprintf(line, sizeof(line),
+                  "%llu messages out of log-time order, beyond the %zu %s reorder window "
+                  "(?reorder=MB)",
+                  static_cast<unsigned long long>(reader_.out_of_order()),
+                  mib ? bytes >> 20 : bytes, mib ? "MiB" : "byte");
+  } else {
+    std::snprintf(line, sizeof(line), "%llu messages out of log-time order (reorder=0)",
+                  static_cast<unsigned long long>(reader_.out_of_order()));
+  }
+  if (text->c_str()[0] != '\0') {
+    text->set("%s; %s", ErrorText(*text).c_str(), line);
+  } else {
+    text->set("%s: %s", config_.path, line);
+  }
 }
 
 int BagSource::find_topic(const char* name) const {
@@ -720,9 +761,16 @@ NextFrame BagSource::next(DepthFrame& frame) {
   McapMessage message;
   for (;;) {
     const McapNext got = reader_.next(&message);
-    if (got == McapNext::end) return NextFrame::ended();
+    if (got == McapNext::end) {
+      if (reader_.out_of_order() == 0) return NextFrame::ended();
+      // Not lost, but not in order either: the run says so.
+      error_.clear();
+      note_disorder(&error_);
+      return NextFrame{FrameOutcome::end_of_stream, StatusCode::out_of_range};
+    }
     if (got == McapNext::truncated) {
       error_.set("%s: %s", config_.path, reader_.warning());
+      if (reader_.out_of_order() > 0) note_disorder(&error_);
       return NextFrame{FrameOutcome::end_of_stream, StatusCode::data_loss};
     }
     if (got == McapNext::error) {

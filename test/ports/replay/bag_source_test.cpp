@@ -10,6 +10,7 @@
 
 #include "bag_fixtures.hpp"
 #include "octofuse/pipeline/mapper.hpp"
+#include "octofuse/ports/replay/bag_reader.hpp"
 #include "octofuse/ports/replay/bag_source.hpp"
 #include "octofuse/ports/replay/replay_source.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
@@ -356,6 +357,90 @@ TEST_CASE("bag: the odometry prior from a robot's TF tree (map -> odom -> body -
     REQUIRE(collected.poses.size() == fixture.kept.frames.size());
     for (std::size_t i = 0; i < collected.poses.size(); ++i) {
       CHECK((collected.poses[i] - fixture.kept.frames[i].T_W_C).cwiseAbs().maxCoeff() < 1e-9);
+    }
+  }
+}
+
+TEST_CASE("bag: chunks that overlap in time are read in log-time order", "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  // The pose topic chunked apart from the camera's: in the file, the TF of later frames comes
+  // before a frame's image (make_bag.py / make_rosbag.py --overlap).
+  std::vector<std::string> specs;
+  const std::string mcap = fixture.bag("overlap.mcap", "--compression none --overlap");
+  if (!mcap.empty()) specs.push_back("mcap:" + mcap);
+  const std::string ros1 =
+      fixture.rosbag("overlap.bag", "--compression none --overlap --chunk-threshold 1");
+  if (!ros1.empty()) specs.push_back("rosbag:" + ros1);
+  for (const std::string& spec : specs) {
+    INFO(spec);
+    const std::string scheme = spec.substr(0, spec.find(':') + 1);
+    const std::string path = spec.substr(spec.find(':') + 1);
+    const octofuse::replay::BagFormat format =
+        scheme == "mcap:" ? octofuse::replay::BagFormat::mcap : octofuse::replay::BagFormat::rosbag;
+    {  // the container in file order: log times go back
+      octofuse::replay::McapLimits limits;
+      limits.reorder_bytes = 0;
+      octofuse::replay::BagReader reader;
+      REQUIRE(reader.open(path.c_str(), format, limits).ok());
+      octofuse::replay::McapMessage message;
+      while (reader.next(&message) == octofuse::replay::McapNext::message) {
+      }
+      CHECK(reader.out_of_order() > 0);
+    }
+    {  // through the window: every message, in log-time order, none late
+      octofuse::replay::BagReader reader;
+      REQUIRE(reader.open(path.c_str(), format, octofuse::replay::McapLimits()).ok());
+      octofuse::replay::McapMessage message;
+      std::uint64_t last_ns = 0;
+      int messages = 0, backwards = 0;
+      octofuse::replay::McapNext got;
+      while ((got = reader.next(&message)) == octofuse::replay::McapNext::message) {
+        backwards += message.log_time_ns < last_ns;
+        last_ns = message.log_time_ns;
+        ++messages;
+      }
+      CHECK(got == octofuse::replay::McapNext::end);
+      CHECK(backwards == 0);
+      CHECK(reader.out_of_order() == 0);
+      CHECK(messages >= 3 * kSimFrames);
+    }
+    // The source: each frame with its own pose, the stream ending without a warning.
+    std::unique_ptr<BagSource> bag = open_bag(path, "", scheme.c_str());
+    REQUIRE(bag->open().ok());
+    CHECK(bag->scan_warning()[0] == '\0');
+    check_same_frames(*bag, fixture.kept, 1, true, 1e-9);
+    // In file order (reorder=0), frames take the poses of later frames, and the run is told.
+    for (const char* query : {"?reorder=0", "?tiny"}) {
+      INFO(query);
+      BagConfig config;
+      octofuse::ErrorText error;
+      if (std::strcmp(query, "?tiny") == 0) {
+        // A window smaller than any message: as good as file order, and said to be too small.
+        REQUIRE(octofuse::replay::parse_bag_spec(spec.c_str(), &config, &error).ok());
+        config.limits.reorder_bytes = 64;
+      } else {
+        REQUIRE(octofuse::replay::parse_bag_spec((spec + query).c_str(), &config, &error).ok());
+      }
+      BagSource file_order(config);
+      REQUIRE(file_order.open().ok());
+      CHECK(std::strstr(file_order.scan_warning(), "messages out of log-time order") != nullptr);
+      octofuse::DepthFrame frame;
+      int frames = 0, wrong_pose = 0;
+      NextFrame next;
+      while ((next = file_order.next(frame)).outcome == FrameOutcome::frame) {
+        const KeptFrame& k = fixture.kept.frames[static_cast<std::size_t>(frames++)];
+        wrong_pose += !frame.has_ground_truth ||
+                      (frame.T_W_C_ground_truth - k.T_W_C).cwiseAbs().maxCoeff() > 1e-6;
+      }
+      CHECK(frames == kSimFrames);
+      CHECK(wrong_pose > 0);
+      CHECK(next.outcome == FrameOutcome::end_of_stream);
+      CHECK(next.status.code() == StatusCode::out_of_range);
+      INFO(file_order.last_error());
+      CHECK(std::strstr(file_order.last_error(),
+                        query[1] == 'r'
+                            ? "out of log-time order (reorder=0)"
+                            : "beyond the 64 byte reorder window (?reorder=MB)") != nullptr);
     }
   }
 }

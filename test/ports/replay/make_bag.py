@@ -13,7 +13,8 @@ Frame dump (little-endian), as test/ports/replay/bag_fixtures.hpp writes it:
 With a DUMP ending in .mcap (an unchunked MCAP such as octofuse-replay --record writes), its
 schemas, channels and messages are rewritten in the layout and compression asked for.
 
-usage: make_bag.py DUMP OUT.mcap [--compression none|zstd|lz4] [--unchunked] [--no-summary]
+usage: make_bag.py DUMP OUT.mcap [--compression none|zstd|lz4] [--unchunked] [--overlap]
+       [--no-summary]
        [--encoding 16UC1|32FC1|mono16] [--big-endian]
        [--pose tf|odom_tf|odometry|pose_stamped|none]
        [--distortion K1] [--extra-image]
@@ -316,6 +317,8 @@ def main():
     ap.add_argument("out")
     ap.add_argument("--compression", default="none", choices=["none", "zstd", "lz4"])
     ap.add_argument("--unchunked", action="store_true")
+    ap.add_argument("--overlap", action="store_true",
+                    help="chunks that overlap in time (camera and pose topics chunked apart)")
     ap.add_argument("--no-summary", action="store_true")
     ap.add_argument("--encoding", default="16UC1", choices=["16UC1", "32FC1", "mono16"])
     ap.add_argument("--big-endian", action="store_true")
@@ -445,6 +448,32 @@ def write_mcap(args, schema_records, channel_records, messages):
                 current = []
         if current:
             groups.append(current)
+        if args.overlap:
+            # Chunks whose times overlap, as a recorder that chunks each topic apart writes them:
+            # the camera's topics two frames a chunk, the pose topics three messages a chunk,
+            # chunks in the order of their first message (pose chunks first on a tie). In file
+            # order the poses of later frames then come before a frame's image.
+            # Pose messages are logged a microsecond before their frame (as a TF broadcast
+            # arrives before the image it belongs to), so that log-time order is one order.
+            camera = [m for m in messages if m[0] in (1, 2, 9)]
+            poses = [(m[0], max(m[1] - 1000, 0), m[2])
+                     for m in messages if m[0] not in (1, 2, 9)]
+            keyed = []
+            current = []
+            images = 0
+            for m in camera:
+                current.append(m)
+                images += m[0] == 1
+                if m[0] == 1 and images % 2 == 0:
+                    keyed.append((min(x[1] for x in current), 1, current))
+                    current = []
+            if current:
+                keyed.append((min(x[1] for x in current), 1, current))
+            for i in range(0, len(poses), 3):
+                group = poses[i:i + 3]
+                keyed.append((min(x[1] for x in group), 0, group))
+            keyed.sort(key=lambda k: (k[0], k[1]))
+            groups = [k[2] for k in keyed]
         for group in groups:
             records = bytearray()
             offsets = {}

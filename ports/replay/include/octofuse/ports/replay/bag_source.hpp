@@ -18,7 +18,9 @@
 // the only image topic with "depth" in its name); otherwise open() names the candidates.
 //
 // open() reads the file once to count topics and find the camera info, then next() streams it
-// again in file order, keeping the newest pose of each kind. Memory is fixed at open(): the MCAP
+// again in log-time order (bag_reader.hpp's reorder window), keeping the newest pose of each
+// kind. Messages the window could not put in order end the stream with a warning (the status
+// out_of_range, or data_loss with a cut's). Memory is fixed at open(): the MCAP
 // reader's two buffers (McapLimits), the frame ring and a table of TF frames.
 
 #include <cstddef>
@@ -59,7 +61,7 @@ struct BagConfig {
 };
 
 // Fills `config` from "mcap:FILE?key=value&..." or "rosbag:FILE?..." (keys depth, info, pose,
-// world, buffer).
+// world, tf, buffer, reorder).
 // invalid_argument for another prefix, an empty path, an unknown key or a value too long.
 Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
 
@@ -127,6 +129,7 @@ class BagSource final : public DepthSource {
   Status choose_topics();
   Status choose_depth_topic();
   int find_topic(const char* name) const;
+  void note_disorder(ErrorText* text) const;
   Status read_tf_poses(void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
                        void* context);
   int tf_find(const char* name, std::size_t size, bool insert);

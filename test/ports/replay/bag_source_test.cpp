@@ -2,6 +2,7 @@
 // 7-Scenes frames: the same pixels, timestamps, intrinsics and poses, the same trajectory, every
 // compression and layout, cuts at any byte, and bad input answered with one clear error.
 
+#include <algorithm>
 #include <catch2/catch.hpp>
 #include <cmath>
 #include <cstring>
@@ -1049,4 +1050,112 @@ TEST_CASE("rosbag: a bag of 7-Scenes frames gives their trajectory",
   const std::vector<Eigen::Matrix4d> from_bag = track(*bag_again, bag_again->intrinsics(), first);
   REQUIRE(from_bag.size() == from_folder.size());
   for (std::size_t i = 0; i < from_bag.size(); ++i) CHECK(from_bag[i] == from_folder[i]);
+}
+
+namespace {
+
+// An unchunked MCAP of small messages on one channel with the given log times; message i's
+// payload is its index (8 bytes) then `sizes[i] - 8` bytes of (i + j) & 0xFF.
+void write_mcap_messages(const std::string& path, const std::vector<std::uint64_t>& log_ns,
+                         const std::vector<std::size_t>& sizes) {
+  std::string out("\x89MCAP0\r\n", 8);
+  auto le = [&](std::uint64_t v, int bytes) {
+    for (int i = 0; i < bytes; ++i) out.push_back(static_cast<char>(v >> (8 * i)));
+  };
+  auto str = [&](const std::string& s) {
+    le(s.size(), 4);
+    out += s;
+  };
+  out.push_back(0x04);  // channel 1, no schema, topic /n
+  le(2 + 2 + 4 + 2 + 4 + 3 + 4, 8);
+  le(1, 2);
+  le(0, 2);
+  str("/n");
+  str("cdr");
+  le(0, 4);
+  for (std::size_t i = 0; i < log_ns.size(); ++i) {
+    out.push_back(0x05);
+    le(22 + sizes[i], 8);
+    le(1, 2);
+    le(i, 4);
+    le(log_ns[i], 8);
+    le(log_ns[i], 8);
+    le(i, 8);
+    for (std::size_t j = 8; j < sizes[i]; ++j) out.push_back(static_cast<char>((i + j) & 0xFF));
+  }
+  out.push_back(0x0F);
+  le(4, 8);
+  le(0, 4);
+  out.push_back(0x02);
+  le(20, 8);
+  le(0, 8);
+  le(0, 8);
+  le(0, 4);
+  out += std::string("\x89MCAP0\r\n", 8);
+  write_text(path, out);
+}
+
+}  // namespace
+
+TEST_CASE("bag: the reorder window sorts what it can reach and counts the rest", "[replay][bag]") {
+  // 2000 messages of 8 B to 3 kB, each logged up to `shift` places from its place in the file;
+  // windows from 4 kB (less than two messages) to 1 MB (all), rings that wrap many times.
+  const std::string dir = make_test_dir("reorder");
+  const std::string path = dir + "/shuffled.mcap";
+  std::uint64_t seed = 12345;
+  auto random = [&](std::uint64_t n) {
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    return (seed >> 33) % n;
+  };
+  const int count = 2000;
+  for (const int shift : {0, 3, 40}) {
+    std::vector<std::uint64_t> log_ns;
+    std::vector<std::size_t> sizes;
+    for (int i = 0; i < count; ++i) {
+      log_ns.push_back(1000 * static_cast<std::uint64_t>(i + 1 + random(shift + 1)));
+      sizes.push_back(8 + random(3000));
+    }
+    write_mcap_messages(path, log_ns, sizes);
+    for (const std::size_t window :
+         {std::size_t{4096}, std::size_t{64} << 10, std::size_t{1} << 20}) {
+      for (const int slots : {16, 4096}) {
+        INFO("shift " << shift << ", window " << window << " bytes, " << slots << " messages");
+        octofuse::replay::McapLimits limits;
+        limits.reorder_bytes = window;
+        limits.reorder_messages = slots;
+        octofuse::replay::BagReader reader;
+        REQUIRE(reader.open(path.c_str(), octofuse::replay::BagFormat::mcap, limits).ok());
+        std::vector<int> seen(count, 0);
+        octofuse::replay::McapMessage message;
+        std::uint64_t last_ns = 0;
+        std::uint64_t backwards = 0;
+        int corrupt = 0;
+        octofuse::replay::McapNext got;
+        while ((got = reader.next(&message)) == octofuse::replay::McapNext::message) {
+          std::uint64_t index = 0;
+          std::memcpy(&index, message.data, 8);
+          REQUIRE(index < static_cast<std::uint64_t>(count));
+          ++seen[index];
+          corrupt += message.size != sizes[index] || message.log_time_ns != log_ns[index];
+          for (std::size_t j = 8; j < message.size; ++j) {
+            corrupt += message.data[j] != static_cast<std::uint8_t>((index + j) & 0xFF);
+          }
+          if (message.log_time_ns < last_ns) {
+            ++backwards;
+          } else {
+            last_ns = message.log_time_ns;
+          }
+        }
+        CHECK(got == octofuse::replay::McapNext::end);
+        CHECK(corrupt == 0);
+        CHECK(std::count(seen.begin(), seen.end(), 1) == count);  // each once
+        CHECK(backwards == reader.out_of_order());
+        // A window that holds the displacement (40 places of up to 3 kB) puts all in order.
+        if (shift == 0 || (window == (std::size_t{1} << 20) && slots == 4096)) {
+          CHECK(backwards == 0);
+        }
+        if (shift == 40 && window == 4096) CHECK(backwards > 0);
+      }
+    }
+  }
 }

@@ -57,8 +57,9 @@ Status BagReader::open(const char* path, BagFormat format, const McapLimits& lim
   }
   window_ = static_cast<std::uint8_t*>(window_memory_);
   window_bytes_ = limits.reorder_bytes;
-  held_ = new (window_ + held_offset) Held[slots];
-  heap_ = reinterpret_cast<int*>(window_ + heap_offset);
+  held_ = static_cast<Held*>(static_cast<void*>(window_ + held_offset));
+  for (std::size_t i = 0; i < slots; ++i) new (held_ + i) Held();
+  heap_ = static_cast<int*>(static_cast<void*>(window_ + heap_offset));
   slots_ = limits.reorder_messages;
   reset_window();
   return ok_status();

@@ -930,7 +930,8 @@ Status BagSource::read_tf_poses(void (*on_pose)(void* context, std::int64_t stam
     error_.set("%s: cannot reserve %zu bytes", prefix(), memory_bytes_);
     return StatusCode::resource_exhausted;
   }
-  tf_ = new (memory_) TfFrame[config_.max_tf_frames];
+  tf_ = static_cast<TfFrame*>(memory_);
+  for (int i = 0; i < config_.max_tf_frames; ++i) new (tf_ + i) TfFrame();
   tf_count_ = 0;
   reader_.rewind();
   const bool named = config_.odometry_frame[0] != '\0';

@@ -27,6 +27,11 @@ enum class BagFormat : std::uint8_t { mcap, rosbag, automatic };
 
 class BagReader {
  public:
+  BagReader() = default;
+  ~BagReader() { close(); }
+  BagReader(const BagReader&) = delete;
+  BagReader& operator=(const BagReader&) = delete;
+
   static std::size_t bytes_required(BagFormat format, const McapLimits& limits);
 
   // As McapReader::open / RosbagReader::open; `automatic` reads the first bytes to choose.

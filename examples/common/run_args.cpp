@@ -98,8 +98,9 @@ const RunOption kRunOptions[] = {
        return !o.out_dir.empty();
      }},
     {"record", "FILE",
-     "write the frames received, their intrinsics, timestamps and\n"
-     "ground truth as a ROS 2 bag (MCAP); replay it with mcap:FILE",
+     "write the frames received, their intrinsics, timestamps, ground\n"
+     "truth and --odometry as a ROS 2 bag (MCAP); replay it with\n"
+     "mcap:FILE (and --odometry mcap:FILE)",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs a file name");
        o.record = v;
@@ -360,7 +361,8 @@ const RunOption kRunOptions[] = {
      "the vehicle's poses as a prior for ICP: a TUM trajectory (camera to\n"
      "world, interpolated to each frame's time; the first frame's pose\n"
      "anchors it), a bag's poses (mcap:FILE or rosbag:FILE [?pose=TOPIC],\n"
-     "Odometry or PoseStamped), or\n"
+     "Odometry or PoseStamped; else the camera in /tf's odom frame,\n"
+     "?tf=FRAME), or\n"
      "sim[:drift=R,drift_rad=R,noise=M,noise_rad=R,seed=N]\n"
      "for a drifting noisy odometry of the source's ground truth\n"
      "(default 1 %/m drift); writes DIR/odometry.txt",

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <memory>
 #include <string>
@@ -159,8 +160,28 @@ void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, 
 
 // The odometry's pose for this frame as the pipeline's prior (--odometry); the first frame's
 // anchors the odometry in the world.
+// A pose of the odometry at the frame's time (within half a microsecond, the frames' resolution)
+// is taken as it is rather than interpolated, so that an odometry recorded per frame (--record)
+// gives back the very poses of the run that recorded it.
+bool odometry_at(const std::vector<host::TimedPose>& poses, double t_s, Se3d* T_O_C) {
+  constexpr double kSameTime_s = 0.5e-6;
+  const auto at =
+      std::lower_bound(poses.begin(), poses.end(), t_s - kSameTime_s,
+                       [](const host::TimedPose& pose, double t) { return pose.timestamp_s < t; });
+  if (at != poses.end() && std::fabs(at->timestamp_s - t_s) <= kSameTime_s) {
+    *T_O_C = at->T_W_C;
+    return true;
+  }
+  return host::interpolate_pose(poses, t_s, kOdometryEndTolerance_s, T_O_C);
+}
+
+// `as_replayed`: the odometry is being recorded, so the run uses its poses as the recording will
+// give them back (through a quaternion). `T_O_C_out`: the odometry's pose of the camera, when it
+// has one for this frame.
 int odometry_prior(const RunOptions& options, const DepthFrame& frame, long processed,
-                   RunInputs* inputs, RunSummary* summary, PosePrior* prior) {
+                   bool as_replayed, RunInputs* inputs, RunSummary* summary, PosePrior* prior,
+                   Eigen::Matrix4d* T_O_C_out, bool* have_T_O_C) {
+  *have_T_O_C = false;
   const bool odometry_sim = inputs->odometry_sim;
   const std::vector<host::TimedPose>& odometry_O = inputs->odometry_O;
 #if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
@@ -182,8 +203,13 @@ int odometry_prior(const RunOptions& options, const DepthFrame& frame, long proc
       have_odometry = true;
 #endif
     } else {
-      have_odometry = host::interpolate_pose(odometry_O, t_s, kOdometryEndTolerance_s, &T_O_C);
+      have_odometry = odometry_at(odometry_O, t_s, &T_O_C);
     }
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+    if (have_odometry && as_replayed) T_O_C.matrix() = replay::pose_as_replayed(T_O_C.matrix());
+#else
+    (void)as_replayed;
+#endif
     if (processed == 0) {
       if (!have_odometry) {
         char text[160];
@@ -199,6 +225,8 @@ int odometry_prior(const RunOptions& options, const DepthFrame& frame, long proc
       T_W_O = T_W_C0 * T_O_C.inverse();
     }
     if (have_odometry) {
+      *T_O_C_out = T_O_C.matrix();
+      *have_T_O_C = true;
       prior->valid = true;
       prior->T_W_C = (T_W_O * T_O_C).matrix();
       host::TimedPose pose;
@@ -371,7 +399,7 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
         PinholeCamera camera = inputs->input_camera;
         camera.width = frame.depth_raw.width;
         camera.height = frame.depth_raw.height;
-        if (!recorder.open(options.record.c_str(), camera).ok()) {
+        if (!recorder.open(options.record.c_str(), camera, !options.odometry.empty()).ok()) {
           return error_exit(recorder.last_error());
         }
         recording = true;
@@ -381,14 +409,23 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
       if (frame.has_ground_truth) {
         frame.T_W_C_ground_truth = replay::pose_as_replayed(frame.T_W_C_ground_truth);
       }
-      if (!recorder.write(frame).ok()) return error_exit(recorder.last_error());
     }
 #endif
     PosePrior prior;
-    if (const int rc = odometry_prior(options, frame, processed, inputs, summary, &prior);
+    Eigen::Matrix4d T_O_C = Eigen::Matrix4d::Identity();
+    bool have_T_O_C = false;
+    if (const int rc = odometry_prior(options, frame, processed, !options.record.empty(), inputs,
+                                      summary, &prior, &T_O_C, &have_T_O_C);
         rc != 0) {
       return rc;
     }
+#if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
+    if (recording) {
+      if (!recorder.write(frame, have_T_O_C ? &T_O_C : nullptr).ok()) {
+        return error_exit(recorder.last_error());
+      }
+    }
+#endif
     if (looping != nullptr && looping->loop_started()) {
       if (options.on_loop_start) options.on_loop_start(looping->loop());
       // The camera is back where the first frame was: without this, tracking would have to

@@ -28,6 +28,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   config.limits.max_record_bytes = 256 << 10;  // the seeds' chunks are a few kB
   config.limits.max_chunk_bytes = 256 << 10;
   config.limits.max_channels = 16;
+  // A small reorder window, so that it fills, wraps and gives messages out late.
+  config.limits.reorder_bytes = 16 << 10;
+  config.limits.reorder_messages = 32;
   octofuse::replay::BagSource bag(config);
   const octofuse::Status opened = bag.open();
   if (!opened.ok()) {

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <new>
 
 #include "octofuse/core/arena.hpp"
 #include "octofuse/ports/replay/rvl.hpp"
@@ -35,6 +36,17 @@ BagSource::Kind kind_of(const McapChannel& channel) {
   if (is_type(s, "nav_msgs", "Odometry")) return BagSource::Kind::odometry;
   if (is_type(s, "geometry_msgs", "PoseStamped")) return BagSource::Kind::pose;
   return BagSource::Kind::other;
+}
+
+// Topics that name themselves ground truth ("/ground_truth", "/groundtruth/pose"): chosen for
+// the ground truth, passed over for the odometry, when a bag has several pose topics.
+bool is_ground_truth_topic(const char* topic) {
+  return std::strstr(topic, "ground_truth") != nullptr ||
+         std::strstr(topic, "groundtruth") != nullptr;
+}
+
+bool is_pose_kind(BagSource::Kind kind) {
+  return kind == BagSource::Kind::odometry || kind == BagSource::Kind::pose;
 }
 
 bool copy_value(const char* begin, std::size_t size, char* out, std::size_t capacity) {
@@ -83,6 +95,23 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     const std::size_t key_size = static_cast<std::size_t>(eq - key);
     const char* value = eq + 1;
     const std::size_t value_size = item - key_size - 1;
+    if (key_size == 7 && std::strncmp(key, "reorder", 7) == 0) {
+      // Megabytes of the reorder window that puts messages in log-time order; 0: file order.
+      char number[16] = {};
+      char* end_number = nullptr;
+      const long mb =
+          value_size < sizeof(number) && copy_value(value, value_size, number, sizeof(number))
+              ? std::strtol(number, &end_number, 10)
+              : -1;
+      if (end_number == nullptr || end_number == number || *end_number != '\0' || mb < 0 ||
+          mb > 4096) {
+        error->set("%s: reorder=MB needs 0 to 4096", name);
+        return StatusCode::invalid_argument;
+      }
+      config->limits.reorder_bytes = static_cast<std::size_t>(mb) << 20;
+      query = end;
+      continue;
+    }
     if (key_size == 6 && std::strncmp(key, "buffer", 6) == 0) {
       // Megabytes for each of the reader's two buffers (record and chunk).
       char number[16] = {};
@@ -105,8 +134,9 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     if (key_size == 4 && std::strncmp(key, "info", 4) == 0) out = config->info_topic;
     if (key_size == 4 && std::strncmp(key, "pose", 4) == 0) out = config->pose_topic;
     if (key_size == 5 && std::strncmp(key, "world", 5) == 0) out = config->world_frame;
+    if (key_size == 2 && std::strncmp(key, "tf", 2) == 0) out = config->odometry_frame;
     if (out == nullptr) {
-      error->set("%s: unknown option '%.*s' (depth, info, pose, world, buffer)", name,
+      error->set("%s: unknown option '%.*s' (depth, info, pose, world, tf, buffer, reorder)", name,
                  static_cast<int>(key_size), key);
       return StatusCode::invalid_argument;
     }
@@ -212,18 +242,42 @@ Status BagSource::scan() {
     }
   }
   scanned_ = true;
+  if (reader_.out_of_order() > 0) note_disorder(&scan_warning_);
   return ok_status();
 }
 
-Status BagSource::choose_topics() {
+// What the log-time order could not fix, appended to `text` (empty or a cut's warning).
+void BagSource::note_disorder(ErrorText* text) const {
+  // Short: ErrorText holds 256 characters, and it may follow a cut's warning.
+  char line[128];
+  if (reader_.reorder_bytes() > 0) {
+    const std::size_t bytes = reader_.reorder_bytes();
+    const bool mib = bytes % (std::size_t{1} << 20) == 0;
+    std::snprintf(line, sizeof(line),
+                  "%llu messages out of log-time order, beyond the %zu %s reorder window "
+                  "(?reorder=MB)",
+                  static_cast<unsigned long long>(reader_.out_of_order()),
+                  mib ? bytes >> 20 : bytes, mib ? "MiB" : "byte");
+  } else {
+    std::snprintf(line, sizeof(line), "%llu messages out of log-time order (reorder=0)",
+                  static_cast<unsigned long long>(reader_.out_of_order()));
+  }
+  if (text->c_str()[0] != '\0') {
+    text->set("%s; %s", ErrorText(*text).c_str(), line);
+  } else {
+    text->set("%s: %s", config_.path, line);
+  }
+}
+
+int BagSource::find_topic(const char* name) const {
+  for (int i = 0; i < reader_.channel_count(); ++i) {
+    if (std::strcmp(reader_.channel_at(i).topic, name) == 0) return i;
+  }
+  return -1;
+}
+
+Status BagSource::choose_depth_topic() {
   const int n = reader_.channel_count();
-  auto find_topic = [&](const char* name) {
-    for (int i = 0; i < n; ++i) {
-      if (std::strcmp(reader_.channel_at(i).topic, name) == 0) return i;
-    }
-    return -1;
-  };
-  // Depth.
   depth_channel_ = -1;
   if (config_.depth_topic[0] != '\0') {
     depth_channel_ = find_topic(config_.depth_topic);
@@ -274,6 +328,12 @@ Status BagSource::choose_topics() {
     }
   }
   depth_topic_ = reader_.channel_at(depth_channel_).topic;
+  return ok_status();
+}
+
+Status BagSource::choose_topics() {
+  const int n = reader_.channel_count();
+  OCTOFUSE_TRY(choose_depth_topic());
 
   // Camera info: the named one, the only one, or the one beside the depth topic.
   info_channel_ = -1;
@@ -354,7 +414,9 @@ Status BagSource::choose_topics() {
   pose_topic_ = "";
   int tf_topics = 0;
   for (int i = 0; i < n; ++i) tf_topics += kinds_[i] == Kind::tf && counts_[i] > 0;
-  if (config_.pose_topic[0] != '\0') {
+  if (std::strcmp(config_.pose_topic, "none") == 0) {
+    // No ground truth from the bag (a recording whose only pose topic is its odometry).
+  } else if (config_.pose_topic[0] != '\0') {
     const int c = find_topic(config_.pose_topic);
     if (c < 0 ||
         (kinds_[c] != Kind::odometry && kinds_[c] != Kind::pose && kinds_[c] != Kind::tf)) {
@@ -369,12 +431,20 @@ Status BagSource::choose_topics() {
     }
     pose_topic_ = reader_.channel_at(c).topic;
   } else {
-    int poses = 0, any = -1;
+    int poses = 0, any = -1, named = 0, truth = -1;
     for (int i = 0; i < n; ++i) {
-      if ((kinds_[i] == Kind::odometry || kinds_[i] == Kind::pose) && counts_[i] > 0) {
+      if (is_pose_kind(kinds_[i]) && counts_[i] > 0) {
         ++poses;
         any = i;
+        if (is_ground_truth_topic(reader_.channel_at(i).topic)) {
+          ++named;
+          truth = i;
+        }
       }
+    }
+    if (poses > 1 && named == 1) {
+      poses = 1;  // the one that says it is the ground truth
+      any = truth;
     }
     if (poses > 1) {
       error_.set("%s: %s has several pose topics; choose one with %s:FILE?pose=TOPIC", prefix(),
@@ -691,9 +761,16 @@ NextFrame BagSource::next(DepthFrame& frame) {
   McapMessage message;
   for (;;) {
     const McapNext got = reader_.next(&message);
-    if (got == McapNext::end) return NextFrame::ended();
+    if (got == McapNext::end) {
+      if (reader_.out_of_order() == 0) return NextFrame::ended();
+      // Not lost, but not in order either: the run says so.
+      error_.clear();
+      note_disorder(&error_);
+      return NextFrame{FrameOutcome::end_of_stream, StatusCode::out_of_range};
+    }
     if (got == McapNext::truncated) {
       error_.set("%s: %s", config_.path, reader_.warning());
+      if (reader_.out_of_order() > 0) note_disorder(&error_);
       return NextFrame{FrameOutcome::end_of_stream, StatusCode::data_loss};
     }
     if (got == McapNext::error) {
@@ -747,43 +824,80 @@ NextFrame BagSource::next(DepthFrame& frame) {
 Status read_bag_poses(const BagConfig& config,
                       void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
                       void* context, ErrorText* error) {
-  BagReader reader;
-  Status status = reader.open(config.path, config.format, config.limits);
-  if (!status.ok()) {
-    error->set("%s", reader.error());
-    return status;
+  BagSource source(config);
+  const Status status = source.read_odometry(on_pose, context);
+  if (!status.ok()) error->set("%s", source.last_error());
+  return status;
+}
+
+Status BagSource::read_odometry(void (*on_pose)(void* context, std::int64_t stamp_ns,
+                                                const Se3d& T),
+                                void* context) {
+  OCTOFUSE_TRY(scan());
+  const int n = reader_.channel_count();
+  // The topic: named; else the only Odometry / PoseStamped one, or the only one that does not
+  // call itself ground truth; else TF when the bag has it.
+  int chosen = -1;
+  bool tf = config_.odometry_frame[0] != '\0';
+  int tf_topics = 0;
+  for (int i = 0; i < n; ++i) tf_topics += kinds_[i] == Kind::tf && counts_[i] > 0;
+  if (config_.pose_topic[0] != '\0') {
+    chosen = find_topic(config_.pose_topic);
+    if (chosen < 0 || (!is_pose_kind(kinds_[chosen]) && kinds_[chosen] != Kind::tf)) {
+      error_.set("%s: no Odometry, PoseStamped or TFMessage topic '%s'", config_.path,
+                 config_.pose_topic);
+      return StatusCode::invalid_argument;
+    }
+    if (kinds_[chosen] == Kind::tf) tf = true;
+  } else if (!tf) {
+    int poses = 0, any = -1, others = 0, other = -1, second = -1;
+    for (int i = 0; i < n; ++i) {
+      if (!is_pose_kind(kinds_[i]) || counts_[i] == 0) continue;
+      if (poses == 1) second = i;
+      ++poses;
+      if (any < 0) any = i;
+      if (!is_ground_truth_topic(reader_.channel_at(i).topic)) {
+        ++others;
+        other = i;
+      }
+    }
+    if (poses == 1) {
+      chosen = any;
+    } else if (poses > 1 && others == 1) {
+      chosen = other;
+    } else if (poses > 1) {
+      error_.set("%s has several pose topics (%s, %s); choose one with %s:FILE?pose=TOPIC",
+                 config_.path, reader_.channel_at(any).topic, reader_.channel_at(second).topic,
+                 prefix());
+      return StatusCode::invalid_argument;
+    } else if (tf_topics > 0) {
+      tf = true;
+    } else {
+      error_.set("%s: no Odometry or PoseStamped messages and no /tf", config_.path);
+      return StatusCode::invalid_argument;
+    }
   }
-  // The topic: named, or the only Odometry / PoseStamped one (channels are declared before
-  // their first message, so the choice is made at the first pose message of a second kind).
+  if (tf) return read_tf_poses(on_pose, context);
+
+  reader_.rewind();
   McapMessage message;
-  const McapChannel* chosen = nullptr;
-  const McapChannel* other = nullptr;
   std::uint64_t poses = 0;
   for (;;) {
-    const McapNext got = reader.next(&message);
+    const McapNext got = reader_.next(&message);
     if (got == McapNext::end || got == McapNext::truncated) break;
     if (got == McapNext::error) {
-      error->set("%s: %s", config.path, reader.error());
+      error_.set("%s: %s", config_.path, reader_.error());
       return StatusCode::data_loss;
     }
-    const BagSource::Kind kind = kind_of(*message.channel);
-    if (kind != BagSource::Kind::odometry && kind != BagSource::Kind::pose) continue;
-    if (config.pose_topic[0] != '\0') {
-      if (std::strcmp(message.channel->topic, config.pose_topic) != 0) continue;
-    } else if (chosen == nullptr) {
-      chosen = message.channel;
-    } else if (chosen != message.channel) {
-      other = message.channel;
-      break;
-    }
+    if (message.channel != &reader_.channel_at(chosen)) continue;
     RosPose pose;
     const bool decoded =
-        kind == BagSource::Kind::odometry
-            ? decode_odometry(message.data, message.size, reader.wire(), &pose)
-            : decode_pose_stamped(message.data, message.size, reader.wire(), &pose);
+        kinds_[chosen] == Kind::odometry
+            ? decode_odometry(message.data, message.size, reader_.wire(), &pose)
+            : decode_pose_stamped(message.data, message.size, reader_.wire(), &pose);
     Se3d T;
     if (!decoded || !pose_to_se3(pose, &T)) {
-      error->set("%s: pose message %llu on %s is malformed or not a rotation", config.path,
+      error_.set("%s: pose message %llu on %s is malformed or not a rotation", config_.path,
                  static_cast<unsigned long long>(message.sequence), message.channel->topic);
       return StatusCode::data_loss;
     }
@@ -792,14 +906,121 @@ Status read_bag_poses(const BagConfig& config,
     on_pose(context, stamp_ns, T);
     ++poses;
   }
-  if (other != nullptr) {
-    error->set("%s has several pose topics (%s, %s); choose one with %s:FILE?pose=TOPIC",
-               config.path, chosen->topic, other->topic, reader.name());
+  if (poses == 0) {
+    error_.set("%s: no Odometry or PoseStamped messages on %s", config_.path,
+               reader_.channel_at(chosen).topic);
     return StatusCode::invalid_argument;
   }
+  return ok_status();
+}
+
+// The camera's pose in the odometry's frame from /tf: at each depth image, the chain from the
+// image's frame up to the odometry frame, as the transforms read so far give it.
+Status BagSource::read_tf_poses(void (*on_pose)(void* context, std::int64_t stamp_ns,
+                                                const Se3d& T),
+                                void* context) {
+  OCTOFUSE_TRY(choose_depth_topic());
+  if (config_.max_tf_frames < 1 || config_.max_tf_frames > 4096) {
+    error_.set("%s: invalid configuration", prefix());
+    return StatusCode::invalid_argument;
+  }
+  memory_bytes_ = sizeof(TfFrame) * static_cast<std::size_t>(config_.max_tf_frames);
+  memory_ = std::aligned_alloc(kArenaAlignment, align_up(memory_bytes_, kArenaAlignment));
+  if (memory_ == nullptr) {
+    error_.set("%s: cannot reserve %zu bytes", prefix(), memory_bytes_);
+    return StatusCode::resource_exhausted;
+  }
+  tf_ = static_cast<TfFrame*>(memory_);
+  for (int i = 0; i < config_.max_tf_frames; ++i) new (tf_ + i) TfFrame();
+  tf_count_ = 0;
+  reader_.rewind();
+  const bool named = config_.odometry_frame[0] != '\0';
+  auto is_odom = [](const char* name) {
+    const std::size_t size = std::strlen(name);
+    return std::strcmp(name, "odom") == 0 ||
+           (size > 5 && std::strcmp(name + size - 5, "/odom") == 0);
+  };
+  McapMessage message;
+  std::uint64_t poses = 0;
+  std::uint64_t images = 0;
+  char camera_name[64] = {};
+  for (;;) {
+    const McapNext got = reader_.next(&message);
+    if (got == McapNext::end || got == McapNext::truncated) break;
+    if (got == McapNext::error) {
+      error_.set("%s: %s", config_.path, reader_.error());
+      return StatusCode::data_loss;
+    }
+    const int c = static_cast<int>(message.channel - &reader_.channel_at(0));
+    if (kinds_[c] == Kind::tf) {
+      RosTfReader reader;
+      RosPose transform;
+      if (!reader.begin(message.data, message.size, reader_.wire())) continue;
+      for (std::uint32_t i = 0; i < reader.count() && reader.next(&transform); ++i) {
+        tf_update(transform);
+      }
+      continue;
+    }
+    if (c != depth_channel_) continue;
+    std::int64_t stamp_ns = 0;
+    RosString frame_id;
+    if (kinds_[c] == Kind::compressed) {
+      RosCompressedImage image;
+      if (!decode_compressed_image(message.data, message.size, reader_.wire(), &image)) continue;
+      stamp_ns = image.stamp_ns;
+      frame_id = image.frame_id;
+    } else {
+      RosImage image;
+      if (!decode_image(message.data, message.size, reader_.wire(), &image)) continue;
+      stamp_ns = image.stamp_ns;
+      frame_id = image.frame_id;
+    }
+    ++images;
+    if (stamp_ns == 0) stamp_ns = static_cast<std::int64_t>(message.log_time_ns);
+    const int camera = tf_find(frame_id.data, frame_id.size, false);
+    if (camera < 0) continue;
+    std::memcpy(camera_name, tf_[camera].name, sizeof(camera_name));
+    int odom = -1;
+    if (named) {
+      odom = tf_find(config_.odometry_frame, std::strlen(config_.odometry_frame), false);
+    } else {
+      for (int f = camera, steps = 0; f >= 0 && steps <= tf_count_; f = tf_[f].parent, ++steps) {
+        if (is_odom(tf_[f].name)) {
+          odom = f;
+          break;
+        }
+      }
+    }
+    Se3d T_O_C;
+    if (odom < 0 || !tf_chain(camera, odom, &T_O_C)) continue;
+    on_pose(context, stamp_ns, T_O_C);
+    ++poses;
+  }
   if (poses == 0) {
-    error->set("%s: no Odometry or PoseStamped messages%s%s", config.path,
-               config.pose_topic[0] ? " on " : "", config.pose_topic);
+    // Name the chain the images' frame has, so that the odometry frame can be chosen from it.
+    char chain[256] = {};
+    std::size_t used = 0;
+    const int camera = camera_name[0] ? tf_find(camera_name, std::strlen(camera_name), false) : -1;
+    for (int f = camera, steps = 0; f >= 0 && steps <= tf_count_; f = tf_[f].parent, ++steps) {
+      const int wrote = std::snprintf(chain + used, sizeof(chain) - used, "%s%s",
+                                      used ? " -> " : "", tf_[f].name);
+      if (wrote < 0 || used + static_cast<std::size_t>(wrote) >= sizeof(chain)) break;
+      used += static_cast<std::size_t>(wrote);
+    }
+    if (images == 0) {
+      error_.set("%s: no depth images on %s to take the odometry's TF poses at", config_.path,
+                 depth_topic_);
+    } else if (camera < 0) {
+      error_.set("%s: /tf never names the depth images' frame: no odometry poses", config_.path);
+    } else if (named) {
+      error_.set("%s: no TF chain from '%s' to '%s' (the chain: %s)", config_.path, camera_name,
+                 config_.odometry_frame, chain);
+    } else {
+      error_.set(
+          "%s: no Odometry or PoseStamped topic, and the TF chain of the depth images (%s) has "
+          "no 'odom' frame; name the odometry's frame with %s:FILE?tf=FRAME",
+          config_.path, chain, prefix());
+    }
     return StatusCode::invalid_argument;
   }
   return ok_status();

@@ -15,6 +15,7 @@ constexpr std::uint8_t kMagic[8] = {0x89, 'M', 'C', 'A', 'P', 0x30, '\r', '\n'};
 constexpr std::uint16_t kImageChannel = 1;
 constexpr std::uint16_t kInfoChannel = 2;
 constexpr std::uint16_t kPoseChannel = 3;
+constexpr std::uint16_t kOdometryChannel = 4;
 
 constexpr const char* kSeparator =
     "================================================================================\n";
@@ -98,7 +99,7 @@ Status McapWriter::message(std::uint16_t channel, std::uint64_t log_time_ns, std
   return put(buffer_, size);
 }
 
-Status McapWriter::open(const char* path, const PinholeCamera& camera) {
+Status McapWriter::open(const char* path, const PinholeCamera& camera, bool odometry) {
   (void)close();
   error_.clear();
   if (!(camera.fx > 0.0f && camera.fy > 0.0f) || camera.width <= 0 || camera.height <= 0 ||
@@ -123,6 +124,7 @@ Status McapWriter::open(const char* path, const PinholeCamera& camera) {
   }
   frames_ = 0;
   sequence_ = 0;
+  odometry_ = odometry;
 
   // Header, schemas (ros2msg definitions, as rosbag2 writes them) and channels.
   auto record = [&](std::uint8_t opcode, std::size_t size) {
@@ -164,18 +166,36 @@ Status McapWriter::open(const char* path, const PinholeCamera& camera) {
                 "geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
                 kSeparator, kHeaderDefinition, kSeparator, kTimeDefinition, kSeparator, kSeparator,
                 kSeparator);
+  char odometry_def[3072];
+  std::snprintf(odometry_def, sizeof(odometry_def),
+                "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance "
+                "pose\ngeometry_msgs/TwistWithCovariance twist\n%s%s%s%s%sMSG: "
+                "geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] "
+                "covariance\n%sMSG: geometry_msgs/Pose\ngeometry_msgs/Point "
+                "position\ngeometry_msgs/Quaternion orientation\n%sMSG: "
+                "geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n%sMSG: "
+                "geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w "
+                "1\n%sMSG: geometry_msgs/TwistWithCovariance\ngeometry_msgs/Twist "
+                "twist\nfloat64[36] covariance\n%sMSG: geometry_msgs/Twist\ngeometry_msgs/Vector3 "
+                "linear\ngeometry_msgs/Vector3 angular\n%sMSG: geometry_msgs/Vector3\nfloat64 "
+                "x\nfloat64 y\nfloat64 z\n",
+                kSeparator, kHeaderDefinition, kSeparator, kTimeDefinition, kSeparator, kSeparator,
+                kSeparator, kSeparator, kSeparator, kSeparator, kSeparator);
   struct Definition {
     std::uint16_t id;
     const char* name;
     const char* text;
     const char* topic;
   };
-  const Definition definitions[3] = {
+  const Definition definitions[4] = {
       {kImageChannel, "sensor_msgs/msg/Image", image_def, "/camera/depth/image_raw"},
       {kInfoChannel, "sensor_msgs/msg/CameraInfo", info_def, "/camera/depth/camera_info"},
       {kPoseChannel, "geometry_msgs/msg/PoseStamped", pose_def, "/ground_truth"},
+      {kOdometryChannel, "nav_msgs/msg/Odometry", odometry_def, "/odom"},
   };
-  for (const Definition& d : definitions) {
+  const int declared = odometry ? 4 : 3;
+  for (int i = 0; i < declared; ++i) {
+    const Definition& d = definitions[i];
     std::uint8_t id[2];
     le(id, d.id, 2);
     OCTOFUSE_TRY(record(0x03, 2 + 4 + std::strlen(d.name) + 4 + 7 + 4 + std::strlen(d.text)));
@@ -184,7 +204,8 @@ Status McapWriter::open(const char* path, const PinholeCamera& camera) {
     OCTOFUSE_TRY(string("ros2msg"));
     OCTOFUSE_TRY(string(d.text));
   }
-  for (const Definition& d : definitions) {
+  for (int i = 0; i < declared; ++i) {
+    const Definition& d = definitions[i];
     std::uint8_t ids[4];
     le(ids, d.id, 2);
     le(ids + 2, d.id, 2);
@@ -203,7 +224,7 @@ Status McapWriter::open(const char* path, const PinholeCamera& camera) {
   return ok_status();
 }
 
-Status McapWriter::write(const DepthFrame& frame) {
+Status McapWriter::write(const DepthFrame& frame, const Eigen::Matrix4d* T_O_C) {
   if (file_ == nullptr) {
     error_.set("mcap record: write() before a successful open()");
     return StatusCode::failed_precondition;
@@ -224,6 +245,16 @@ Status McapWriter::write(const DepthFrame& frame) {
     for (double t : pose.t) c.f64(t);
     for (double q : pose.q) c.f64(q);
     OCTOFUSE_TRY(message(kPoseChannel, log_ns, c.n));
+  }
+  if (odometry_ && T_O_C != nullptr) {
+    CdrOut c(buffer_);
+    c.header(stamp_ns, "odom");
+    c.string("camera_depth");
+    const RosPose pose = pose_from_matrix(*T_O_C);
+    for (double t : pose.t) c.f64(t);
+    for (double q : pose.q) c.f64(q);
+    for (int i = 0; i < 36 + 6 + 36; ++i) c.f64(0.0);  // covariance unknown, twist, covariance
+    OCTOFUSE_TRY(message(kOdometryChannel, log_ns, c.n));
   }
   {
     CdrOut c(buffer_);

@@ -2,6 +2,7 @@
 // 7-Scenes frames: the same pixels, timestamps, intrinsics and poses, the same trajectory, every
 // compression and layout, cuts at any byte, and bad input answered with one clear error.
 
+#include <algorithm>
 #include <catch2/catch.hpp>
 #include <cmath>
 #include <cstring>
@@ -10,6 +11,7 @@
 
 #include "bag_fixtures.hpp"
 #include "octofuse/pipeline/mapper.hpp"
+#include "octofuse/ports/replay/bag_reader.hpp"
 #include "octofuse/ports/replay/bag_source.hpp"
 #include "octofuse/ports/replay/replay_source.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
@@ -274,6 +276,174 @@ TEST_CASE("mcap: a bag's odometry poses for the prior", "[replay][bag]") {
   CHECK(octofuse::replay::read_bag_poses(config, collect, &collected, &error).code() ==
         StatusCode::invalid_argument);
   CHECK(std::strstr(error.c_str(), "no Odometry or PoseStamped") != nullptr);
+}
+
+// make_bag.py's --pose odom_tf: map -> odom (MAP_ODOM) -> body -> camera_depth (BODY_CAMERA).
+namespace {
+Eigen::Matrix4d map_odom() {
+  const double c = std::cos(30.0 * M_PI / 180.0), s = std::sin(30.0 * M_PI / 180.0);
+  Eigen::Matrix4d T;
+  T << c, -s, 0, 1.0, s, c, 0, 2.0, 0, 0, 1, 0, 0, 0, 0, 1;
+  return T;
+}
+}  // namespace
+
+TEST_CASE("bag: the odometry prior from a robot's TF tree (map -> odom -> body -> camera)",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  struct Collected {
+    std::vector<std::int64_t> stamps_ns;
+    std::vector<Eigen::Matrix4d> poses;
+  } collected;
+  auto collect = [](void* context, std::int64_t stamp_ns, const octofuse::Se3d& T) {
+    static_cast<Collected*>(context)->stamps_ns.push_back(stamp_ns);
+    static_cast<Collected*>(context)->poses.push_back(T.matrix());
+  };
+  const Eigen::Matrix4d odom_map = map_odom().inverse();
+  std::vector<std::string> specs;
+  const std::string mcap = fixture.bag("odom_tf.mcap", "--compression none --pose odom_tf");
+  if (!mcap.empty()) specs.push_back("mcap:" + mcap);
+  const std::string ros1 = fixture.rosbag("odom_tf.bag", "--compression lz4 --pose odom_tf");
+  if (!ros1.empty()) specs.push_back("rosbag:" + ros1);
+  for (const std::string& spec : specs) {
+    // The odom frame found on the chain, or named; the map frame named gives the ground truth.
+    for (const char* query : {"", "?tf=odom", "?tf=/odom", "?tf=map"}) {
+      INFO(spec << query);
+      const bool map = std::strcmp(query, "?tf=map") == 0;
+      BagConfig config;
+      octofuse::ErrorText error;
+      REQUIRE(octofuse::replay::parse_bag_spec((spec + query).c_str(), &config, &error).ok());
+      collected = Collected();
+      REQUIRE(octofuse::replay::read_bag_poses(config, collect, &collected, &error).ok());
+      REQUIRE(collected.poses.size() == fixture.kept.frames.size());
+      for (std::size_t i = 0; i < collected.poses.size(); ++i) {
+        const KeptFrame& k = fixture.kept.frames[i];
+        CHECK(collected.stamps_ns[i] == k.timestamp_us * 1000);
+        const Eigen::Matrix4d want = map ? k.T_W_C : Eigen::Matrix4d(odom_map * k.T_W_C);
+        CHECK((collected.poses[i] - want).cwiseAbs().maxCoeff() < 1e-9);
+      }
+    }
+    {  // a frame that is not on the chain: one clear error naming the chain
+      BagConfig config;
+      octofuse::ErrorText error;
+      REQUIRE(
+          octofuse::replay::parse_bag_spec((spec + "?tf=base_link").c_str(), &config, &error).ok());
+      CHECK(octofuse::replay::read_bag_poses(config, collect, &collected, &error).code() ==
+            StatusCode::invalid_argument);
+      CHECK(std::strstr(error.c_str(),
+                        "to 'base_link' (the chain: camera_depth -> body -> odom "
+                        "-> map)") != nullptr);
+    }
+    // As the source, the same TF gives the ground truth (chained to the root, map).
+    std::unique_ptr<BagSource> bag =
+        open_bag(spec.substr(spec.find(':') + 1), "", spec.substr(0, spec.find(':') + 1).c_str());
+    REQUIRE(bag->open().ok());
+    check_same_frames(*bag, fixture.kept, 1, true, 1e-9);
+  }
+  {  // TF without an odom frame (world -> body -> camera): the error says how to name one
+    const std::string path = fixture.bag("tf_world.mcap", "--compression none --pose tf");
+    BagConfig config;
+    octofuse::ErrorText error;
+    REQUIRE(octofuse::replay::parse_bag_spec(("mcap:" + path).c_str(), &config, &error).ok());
+    CHECK(octofuse::replay::read_bag_poses(config, collect, &collected, &error).code() ==
+          StatusCode::invalid_argument);
+    CHECK(std::strstr(error.c_str(),
+                      "(camera_depth -> body -> world) has no 'odom' frame; name "
+                      "the odometry's frame with mcap:FILE?tf=FRAME") != nullptr);
+    REQUIRE(
+        octofuse::replay::parse_bag_spec(("mcap:" + path + "?tf=world").c_str(), &config, &error)
+            .ok());
+    collected = Collected();
+    REQUIRE(octofuse::replay::read_bag_poses(config, collect, &collected, &error).ok());
+    REQUIRE(collected.poses.size() == fixture.kept.frames.size());
+    for (std::size_t i = 0; i < collected.poses.size(); ++i) {
+      CHECK((collected.poses[i] - fixture.kept.frames[i].T_W_C).cwiseAbs().maxCoeff() < 1e-9);
+    }
+  }
+}
+
+TEST_CASE("bag: chunks that overlap in time are read in log-time order", "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  // The pose topic chunked apart from the camera's: in the file, the TF of later frames comes
+  // before a frame's image (make_bag.py / make_rosbag.py --overlap).
+  std::vector<std::string> specs;
+  const std::string mcap = fixture.bag("overlap.mcap", "--compression none --overlap");
+  if (!mcap.empty()) specs.push_back("mcap:" + mcap);
+  const std::string ros1 =
+      fixture.rosbag("overlap.bag", "--compression none --overlap --chunk-threshold 1");
+  if (!ros1.empty()) specs.push_back("rosbag:" + ros1);
+  for (const std::string& spec : specs) {
+    INFO(spec);
+    const std::string scheme = spec.substr(0, spec.find(':') + 1);
+    const std::string path = spec.substr(spec.find(':') + 1);
+    const octofuse::replay::BagFormat format =
+        scheme == "mcap:" ? octofuse::replay::BagFormat::mcap : octofuse::replay::BagFormat::rosbag;
+    {  // the container in file order: log times go back
+      octofuse::replay::McapLimits limits;
+      limits.reorder_bytes = 0;
+      octofuse::replay::BagReader reader;
+      REQUIRE(reader.open(path.c_str(), format, limits).ok());
+      octofuse::replay::McapMessage message;
+      while (reader.next(&message) == octofuse::replay::McapNext::message) {
+      }
+      CHECK(reader.out_of_order() > 0);
+    }
+    {  // through the window: every message, in log-time order, none late
+      octofuse::replay::BagReader reader;
+      REQUIRE(reader.open(path.c_str(), format, octofuse::replay::McapLimits()).ok());
+      octofuse::replay::McapMessage message;
+      std::uint64_t last_ns = 0;
+      int messages = 0, backwards = 0;
+      octofuse::replay::McapNext got;
+      while ((got = reader.next(&message)) == octofuse::replay::McapNext::message) {
+        backwards += message.log_time_ns < last_ns;
+        last_ns = message.log_time_ns;
+        ++messages;
+      }
+      CHECK(got == octofuse::replay::McapNext::end);
+      CHECK(backwards == 0);
+      CHECK(reader.out_of_order() == 0);
+      CHECK(messages >= 3 * kSimFrames);
+    }
+    // The source: each frame with its own pose, the stream ending without a warning.
+    std::unique_ptr<BagSource> bag = open_bag(path, "", scheme.c_str());
+    REQUIRE(bag->open().ok());
+    CHECK(bag->scan_warning()[0] == '\0');
+    check_same_frames(*bag, fixture.kept, 1, true, 1e-9);
+    // In file order (reorder=0), frames take the poses of later frames, and the run is told.
+    for (const char* query : {"?reorder=0", "?tiny"}) {
+      INFO(query);
+      BagConfig config;
+      octofuse::ErrorText error;
+      if (std::strcmp(query, "?tiny") == 0) {
+        // A window smaller than any message: as good as file order, and said to be too small.
+        REQUIRE(octofuse::replay::parse_bag_spec(spec.c_str(), &config, &error).ok());
+        config.limits.reorder_bytes = 64;
+      } else {
+        REQUIRE(octofuse::replay::parse_bag_spec((spec + query).c_str(), &config, &error).ok());
+      }
+      BagSource file_order(config);
+      REQUIRE(file_order.open().ok());
+      CHECK(std::strstr(file_order.scan_warning(), "messages out of log-time order") != nullptr);
+      octofuse::DepthFrame frame;
+      int frames = 0, wrong_pose = 0;
+      NextFrame next;
+      while ((next = file_order.next(frame)).outcome == FrameOutcome::frame) {
+        const KeptFrame& k = fixture.kept.frames[static_cast<std::size_t>(frames++)];
+        wrong_pose += !frame.has_ground_truth ||
+                      (frame.T_W_C_ground_truth - k.T_W_C).cwiseAbs().maxCoeff() > 1e-6;
+      }
+      CHECK(frames == kSimFrames);
+      CHECK(wrong_pose > 0);
+      CHECK(next.outcome == FrameOutcome::end_of_stream);
+      CHECK(next.status.code() == StatusCode::out_of_range);
+      INFO(file_order.last_error());
+      CHECK(std::strstr(file_order.last_error(),
+                        query[1] == 'r'
+                            ? "out of log-time order (reorder=0)"
+                            : "beyond the 64 byte reorder window (?reorder=MB)") != nullptr);
+    }
+  }
 }
 
 TEST_CASE("mcap: a bag of sim frames gives the same trajectory as the sim", "[replay][bag]") {
@@ -880,4 +1050,112 @@ TEST_CASE("rosbag: a bag of 7-Scenes frames gives their trajectory",
   const std::vector<Eigen::Matrix4d> from_bag = track(*bag_again, bag_again->intrinsics(), first);
   REQUIRE(from_bag.size() == from_folder.size());
   for (std::size_t i = 0; i < from_bag.size(); ++i) CHECK(from_bag[i] == from_folder[i]);
+}
+
+namespace {
+
+// An unchunked MCAP of small messages on one channel with the given log times; message i's
+// payload is its index (8 bytes) then `sizes[i] - 8` bytes of (i + j) & 0xFF.
+void write_mcap_messages(const std::string& path, const std::vector<std::uint64_t>& log_ns,
+                         const std::vector<std::size_t>& sizes) {
+  std::string out("\x89MCAP0\r\n", 8);
+  auto le = [&](std::uint64_t v, int bytes) {
+    for (int i = 0; i < bytes; ++i) out.push_back(static_cast<char>(v >> (8 * i)));
+  };
+  auto str = [&](const std::string& s) {
+    le(s.size(), 4);
+    out += s;
+  };
+  out.push_back(0x04);  // channel 1, no schema, topic /n
+  le(2 + 2 + 4 + 2 + 4 + 3 + 4, 8);
+  le(1, 2);
+  le(0, 2);
+  str("/n");
+  str("cdr");
+  le(0, 4);
+  for (std::size_t i = 0; i < log_ns.size(); ++i) {
+    out.push_back(0x05);
+    le(22 + sizes[i], 8);
+    le(1, 2);
+    le(i, 4);
+    le(log_ns[i], 8);
+    le(log_ns[i], 8);
+    le(i, 8);
+    for (std::size_t j = 8; j < sizes[i]; ++j) out.push_back(static_cast<char>((i + j) & 0xFF));
+  }
+  out.push_back(0x0F);
+  le(4, 8);
+  le(0, 4);
+  out.push_back(0x02);
+  le(20, 8);
+  le(0, 8);
+  le(0, 8);
+  le(0, 4);
+  out += std::string("\x89MCAP0\r\n", 8);
+  write_text(path, out);
+}
+
+}  // namespace
+
+TEST_CASE("bag: the reorder window sorts what it can reach and counts the rest", "[replay][bag]") {
+  // 2000 messages of 8 B to 3 kB, each logged up to `shift` places from its place in the file;
+  // windows from 4 kB (less than two messages) to 1 MB (all), rings that wrap many times.
+  const std::string dir = make_test_dir("reorder");
+  const std::string path = dir + "/shuffled.mcap";
+  std::uint64_t seed = 12345;
+  auto random = [&](std::uint64_t n) {
+    seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+    return (seed >> 33) % n;
+  };
+  const int count = 2000;
+  for (const int shift : {0, 3, 40}) {
+    std::vector<std::uint64_t> log_ns;
+    std::vector<std::size_t> sizes;
+    for (int i = 0; i < count; ++i) {
+      log_ns.push_back(1000 * static_cast<std::uint64_t>(i + 1 + random(shift + 1)));
+      sizes.push_back(8 + random(3000));
+    }
+    write_mcap_messages(path, log_ns, sizes);
+    for (const std::size_t window :
+         {std::size_t{4096}, std::size_t{64} << 10, std::size_t{1} << 20}) {
+      for (const int slots : {16, 4096}) {
+        INFO("shift " << shift << ", window " << window << " bytes, " << slots << " messages");
+        octofuse::replay::McapLimits limits;
+        limits.reorder_bytes = window;
+        limits.reorder_messages = slots;
+        octofuse::replay::BagReader reader;
+        REQUIRE(reader.open(path.c_str(), octofuse::replay::BagFormat::mcap, limits).ok());
+        std::vector<int> seen(count, 0);
+        octofuse::replay::McapMessage message;
+        std::uint64_t last_ns = 0;
+        std::uint64_t backwards = 0;
+        int corrupt = 0;
+        octofuse::replay::McapNext got;
+        while ((got = reader.next(&message)) == octofuse::replay::McapNext::message) {
+          std::uint64_t index = 0;
+          std::memcpy(&index, message.data, 8);
+          REQUIRE(index < static_cast<std::uint64_t>(count));
+          ++seen[index];
+          corrupt += message.size != sizes[index] || message.log_time_ns != log_ns[index];
+          for (std::size_t j = 8; j < message.size; ++j) {
+            corrupt += message.data[j] != static_cast<std::uint8_t>((index + j) & 0xFF);
+          }
+          if (message.log_time_ns < last_ns) {
+            ++backwards;
+          } else {
+            last_ns = message.log_time_ns;
+          }
+        }
+        CHECK(got == octofuse::replay::McapNext::end);
+        CHECK(corrupt == 0);
+        CHECK(std::count(seen.begin(), seen.end(), 1) == count);  // each once
+        CHECK(backwards == reader.out_of_order());
+        // A window that holds the displacement (40 places of up to 3 kB) puts all in order.
+        if (shift == 0 || (window == (std::size_t{1} << 20) && slots == 4096)) {
+          CHECK(backwards == 0);
+        }
+        if (shift == 40 && window == 4096) CHECK(backwards > 0);
+      }
+    }
+  }
 }

@@ -13,8 +13,10 @@ Frame dump (little-endian), as test/ports/replay/bag_fixtures.hpp writes it:
 With a DUMP ending in .mcap (an unchunked MCAP such as octofuse-replay --record writes), its
 schemas, channels and messages are rewritten in the layout and compression asked for.
 
-usage: make_bag.py DUMP OUT.mcap [--compression none|zstd|lz4] [--unchunked] [--no-summary]
-       [--encoding 16UC1|32FC1|mono16] [--big-endian] [--pose tf|odometry|pose_stamped|none]
+usage: make_bag.py DUMP OUT.mcap [--compression none|zstd|lz4] [--unchunked] [--overlap]
+       [--no-summary]
+       [--encoding 16UC1|32FC1|mono16] [--big-endian]
+       [--pose tf|odom_tf|odometry|pose_stamped|none]
        [--distortion K1] [--extra-image]
 """
 import argparse
@@ -271,6 +273,33 @@ def compressed_depth_msg(stamp_ns, width, height, pixels, mpu, encoding, codec):
 
 IDENTITY = (1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0)
 
+# --pose odom_tf: a robot's TF tree map -> odom -> body -> camera_depth. The camera sits on the
+# body at BODY_CAMERA (a quarter turn about z, 10 cm ahead, 5 cm up); the odometry's frame sits
+# in the map at MAP_ODOM (30 degrees about z, at (1, 2, 0)). The bag reader's test uses the
+# same numbers: the camera's pose in the odom frame is inverse(MAP_ODOM) * T_W_C.
+BODY_CAMERA = (0.0, -1.0, 0, 0.1, 1.0, 0.0, 0, 0, 0, 0, 1.0, 0.05, 0, 0, 0, 1.0)
+_C30, _S30 = math.cos(math.radians(30)), math.sin(math.radians(30))
+MAP_ODOM = (_C30, -_S30, 0, 1.0, _S30, _C30, 0, 2.0, 0, 0, 1.0, 0, 0, 0, 0, 1.0)
+
+
+def mat_mul(a, b):
+    """4x4 row-major products."""
+    return tuple(sum(a[4 * r + k] * b[4 * k + c] for k in range(4))
+                 for r in range(4) for c in range(4))
+
+
+def rigid_inverse(a):
+    rt = [a[0], a[4], a[8], a[1], a[5], a[9], a[2], a[6], a[10]]
+    t = [a[3], a[7], a[11]]
+    ti = [-(rt[3 * r] * t[0] + rt[3 * r + 1] * t[1] + rt[3 * r + 2] * t[2]) for r in range(3)]
+    return (rt[0], rt[1], rt[2], ti[0], rt[3], rt[4], rt[5], ti[1], rt[6], rt[7], rt[8], ti[2],
+            0, 0, 0, 1.0)
+
+
+def odom_body(T):
+    """odom -> body such that map -> odom -> body -> camera_depth is the camera's pose T."""
+    return mat_mul(mat_mul(rigid_inverse(MAP_ODOM), T), rigid_inverse(BODY_CAMERA))
+
 
 def compress(data, how):
     if how == "zstd":
@@ -288,10 +317,13 @@ def main():
     ap.add_argument("out")
     ap.add_argument("--compression", default="none", choices=["none", "zstd", "lz4"])
     ap.add_argument("--unchunked", action="store_true")
+    ap.add_argument("--overlap", action="store_true",
+                    help="chunks that overlap in time (camera and pose topics chunked apart)")
     ap.add_argument("--no-summary", action="store_true")
     ap.add_argument("--encoding", default="16UC1", choices=["16UC1", "32FC1", "mono16"])
     ap.add_argument("--big-endian", action="store_true")
-    ap.add_argument("--pose", default="tf", choices=["tf", "odometry", "pose_stamped", "none"])
+    ap.add_argument("--pose", default="tf",
+                    choices=["tf", "odom_tf", "odometry", "pose_stamped", "none"])
     ap.add_argument("--distortion", type=float, default=0.0)
     ap.add_argument("--compressed", choices=["png", "rvl"],
                     help="compressedDepth CompressedImage instead of Image")
@@ -314,7 +346,7 @@ def main():
                (5, "geometry_msgs/msg/PoseStamped")]
     depth_topic = "/camera/depth/image_raw" + ("/compressedDepth" if args.compressed else "")
     channels = [(1, 1, depth_topic), (2, 2, "/camera/depth/camera_info")]
-    if args.pose == "tf":
+    if args.pose in ("tf", "odom_tf"):
         channels += [(3, 3, "/tf"), (4, 3, "/tf_static")]
     elif args.pose == "odometry":
         channels += [(3, 4, "/odom")]
@@ -329,8 +361,13 @@ def main():
         if i == 0 and args.pose == "tf":
             # camera_depth hangs from a body frame, which the odometry-like /tf moves.
             messages.append((4, stamp, tf_msg([(stamp, "body", "camera_depth", IDENTITY)])))
+        if i == 0 and args.pose == "odom_tf":
+            messages.append((4, stamp, tf_msg([(stamp, "body", "camera_depth", BODY_CAMERA)])))
         if has_pose and args.pose == "tf":
             messages.append((3, stamp, tf_msg([(stamp, "world", "body", T)])))
+        elif has_pose and args.pose == "odom_tf":
+            messages.append((3, stamp, tf_msg([(stamp, "map", "odom", MAP_ODOM),
+                                               (stamp, "odom", "body", odom_body(T))])))
         elif has_pose and args.pose == "odometry":
             messages.append((3, stamp, odometry_msg(stamp, T)))
         elif has_pose and args.pose == "pose_stamped":
@@ -411,6 +448,32 @@ def write_mcap(args, schema_records, channel_records, messages):
                 current = []
         if current:
             groups.append(current)
+        if args.overlap:
+            # Chunks whose times overlap, as a recorder that chunks each topic apart writes them:
+            # the camera's topics two frames a chunk, the pose topics three messages a chunk,
+            # chunks in the order of their first message (pose chunks first on a tie). In file
+            # order the poses of later frames then come before a frame's image.
+            # Pose messages are logged a microsecond before their frame (as a TF broadcast
+            # arrives before the image it belongs to), so that log-time order is one order.
+            camera = [m for m in messages if m[0] in (1, 2, 9)]
+            poses = [(m[0], max(m[1] - 1000, 0), m[2])
+                     for m in messages if m[0] not in (1, 2, 9)]
+            keyed = []
+            current = []
+            images = 0
+            for m in camera:
+                current.append(m)
+                images += m[0] == 1
+                if m[0] == 1 and images % 2 == 0:
+                    keyed.append((min(x[1] for x in current), 1, current))
+                    current = []
+            if current:
+                keyed.append((min(x[1] for x in current), 1, current))
+            for i in range(0, len(poses), 3):
+                group = poses[i:i + 3]
+                keyed.append((min(x[1] for x in group), 0, group))
+            keyed.sort(key=lambda k: (k[0], k[1]))
+            groups = [k[2] for k in keyed]
         for group in groups:
             records = bytearray()
             offsets = {}

@@ -9,12 +9,12 @@ python3-roslz4) is missing, so the caller can skip.
 
 The frame dump is make_bag.py's (its docstring has the layout). With a DUMP ending in .mcap
 (an unchunked MCAP of ROS 2 messages, such as octofuse-replay --record writes), its Image,
-CameraInfo and PoseStamped messages are converted from CDR to ROS 1 and written on the same
-topics with their log times.
+CameraInfo, PoseStamped and Odometry messages are converted from CDR to ROS 1 and written on
+the same topics with their log times.
 
 usage: make_rosbag.py DUMP OUT.bag [--compression none|bz2|lz4] [--chunk-threshold BYTES]
-       [--encoding 16UC1|32FC1|mono16] [--pose tf|odometry|pose_stamped|none] [--tum]
-       [--distortion K1]
+       [--encoding 16UC1|32FC1|mono16] [--pose tf|odom_tf|odometry|pose_stamped|none] [--tum]
+       [--distortion K1] [--overlap]
        make_rosbag.py --batch FILE   (one "DUMP OUT.bag [options]" a line: one interpreter start,
                                       which with rosbag's imports is most of the time, for many)
 
@@ -28,7 +28,7 @@ import shlex
 import struct
 import sys
 
-from make_bag import IDENTITY, quaternion, read_dump
+from make_bag import BODY_CAMERA, IDENTITY, MAP_ODOM, odom_body, quaternion, read_dump
 
 MD5 = {
     "sensor_msgs/Image": "060021388200f6f0f447d0fcd9c64743",
@@ -223,6 +223,10 @@ def ros1_from_cdr(type_name, data, seq):
     elif type_name == "geometry_msgs/PoseStamped":
         for _ in range(7):
             out.f64(c.f64())
+    elif type_name == "nav_msgs/Odometry":
+        out.string(c.string())  # child_frame_id
+        for _ in range(7 + 36 + 6 + 36):
+            out.f64(c.f64())
     else:
         return None
     return bytes(out.buf)
@@ -262,8 +266,11 @@ def main(argv):
     ap.add_argument("--compression", default="none", choices=["none", "bz2", "lz4"])
     ap.add_argument("--chunk-threshold", type=int, default=768 * 1024)
     ap.add_argument("--encoding", default="16UC1", choices=["16UC1", "32FC1", "mono16"])
-    ap.add_argument("--pose", default="tf", choices=["tf", "odometry", "pose_stamped", "none"])
+    ap.add_argument("--pose", default="tf",
+                    choices=["tf", "odom_tf", "odometry", "pose_stamped", "none"])
     ap.add_argument("--tum", action="store_true")
+    ap.add_argument("--overlap", action="store_true",
+                    help="pose messages written ahead of the frames they belong to")
     ap.add_argument("--distortion", type=float, default=0.0)
     args = ap.parse_args(argv)
     try:
@@ -294,51 +301,96 @@ def main(argv):
             convert_mcap(args, lambda *m: write(bag, *m))
         return
     width, height, k4, frames = read_dump(args.dump)
+    compression = {"none": rosbag.Compression.NONE, "bz2": rosbag.Compression.BZ2,
+                   "lz4": rosbag.Compression.LZ4}[args.compression]
+    held = []  # --overlap: (topic, type, data, stamp), written at the end in another order
+
+    def put(bag, topic, type_name, data, stamp_ns):
+        if args.overlap:
+            held.append((topic, type_name, data, stamp_ns))
+        else:
+            write(bag, topic, type_name, data, stamp_ns)
+
+    with rosbag.Bag(args.out, "w", compression=compression,
+                    chunk_threshold=args.chunk_threshold) as bag:
+        write_frames(args, frames, width, height, k4, lambda *m: put(bag, *m))
+        if args.overlap:
+            # As make_bag.py --overlap: the camera's messages two frames a group, the pose topics
+            # three messages a group, groups in the order of their first message (poses first
+            # on a tie); with a small --chunk-threshold the chunks overlap in time.
+            camera = [m for m in held if m[0].startswith("/camera/")]
+            # Logged a microsecond before their frame, as make_bag.py --overlap does.
+            poses = [m[:3] + (max(m[3] - 1000, 0),)
+                     for m in held if not m[0].startswith("/camera/")]
+            keyed, current, images = [], [], 0
+            for m in camera:
+                current.append(m)
+                if m[1] == "sensor_msgs/Image" and "depth" in m[0]:
+                    images += 1
+                    if images % 2 == 0:
+                        keyed.append((current[0][3], 1, current))
+                        current = []
+            if current:
+                keyed.append((current[0][3], 1, current))
+            for i in range(0, len(poses), 3):
+                keyed.append((poses[i][3], 0, poses[i:i + 3]))
+            keyed.sort(key=lambda k: (k[0], k[1]))
+            for _, _, group in keyed:
+                for m in group:
+                    write(bag, *m)
+
+
+def write_frames(args, frames, width, height, k4, write):
+    """The messages of the dump's frames, in time order, through write(topic, type, data, ns)."""
     encoding = "32FC1" if args.tum else args.encoding
     depth_topic = "/camera/depth/image" if args.tum else "/camera/depth/image_raw"
     frame = "/openni_rgb_optical_frame" if args.tum else "camera_depth"
     tf_type = "tf/tfMessage" if args.tum else "tf2_msgs/TFMessage"
-    compression = {"none": rosbag.Compression.NONE, "bz2": rosbag.Compression.BZ2,
-                   "lz4": rosbag.Compression.LZ4}[args.compression]
-    with rosbag.Bag(args.out, "w", compression=compression,
-                    chunk_threshold=args.chunk_threshold) as bag:
-        for i, (ts_us, mpu, has_pose, T, pixels) in enumerate(frames):
-            stamp = ts_us * 1000
-            if args.tum:
-                # The mocap's /world -> /kinect, then the Kinect's fixed frames down to the optical
-                # one, all on /tf as ROS 1 recorded them.
-                fixed = [(stamp, "/kinect", "/openni_camera", IDENTITY),
-                         (stamp, "/openni_camera", "/openni_rgb_frame", IDENTITY),
-                         (stamp, "/openni_rgb_frame", frame, IDENTITY)]
-                moving = [(stamp, "/world", "/kinect", T)] if has_pose else []
-                write(bag, "/tf", tf_type, tf_msg(moving + fixed), stamp)
-                write(bag, "/imu", "sensor_msgs/Imu", imu_msg(i, stamp), stamp)
-            elif args.pose == "tf":
-                transforms = [(stamp, "body", frame, IDENTITY)]
-                if has_pose:
-                    transforms.insert(0, (stamp, "world", "body", T))
-                write(bag, "/tf", tf_type, tf_msg(transforms), stamp)
-            elif has_pose and args.pose == "odometry":
-                write(bag, "/odom", "nav_msgs/Odometry", odometry_msg(i, stamp, T), stamp)
-            elif has_pose and args.pose == "pose_stamped":
-                write(bag, "/camera/pose", "geometry_msgs/PoseStamped",
-                      pose_stamped_msg(i, stamp, T), stamp)
-            info = camera_info_msg(i, stamp, frame, width, height, k4, args.distortion)
-            if args.tum:
-                write(bag, "/camera/rgb/camera_info", "sensor_msgs/CameraInfo", info, stamp)
-                colour = Ros1()
-                colour.header(i, stamp, frame)
-                for v in (2, 2):
-                    colour.u32(v)
-                colour.string("rgb8")
-                colour.u8(0)
-                colour.u32(6)
-                colour.bytes(bytes(12))
-                write(bag, "/camera/rgb/image_color", "sensor_msgs/Image", bytes(colour.buf),
-                      stamp)
-            write(bag, "/camera/depth/camera_info", "sensor_msgs/CameraInfo", info, stamp)
-            write(bag, depth_topic, "sensor_msgs/Image",
-                  image_msg(i, stamp, frame, width, height, pixels, mpu, encoding), stamp)
+
+    for i, (ts_us, mpu, has_pose, T, pixels) in enumerate(frames):
+        stamp = ts_us * 1000
+        if args.tum:
+            # The mocap's /world -> /kinect, then the Kinect's fixed frames down to the optical
+            # one, all on /tf as ROS 1 recorded them.
+            fixed = [(stamp, "/kinect", "/openni_camera", IDENTITY),
+                     (stamp, "/openni_camera", "/openni_rgb_frame", IDENTITY),
+                     (stamp, "/openni_rgb_frame", frame, IDENTITY)]
+            moving = [(stamp, "/world", "/kinect", T)] if has_pose else []
+            write("/tf", tf_type, tf_msg(moving + fixed), stamp)
+            write("/imu", "sensor_msgs/Imu", imu_msg(i, stamp), stamp)
+        elif args.pose == "tf":
+            transforms = [(stamp, "body", frame, IDENTITY)]
+            if has_pose:
+                transforms.insert(0, (stamp, "world", "body", T))
+            write("/tf", tf_type, tf_msg(transforms), stamp)
+        elif args.pose == "odom_tf":
+            # ROS 1 bags keep static transforms on /tf too, repeated.
+            transforms = [(stamp, "/body", frame, BODY_CAMERA)]
+            if has_pose:
+                transforms = [(stamp, "/map", "/odom", MAP_ODOM),
+                              (stamp, "/odom", "/body", odom_body(T))] + transforms
+            write("/tf", tf_type, tf_msg(transforms), stamp)
+        elif has_pose and args.pose == "odometry":
+            write("/odom", "nav_msgs/Odometry", odometry_msg(i, stamp, T), stamp)
+        elif has_pose and args.pose == "pose_stamped":
+            write("/camera/pose", "geometry_msgs/PoseStamped",
+                  pose_stamped_msg(i, stamp, T), stamp)
+        info = camera_info_msg(i, stamp, frame, width, height, k4, args.distortion)
+        if args.tum:
+            write("/camera/rgb/camera_info", "sensor_msgs/CameraInfo", info, stamp)
+            colour = Ros1()
+            colour.header(i, stamp, frame)
+            for v in (2, 2):
+                colour.u32(v)
+            colour.string("rgb8")
+            colour.u8(0)
+            colour.u32(6)
+            colour.bytes(bytes(12))
+            write("/camera/rgb/image_color", "sensor_msgs/Image", bytes(colour.buf),
+                  stamp)
+        write("/camera/depth/camera_info", "sensor_msgs/CameraInfo", info, stamp)
+        write(depth_topic, "sensor_msgs/Image",
+              image_msg(i, stamp, frame, width, height, pixels, mpu, encoding), stamp)
 
 
 if __name__ == "__main__":

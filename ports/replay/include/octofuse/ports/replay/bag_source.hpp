@@ -18,7 +18,9 @@
 // the only image topic with "depth" in its name); otherwise open() names the candidates.
 //
 // open() reads the file once to count topics and find the camera info, then next() streams it
-// again in file order, keeping the newest pose of each kind. Memory is fixed at open(): the MCAP
+// again in log-time order (bag_reader.hpp's reorder window), keeping the newest pose of each
+// kind. Messages the window could not put in order end the stream with a warning (the status
+// out_of_range, or data_loss with a cut's). Memory is fixed at open(): the MCAP
 // reader's two buffers (McapLimits), the frame ring and a table of TF frames.
 
 #include <cstddef>
@@ -44,6 +46,8 @@ struct BagConfig {
   char info_topic[kMaxName] = {};
   char pose_topic[kMaxName] = {};
   char world_frame[kMaxName] = {};  // TF only; empty: the root of the depth frame's chain
+  // read_bag_poses from TF: the odometry's frame; empty: a frame named "odom" on the chain.
+  char odometry_frame[kMaxName] = {};
 
   bool has_intrinsics = false;     // use `intrinsics` instead of the camera info
   PinholeCamera intrinsics;        // width/height 0: taken from the first image
@@ -57,7 +61,7 @@ struct BagConfig {
 };
 
 // Fills `config` from "mcap:FILE?key=value&..." or "rosbag:FILE?..." (keys depth, info, pose,
-// world, buffer).
+// world, tf, buffer, reorder).
 // invalid_argument for another prefix, an empty path, an unknown key or a value too long.
 Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
 
@@ -102,6 +106,10 @@ class BagSource final : public DepthSource {
   BagTopic topic(int index) const;
   const char* scan_warning() const { return scan_warning_.c_str(); }
 
+  // read_bag_poses' work: scans the bag, chooses the odometry and streams its poses.
+  Status read_odometry(void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
+                       void* context);
+
   // Frames whose pose could not be found (no TF chain to the world, no pose yet).
   std::uint64_t frames_without_pose() const { return frames_without_pose_; }
   std::size_t bytes_reserved() const { return memory_bytes_ + reader_.bytes_reserved(); }
@@ -119,6 +127,11 @@ class BagSource final : public DepthSource {
 
  private:
   Status choose_topics();
+  Status choose_depth_topic();
+  int find_topic(const char* name) const;
+  void note_disorder(ErrorText* text) const;
+  Status read_tf_poses(void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
+                       void* context);
   int tf_find(const char* name, std::size_t size, bool insert);
   void tf_update(const RosPose& transform);
   bool tf_chain(int from, int to, Se3d* T_to_from) const;

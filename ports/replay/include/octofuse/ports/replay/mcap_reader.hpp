@@ -29,6 +29,10 @@ struct McapLimits {
   std::size_t max_chunk_bytes = 8u << 20;
   int max_channels = 64;
   int max_schemas = 64;
+  // BagReader's reorder window, which gives messages in log-time order (bag_reader.hpp): up to
+  // this many bytes and messages held back; 0 bytes reads in file order.
+  std::size_t reorder_bytes = 8u << 20;
+  int reorder_messages = 4096;
 };
 
 struct McapChannel {

@@ -4,12 +4,16 @@
 // /camera/depth/camera_info, a sensor_msgs/msg/Image on /camera/depth/image_raw (16UC1 in
 // millimetres when the frame is in millimetres, else 32FC1 in metres with NaN for no data) and,
 // when the frame has one, its pose as geometry_msgs/msg/PoseStamped on /ground_truth (frame
-// "world"). Messages are written unchunked, each as soon as it is given, so a recorder killed at
+// "world") and, when the run has an odometry (--odometry), the odometry's pose of the camera as
+// nav_msgs/msg/Odometry on /odom (frame "odom", child "camera_depth"). Messages are written
+// unchunked, each as soon as it is given, so a recorder killed at
 // any byte leaves a file that replays to its last whole message (mcap_reader.hpp); close()
 // writes the data end and footer. All buffers are reserved at open().
 
 #include <cstdint>
 #include <cstdio>
+
+#include <Eigen/Core>
 
 #include "octofuse/core/error_text.hpp"
 #include "octofuse/core/result.hpp"
@@ -28,10 +32,12 @@ class McapWriter {
 
   // Creates `path` for frames of `camera` (its width and height bound the frames). unavailable
   // (cannot create), invalid_argument (camera), resource_exhausted (no memory).
-  Status open(const char* path, const PinholeCamera& camera);
-  // Appends one frame. invalid_argument for a frame of another size; unavailable on a write
+  // `odometry`: declare the /odom topic.
+  Status open(const char* path, const PinholeCamera& camera, bool odometry = false);
+  // Appends one frame and, when given (and the recording has /odom), the odometry's pose of the
+  // camera at its time. invalid_argument for a frame of another size; unavailable on a write
   // error (disk full).
-  Status write(const DepthFrame& frame);
+  Status write(const DepthFrame& frame, const Eigen::Matrix4d* T_O_C = nullptr);
   // Writes the end records and closes; ok when nothing was open.
   Status close();
 
@@ -49,6 +55,7 @@ class McapWriter {
   std::size_t buffer_bytes_ = 0;
   std::uint64_t frames_ = 0;
   std::uint32_t sequence_ = 0;
+  bool odometry_ = false;
 };
 
 }  // namespace octofuse::replay

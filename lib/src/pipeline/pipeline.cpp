@@ -572,17 +572,16 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   const bool finest_pool = Map::kSplitFinest && memory.finest_capacity > 0;
   std::uint32_t over_blocks = 0;
   std::uint32_t over_finest = 0;
-  // The pool after this frame's allocation: above the high-water mark, down to the low one.
-  const std::uint64_t after = std::uint64_t{memory.blocks_used} + new_blocks;
-  if (after > evict_high_blocks_) {
-    over_blocks = static_cast<std::uint32_t>(
-        std::min<std::uint64_t>(after - evict_low_blocks_, memory.blocks_used));
+  if (memory.blocks_used > evict_high_blocks_) {
+    over_blocks = memory.blocks_used - evict_low_blocks_;
   }
   // What must go for the frame's new blocks to fit at all: evicted first, whatever the budget.
+  const std::uint64_t after = std::uint64_t{memory.blocks_used} + new_blocks;
   const std::uint32_t must_go = after > memory.block_capacity
                                     ? static_cast<std::uint32_t>(std::min<std::uint64_t>(
                                           after - memory.block_capacity, memory.blocks_used))
                                     : 0;
+  over_blocks = std::max(over_blocks, must_go);
   if (finest_pool && memory.finest_used > evict_high_finest_) {
     over_finest = memory.finest_used - evict_low_finest_;
   }
@@ -1194,7 +1193,7 @@ void Pipeline<VoxelT>::carve_free_space() {
   // room for at least a quarter of the pool, at most half (a frame's carving is mostly air the
   // pool already holds; a first view alone may ask for most of the pool).
   const std::uint64_t demand =
-      std::uint64_t{carved.new_nodes} + 2 * std::uint64_t{carved.pool_refused};
+      std::uint64_t{carved.new_nodes} + carved.far_dropped + 2 * std::uint64_t{carved.pool_refused};
   const std::uint64_t room = std::min<std::uint64_t>(
       capacity / 2, std::max<std::uint64_t>(capacity / 4, demand + demand / 4));
   const std::uint64_t used = free_space_.node_count();

@@ -581,7 +581,12 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
                                     ? static_cast<std::uint32_t>(std::min<std::uint64_t>(
                                           after - memory.block_capacity, memory.blocks_used))
                                     : 0;
-  over_blocks = std::max(over_blocks, must_go);
+  // Then down to the low-water mark after the allocation, as when the pool passes its high mark:
+  // the blocks evicted may include some this frame touches, which then count as new too.
+  if (must_go > 0) {
+    over_blocks = std::max(over_blocks, static_cast<std::uint32_t>(std::min<std::uint64_t>(
+                                            after - evict_low_blocks_, memory.blocks_used)));
+  }
   if (finest_pool && memory.finest_used > evict_high_finest_) {
     over_finest = memory.finest_used - evict_low_finest_;
   }

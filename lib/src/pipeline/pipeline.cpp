@@ -575,7 +575,8 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   if (memory.blocks_used > evict_high_blocks_) {
     over_blocks = memory.blocks_used - evict_low_blocks_;
   }
-  // What must go for the frame's new blocks to fit at all: evicted first, whatever the budget.
+  // What must go for the frame's new blocks to fit at all (within max_evictions, whatever the
+  // write budget).
   const std::uint64_t after = std::uint64_t{memory.blocks_used} + new_blocks;
   const std::uint32_t must_go = after > memory.block_capacity
                                     ? static_cast<std::uint32_t>(std::min<std::uint64_t>(
@@ -636,7 +637,7 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   // Evicted blocks fill eviction_indices_ from the front, demoted ones from the back. The budget
   // bounds evictions and demotions together, and, with a store, the records written (a block read
   // back and unchanged writes none). Room for the frame's new blocks (must_go) is made whatever
-  // the budgets: a refused block is a hole in the map, a write more is a little disk time.
+  // the write budget: a refused block is a hole in the map, a write more is a little disk time.
   std::uint32_t evicted = 0;
   std::uint32_t demoted = 0;
   std::uint32_t writes = 0;
@@ -644,10 +645,10 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
     const EvictionCandidate& c = eviction_candidates_[i];
     if (over_blocks == 0 && !c.has_finest) continue;
     const bool write = over_blocks > 0 && store_ != nullptr && !c.clean;
-    if (evicted >= must_go && (evicted + demoted == config_.budget.max_evictions ||
-                               (write && writes == config_.budget.max_store_writes))) {
+    const bool writes_spent = write && writes == config_.budget.max_store_writes;
+    if (evicted + demoted == config_.budget.max_evictions || (writes_spent && evicted >= must_go)) {
       report.budget_hit = true;
-      if (write && writes == config_.budget.max_store_writes) current_.store.budget_hit = true;
+      if (writes_spent) current_.store.budget_hit = true;
       break;
     }
     if (over_blocks > 0) {

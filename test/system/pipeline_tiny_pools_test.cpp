@@ -61,12 +61,20 @@ class MemoryStore final : public BlockStore {
     return it->second.bytes.size();
   }
   void release(std::uint64_t key) override {
-    entries_[key].in_memory = false;
+    const auto it = entries_.find(key);
+    if (it == entries_.end()) return;  // never stored
+    it->second.in_memory = false;
     ++releases;
   }
   const std::vector<std::uint8_t>* record(std::uint64_t key) const {
     const auto it = entries_.find(key);
     return it == entries_.end() ? nullptr : &it->second.bytes;
+  }
+  // Keys taken and not put or released since: blocks the store counts as in memory.
+  std::size_t taken() const {
+    std::size_t n = 0;
+    for (const auto& entry : entries_) n += entry.second.in_memory ? 1 : 0;
+    return n;
   }
   std::size_t puts = 0;
   std::size_t releases = 0;
@@ -223,6 +231,110 @@ TEST_CASE("with a block store, evicted blocks come back when the camera returns"
   REQUIRE(unchanged > 0);  // walls read back at the end of the orbit and evicted again unseen
   REQUIRE(read_late > 0);  // the first walls came back at the end of the orbit
   REQUIRE(read >= 2 * remapped);  // most came back before integration mapped them afresh
+}
+
+TEST_CASE("eviction makes room for every block a frame allocates", "[store][refusals]") {
+  // A fast orbit (15 degrees a frame) under a pool for 1.3 views: many frames allocate more new
+  // blocks than lie between the pool's high-water mark and its end, which eviction by the marks
+  // alone refused.
+  constexpr int kFrames = 24;
+  constexpr float kVoxel_m = 0.02f;
+  const sim::SimConfig sim_config = tiny_room_sim(kFrames);
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  PipelineConfig config = small_config(truth, kVoxel_m, 1);
+  config.pose_source = PoseSource::ground_truth;
+  const TinyRun unbounded = run_tiny(sim_config, config);
+  std::uint32_t view_blocks = 0;
+  std::uint32_t most_new = 0;
+  for (const FrameStats& s : unbounded.stats) {
+    view_blocks = std::max(view_blocks, s.integration.blocks_integrated);
+    if (&s != &unbounded.stats.front()) {
+      most_new = std::max(most_new, s.integration.blocks_allocated);
+    }
+  }
+  config.map.block_capacity = view_blocks * 13 / 10;
+  config.eviction.enabled = true;
+  INFO("largest view " << view_blocks << " blocks, most new in a later frame " << most_new
+                       << ", pool " << config.map.block_capacity);
+  // The scenario needs frames that ask for more than the pool keeps free above its mark.
+  REQUIRE(most_new > config.map.block_capacity / 10);
+  for (const bool with_store : {false, true}) {
+    CAPTURE(with_store);
+    MemoryStore store;
+    const TinyRun run = run_tiny(sim_config, config, with_store ? &store : nullptr);
+    std::uint64_t refused = 0;
+    std::uint64_t evicted = 0;
+    std::uint64_t read = 0;
+    for (std::size_t i = 0; i < run.stats.size(); ++i) {
+      const FrameStats& s = run.stats[i];
+      CAPTURE(i);
+      REQUIRE(s.memory.blocks_used <= config.map.block_capacity);
+      refused += s.integration.pool_refusals - s.integration.finest_refusals;
+      evicted += s.eviction.evicted;
+      read += s.store.read;
+    }
+    if (!with_store) REQUIRE(run.allocations == 0);  // (the test's store allocates)
+    REQUIRE(evicted > 0);
+    REQUIRE(refused == 0);
+    REQUIRE(run.end_memory.refusals == run.end_memory.finest_refusals);
+    if (with_store) REQUIRE(read > 0);
+  }
+}
+
+TEST_CASE("reset() offers the blocks taken from the store again", "[store]") {
+  // One orbit under a small pool: walls evicted, stored and read back at the end of the orbit.
+  // Reset forgets the map in memory; the blocks it held that came from the store are stored again,
+  // so the same orbit afterwards reads them back instead of mapping them afresh.
+  constexpr int kFrames = 60;
+  constexpr float kVoxel_m = 0.02f;
+  const sim::SimConfig sim_config = tiny_room_sim(kFrames);
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  PipelineConfig config = small_config(truth, kVoxel_m, 1);
+  config.pose_source = PoseSource::ground_truth;
+  const TinyRun unbounded = run_tiny(sim_config, config);
+  std::uint32_t view_blocks = 0;
+  for (const FrameStats& s : unbounded.stats) {
+    view_blocks = std::max(view_blocks, s.integration.blocks_integrated);
+  }
+  config.map.block_capacity = view_blocks * 8 / 5;
+  config.eviction.enabled = true;
+  config.budget.max_store_reads = 4096;
+  MemoryStore store;
+  Buffer buffer(bytes_required(config));
+  Pipeline<MultiresVoxel> pipeline;
+  REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+  REQUIRE(pipeline.set_block_store(&store).ok());
+  auto run_orbit = [&]() {
+    sim::SimSource source(sim_config);
+    REQUIRE(source.open().ok());
+    DepthFrame frame;
+    std::uint64_t read = 0;
+    std::uint64_t first_frame_read = 0;
+    bool first = true;
+    while (source.next(frame).outcome == FrameOutcome::frame) {
+      FrameStats stats;
+      const Status status = pipeline.process(frame, &stats);
+      REQUIRE((status.ok() || status.code() == StatusCode::resource_exhausted));
+      read += stats.store.read;
+      if (first) first_frame_read = stats.store.read;
+      first = false;
+    }
+    return std::make_pair(read, first_frame_read);
+  };
+  const auto first_orbit = run_orbit();
+  REQUIRE(first_orbit.first > 0);
+  const std::size_t taken = store.taken();
+  REQUIRE(taken > 0);  // blocks read back and in memory at the end of the orbit
+  REQUIRE(taken <= pipeline.map().block_count());
+  REQUIRE(pipeline.reset().ok());
+  REQUIRE(pipeline.map().block_count() == 0);
+  REQUIRE(store.taken() == 0);  // every block the map held is offered again
+  const auto second_orbit = run_orbit();
+  // The first frame after the reset reads back what the first orbit stored in its view.
+  REQUIRE(second_orbit.second > 0);
+  REQUIRE(second_orbit.first >= first_orbit.first);
 }
 
 }  // namespace

@@ -489,6 +489,12 @@ Status Pipeline<VoxelT>::reset() {
   {
     // Readers see the map before the reset or after it, never half cleared.
     ExclusiveHold hold(guard_);
+    if (store_ != nullptr) {
+      // Blocks taken from the store are stored again: a later frame may read them back.
+      for (std::uint32_t i = 0; i < map_.block_count(); ++i) {
+        store_->release(morton_encode(map_.block(i).coords));
+      }
+    }
     map_.clear();
     if (free_space_.reserved()) free_space_.clear();
     if (esdf_.reserved()) esdf_.clear();
@@ -541,7 +547,25 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
 }
 
 template <typename VoxelT>
-EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
+std::uint32_t Pipeline<VoxelT>::new_block_demand(const FusionBudget& budget) {
+  if (!config_.eviction.enabled) return 0;
+  const MapMemory memory = map_.memory();
+  // A frame allocates at most its list of touched blocks: with that much room, nothing to do.
+  const std::uint32_t most =
+      std::min(budget.max_new_blocks, integrator_.config().max_blocks_per_frame);
+  if (memory.block_capacity - memory.blocks_used >= most) return 0;
+  FusionBudget dry = budget;
+  dry.max_new_blocks = 0;
+  dry.max_integrated_blocks = 0;
+  dry.max_voxel_updates = ~std::uint64_t{0};
+  const IntegrationReport probe =
+      integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
+                            static_cast<std::uint32_t>(current_.frame_index), dry, team_);
+  return std::min(probe.blocks_requested, budget.max_new_blocks);
+}
+
+template <typename VoxelT>
+EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t new_blocks) {
   EvictionReport report;
   if (!config_.eviction.enabled) return report;
   const MapMemory memory = map_.memory();
@@ -550,6 +574,19 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
   std::uint32_t over_finest = 0;
   if (memory.blocks_used > evict_high_blocks_) {
     over_blocks = memory.blocks_used - evict_low_blocks_;
+  }
+  // What must go for the frame's new blocks to fit at all (within max_evictions, whatever the
+  // write budget).
+  const std::uint64_t after = std::uint64_t{memory.blocks_used} + new_blocks;
+  const std::uint32_t must_go = after > memory.block_capacity
+                                    ? static_cast<std::uint32_t>(std::min<std::uint64_t>(
+                                          after - memory.block_capacity, memory.blocks_used))
+                                    : 0;
+  // Then down to the low-water mark after the allocation, as when the pool passes its high mark:
+  // the blocks evicted may include some this frame touches, which then count as new too.
+  if (must_go > 0) {
+    over_blocks = std::max(over_blocks, static_cast<std::uint32_t>(std::min<std::uint64_t>(
+                                            after - evict_low_blocks_, memory.blocks_used)));
   }
   if (finest_pool && memory.finest_used > evict_high_finest_) {
     over_finest = memory.finest_used - evict_low_finest_;
@@ -567,7 +604,8 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
   }
   if (over_blocks == 0 && over_finest == 0) return report;
   report.triggered = true;
-  // Rank every block: not updated by the previous frame first, then farthest first
+  // Rank every block: not updated by the previous frame nor read back by this one first, then
+  // read back by this one (in view), then the previous frame's; within each, farthest first
   // (squared distance in voxels from the camera's voxel to the block's centre, exact in
   // integers), then by Morton code, a total order.
   const Eigen::Vector3i camera_voxel =
@@ -583,32 +621,39 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index) {
                                    static_cast<std::int64_t>(centre.y()) * centre.y() +
                                    static_cast<std::int64_t>(centre.z()) * centre.z());
     const bool recent = block.last_updated_frame >= recent_frame && block.integrated();
+    const std::uint64_t tier = recent ? 0 : i >= read_back_from_ ? 1 : 2;
     EvictionCandidate& c = eviction_candidates_[i];
-    c.rank = (recent ? 0 : std::uint64_t{1} << 62) | d2;
+    c.rank = (tier << 61) | d2;
     c.morton = block.morton;
     c.index = i;
     c.has_finest = block.has_finest() && Map::kSplitFinest;
+    c.clean = block.stored_clean != 0;
   }
   std::sort(eviction_candidates_, eviction_candidates_ + count,
             [](const EvictionCandidate& a, const EvictionCandidate& b) {
               if (a.rank != b.rank) return a.rank > b.rank;
               return a.morton < b.morton;
             });
-  // Evicted blocks fill eviction_indices_ from the front, demoted ones from the back.
-  const std::uint32_t budget =
-      store_ != nullptr ? std::min(config_.budget.max_evictions, config_.budget.max_store_writes)
-                        : config_.budget.max_evictions;
+  // Evicted blocks fill eviction_indices_ from the front, demoted ones from the back. The budget
+  // bounds evictions and demotions together, and, with a store, the records written (a block read
+  // back and unchanged writes none). Room for the frame's new blocks (must_go) is made whatever
+  // the write budget: a refused block is a hole in the map, a write more is a little disk time.
   std::uint32_t evicted = 0;
   std::uint32_t demoted = 0;
+  std::uint32_t writes = 0;
   for (std::uint32_t i = 0; i < count && (over_blocks > 0 || over_finest > 0); ++i) {
     const EvictionCandidate& c = eviction_candidates_[i];
     if (over_blocks == 0 && !c.has_finest) continue;
-    if (evicted + demoted == budget) {
+    const bool write = over_blocks > 0 && store_ != nullptr && !c.clean;
+    const bool writes_spent = write && writes == config_.budget.max_store_writes;
+    if (evicted + demoted == config_.budget.max_evictions || (writes_spent && evicted >= must_go)) {
       report.budget_hit = true;
+      if (writes_spent) current_.store.budget_hit = true;
       break;
     }
     if (over_blocks > 0) {
       eviction_indices_[evicted++] = c.index;
+      writes += write ? 1 : 0;
       --over_blocks;
     } else {
       eviction_indices_[count - 1 - demoted++] = c.index;
@@ -647,10 +692,6 @@ void Pipeline<VoxelT>::spill(std::uint32_t count) {
     }
     ++report.written;
     report.bytes_written += size.value();
-  }
-  if (config_.budget.max_store_writes < config_.budget.max_evictions &&
-      count == config_.budget.max_store_writes) {
-    report.budget_hit = true;
   }
 }
 
@@ -1091,8 +1132,12 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
   {
     // Queries from other threads wait here, and see the map before or after this frame.
     ExclusiveHold hold(guard_);
+    // Stored blocks in view first (they are then not new), then room for exactly the blocks this
+    // frame will allocate, then integration.
+    read_back_from_ = map_.memory().blocks_used;
     if (store_ != nullptr) reload_stored(stats.store);
-    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index));
+    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index), new_block_demand(budget));
+    read_back_from_ = 0xFFFFFFFFu;
     const std::uint64_t node_refusals_before = map_.memory().node_refusals;
     stats.integration =
         integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
@@ -1154,7 +1199,7 @@ void Pipeline<VoxelT>::carve_free_space() {
   // room for at least a quarter of the pool, at most half (a frame's carving is mostly air the
   // pool already holds; a first view alone may ask for most of the pool).
   const std::uint64_t demand =
-      std::uint64_t{carved.new_nodes} + 2 * std::uint64_t{carved.pool_refused};
+      std::uint64_t{carved.new_nodes} + carved.far_dropped + 2 * std::uint64_t{carved.pool_refused};
   const std::uint64_t room = std::min<std::uint64_t>(
       capacity / 2, std::max<std::uint64_t>(capacity / 4, demand + demand / 4));
   const std::uint64_t used = free_space_.node_count();

@@ -399,7 +399,55 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
   R_C_W_ = T_C_W.linear();
   t_C_W_ = T_C_W.translation();
   camera_ = camera;
+  const Eigen::Vector3f camera_voxel =
+      (T_W_C.translation().cast<float>() - map_.origin_W) / map_.voxel_size_m;
+  for (int a = 0; a < 3; ++a) camera_voxel_[a] = clamped_floor(camera_voxel[a]);
 
+  // When the pool's room may be short of what this frame carves, a first walk counts the nodes
+  // it would make by distance from the camera, and the frame makes only those within the largest
+  // distance whose nodes fit: the farthest air is what a small pool does without.
+  // A frame makes at most max_new_nodes nodes: with that much room, one walk.
+  const std::uint32_t room = nodes_.capacity() - nodes_.used();
+  std::uint32_t bands = kDistanceBands;
+  if (room < config_.max_new_nodes) {
+    std::uint32_t histogram[kDistanceBands] = {};
+    FreeSpaceReport count;
+    walk(frame, /*counting=*/true, kDistanceBands, count, histogram);
+    std::uint64_t total = 0;
+    for (std::uint32_t b = 0; b < kDistanceBands; ++b) {
+      if (total + histogram[b] > room) {
+        bands = b;
+        break;
+      }
+      total += histogram[b];
+    }
+  }
+  walk(frame, /*counting=*/false, bands, report, nullptr);
+  report.nodes_used = nodes_.used();
+  report.bytes_used = bytes_used();
+  return report;
+}
+
+std::uint32_t FreeSpace::distance_band(const Eigen::Vector3i& min_voxel, int size) const {
+  // Squared distance in voxels from the camera's voxel to the nearest voxel of the octant.
+  std::int64_t d2 = 0;
+  for (int a = 0; a < 3; ++a) {
+    const std::int64_t lo = min_voxel[a];
+    const std::int64_t hi = lo + size - 1;
+    const std::int64_t c = camera_voxel_[a];
+    const std::int64_t d = c < lo ? lo - c : c > hi ? c - hi : 0;
+    d2 += d * d;
+  }
+  const double band = std::sqrt(static_cast<double>(d2)) / config_.finest_octant_voxels;
+  return band >= kDistanceBands - 1 ? kDistanceBands - 1 : static_cast<std::uint32_t>(band);
+}
+
+void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
+                     FreeSpaceReport& report, std::uint32_t* histogram) {
+  // Counting: nothing is written; a node the walk would make gets kVirtual, whose state is empty
+  // and whose children do not exist (so the count may exceed what the frame makes, never fall
+  // short of it).
+  constexpr std::uint32_t kVirtual = kNoNode - 1;
   struct Entry {
     std::uint32_t node;
     std::uint32_t parent;
@@ -412,13 +460,27 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
   stack[top++] = Entry{0, kNoNode, 0, 0, Eigen::Vector3i::Zero()};
   const int depth = map_.voxel_depth;
   const int leaf = leaf_level();
+  auto real = [](std::uint32_t index) { return index < kVirtual; };
 
-  auto allocate_child = [&](std::uint32_t parent, int slot) -> std::uint32_t {
+  // The octant at `min_voxel` of side `size` (child `slot` of `parent`).
+  auto allocate_child = [&](std::uint32_t parent, int slot, const Eigen::Vector3i& min_voxel,
+                            int size) -> std::uint32_t {
     if (report.new_nodes >= config_.max_new_nodes) {
       ++report.refused;
       report.budget_hit = true;
       return kNoNode;
     }
+    const std::uint32_t band = distance_band(min_voxel, size);
+    if (counting) {
+      ++histogram[band];
+      ++report.new_nodes;
+      return kVirtual;
+    }
+    if (band >= bands) {
+      ++report.far_dropped;
+      return kNoNode;
+    }
+    if (!real(parent)) return kNoNode;
     const Result<std::uint32_t> fresh = nodes_.allocate();
     if (!fresh.ok()) {
       ++report.refused;
@@ -446,11 +508,11 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     if (seen == Seen::clear) {
       // Nothing seen in it, only parts unmeasured (invalid pixels, the image border): a free
       // octant stays free; elsewhere the parts wholly in view may be free.
-      if (index != kNoNode && nodes_[index].free_count > 0) continue;
+      if (real(index) && nodes_[index].free_count > 0) continue;
     }
     if (seen == Seen::free) {
-      if (index == kNoNode) index = allocate_child(e.parent, e.slot);
-      if (index == kNoNode) continue;
+      if (index == kNoNode) index = allocate_child(e.parent, e.slot, e.min_voxel, size);
+      if (counting || !real(index)) continue;
       FreeNode& n = nodes_[index];
       n.free_count = static_cast<std::uint8_t>(
           std::min<int>(n.free_count + 1, static_cast<int>(config_.max_free_count)));
@@ -462,7 +524,7 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     if (e.level == leaf) {
       // A leaf at the camera: nothing measurable is that close, so nothing clears it.
       if (seen == Seen::straddle) continue;
-      const std::uint8_t before = index == kNoNode               ? 0
+      const std::uint8_t before = !real(index)                   ? 0
                                   : nodes_[index].free_count > 0 ? kAllSubCells
                                                                  : nodes_[index].sub_free;
       // A leaf with no free half only gains from the closer look, so it takes it every other
@@ -481,8 +543,10 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
         update = classify_sub_cells(e.min_voxel);
       }
       const auto after = static_cast<std::uint8_t>((before & ~update.clear) | update.set);
-      if (index == kNoNode && after != 0) index = allocate_child(e.parent, e.slot);
-      if (index == kNoNode) continue;
+      if (index == kNoNode && after != 0) {
+        index = allocate_child(e.parent, e.slot, e.min_voxel, size);
+      }
+      if (counting || !real(index)) continue;
       FreeNode& n = nodes_[index];
       if ((before & ~after) != 0) ++report.cleared;
       if (update.set != 0) {
@@ -499,37 +563,41 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
       continue;
     }
     // Occluded: nothing recorded below means nothing to clear.
-    if (index == kNoNode && seen == Seen::occluded) continue;
-    if (index == kNoNode) index = allocate_child(e.parent, e.slot);
+    if (!real(index) && seen == Seen::occluded) continue;
+    if (index == kNoNode) index = allocate_child(e.parent, e.slot, e.min_voxel, size);
     if (index == kNoNode) continue;
-    if (nodes_[index].free_count > 0) {
+    const int half = size / 2;
+    std::uint32_t children[8];
+    for (int c = 0; c < 8; ++c) children[c] = real(index) ? nodes_[index].children[c] : kNoNode;
+    if (real(index) && nodes_[index].free_count > 0) {
       const std::uint8_t count = nodes_[index].free_count;
       const std::uint32_t when = nodes_[index].free_frame;
       for (int c = 0; c < 8; ++c) {
-        std::uint32_t child = nodes_[index].children[c];
-        if (child == kNoNode) child = allocate_child(index, c);
-        // Refused: that part loses its free state (never wrongly free).
-        if (child == kNoNode) continue;
-        FreeNode& k = nodes_[child];
+        if (children[c] == kNoNode) {
+          children[c] = allocate_child(index, c, child_min_voxel(e.min_voxel, c, half), half);
+        }
+        // Refused or beyond the distance the pool allows: that part loses its free state (never
+        // wrongly free).
+        if (counting || !real(children[c])) continue;
+        FreeNode& k = nodes_[children[c]];
         if (k.free_count == 0 || k.free_frame < when) {
           k.free_count = count;
           k.free_frame = when;
         }
       }
-      nodes_[index].free_count = 0;
-      ++report.cleared;
+      if (!counting) {
+        nodes_[index].free_count = 0;
+        ++report.cleared;
+      }
     }
-    const int half = size / 2;
     for (int c = 7; c >= 0; --c) {
-      if (seen == Seen::occluded && nodes_[index].children[c] == kNoNode) continue;
+      const std::uint32_t child = children[c];
+      if (seen == Seen::occluded && child == kNoNode) continue;
       stack[top++] =
-          Entry{nodes_[index].children[c], index, static_cast<std::uint8_t>(c),
-                static_cast<std::uint8_t>(e.level + 1), child_min_voxel(e.min_voxel, c, half)};
+          Entry{child, index, static_cast<std::uint8_t>(c), static_cast<std::uint8_t>(e.level + 1),
+                child_min_voxel(e.min_voxel, c, half)};
     }
   }
-  report.nodes_used = nodes_.used();
-  report.bytes_used = bytes_used();
-  return report;
 }
 
 }  // namespace octofuse

@@ -265,5 +265,57 @@ TEST_CASE("prune() forgets the free space far from a point and keeps the tree wh
   REQUIRE(ask(m, 0.0f, 0.0f, 1.2f).state == PointState::unknown);
 }
 
+TEST_CASE("a pool smaller than a frame's carving keeps the nearest air and refuses nothing") {
+  AnalyticScene scene = wall_at(kWall_m);
+  scene.spheres.push_back({Eigen::Vector3d(0.1, 0.05, 1.3), 0.12});
+  scene.spheres.push_back({Eigen::Vector3d(-0.3, -0.1, 0.9), 0.08});
+  Mapper whole;
+  const FreeSpaceReport all = whole.fuse(scene);
+  REQUIRE(all.pool_refused == 0);
+  REQUIRE(all.far_dropped == 0);
+  FreeSpaceConfig small_config;
+  small_config.node_capacity = all.new_nodes / 3;
+  Mapper small(small_config);
+  const FreeSpaceReport part = small.fuse(scene);
+  INFO("whole frame " << all.new_nodes << " nodes; in a pool of " << small_config.node_capacity
+                      << ": " << part.new_nodes << " made, " << part.far_dropped
+                      << " beyond the distance that fits");
+  REQUIRE(part.pool_refused == 0);
+  REQUIRE(part.refused == 0);
+  REQUIRE(part.far_dropped > 0);
+  REQUIRE(small.free_space.node_count() <= small_config.node_capacity);
+  REQUIRE(part.new_nodes > small_config.node_capacity / 2);  // the pool is used, not left idle
+  // Safe: every point the small pool holds free, the whole carving holds free. Complete near the
+  // camera: every free point within the distance that fitted is free there too; beyond it, less.
+  int near_free = 0, near_kept = 0, far_free = 0, far_kept = 0;
+  std::vector<Eigen::Vector3f> near_points;
+  for (float z = 0.3f; z < 2.0f; z += 0.02f) {
+    for (float x = -0.5f; x <= 0.5f; x += 0.04f) {
+      for (float y = -0.3f; y <= 0.3f; y += 0.1f) {
+        const bool in_whole = ask(whole, x, y, z).state == PointState::free;
+        const bool in_small = ask(small, x, y, z).state == PointState::free;
+        if (in_small) REQUIRE(in_whole);
+        if (!in_whole) continue;
+        const bool near = Eigen::Vector3f(x, y, z).norm() < 0.6f;
+        if (near) near_points.emplace_back(x, y, z);
+        (near ? near_free : far_free) += 1;
+        (near ? near_kept : far_kept) += in_small ? 1 : 0;
+      }
+    }
+  }
+  INFO("free near " << near_kept << " of " << near_free << ", far " << far_kept << " of "
+                    << far_free);
+  REQUIRE(near_free > 0);
+  REQUIRE(near_kept == near_free);
+  REQUIRE(far_kept < far_free);
+  // The next frame from the same pose carves on within the pool, again without refusals.
+  const FreeSpaceReport again = small.fuse(scene);
+  REQUIRE(again.pool_refused == 0);
+  REQUIRE(small.free_space.node_count() <= small_config.node_capacity);
+  for (const Eigen::Vector3f& p : near_points) {
+    REQUIRE(ask(small, p.x(), p.y(), p.z()).state == PointState::free);
+  }
+}
+
 }  // namespace
 }  // namespace octofuse

@@ -35,8 +35,8 @@ class BlockStore {
   virtual Result<std::size_t> take(std::uint64_t block_morton, std::uint8_t* record,
                                    std::size_t capacity) = 0;
   // The block's record is its state again: the block taken last could not be restored (a pool
-  // was full), or it was evicted unchanged since take() (no need to write it again). It counts as
-  // stored again.
+  // was full), it was evicted unchanged since take() (no need to write it again), or the map it
+  // was in was cleared (Pipeline::reset()). It counts as stored again; a key not taken is ignored.
   virtual void release(std::uint64_t block_morton) = 0;
 
  protected:

@@ -376,8 +376,12 @@ class Pipeline {
  private:
   template <typename Arena>
   Status reserve(Arena& arena, const PipelineConfig& config);
-  // Step (2): evicts blocks when a pool is above its high-water mark (see EvictionConfig).
-  EvictionReport evict(std::uint32_t frame_index);
+  // Step (2): evicts blocks when a pool is above its high-water mark (see EvictionConfig), or
+  // when the frame's `new_blocks` (not yet allocated) would not fit below the block pool's mark.
+  EvictionReport evict(std::uint32_t frame_index, std::uint32_t new_blocks);
+  // The blocks this frame's integration would allocate (a pass of the integrator with no block
+  // allocated or integrated), when the pool's room could be short of them; 0 otherwise.
+  std::uint32_t new_block_demand(const FusionBudget& budget);
   // Before step (2): reads back stored blocks in the camera's view (set_block_store()).
   void reload_stored(StoreReport& report);
   // In step (2): hands the first `count` blocks of eviction_indices_ to the store.
@@ -432,6 +436,7 @@ class Pipeline {
     std::uint64_t morton = 0;
     std::uint32_t index = 0;
     bool has_finest = false;
+    bool clean = false;  // read back and unchanged: evicting it writes nothing
   };
   EvictionCandidate* eviction_candidates_ = nullptr;
   std::uint32_t* eviction_indices_ = nullptr;
@@ -442,6 +447,9 @@ class Pipeline {
   BlockStore* store_ = nullptr;
   std::uint8_t* store_record_ = nullptr;  // one block record (with eviction)
   std::uint64_t* store_keys_ = nullptr;   // kStoreKeyCapacity keys found in view
+  // Blocks at this pool index and above were read back by this frame (restored blocks are
+  // appended): they are in view, so eviction takes them only after the older ones.
+  std::uint32_t read_back_from_ = 0xFFFFFFFFu;
   static constexpr std::size_t kStoreKeyCapacity = 8192;
   std::uint32_t evict_high_nodes_ = 0;  // inner-node marks (nodes go with their last block)
   std::uint32_t evict_low_nodes_ = 0;

@@ -30,10 +30,13 @@ struct FreeSpaceReport {
   std::uint32_t cleared = 0;       // free octants handed down or cleared
   std::uint32_t refused = 0;       // node allocations refused (pool full or budget)
   std::uint32_t pool_refused = 0;  // of those, because the node pool was full
-  std::uint32_t pruned = 0;        // nodes forgotten after this frame to make room (prune())
-  bool budget_hit = false;         // visits or allocations ran out
-  std::uint32_t nodes_used = 0;    // after this frame
-  std::size_t bytes_used = 0;      // nodes_used * sizeof(FreeNode)
+  // New nodes not made because they lay beyond the distance from the camera within which the
+  // frame's carving fits the pool's room (the farthest air is forgotten first; not a refusal).
+  std::uint32_t far_dropped = 0;
+  std::uint32_t pruned = 0;      // nodes forgotten after this frame to make room (prune())
+  bool budget_hit = false;       // visits or allocations ran out
+  std::uint32_t nodes_used = 0;  // after this frame
+  std::size_t bytes_used = 0;    // nodes_used * sizeof(FreeNode)
 };
 
 // The free-space octree and the carving that writes it.
@@ -101,6 +104,14 @@ class FreeSpace : public FreeOctree {
     std::uint8_t clear = 0;  // sub-cells with a measured depth within or just before them
   };
   SubCellUpdate classify_sub_cells(const Eigen::Vector3i& leaf_min_voxel) const;
+  // The walk from the root. counting: nothing is written and histogram[b] gets the nodes the
+  // walk would make at distance band b; otherwise nodes are made only in bands below `bands`.
+  void walk(std::uint32_t frame, bool counting, std::uint32_t bands, FreeSpaceReport& report,
+            std::uint32_t* histogram);
+  // An octant's distance from the camera's voxel in finest octants (its nearest voxel), capped
+  // at kDistanceBands - 1.
+  std::uint32_t distance_band(const Eigen::Vector3i& min_voxel, int size) const;
+  static constexpr std::uint32_t kDistanceBands = 256;
 
   DepthRangeTable ranges_;
   int width_ = 0;
@@ -111,6 +122,7 @@ class FreeSpace : public FreeOctree {
   Eigen::Matrix3f R_C_W_ = Eigen::Matrix3f::Identity();
   Eigen::Vector3f t_C_W_ = Eigen::Vector3f::Zero();
   PinholeCamera camera_;
+  Eigen::Vector3i camera_voxel_ = Eigen::Vector3i::Zero();
 };
 
 template <typename Arena>

@@ -94,6 +94,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("free_space_visits").value(static_cast<std::uint64_t>(s.free_space.node_visits));
   json.key("free_space_nodes").value(static_cast<std::uint64_t>(s.free_space.nodes_used));
   json.key("free_space_pruned").value(static_cast<std::uint64_t>(s.free_space.pruned));
+  json.key("free_space_far_dropped").value(static_cast<std::uint64_t>(s.free_space.far_dropped));
   json.key("blocks_used").value(static_cast<std::uint64_t>(s.memory.blocks_used));
   if (s.deadline.active) {
     // What the frame deadline derived and what the frame gave up for it (budgets 0: configured).

@@ -56,6 +56,18 @@ bool copy_value(const char* begin, std::size_t size, char* out, std::size_t capa
   return true;
 }
 
+// A whole number of megabytes in [min_mb, max_mb] from an option's value (not terminated).
+bool parse_megabytes(const char* value, std::size_t value_size, long min_mb, long max_mb,
+                     std::size_t* bytes) {
+  char number[16] = {};
+  if (!copy_value(value, value_size, number, sizeof(number))) return false;
+  char* end_number = nullptr;
+  const long mb = std::strtol(number, &end_number, 10);
+  if (end_number == number || *end_number != '\0' || mb < min_mb || mb > max_mb) return false;
+  *bytes = static_cast<std::size_t>(mb) << 20;
+  return true;
+}
+
 bool host_is_big_endian() {
   const std::uint16_t one = 1;
   std::uint8_t first = 0;
@@ -97,35 +109,22 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     const std::size_t value_size = item - key_size - 1;
     if (key_size == 7 && std::strncmp(key, "reorder", 7) == 0) {
       // Megabytes of the reorder window that puts messages in log-time order; 0: file order.
-      char number[16] = {};
-      char* end_number = nullptr;
-      const long mb =
-          value_size < sizeof(number) && copy_value(value, value_size, number, sizeof(number))
-              ? std::strtol(number, &end_number, 10)
-              : -1;
-      if (end_number == nullptr || end_number == number || *end_number != '\0' || mb < 0 ||
-          mb > 4096) {
+      if (!parse_megabytes(value, value_size, 0, 4096, &config->limits.reorder_bytes)) {
         error->set("%s: reorder=MB needs 0 to 4096", name);
         return StatusCode::invalid_argument;
       }
-      config->limits.reorder_bytes = static_cast<std::size_t>(mb) << 20;
       query = end;
       continue;
     }
     if (key_size == 6 && std::strncmp(key, "buffer", 6) == 0) {
       // Megabytes for each of the reader's two buffers (record and chunk).
-      char number[16] = {};
-      char* end_number = nullptr;
-      const long mb =
-          value_size < sizeof(number) && copy_value(value, value_size, number, sizeof(number))
-              ? std::strtol(number, &end_number, 10)
-              : 0;
-      if (end_number == nullptr || *end_number != '\0' || mb < 1 || mb > 1024) {
+      std::size_t bytes = 0;
+      if (!parse_megabytes(value, value_size, 1, 1024, &bytes)) {
         error->set("%s: buffer=MB needs 1 to 1024", name);
         return StatusCode::invalid_argument;
       }
-      config->limits.max_record_bytes = static_cast<std::size_t>(mb) << 20;
-      config->limits.max_chunk_bytes = static_cast<std::size_t>(mb) << 20;
+      config->limits.max_record_bytes = bytes;
+      config->limits.max_chunk_bytes = bytes;
       query = end;
       continue;
     }

@@ -583,6 +583,17 @@ TEST_CASE("mcap: bad input gets one clear error", "[replay][bag]") {
     CHECK(config.limits.max_chunk_bytes == 2u << 20);
     CHECK(octofuse::replay::parse_bag_spec("mcap:a?buffer=0", &config, &error).code() ==
           StatusCode::invalid_argument);
+    CHECK(octofuse::replay::parse_bag_spec("mcap:a?reorder=0", &config, &error).ok());
+    CHECK(config.limits.reorder_bytes == 0u);
+    CHECK(octofuse::replay::parse_bag_spec("mcap:a?reorder=4096", &config, &error).ok());
+    CHECK(config.limits.reorder_bytes == std::size_t{4096} << 20);
+    for (const char* bad :
+         {"mcap:a?reorder=", "mcap:a?reorder=-1", "mcap:a?reorder=4097", "mcap:a?reorder=3x",
+          "mcap:a?buffer=", "mcap:a?buffer=1025", "mcap:a?buffer=12345678901234567890"}) {
+      CAPTURE(bad);
+      CHECK(octofuse::replay::parse_bag_spec(bad, &config, &error).code() ==
+            StatusCode::invalid_argument);
+    }
     CHECK(octofuse::replay::parse_bag_spec("mcap:", &config, &error).code() ==
           StatusCode::invalid_argument);
     CHECK(octofuse::replay::parse_bag_spec("mcap:a?colour=x", &config, &error).code() ==

@@ -129,6 +129,27 @@ TinyRun run_tiny(const sim::SimConfig& sim_config, const PipelineConfig& config,
   return out;
 }
 
+// One orbit of the room at 2 cm with ground-truth poses, eviction on and a block pool for 1.6 of
+// the largest views an unbounded run integrates: the walls seen first are evicted, and come back
+// into view at the end of the orbit.
+constexpr int kOrbitFrames = 60;
+PipelineConfig orbit_store_config(const sim::SimConfig& sim_config) {
+  constexpr float kVoxel_m = 0.02f;
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  PipelineConfig config = small_config(truth, kVoxel_m, 1);
+  config.pose_source = PoseSource::ground_truth;
+  const TinyRun unbounded = run_tiny(sim_config, config);
+  std::uint32_t view_blocks = 0;
+  for (const FrameStats& s : unbounded.stats) {
+    view_blocks = std::max(view_blocks, s.integration.blocks_integrated);
+  }
+  config.map.block_capacity = view_blocks * 8 / 5;
+  config.eviction.enabled = true;
+  config.budget.max_store_reads = 4096;
+  return config;
+}
+
 TEST_CASE("tiny node and free-space pools evict and forget instead of refusing", "[tiny_pools]") {
   constexpr int kFrames = 40;
   constexpr float kVoxel_m = 0.02f;
@@ -187,21 +208,8 @@ TEST_CASE("tiny node and free-space pools evict and forget instead of refusing",
 TEST_CASE("with a block store, evicted blocks come back when the camera returns", "[store]") {
   // One orbit of the room: the walls seen first leave the view, are evicted, and come back into
   // view at the end of the orbit.
-  constexpr int kFrames = 60;
-  constexpr float kVoxel_m = 0.02f;
-  const sim::SimConfig sim_config = tiny_room_sim(kFrames);
-  sim::SimSource truth(sim_config);
-  REQUIRE(truth.open().ok());
-  PipelineConfig config = small_config(truth, kVoxel_m, 1);
-  config.pose_source = PoseSource::ground_truth;
-  const TinyRun unbounded = run_tiny(sim_config, config);
-  std::uint32_t view_blocks = 0;
-  for (const FrameStats& s : unbounded.stats) {
-    view_blocks = std::max(view_blocks, s.integration.blocks_integrated);
-  }
-  config.map.block_capacity = view_blocks * 8 / 5;
-  config.eviction.enabled = true;
-  config.budget.max_store_reads = 4096;
+  const sim::SimConfig sim_config = tiny_room_sim(kOrbitFrames);
+  const PipelineConfig config = orbit_store_config(sim_config);
   MemoryStore store;
   const TinyRun stored = run_tiny(sim_config, config, &store);  // (the test's store allocates)
   std::uint64_t written = 0, unchanged = 0, read = 0, remapped = 0, read_late = 0, refused = 0;
@@ -286,21 +294,8 @@ TEST_CASE("reset() offers the blocks taken from the store again", "[store]") {
   // One orbit under a small pool: walls evicted, stored and read back at the end of the orbit.
   // Reset forgets the map in memory; the blocks it held that came from the store are stored again,
   // so the same orbit afterwards reads them back instead of mapping them afresh.
-  constexpr int kFrames = 60;
-  constexpr float kVoxel_m = 0.02f;
-  const sim::SimConfig sim_config = tiny_room_sim(kFrames);
-  sim::SimSource truth(sim_config);
-  REQUIRE(truth.open().ok());
-  PipelineConfig config = small_config(truth, kVoxel_m, 1);
-  config.pose_source = PoseSource::ground_truth;
-  const TinyRun unbounded = run_tiny(sim_config, config);
-  std::uint32_t view_blocks = 0;
-  for (const FrameStats& s : unbounded.stats) {
-    view_blocks = std::max(view_blocks, s.integration.blocks_integrated);
-  }
-  config.map.block_capacity = view_blocks * 8 / 5;
-  config.eviction.enabled = true;
-  config.budget.max_store_reads = 4096;
+  const sim::SimConfig sim_config = tiny_room_sim(kOrbitFrames);
+  const PipelineConfig config = orbit_store_config(sim_config);
   MemoryStore store;
   Buffer buffer(bytes_required(config));
   Pipeline<MultiresVoxel> pipeline;

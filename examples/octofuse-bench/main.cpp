@@ -36,12 +36,14 @@ struct Cell {
   octofuse::PoseSource poses = octofuse::PoseSource::track;
   long frames = 0;
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
+  bool raycast_half = false;  // the reference ray-cast at half resolution
 
   std::string label() const {
     char text[160];
-    std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s", scene.c_str(),
+    std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s%s", scene.c_str(),
                   octofuse::examples::map_option_name(map), static_cast<double>(voxel_m) * 1000.0,
-                  threads, poses == octofuse::PoseSource::track ? "track" : "gt-poses");
+                  threads, poses == octofuse::PoseSource::track ? "track" : "gt-poses",
+                  raycast_half ? " half-cast" : "");
     return text;
   }
   std::string slug() const {
@@ -133,6 +135,7 @@ Repeat run_cell(const Cell& cell, const std::string& out_dir, const SimEvaluatio
   options.write_mesh = false;
   options.keep_mesh = eval != nullptr;
   options.mesh_read_scale = cell.mesh_read_scale;
+  options.budget.raycast_half = cell.raycast_half;
   options.progress = false;
   options.map_memory_mb = cell.voxel_m < 0.005f ? 2048.0f : 1024.0f;
   Repeat r;
@@ -232,6 +235,7 @@ struct BenchArgs {
   std::vector<octofuse::MapKind> maps = {octofuse::MapKind::multires,
                                          octofuse::MapKind::single_res};
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
+  bool raycast_half = false;
   std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
                                                   octofuse::PoseSource::ground_truth};
   bool soak = false;
@@ -353,6 +357,13 @@ const Option kOptions[] = {
        if (!octofuse::examples::parse_mesh_read_scale(v, &a.mesh_read_scale)) {
          return std::string("--mesh-scale must be current or finest");
        }
+       return std::string();
+     }},
+    {"--raycast-half", nullptr,
+     "every run's reference ray-cast at half resolution (octofuse-replay\n"
+     "--raycast-half)",
+     [](BenchArgs& a, const std::string&) {
+       a.raycast_half = true;
        return std::string();
      }},
     {"--soak", nullptr,
@@ -480,7 +491,8 @@ int main(int argc, char** argv) {
           for (auto map : quick ? std::vector<octofuse::MapKind>{octofuse::MapKind::multires,
                                                                  octofuse::MapKind::single_res}
                                 : maps) {
-            cells.push_back(Cell{scene, map, voxel, threads, poses, frames, mesh_read_scale});
+            cells.push_back(Cell{scene, map, voxel, threads, poses, frames, mesh_read_scale,
+                                 args.raycast_half});
           }
         }
       }

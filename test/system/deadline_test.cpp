@@ -545,11 +545,14 @@ TEST_CASE("below every floor, frames take turns fusing and casting and track eve
   REQUIRE(fused > kFrames / 4);
   REQUIRE(std::abs(fused - cast) <= 1);
   REQUIRE(infeasible * (config.deadline.max_track_only_frames + 1) <= kFrames);
-  // Half the depth fused still tracks about as well (2 cm voxels).
+  // Half the depth fused, ICP against half-resolution casts, still tracks: within one and a
+  // half voxels of 2 cm at every frame (1.7 cm without a deadline; 2.5 cm with ICP pairing at
+  // the marched pixels, 1.9 cm when it paired through their copies, which on longer runs lose
+  // the camera: lib/README.md).
   const double error_m = max_position_error_m(a, probe);
   INFO("largest position error " << error_m << " m, without a deadline "
                                  << max_position_error_m(unbounded, probe) << " m");
-  CHECK(error_m < 0.02);
+  CHECK(error_m < 0.03);
   // Frozen: the turns are the same for 3 workers and any clock.
   PipelineConfig three = config;
   three.workers = 3;

@@ -56,6 +56,31 @@ TEST_CASE("tracking on the noiseless sim stays within a centimetre of ground tru
   }
 }
 
+TEST_CASE("with the reference ray-cast at half resolution tracking stays within a centimetre") {
+  constexpr double kMaxError_m = 0.01;
+  const sim::SimConfig sim_config = small_sim(30, /*noise=*/false);
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  PipelineConfig config = small_config(truth, 0.01f, 1);
+  config.budget.raycast_half = true;
+  std::vector<FrameStats> stats;
+  const std::vector<Se3d> poses = run<MultiresVoxel>(sim_config, config, &stats);
+  REQUIRE(poses.size() == 30);
+  const std::uint32_t working_pixels =
+      static_cast<std::uint32_t>(config.input_camera.width / config.preprocess.downsample_factor) *
+      static_cast<std::uint32_t>(config.input_camera.height / config.preprocess.downsample_factor);
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    CAPTURE(i);
+    REQUIRE(stats[i].result != FrameResult::lost);
+    // A quarter of the rays are cast, every frame.
+    REQUIRE(stats[i].raycast.marched_pixels == working_pixels / 4);
+    const double error_m =
+        (poses[i].translation() - truth.ground_truth_T_W_C(static_cast<int>(i)).translation())
+            .norm();
+    REQUIRE(error_m < kMaxError_m);
+  }
+}
+
 TEST_CASE("a very low budget is never exceeded and the run completes") {
   const sim::SimConfig sim_config = small_sim(30);
   sim::SimSource probe(sim_config);

@@ -247,6 +247,7 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
   raycast.far_m = config.validator.far_m;
   raycast.mu_m = config.fusion.mu_m;
   raycast.step_budget = config.budget.raycast_steps;
+  raycast.pixel_stride = config.budget.raycast_half ? 2 : 1;
   OCTOFUSE_TRY(raycaster_.reserve(arena, raycast));
   if (config.free_space.enabled) {
     FreeSpaceConfig free_space = config.free_space;
@@ -801,7 +802,7 @@ void Pipeline<VoxelT>::apply_deadline(const DeadlineReport& plan) {
     return configured == 0 ? planned : std::min(configured, planned);
   };
   raycaster_.set_step_budget(bounded(config_.budget.raycast_steps, plan.raycast_steps));
-  raycaster_.set_pixel_stride(plan.raycast_half ? 2 : 1);
+  raycaster_.set_pixel_stride(plan.raycast_half || config_.budget.raycast_half ? 2 : 1);
   const int allocation_step = config_.fusion.allocation_pixel_step;
   integrator_.set_allocation_pixel_step(plan.allocation_half ? 2 * allocation_step
                                                              : allocation_step);

@@ -875,6 +875,7 @@ Result<RaycastStats> Raycaster<VoxelT>::raycast(const Octree<VoxelT>& map,
   }
   if (!T_W_C.matrix().allFinite()) return StatusCode::invalid_argument;
   build_depth_ranges(map, camera, T_W_C, config_.near_m, config_.far_m, ranges_);
+  surface_W_.pixel_stride = config_.pixel_stride;
   RowJob<VoxelT> job{&map,
                      &config_,
                      &camera,

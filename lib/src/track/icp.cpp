@@ -52,9 +52,21 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
       if (!(p_Cref.z() > 0.0f)) continue;
       const Eigen::Vector2f px = pass.camera.project(p_Cref);
       if (!pass.camera.in_image(px)) continue;  // also rejects NaN
-      // In the image px + 0.5 is non-negative, where truncation is floor (no libm call).
-      const int u = static_cast<int>(px.x() + 0.5f);
-      const int v = static_cast<int>(px.y() + 0.5f);
+      // In the image px + 0.5 is non-negative, where truncation is floor (no libm call). A model
+      // cast at half resolution is read at the nearest cast pixel: its copies lie to one side
+      // of their source, and pairing through them would pull every frame the same way.
+      int u = 0;
+      int v = 0;
+      if (pass.model_W.pixel_stride == 2) {
+        // A live pixel that projects halfway between two cast ones (the odd pixels, while the
+        // camera barely moves) goes to either side in turns, so the ties cancel as well.
+        const float tie = (((x >> 1) + y) & 1) != 0 ? 0.125f : -0.125f;
+        u = 2 * static_cast<int>(0.5f * px.x() + 0.5f + tie);
+        v = 2 * static_cast<int>(0.5f * px.y() + 0.5f + tie);
+      } else {
+        u = static_cast<int>(px.x() + 0.5f);
+        v = static_cast<int>(px.y() + 0.5f);
+      }
       if (u < 0 || v < 0 || u >= model_w || v >= model_h) continue;
       if (!pass.model_W.valid(u, v)) continue;
       const Eigen::Vector3f& n_model_W = pass.model_W.normals(u, v);

@@ -154,6 +154,9 @@ TEST_CASE("at half resolution a quarter of the rays march and fill their 2 x 2 s
   // A marched pixel is the full cast's, bit for bit; the other three of its square copy it.
   const SurfaceMap a = full_rc.raycaster.surface_W();
   const SurfaceMap b = half_rc.raycaster.surface_W();
+  // Each cast says how it was cast, for the readers that pair pixels (ICP).
+  CHECK(a.pixel_stride == 1);
+  CHECK(b.pixel_stride == 2);
   const ImageView<const std::uint8_t> scale_a = full_rc.raycaster.scale_image();
   const ImageView<const std::uint8_t> scale_b = half_rc.raycaster.scale_image();
   std::uint32_t valid = 0;
@@ -172,6 +175,14 @@ TEST_CASE("at half resolution a quarter of the rays march and fill their 2 x 2 s
   CHECK(quarter->scale_pixels[0] + quarter->scale_pixels[1] + quarter->scale_pixels[2] +
             quarter->scale_pixels[3] ==
         valid);
+
+  // Switched between casts, the stride the cast took is the one it reports.
+  half_rc.raycaster.set_pixel_stride(1);
+  REQUIRE(half_rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team).ok());
+  CHECK(half_rc.raycaster.surface_W().pixel_stride == 1);
+  half_rc.raycaster.set_pixel_stride(2);
+  REQUIRE(half_rc.raycaster.raycast(owned.map, test_camera(), Se3d::Identity(), team).ok());
+  CHECK(half_rc.raycaster.surface_W().pixel_stride == 2);
 
   // The step budget goes to the marched rows; cut pixels leave their squares invalid.
   half_rc.raycaster.set_step_budget(quarter->steps / 3);

@@ -72,6 +72,67 @@ TEST_CASE("the finest level's checkerboard lands where every pixel does, at half
   CHECK(std::abs(b.rms_residual_m - a.rms_residual_m) < 0.1f * a.rms_residual_m);
 }
 
+// What the ray-caster leaves at half resolution (RaycastConfig::pixel_stride 2): pixels with even
+// x and y cast, each odd one a copy of its even neighbour above and to the left.
+test::RenderedModel half_resolution_copy(const test::RenderedModel& full) {
+  test::RenderedModel half = full;
+  for (int y = 0; y < full.height; ++y) {
+    for (int x = 0; x < full.width; ++x) {
+      const std::size_t from = static_cast<std::size_t>((y & ~1) * full.width + (x & ~1));
+      const std::size_t to = static_cast<std::size_t>(y * full.width + x);
+      half.vertices_W[to] = full.vertices_W[from];
+      half.normals_W[to] = full.normals_W[from];
+    }
+  }
+  return half;
+}
+
+TEST_CASE("a model cast at half resolution is paired at its cast pixels only") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture f;
+  const Se3d T_W_Cref = reference_pose();
+  const Se3d T_W_C_true = offset_pose();
+  const test::RenderedModel half =
+      half_resolution_copy(scene.render_model(f.camera_level0(), T_W_Cref));
+  // The same cast pixels, every copy moved 2 cm off the surface along its normal: pairs read
+  // through the copies would pull the pose towards it.
+  test::RenderedModel moved = half;
+  for (int y = 0; y < half.height; ++y) {
+    for (int x = 0; x < half.width; ++x) {
+      if (((x | y) & 1) == 0) continue;
+      const std::size_t i = static_cast<std::size_t>(y * half.width + x);
+      moved.vertices_W[i] += 0.02f * moved.normals_W[i];
+    }
+  }
+  f.set_live(scene, T_W_C_true);
+  const WorkerTeam team(1);
+  ConstSurfaceMap half_map = half.map();
+  ConstSurfaceMap moved_map = moved.map();
+  half_map.pixel_stride = 2;
+  moved_map.pixel_stride = 2;
+  Se3d pose_half = T_W_Cref;
+  Se3d pose_moved = T_W_Cref;
+  const TrackReport a =
+      f.tracker.track(f.pre.pyramid(), half_map, f.camera_level0(), T_W_Cref, pose_half, team);
+  const TrackReport b =
+      f.tracker.track(f.pre.pyramid(), moved_map, f.camera_level0(), T_W_Cref, pose_moved, team);
+  REQUIRE(a.tracked());
+  REQUIRE(b.tracked());
+  CHECK(translation_error_m(pose_half, T_W_C_true) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(pose_half, T_W_C_true) < kRotationTolerance_deg);
+  // The copies are never read: the same pose and pairs, bit for bit.
+  CHECK(pose_half.matrix() == pose_moved.matrix());
+  CHECK(a.inliers == b.inliers);
+  CHECK(a.rms_residual_m == b.rms_residual_m);
+  // Not vacuous: read as if every pixel were cast, the moved copies do pull the pose.
+  ConstSurfaceMap moved_as_full = moved.map();
+  Se3d pose_full_read = T_W_Cref;
+  const TrackReport c = f.tracker.track(f.pre.pyramid(), moved_as_full, f.camera_level0(), T_W_Cref,
+                                        pose_full_read, team);
+  REQUIRE(c.status.ok());
+  CHECK(translation_error_m(pose_full_read, pose_half) > 1e-3);
+}
+
 TEST_CASE("ICP stays at the identity when already aligned") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;

@@ -21,6 +21,9 @@ inline bool is_invalid_normal(const Eigen::Vector3f& n) {
 struct SurfaceMap {
   ImageView<Eigen::Vector3f> vertices;  // metres
   ImageView<Eigen::Vector3f> normals;   // unit length, or zero where invalid
+  // 2: only pixels with even x and y were cast; each odd one holds a copy of its even neighbour
+  // above and to the left. Readers that look a pixel up should take the nearest cast one.
+  int pixel_stride = 1;
 
   int width() const { return vertices.width; }
   int height() const { return vertices.height; }
@@ -30,10 +33,11 @@ struct SurfaceMap {
 struct ConstSurfaceMap {
   ImageView<const Eigen::Vector3f> vertices;
   ImageView<const Eigen::Vector3f> normals;
+  int pixel_stride = 1;  // as SurfaceMap::pixel_stride
 
   ConstSurfaceMap() = default;
   ConstSurfaceMap(const SurfaceMap& m)  // NOLINT: implicit, like T* -> const T*
-      : vertices(m.vertices), normals(m.normals) {}
+      : vertices(m.vertices), normals(m.normals), pixel_stride(m.pixel_stride) {}
   int width() const { return vertices.width; }
   int height() const { return vertices.height; }
   bool valid(int x, int y) const { return !is_invalid_normal(normals(x, y)); }

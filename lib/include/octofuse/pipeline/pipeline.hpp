@@ -72,7 +72,10 @@ struct PipelineBudget {
   std::uint32_t max_new_blocks = 0xFFFFFFFFu;         // per frame
   std::uint32_t max_integrated_blocks = 0xFFFFFFFFu;  // per frame
   std::uint64_t max_voxel_updates = ~std::uint64_t{0};
-  std::uint64_t raycast_steps = 0;            // 0 = unbounded
+  std::uint64_t raycast_steps = 0;  // 0 = unbounded
+  // The reference ray-cast marches every other pixel in x and y and copies it to the other three
+  // (RaycastConfig::pixel_stride 2): a quarter of its work, the model ICP tracks against coarser.
+  bool raycast_half = false;
   std::uint32_t max_evictions = 0xFFFFFFFFu;  // blocks evicted per frame (EvictionConfig)
   // With a BlockStore (Pipeline::set_block_store()): records written (evictions beyond wait for
   // the next frame) and read back per frame, step (2) of the degradation order.

@@ -624,8 +624,10 @@ BagSource::Pull BagSource::pull(bool decode, Held* image, bool* has_pose, Se3d* 
                                 NextFrame* skip) {
   const int held_capacity = config_.hold_frames + 1;
   McapMessage message;
+  bool recheck = true;  // the oldest held image may be ready: new transforms, images or the end
   for (;;) {
-    if (held_count_ > 0) {
+    if (held_count_ > 0 && recheck) {
+      recheck = false;
       const Held& front = held_[held_first_];
       unsigned stale = kTfExact;
       TfAt at = resolve(front, stream_ended_, T, &stale);
@@ -646,6 +648,7 @@ BagSource::Pull BagSource::pull(bool decode, Held* image, bool* has_pose, Se3d* 
     if (got == McapNext::end || got == McapNext::truncated) {
       stream_ended_ = true;
       end_state_ = got;
+      recheck = true;
       continue;
     }
     if (got == McapNext::error) {
@@ -663,7 +666,7 @@ BagSource::Pull BagSource::pull(bool decode, Held* image, bool* has_pose, Se3d* 
       RosPose transform;
       if (!tf.begin(message.data, message.size, reader_.wire())) continue;
       for (std::uint32_t i = 0; i < tf.count() && tf.next(&transform); ++i) {
-        (void)tf_.add(transform, static_cast<std::int64_t>(message.log_time_ns), is_static);
+        recheck |= tf_.add(transform, static_cast<std::int64_t>(message.log_time_ns), is_static);
       }
       continue;
     }
@@ -681,6 +684,7 @@ BagSource::Pull BagSource::pull(bool decode, Held* image, bool* has_pose, Se3d* 
         std::memcpy(s.t, pose.t, sizeof(s.t));
         std::memcpy(s.q, pose.q, sizeof(s.q));
         pose_history_.push(s, false);
+        recheck = true;
         const RosString& child = pose.child_frame;
         const std::size_t n = child.size < sizeof(pose_child_) ? child.size : 0;
         if (n > 0) std::memcpy(pose_child_, child.data, n);
@@ -699,6 +703,7 @@ BagSource::Pull BagSource::pull(bool decode, Held* image, bool* has_pose, Se3d* 
         *skip = NextFrame::skipped(StatusCode::data_loss);
         return Pull::skipped;
       }
+      recheck = true;
       if (!decode) {
         hold(nullptr, 0.0f, compressed.stamp_ns, compressed.frame_id, log_time_ns);
         continue;
@@ -715,6 +720,7 @@ BagSource::Pull BagSource::pull(bool decode, Held* image, bool* has_pose, Se3d* 
       *skip = NextFrame::skipped(StatusCode::data_loss);
       return Pull::skipped;
     }
+    recheck = true;
     if (!decode) {
       hold(nullptr, 0.0f, raw.stamp_ns, raw.frame_id, log_time_ns);
       continue;

@@ -17,8 +17,12 @@ Se3d to_se3(const TfSample& s) {
 }
 
 Se3d blend(const TfSample& a, const TfSample& b, std::int64_t stamp_ns) {
-  const double w =
-      static_cast<double>(stamp_ns - a.stamp_ns) / static_cast<double>(b.stamp_ns - a.stamp_ns);
+  // a <= t < b; unsigned differences, which cannot overflow for any stamps a bag may hold.
+  const auto since = [](std::int64_t later, std::int64_t earlier) {
+    return static_cast<double>(static_cast<std::uint64_t>(later) -
+                               static_cast<std::uint64_t>(earlier));
+  };
+  const double w = since(stamp_ns, a.stamp_ns) / since(b.stamp_ns, a.stamp_ns);
   const Eigen::Quaterniond qa = Eigen::Quaterniond(a.q[3], a.q[0], a.q[1], a.q[2]).normalized();
   const Eigen::Quaterniond qb = Eigen::Quaterniond(b.q[3], b.q[0], b.q[1], b.q[2]).normalized();
   Se3d T;

@@ -493,6 +493,7 @@ Status BagSource::reserve_tracking(Arena& arena) {
   pose_history_.attach(pose_samples.value(), config_.tf_history);
   held_ = held.value();
   held_first_ = held_count_ = 0;
+  pose_child_[0] = '\0';
   stream_ended_ = false;
   pose_past_end_ = pose_not_waited_ = pose_history_short_ = 0;
   return ok_status();

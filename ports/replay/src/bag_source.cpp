@@ -524,8 +524,10 @@ Status BagSource::open() {
   const std::size_t ring_bytes = static_cast<std::size_t>(intrinsics_.width) *
                                  static_cast<std::size_t>(intrinsics_.height) *
                                  sizeof(std::uint16_t) * static_cast<std::size_t>(ring_slots_);
+  const std::size_t slots = static_cast<std::size_t>(ring_slots_);
   ArenaSizer sizer;
   (void)sizer.allocate_bytes(ring_bytes, kArenaAlignment);
+  (void)sizer.allocate_array<int>(2 * slots);
   (void)reserve_tracking(sizer);
   (void)png_.reserve(sizer);
   memory_bytes_ = sizer.bytes_used();
@@ -537,20 +539,27 @@ Status BagSource::open() {
   }
   LinearArena arena(memory_, memory_bytes_);
   ring_ = static_cast<std::uint16_t*>(arena.allocate_bytes(ring_bytes, kArenaAlignment).value());
+  free_slots_ = arena.allocate_array<int>(2 * slots).value();
+  given_slots_ = free_slots_ + slots;
+  // Slot 0 on top: with no image waiting, only ring_size slots are ever used (cache).
+  for (int i = 0; i < ring_slots_; ++i) free_slots_[i] = ring_slots_ - 1 - i;
+  free_count_ = ring_slots_;
+  given_first_ = given_count_ = 0;
   OCTOFUSE_CHECK(reserve_tracking(arena).ok());  // sized by the same calls
   OCTOFUSE_CHECK(png_.reserve(arena).ok());
   odometry_mode_ = false;
   sequence_ = 0;
   frames_without_pose_ = 0;
-  ring_next_ = 0;
   reader_.rewind();
   error_.clear();
   open_ = true;
   return ok_status();
 }
 
+// The slot the next image is decoded into: free, neither held nor among the ring_size - 1 given
+// out last (the frame given out now makes ring_size).
 std::uint16_t* BagSource::ring_slot() const {
-  return ring_ + static_cast<std::size_t>(ring_next_) *
+  return ring_ + static_cast<std::size_t>(free_slots_[free_count_ - 1]) *
                      static_cast<std::size_t>(intrinsics_.width) *
                      static_cast<std::size_t>(intrinsics_.height);
 }
@@ -565,7 +574,18 @@ void BagSource::hold(std::uint16_t* pixels, float units_per_m, std::int64_t stam
   h.frame_id[n] = '\0';
   h.pixels = pixels;
   h.units_per_m = units_per_m;
-  if (pixels != nullptr) ring_next_ = (ring_next_ + 1) % ring_slots_;
+  h.slot = pixels != nullptr ? free_slots_[--free_count_] : -1;
+}
+
+// A held image's slot, given out now: free again once ring_size - 1 more have been given out.
+void BagSource::give_out(int slot) {
+  given_slots_[(given_first_ + given_count_) % ring_slots_] = slot;
+  ++given_count_;
+  if (given_count_ > config_.ring_size - 1) {
+    free_slots_[free_count_++] = given_slots_[given_first_];
+    given_first_ = (given_first_ + 1) % ring_slots_;
+    --given_count_;
+  }
 }
 
 // The pose of a held image at its time: T_W_C (the ground truth) or, in odometry mode, T_O_C.
@@ -925,6 +945,7 @@ NextFrame BagSource::next(DepthFrame& frame) {
     note_tf(&error_);
     return NextFrame{FrameOutcome::end_of_stream, StatusCode::out_of_range};
   }
+  give_out(image.slot);
   frame.depth_raw =
       ImageView<const std::uint16_t>(image.pixels, intrinsics_.width, intrinsics_.height);
   frame.metres_per_unit = 1.0f / image.units_per_m;

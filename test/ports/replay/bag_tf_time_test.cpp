@@ -105,16 +105,32 @@ struct Replayed {
   std::string end_text;
 };
 
-Replayed replay(BagSource& bag) {
+bool same_pixels(const octofuse::ImageView<const std::uint16_t>& image, const KeptFrame& kept) {
+  for (int y = 0; y < kept.height; ++y) {
+    for (int x = 0; x < kept.width; ++x) {
+      if (image(x, y) != kept.depth[static_cast<std::size_t>(y) * kept.width + x]) return false;
+    }
+  }
+  return true;
+}
+
+// The frames' poses; their pixels checked against `kept`, and each frame still intact when the
+// next has been given out (the ring holds 2 valid frames beside the waiting ones).
+Replayed replay(BagSource& bag, const KeptFrames& kept) {
   Replayed out;
   octofuse::DepthFrame frame;
-  for (;;) {
+  octofuse::ImageView<const std::uint16_t> previous;
+  for (std::size_t i = 0;; ++i) {
     const NextFrame next = bag.next(frame);
     if (next.outcome != FrameOutcome::frame) {
       out.end = next;
       out.end_text = bag.last_error();
       return out;
     }
+    REQUIRE(i < kept.frames.size());
+    CHECK(same_pixels(frame.depth_raw, kept.frames[i]));
+    if (i > 0) CHECK(same_pixels(previous, kept.frames[i - 1]));
+    previous = frame.depth_raw;
     REQUIRE(frame.has_ground_truth);
     out.stamps_ns.push_back(frame.timestamp_us * 1000);
     out.poses.push_back(frame.T_W_C_ground_truth);
@@ -142,7 +158,7 @@ TEST_CASE("bag: each depth image gets the pose at its own stamp (TF at another r
     INFO(spec);
     {
       std::unique_ptr<BagSource> bag = open_spec(spec);
-      const Replayed got = replay(*bag);
+      const Replayed got = replay(*bag, fixture.kept);
       REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
       for (int i = 0; i < kFrames; ++i) {
         INFO("frame " << i);
@@ -158,7 +174,7 @@ TEST_CASE("bag: each depth image gets the pose at its own stamp (TF at another r
     }
     {  // hold=0: the transforms read so far, as before (each image a TF period stale at most)
       std::unique_ptr<BagSource> bag = open_spec(spec + "?hold=0");
-      const Replayed got = replay(*bag);
+      const Replayed got = replay(*bag, fixture.kept);
       REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
       for (int i = 0; i < kFrames; ++i) {
         INFO("frame " << i);
@@ -184,7 +200,7 @@ TEST_CASE("bag: each depth image gets the pose at its own stamp (TF at another r
     for (const char* query : {"", "?hold=0"}) {
       INFO(spec << query);
       std::unique_ptr<BagSource> bag = open_spec(spec + query);
-      const Replayed got = replay(*bag);
+      const Replayed got = replay(*bag, fixture.kept);
       REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
       for (int i = 0; i < kFrames; ++i) {
         const auto error = pose_error(got.poses[i], T_W_C_at(false, got.stamps_ns[i]));
@@ -196,6 +212,39 @@ TEST_CASE("bag: each depth image gets the pose at its own stamp (TF at another r
   }
 }
 
+TEST_CASE("bag: images wait for a slow /tf several at a time (hold=N)", "[replay][bag][rosbag]") {
+  Fixture fixture(motion_frames());
+  // /tf at 8 Hz: up to 4 images (125 ms at 30 Hz) wait for the transform after their stamps.
+  for (const std::string& spec :
+       motion_bags(fixture, "slow", "--motion single --tf-hz 8 --tf-offset-ms 3")) {
+    INFO(spec);
+    {
+      std::unique_ptr<BagSource> bag = open_spec(spec);
+      const Replayed got = replay(*bag, fixture.kept);  // pixels intact while others wait
+      REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
+      for (int i = 0; i < kFrames; ++i) {
+        const auto error = pose_error(got.poses[i], T_W_C_at(false, got.stamps_ns[i]));
+        CHECK(error.first < 1e-6);
+        CHECK(error.second < 1e-6);
+      }
+      CHECK(got.end.status.code() == StatusCode::end_of_stream);
+    }
+    {  // hold=1: an image that finds another waiting gives the older one the transforms so far
+      std::unique_ptr<BagSource> bag = open_spec(spec + "?hold=1");
+      const Replayed got = replay(*bag, fixture.kept);
+      REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
+      std::uint64_t exact = 0;
+      for (int i = 0; i < kFrames; ++i) {
+        const auto error = pose_error(got.poses[i], T_W_C_at(false, got.stamps_ns[i]));
+        exact += error.first < 1e-6 && error.second < 1e-6;
+      }
+      CHECK(bag->frames_pose_not_waited() > 0);
+      CHECK(exact + bag->frames_pose_not_waited() == static_cast<std::uint64_t>(kFrames));
+      CHECK(got.end.status.code() == StatusCode::out_of_range);
+    }
+  }
+}
+
 TEST_CASE("bag: a chain of two moving TF edges at their own rates is taken at the stamp",
           "[replay][bag][rosbag]") {
   Fixture fixture(motion_frames());
@@ -203,7 +252,7 @@ TEST_CASE("bag: a chain of two moving TF edges at their own rates is taken at th
   for (const std::string& spec : motion_bags(fixture, "chain", "--motion chain")) {
     INFO(spec);
     std::unique_ptr<BagSource> bag = open_spec(spec);
-    const Replayed got = replay(*bag);
+    const Replayed got = replay(*bag, fixture.kept);
     REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
     for (int i = 0; i < kFrames; ++i) {
       INFO("frame " << i);
@@ -250,7 +299,7 @@ TEST_CASE("bag: the pose topic's poses are taken at each image's stamp too",
        motion_bags(fixture, "odom", "--motion odometry --tf-hz 50 --tf-offset-ms 5")) {
     INFO(spec);
     std::unique_ptr<BagSource> bag = open_spec(spec);
-    const Replayed got = replay(*bag);
+    const Replayed got = replay(*bag, fixture.kept);
     REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
     for (int i = 0; i < kFrames; ++i) {
       const auto error = pose_error(got.poses[i], T_W_C_at(false, got.stamps_ns[i]));
@@ -272,7 +321,7 @@ TEST_CASE(
     const std::int64_t last_ns = fixture.kept.frames.back().timestamp_us * 1000;
     const std::int64_t last_tf_ns = tf_stamp_before(last_ns - 50000000, 3000000, 10000000);
     std::unique_ptr<BagSource> bag = open_spec(spec);
-    const Replayed got = replay(*bag);
+    const Replayed got = replay(*bag, fixture.kept);
     REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
     std::uint64_t past = 0;
     for (int i = 0; i < kFrames; ++i) {

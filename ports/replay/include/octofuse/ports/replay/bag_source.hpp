@@ -153,6 +153,7 @@ class BagSource final : public DepthSource {
     std::int64_t time_ns = 0;  // header stamp, or log time when the stamp is 0
     char frame_id[TfBuffer::kMaxName] = {};
     std::uint16_t* pixels = nullptr;  // in the ring (none when only poses are read)
+    int slot = -1;
     float units_per_m = 0.0f;
   };
   // What pull() gives: the oldest held image with its pose.
@@ -167,6 +168,7 @@ class BagSource final : public DepthSource {
   void hold(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
             const RosString& frame_id, std::int64_t log_time_ns);
   std::uint16_t* ring_slot() const;
+  void give_out(int slot);
 
   BagConfig config_;
   ErrorText error_;
@@ -181,6 +183,11 @@ class BagSource final : public DepthSource {
   std::size_t memory_bytes_ = 0;
   std::uint16_t* ring_ = nullptr;
   int ring_slots_ = 0;
+  int* free_slots_ = nullptr;  // a stack of ring slots free to decode into
+  int free_count_ = 0;
+  int* given_slots_ = nullptr;  // the slots of the frames given out last, oldest first
+  int given_first_ = 0;
+  int given_count_ = 0;
   TfBuffer tf_;
   PngDepthDecoder png_;
   TfHistory pose_history_;  // the pose topic's (its child frame's pose in the world)
@@ -216,7 +223,6 @@ class BagSource final : public DepthSource {
   std::uint64_t pose_past_end_ = 0;
   std::uint64_t pose_not_waited_ = 0;
   std::uint64_t pose_history_short_ = 0;
-  int ring_next_ = 0;
 };
 
 }  // namespace octofuse::replay

@@ -449,6 +449,7 @@ int read_odometry(const RunOptions& options, RunInputs* inputs) {
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
       // A bag's Odometry or PoseStamped topic (mcap:FILE?pose=TOPIC).
       replay::BagConfig bag;
+      ErrorText odometry_warning;
       if (!replay::parse_bag_spec(options.odometry.c_str(), &bag, &odometry_error).ok() ||
           !replay::read_bag_poses(
                bag,
@@ -456,9 +457,13 @@ int read_odometry(const RunOptions& options, RunInputs* inputs) {
                  static_cast<std::vector<host::TimedPose>*>(context)->push_back(
                      {static_cast<double>(stamp_ns) * 1e-9, T});
                },
-               &odometry_O, &odometry_error)
+               &odometry_O, &odometry_error, &odometry_warning)
                .ok()) {
         return error_exit(std::string("--odometry: ") + odometry_error.c_str());
+      }
+      // Poses from /tf that took a transform before their stamp (the bag's /tf ended first).
+      if (odometry_warning.c_str()[0] != '\0') {
+        std::fprintf(stderr, "warning: --odometry: %s\n", odometry_warning.c_str());
       }
 #else
       return error_exit("--odometry mcap: needs the replay port in this build");

@@ -38,8 +38,8 @@ std::string supported_sources() {
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
   out += "                       tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE (recordings)\n";
-  out += "                       mcap:FILE[?depth=T&info=T&pose=T&world=F&buffer=MB&reorder=MB]\n";
-  out += "                         (ROS 2 bag)\n";
+  out += "                       mcap:FILE[?depth=T&info=T&pose=T&world=F&buffer=MB&reorder=MB\n";
+  out += "                         &hold=N] (ROS 2 bag; poses at each image's stamp)\n";
   out += "                       rosbag:FILE[?same options] (ROS 1 bag, format 2.0)\n";
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)

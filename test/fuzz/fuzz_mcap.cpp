@@ -31,6 +31,20 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   // A small reorder window, so that it fills, wraps and gives messages out late.
   config.limits.reorder_bytes = 16 << 10;
   config.limits.reorder_messages = 32;
+  // Few transforms per TF edge and few held images, so that their rings fill and wrap too.
+  config.tf_history = 4;
+  config.hold_frames = 2;
+  {
+    // The odometry's poses (a pose topic, or TF at each depth image's stamp).
+    octofuse::ErrorText error, warning;
+    const octofuse::Status read = octofuse::replay::read_bag_poses(
+        config,
+        [](void*, std::int64_t, const octofuse::Se3d& T) {
+          if (!T.matrix().allFinite()) __builtin_trap();  // a pose is always a number
+        },
+        nullptr, &error, &warning);
+    if (!read.ok() && error.c_str()[0] == '\0') __builtin_trap();
+  }
   octofuse::replay::BagSource bag(config);
   const octofuse::Status opened = bag.open();
   if (!opened.ok()) {
@@ -45,6 +59,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
       if (frame.depth_raw.width != camera.width || frame.depth_raw.height != camera.height) {
         __builtin_trap();  // a frame always has the camera's size
       }
+      if (frame.has_ground_truth && !frame.T_W_C_ground_truth.allFinite()) __builtin_trap();
       volatile std::uint32_t sum = 0;
       for (int y = 0; y < frame.depth_raw.height; ++y) {
         for (int x = 0; x < frame.depth_raw.width; ++x) sum = sum + frame.depth_raw(x, y);

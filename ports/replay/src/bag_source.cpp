@@ -116,6 +116,22 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
       query = end;
       continue;
     }
+    if (key_size == 4 && std::strncmp(key, "hold", 4) == 0) {
+      // Depth images held while the transforms after their stamps are read.
+      char number[8] = {};
+      char* end_number = nullptr;
+      const long frames = copy_value(value, value_size, number, sizeof(number))
+                              ? std::strtol(number, &end_number, 10)
+                              : -1;
+      if (end_number == number || end_number == nullptr || *end_number != '\0' || frames < 0 ||
+          frames > 64) {
+        error->set("%s: hold=N needs 0 to 64 images", name);
+        return StatusCode::invalid_argument;
+      }
+      config->hold_frames = static_cast<int>(frames);
+      query = end;
+      continue;
+    }
     if (key_size == 6 && std::strncmp(key, "buffer", 6) == 0) {
       // Megabytes for each of the reader's two buffers (record and chunk).
       std::size_t bytes = 0;
@@ -135,8 +151,8 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     if (key_size == 5 && std::strncmp(key, "world", 5) == 0) out = config->world_frame;
     if (key_size == 2 && std::strncmp(key, "tf", 2) == 0) out = config->odometry_frame;
     if (out == nullptr) {
-      error->set("%s: unknown option '%.*s' (depth, info, pose, world, tf, buffer, reorder)", name,
-                 static_cast<int>(key_size), key);
+      error->set("%s: unknown option '%.*s' (depth, info, pose, world, tf, buffer, reorder, hold)",
+                 name, static_cast<int>(key_size), key);
       return StatusCode::invalid_argument;
     }
     if (value_size == 0 || !copy_value(value, value_size, out, BagConfig::kMaxName)) {
@@ -161,7 +177,9 @@ void BagSource::close() {
   memory_ = nullptr;
   memory_bytes_ = 0;
   ring_ = nullptr;
-  tf_ = nullptr;
+  ring_slots_ = 0;
+  held_ = nullptr;
+  held_count_ = held_first_ = 0;
   open_ = scanned_ = false;
 }
 
@@ -461,13 +479,37 @@ Status BagSource::choose_topics() {
   return ok_status();
 }
 
+// The pose tracking's memory: the TF table and its transforms, the pose topic's transforms and
+// the held images' records.
+template <typename Arena>
+Status BagSource::reserve_tracking(Arena& arena) {
+  OCTOFUSE_TRY(tf_.reserve(arena, config_.max_tf_frames, config_.tf_history));
+  Result<TfSample*> pose_samples =
+      arena.template allocate_array<TfSample>(static_cast<std::size_t>(config_.tf_history));
+  if (!pose_samples.ok()) return pose_samples.status();
+  Result<Held*> held =
+      arena.template allocate_array<Held>(static_cast<std::size_t>(config_.hold_frames) + 1);
+  if (!held.ok()) return held.status();
+  pose_history_.attach(pose_samples.value(), config_.tf_history);
+  held_ = held.value();
+  held_first_ = held_count_ = 0;
+  pose_child_[0] = '\0';
+  stream_ended_ = false;
+  pose_past_end_ = pose_not_waited_ = pose_history_short_ = 0;
+  return ok_status();
+}
+
+bool BagSource::valid_tracking_config() const {
+  return config_.max_tf_frames >= 1 && config_.max_tf_frames <= 4096 && config_.tf_history >= 2 &&
+         config_.tf_history <= 4096 && config_.hold_frames >= 0 && config_.hold_frames <= 64;
+}
+
 Status BagSource::open() {
   Status status = scan();
   if (!status.ok()) return status;
   if (config_.max_width <= 0 || config_.max_height <= 0 || config_.max_width > 16384 ||
       config_.max_height > 16384 || config_.ring_size < 1 || config_.ring_size > 64 ||
-      config_.max_tf_frames < 1 || config_.max_tf_frames > 4096 ||
-      !(config_.depth_units_per_m >= 0.0f)) {
+      !valid_tracking_config() || !(config_.depth_units_per_m >= 0.0f)) {
     error_.set("%s: invalid configuration", prefix());
     close();
     return StatusCode::invalid_argument;
@@ -477,13 +519,16 @@ Status BagSource::open() {
     close();
     return status;
   }
+  // Frames given out stay valid for ring_size calls; held ones wait in the ring beside them.
+  ring_slots_ = config_.ring_size + config_.hold_frames;
+  const std::size_t ring_bytes = static_cast<std::size_t>(intrinsics_.width) *
+                                 static_cast<std::size_t>(intrinsics_.height) *
+                                 sizeof(std::uint16_t) * static_cast<std::size_t>(ring_slots_);
+  const std::size_t slots = static_cast<std::size_t>(ring_slots_);
   ArenaSizer sizer;
-  const std::size_t frame_pixels =
-      static_cast<std::size_t>(intrinsics_.width) * static_cast<std::size_t>(intrinsics_.height);
-  (void)sizer.allocate_bytes(
-      frame_pixels * sizeof(std::uint16_t) * static_cast<std::size_t>(config_.ring_size),
-      kArenaAlignment);
-  (void)sizer.allocate_array<TfFrame>(static_cast<std::size_t>(config_.max_tf_frames));
+  (void)sizer.allocate_bytes(ring_bytes, kArenaAlignment);
+  (void)sizer.allocate_array<int>(2 * slots);
+  (void)reserve_tracking(sizer);
   (void)png_.reserve(sizer);
   memory_bytes_ = sizer.bytes_used();
   memory_ = std::aligned_alloc(kArenaAlignment, align_up(memory_bytes_, kArenaAlignment));
@@ -493,93 +538,240 @@ Status BagSource::open() {
     return StatusCode::resource_exhausted;
   }
   LinearArena arena(memory_, memory_bytes_);
-  ring_ = static_cast<std::uint16_t*>(
-      arena
-          .allocate_bytes(
-              frame_pixels * sizeof(std::uint16_t) * static_cast<std::size_t>(config_.ring_size),
-              kArenaAlignment)
-          .value());
-  tf_ = arena.allocate_array<TfFrame>(static_cast<std::size_t>(config_.max_tf_frames)).value();
-  OCTOFUSE_CHECK(png_.reserve(arena).ok());  // sized by the same calls
-  tf_count_ = 0;
-  have_pose_ = false;
+  ring_ = static_cast<std::uint16_t*>(arena.allocate_bytes(ring_bytes, kArenaAlignment).value());
+  free_slots_ = arena.allocate_array<int>(2 * slots).value();
+  given_slots_ = free_slots_ + slots;
+  // Slot 0 on top: with no image waiting, only ring_size slots are ever used (cache).
+  for (int i = 0; i < ring_slots_; ++i) free_slots_[i] = ring_slots_ - 1 - i;
+  free_count_ = ring_slots_;
+  given_first_ = given_count_ = 0;
+  OCTOFUSE_CHECK(reserve_tracking(arena).ok());  // sized by the same calls
+  OCTOFUSE_CHECK(png_.reserve(arena).ok());
+  odometry_mode_ = false;
   sequence_ = 0;
   frames_without_pose_ = 0;
-  ring_next_ = 0;
   reader_.rewind();
   error_.clear();
   open_ = true;
   return ok_status();
 }
 
-int BagSource::tf_find(const char* name, std::size_t size, bool insert) {
-  // TF names may start with a slash (ROS 1): "/world" and "world" are the same frame.
-  if (size > 0 && name[0] == '/') {
-    ++name;
-    --size;
-  }
-  for (int i = 0; i < tf_count_; ++i) {
-    if (std::strlen(tf_[i].name) == size && std::strncmp(tf_[i].name, name, size) == 0) return i;
-  }
-  if (!insert || tf_count_ >= config_.max_tf_frames || size >= sizeof(tf_[0].name)) return -1;
-  TfFrame& frame = tf_[tf_count_];
-  std::memcpy(frame.name, name, size);
-  frame.name[size] = '\0';
-  frame.parent = -1;
-  frame.T_parent_child = Se3d::Identity();
-  return tf_count_++;
+// The slot the next image is decoded into: free, neither held nor among the ring_size - 1 given
+// out last (the frame given out now makes ring_size).
+std::uint16_t* BagSource::ring_slot() const {
+  return ring_ + static_cast<std::size_t>(free_slots_[free_count_ - 1]) *
+                     static_cast<std::size_t>(intrinsics_.width) *
+                     static_cast<std::size_t>(intrinsics_.height);
 }
 
-void BagSource::tf_update(const RosPose& transform) {
-  Se3d T;
-  if (!pose_to_se3(transform, &T)) return;
-  const int child = tf_find(transform.child_frame.data, transform.child_frame.size, true);
-  const int parent = tf_find(transform.parent_frame.data, transform.parent_frame.size, true);
-  if (child < 0 || parent < 0 || child == parent) return;
-  tf_[child].parent = parent;
-  tf_[child].T_parent_child = T;
+void BagSource::hold(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
+                     const RosString& frame_id, std::int64_t log_time_ns) {
+  Held& h = held_[(held_first_ + held_count_) % (config_.hold_frames + 1)];
+  ++held_count_;
+  h.time_ns = stamp_ns != 0 ? stamp_ns : log_time_ns;
+  const std::size_t n = frame_id.size < sizeof(h.frame_id) ? frame_id.size : 0;
+  if (n > 0) std::memcpy(h.frame_id, frame_id.data, n);
+  h.frame_id[n] = '\0';
+  h.pixels = pixels;
+  h.units_per_m = units_per_m;
+  h.slot = pixels != nullptr ? free_slots_[--free_count_] : -1;
 }
 
-// T_to_from by walking parents from `from`; to < 0 means the root of the chain.
-bool BagSource::tf_chain(int from, int to, Se3d* T_to_from) const {
-  Se3d T = Se3d::Identity();
-  int f = from;
-  for (int steps = 0; steps <= tf_count_; ++steps) {
-    if (f == to || (to < 0 && tf_[f].parent < 0)) {
-      *T_to_from = T;
-      return true;
+// A held image's slot, given out now: free again once ring_size - 1 more have been given out.
+void BagSource::give_out(int slot) {
+  given_slots_[(given_first_ + given_count_) % ring_slots_] = slot;
+  ++given_count_;
+  if (given_count_ > config_.ring_size - 1) {
+    free_slots_[free_count_++] = given_slots_[given_first_];
+    given_first_ = (given_first_ + 1) % ring_slots_;
+    --given_count_;
+  }
+}
+
+// The pose of a held image at its time: T_W_C (the ground truth) or, in odometry mode, T_O_C.
+TfAt BagSource::resolve(const Held& image, bool final, Se3d* T, unsigned* stale) const {
+  const int camera = tf_.find(image.frame_id, std::strlen(image.frame_id));
+  const TfAt unknown = final ? TfAt::none : TfAt::wait;  // a frame /tf may still name
+  if (odometry_mode_ || use_tf_) {
+    if (camera < 0) return unknown;
+    int to = -1;  // the root of the chain
+    if (odometry_mode_ && config_.odometry_frame[0] == '\0') {
+      auto is_odom = [](const char* name) {
+        const std::size_t size = std::strlen(name);
+        return std::strcmp(name, "odom") == 0 ||
+               (size > 5 && std::strcmp(name + size - 5, "/odom") == 0);
+      };
+      for (int f = camera, steps = 0; f >= 0 && steps <= tf_.count(); f = tf_.parent(f), ++steps) {
+        if (is_odom(tf_.name(f))) {
+          to = f;
+          break;
+        }
+      }
+      if (to < 0) return unknown;
+    } else {
+      const char* target = odometry_mode_ ? config_.odometry_frame : config_.world_frame;
+      if (target[0] != '\0') {
+        to = tf_.find(target, std::strlen(target));
+        if (to < 0) return unknown;
+      }
     }
-    if (tf_[f].parent < 0) return false;
-    T = tf_[f].T_parent_child * T;
-    f = tf_[f].parent;
+    const TfAt at = tf_.chain_at(camera, to, image.time_ns, final, T, stale);
+    return at == TfAt::none ? unknown : at;
   }
-  return false;  // a cycle
-}
-
-bool BagSource::pose_for(const RosString& camera_frame, Se3d* T_W_C) {
-  const int camera = tf_find(camera_frame.data, camera_frame.size, false);
-  if (use_tf_) {
-    if (camera < 0) return false;
-    int world = -1;
-    if (config_.world_frame[0] != '\0') {
-      world = tf_find(config_.world_frame, std::strlen(config_.world_frame), false);
-      if (world < 0) return false;
-    }
-    return tf_chain(camera, world, T_W_C);
-  }
-  if (!have_pose_) return false;
+  if (pose_channel_ < 0) return TfAt::none;
+  Se3d T_W_B;
+  const TfAt at = pose_history_.at(image.time_ns, final, &T_W_B, stale);
+  if (at != TfAt::ready) return at;
   // The pose is of its child frame (the robot's body): add the body-to-camera TF when known.
-  const int body = tf_find(pose_child_, std::strlen(pose_child_), false);
+  const int body = tf_.find(pose_child_, std::strlen(pose_child_));
   Se3d T_B_C;
-  if (camera >= 0 && body >= 0 && camera != body && tf_chain(camera, body, &T_B_C)) {
-    *T_W_C = T_W_B_ * T_B_C;
-  } else {
-    *T_W_C = T_W_B_;  // the pose is the camera's
+  if (camera >= 0 && body >= 0 && camera != body) {
+    const TfAt chain = tf_.chain_at(camera, body, image.time_ns, final, &T_B_C, stale);
+    if (chain == TfAt::wait) return TfAt::wait;
+    if (chain == TfAt::ready) {
+      *T = T_W_B * T_B_C;
+      return TfAt::ready;
+    }
   }
-  return true;
+  *T = T_W_B;  // the pose is the camera's
+  return TfAt::ready;
 }
 
-NextFrame BagSource::convert(const RosImage& image, std::int64_t log_time_ns, DepthFrame& frame) {
+// Reads on until the oldest held image can be given out: every edge of its chain has a
+// transform at or after its stamp, the file has ended, or more than hold_frames images wait.
+// `decode`: images are converted into the ring (next()); without it only their stamps and
+// frames are kept (the odometry's poses).
+BagSource::Pull BagSource::pull(bool decode, Held* image, bool* has_pose, Se3d* T,
+                                NextFrame* skip) {
+  const int held_capacity = config_.hold_frames + 1;
+  McapMessage message;
+  bool recheck = true;  // the oldest held image may be ready: new transforms, images or the end
+  for (;;) {
+    if (held_count_ > 0 && recheck) {
+      recheck = false;
+      const Held& front = held_[held_first_];
+      unsigned stale = kTfExact;
+      TfAt at = resolve(front, stream_ended_, T, &stale);
+      const bool crowded = held_count_ > config_.hold_frames;
+      if (at == TfAt::wait && crowded) at = resolve(front, true, T, &(stale = kTfExact));
+      if (at != TfAt::wait) {
+        *image = front;
+        held_first_ = (held_first_ + 1) % held_capacity;
+        --held_count_;
+        *has_pose = at == TfAt::ready;
+        if (stale & kTfPastEnd) ++(stream_ended_ ? pose_past_end_ : pose_not_waited_);
+        if (stale & kTfHistoryShort) ++pose_history_short_;
+        return Pull::image;
+      }
+    }
+    if (stream_ended_) return Pull::ended;
+    const McapNext got = reader_.next(&message);
+    if (got == McapNext::end || got == McapNext::truncated) {
+      stream_ended_ = true;
+      end_state_ = got;
+      recheck = true;
+      continue;
+    }
+    if (got == McapNext::error) {
+      error_.set("%s: %s", config_.path, reader_.error());
+      return Pull::failed;
+    }
+    const int c = static_cast<int>(message.channel - &reader_.channel_at(0));
+    const Kind kind = kinds_[c];
+    if (kind == Kind::tf) {
+      const char* topic = message.channel->topic;
+      const std::size_t topic_size = std::strlen(topic);
+      const bool is_static =
+          topic_size >= 9 && std::strcmp(topic + topic_size - 9, "tf_static") == 0;
+      RosTfReader tf;
+      RosPose transform;
+      if (!tf.begin(message.data, message.size, reader_.wire())) continue;
+      for (std::uint32_t i = 0; i < tf.count() && tf.next(&transform); ++i) {
+        recheck |= tf_.add(transform, static_cast<std::int64_t>(message.log_time_ns), is_static);
+      }
+      continue;
+    }
+    if (c == pose_channel_) {
+      RosPose pose;
+      Se3d checked;
+      const bool decoded =
+          kind == Kind::odometry
+              ? decode_odometry(message.data, message.size, reader_.wire(), &pose)
+              : decode_pose_stamped(message.data, message.size, reader_.wire(), &pose);
+      if (decoded && pose_to_se3(pose, &checked)) {
+        TfSample s;
+        s.stamp_ns =
+            pose.stamp_ns != 0 ? pose.stamp_ns : static_cast<std::int64_t>(message.log_time_ns);
+        std::memcpy(s.t, pose.t, sizeof(s.t));
+        std::memcpy(s.q, pose.q, sizeof(s.q));
+        pose_history_.push(s, false);
+        recheck = true;
+        const RosString& child = pose.child_frame;
+        const std::size_t n = child.size < sizeof(pose_child_) ? child.size : 0;
+        if (n > 0) std::memcpy(pose_child_, child.data, n);
+        pose_child_[n] = '\0';
+      }
+      continue;
+    }
+    if (c != depth_channel_) continue;
+    const std::int64_t log_time_ns = static_cast<std::int64_t>(message.log_time_ns);
+    if (kind == Kind::compressed) {
+      RosCompressedImage compressed;
+      if (!decode_compressed_image(message.data, message.size, reader_.wire(), &compressed)) {
+        if (!decode) continue;
+        error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/CompressedImage",
+                   config_.path, static_cast<unsigned long long>(message.sequence), depth_topic_);
+        *skip = NextFrame::skipped(StatusCode::data_loss);
+        return Pull::skipped;
+      }
+      recheck = true;
+      if (!decode) {
+        hold(nullptr, 0.0f, compressed.stamp_ns, compressed.frame_id, log_time_ns);
+        continue;
+      }
+      *skip = convert_compressed(compressed, log_time_ns);
+      if (skip->outcome != FrameOutcome::frame) return Pull::skipped;
+      continue;
+    }
+    RosImage raw;
+    if (!decode_image(message.data, message.size, reader_.wire(), &raw)) {
+      if (!decode) continue;
+      error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/Image", config_.path,
+                 static_cast<unsigned long long>(message.sequence), depth_topic_);
+      *skip = NextFrame::skipped(StatusCode::data_loss);
+      return Pull::skipped;
+    }
+    recheck = true;
+    if (!decode) {
+      hold(nullptr, 0.0f, raw.stamp_ns, raw.frame_id, log_time_ns);
+      continue;
+    }
+    *skip = convert(raw, log_time_ns);
+    if (skip->outcome != FrameOutcome::frame) return Pull::skipped;
+  }
+}
+
+// How many frames took a transform from before their stamp, appended to `text`.
+void BagSource::note_tf(ErrorText* text) const {
+  char line[200];
+  int used = 0;
+  auto add = [&](std::uint64_t count, const char* what) {
+    if (count == 0 || used < 0 || used >= static_cast<int>(sizeof(line))) return;
+    used += std::snprintf(line + used, sizeof(line) - static_cast<std::size_t>(used), "%s%llu %s",
+                          used ? "; " : "", static_cast<unsigned long long>(count), what);
+  };
+  add(pose_past_end_, "frames past the last /tf took its newest transform");
+  add(pose_not_waited_, "frames took the transforms read so far (more than hold=N waited)");
+  add(pose_history_short_, "frames older than the transforms kept took the oldest");
+  if (used <= 0) return;
+  if (text->c_str()[0] != '\0') {
+    text->set("%s; %s", ErrorText(*text).c_str(), line);
+  } else {
+    text->set("%s: %s", config_.path, line);
+  }
+}
+
+NextFrame BagSource::convert(const RosImage& image, std::int64_t log_time_ns) {
   const int width = static_cast<int>(image.width);
   const int height = static_cast<int>(image.height);
   if (width != intrinsics_.width || height != intrinsics_.height) {
@@ -605,10 +797,7 @@ NextFrame BagSource::convert(const RosImage& image, std::int64_t log_time_ns, De
     return NextFrame::skipped(StatusCode::data_loss);
   }
   const bool swap = image.big_endian != host_is_big_endian();
-  std::uint16_t* out = ring_ + static_cast<std::size_t>(ring_next_) *
-                                   static_cast<std::size_t>(width) *
-                                   static_cast<std::size_t>(height);
-  ring_next_ = (ring_next_ + 1) % config_.ring_size;
+  std::uint16_t* out = ring_slot();
   const float units =
       config_.depth_units_per_m > 0.0f ? config_.depth_units_per_m : (is16 ? 1000.0f : 5000.0f);
   for (int y = 0; y < height; ++y) {
@@ -641,35 +830,14 @@ NextFrame BagSource::convert(const RosImage& image, std::int64_t log_time_ns, De
       }
     }
   }
-  return finish(out, units, image.stamp_ns, image.frame_id, log_time_ns, frame);
-}
-
-NextFrame BagSource::finish(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
-                            const RosString& frame_id, std::int64_t log_time_ns,
-                            DepthFrame& frame) {
-  frame.depth_raw = ImageView<const std::uint16_t>(pixels, intrinsics_.width, intrinsics_.height);
-  frame.metres_per_unit = 1.0f / units_per_m;
-  frame.timestamp_us = (stamp_ns != 0 ? stamp_ns : log_time_ns) / 1000;
-  frame.sequence = sequence_++;
-  Se3d T_W_C;
-  frame.has_ground_truth = false;
-  frame.T_W_C_ground_truth = Eigen::Matrix4d::Identity();
-  if ((use_tf_ || pose_channel_ >= 0)) {
-    if (pose_for(frame_id, &T_W_C)) {
-      frame.has_ground_truth = true;
-      frame.T_W_C_ground_truth = T_W_C.matrix();
-    } else {
-      ++frames_without_pose_;
-    }
-  }
+  hold(out, units, image.stamp_ns, image.frame_id, log_time_ns);
   return NextFrame::got_frame();
 }
 
 // compressed_depth_image_transport: a 12-byte header (int32 format, float quantisation A, B),
 // then a 16-bit PNG or, for rvl, int32 width, height and the RVL stream. 32FC1 is stored as
 // quantised inverse depth: metres = A / (v - B), 0 for no data.
-NextFrame BagSource::convert_compressed(const RosCompressedImage& image, std::int64_t log_time_ns,
-                                        DepthFrame& frame) {
+NextFrame BagSource::convert_compressed(const RosCompressedImage& image, std::int64_t log_time_ns) {
   const char* format = image.format.data != nullptr ? image.format.data : "";
   const std::size_t format_size = image.format.size;
   auto has = [&](const char* word) {
@@ -702,10 +870,7 @@ NextFrame BagSource::convert_compressed(const RosCompressedImage& image, std::in
   }
   const std::uint8_t* payload = image.data + 12;
   const std::size_t payload_size = image.data_size - 12;
-  std::uint16_t* out = ring_ + static_cast<std::size_t>(ring_next_) *
-                                   static_cast<std::size_t>(intrinsics_.width) *
-                                   static_cast<std::size_t>(intrinsics_.height);
-  ring_next_ = (ring_next_ + 1) % config_.ring_size;
+  std::uint16_t* out = ring_slot();
   const std::size_t pixel_count =
       static_cast<std::size_t>(intrinsics_.width) * static_cast<std::size_t>(intrinsics_.height);
   if (rvl) {
@@ -749,7 +914,8 @@ NextFrame BagSource::convert_compressed(const RosCompressedImage& image, std::in
       out[i] = (u >= 1.0f && u < 65535.5f) ? static_cast<std::uint16_t>(u) : 0;
     }
   }
-  return finish(out, units, image.stamp_ns, image.frame_id, log_time_ns, frame);
+  hold(out, units, image.stamp_ns, image.frame_id, log_time_ns);
+  return NextFrame::got_frame();
 }
 
 NextFrame BagSource::next(DepthFrame& frame) {
@@ -757,75 +923,57 @@ NextFrame BagSource::next(DepthFrame& frame) {
     error_.set("%s: next() before a successful open()", prefix());
     return NextFrame::failed(StatusCode::failed_precondition);
   }
-  McapMessage message;
-  for (;;) {
-    const McapNext got = reader_.next(&message);
-    if (got == McapNext::end) {
-      if (reader_.out_of_order() == 0) return NextFrame::ended();
-      // Not lost, but not in order either: the run says so.
-      error_.clear();
-      note_disorder(&error_);
-      return NextFrame{FrameOutcome::end_of_stream, StatusCode::out_of_range};
-    }
-    if (got == McapNext::truncated) {
+  Held image;
+  bool has_pose = false;
+  Se3d T_W_C;
+  NextFrame skip;
+  const Pull pulled = pull(true, &image, &has_pose, &T_W_C, &skip);
+  if (pulled == Pull::failed) return NextFrame::failed(StatusCode::data_loss);
+  if (pulled == Pull::skipped) return skip;
+  if (pulled == Pull::ended) {
+    const bool late_poses = pose_past_end_ + pose_not_waited_ + pose_history_short_ > 0;
+    if (end_state_ == McapNext::truncated) {
       error_.set("%s: %s", config_.path, reader_.warning());
       if (reader_.out_of_order() > 0) note_disorder(&error_);
+      note_tf(&error_);
       return NextFrame{FrameOutcome::end_of_stream, StatusCode::data_loss};
     }
-    if (got == McapNext::error) {
-      error_.set("%s: %s", config_.path, reader_.error());
-      return NextFrame::failed(StatusCode::data_loss);
-    }
-    const int c = static_cast<int>(message.channel - &reader_.channel_at(0));
-    const Kind kind = kinds_[c];
-    if (kind == Kind::tf) {
-      RosTfReader tf;
-      RosPose transform;
-      if (!tf.begin(message.data, message.size, reader_.wire())) continue;
-      for (std::uint32_t i = 0; i < tf.count() && tf.next(&transform); ++i) tf_update(transform);
-      continue;
-    }
-    if (c == pose_channel_) {
-      RosPose pose;
-      const bool decoded =
-          kind == Kind::odometry
-              ? decode_odometry(message.data, message.size, reader_.wire(), &pose)
-              : decode_pose_stamped(message.data, message.size, reader_.wire(), &pose);
-      if (decoded && pose_to_se3(pose, &T_W_B_)) {
-        have_pose_ = true;
-        const RosString& child = pose.child_frame;
-        const std::size_t n = child.size < sizeof(pose_child_) ? child.size : 0;
-        if (n > 0) std::memcpy(pose_child_, child.data, n);
-        pose_child_[n] = '\0';
-      }
-      continue;
-    }
-    if (c != depth_channel_) continue;
-    if (kind == Kind::compressed) {
-      RosCompressedImage compressed;
-      if (!decode_compressed_image(message.data, message.size, reader_.wire(), &compressed)) {
-        error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/CompressedImage",
-                   config_.path, static_cast<unsigned long long>(message.sequence), depth_topic_);
-        return NextFrame::skipped(StatusCode::data_loss);
-      }
-      return convert_compressed(compressed, static_cast<std::int64_t>(message.log_time_ns), frame);
-    }
-    RosImage image;
-    if (!decode_image(message.data, message.size, reader_.wire(), &image)) {
-      error_.set("%s: message %llu on %s is not a valid sensor_msgs/msg/Image", config_.path,
-                 static_cast<unsigned long long>(message.sequence), depth_topic_);
-      return NextFrame::skipped(StatusCode::data_loss);
-    }
-    return convert(image, static_cast<std::int64_t>(message.log_time_ns), frame);
+    if (reader_.out_of_order() == 0 && !late_poses) return NextFrame::ended();
+    // Not lost, but not in order or not at their stamps either: the run says so.
+    error_.clear();
+    if (reader_.out_of_order() > 0) note_disorder(&error_);
+    note_tf(&error_);
+    return NextFrame{FrameOutcome::end_of_stream, StatusCode::out_of_range};
   }
+  give_out(image.slot);
+  frame.depth_raw =
+      ImageView<const std::uint16_t>(image.pixels, intrinsics_.width, intrinsics_.height);
+  frame.metres_per_unit = 1.0f / image.units_per_m;
+  frame.timestamp_us = image.time_ns / 1000;
+  frame.sequence = sequence_++;
+  frame.has_ground_truth = false;
+  frame.T_W_C_ground_truth = Eigen::Matrix4d::Identity();
+  if (use_tf_ || pose_channel_ >= 0) {
+    if (has_pose) {
+      frame.has_ground_truth = true;
+      frame.T_W_C_ground_truth = T_W_C.matrix();
+    } else {
+      ++frames_without_pose_;
+    }
+  }
+  return NextFrame::got_frame();
 }
 
 Status read_bag_poses(const BagConfig& config,
                       void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
-                      void* context, ErrorText* error) {
+                      void* context, ErrorText* error, ErrorText* warning) {
   BagSource source(config);
   const Status status = source.read_odometry(on_pose, context);
   if (!status.ok()) error->set("%s", source.last_error());
+  if (status.ok() && warning != nullptr) {
+    warning->clear();
+    source.note_tf(warning);
+  }
   return status;
 }
 
@@ -919,90 +1067,51 @@ Status BagSource::read_tf_poses(void (*on_pose)(void* context, std::int64_t stam
                                                 const Se3d& T),
                                 void* context) {
   OCTOFUSE_TRY(choose_depth_topic());
-  if (config_.max_tf_frames < 1 || config_.max_tf_frames > 4096) {
+  if (!valid_tracking_config()) {
     error_.set("%s: invalid configuration", prefix());
     return StatusCode::invalid_argument;
   }
-  memory_bytes_ = sizeof(TfFrame) * static_cast<std::size_t>(config_.max_tf_frames);
+  ArenaSizer sizer;
+  (void)reserve_tracking(sizer);
+  memory_bytes_ = sizer.bytes_used();
   memory_ = std::aligned_alloc(kArenaAlignment, align_up(memory_bytes_, kArenaAlignment));
   if (memory_ == nullptr) {
     error_.set("%s: cannot reserve %zu bytes", prefix(), memory_bytes_);
     return StatusCode::resource_exhausted;
   }
-  tf_ = static_cast<TfFrame*>(memory_);
-  for (int i = 0; i < config_.max_tf_frames; ++i) new (tf_ + i) TfFrame();
-  tf_count_ = 0;
+  LinearArena arena(memory_, memory_bytes_);
+  OCTOFUSE_CHECK(reserve_tracking(arena).ok());  // sized by the same calls
+  odometry_mode_ = true;
+  use_tf_ = false;
+  pose_channel_ = -1;
   reader_.rewind();
-  const bool named = config_.odometry_frame[0] != '\0';
-  auto is_odom = [](const char* name) {
-    const std::size_t size = std::strlen(name);
-    return std::strcmp(name, "odom") == 0 ||
-           (size > 5 && std::strcmp(name + size - 5, "/odom") == 0);
-  };
-  McapMessage message;
   std::uint64_t poses = 0;
   std::uint64_t images = 0;
-  char camera_name[64] = {};
+  char camera_name[TfBuffer::kMaxName] = {};
   for (;;) {
-    const McapNext got = reader_.next(&message);
-    if (got == McapNext::end || got == McapNext::truncated) break;
-    if (got == McapNext::error) {
-      error_.set("%s: %s", config_.path, reader_.error());
-      return StatusCode::data_loss;
-    }
-    const int c = static_cast<int>(message.channel - &reader_.channel_at(0));
-    if (kinds_[c] == Kind::tf) {
-      RosTfReader reader;
-      RosPose transform;
-      if (!reader.begin(message.data, message.size, reader_.wire())) continue;
-      for (std::uint32_t i = 0; i < reader.count() && reader.next(&transform); ++i) {
-        tf_update(transform);
-      }
-      continue;
-    }
-    if (c != depth_channel_) continue;
-    std::int64_t stamp_ns = 0;
-    RosString frame_id;
-    if (kinds_[c] == Kind::compressed) {
-      RosCompressedImage image;
-      if (!decode_compressed_image(message.data, message.size, reader_.wire(), &image)) continue;
-      stamp_ns = image.stamp_ns;
-      frame_id = image.frame_id;
-    } else {
-      RosImage image;
-      if (!decode_image(message.data, message.size, reader_.wire(), &image)) continue;
-      stamp_ns = image.stamp_ns;
-      frame_id = image.frame_id;
-    }
-    ++images;
-    if (stamp_ns == 0) stamp_ns = static_cast<std::int64_t>(message.log_time_ns);
-    const int camera = tf_find(frame_id.data, frame_id.size, false);
-    if (camera < 0) continue;
-    std::memcpy(camera_name, tf_[camera].name, sizeof(camera_name));
-    int odom = -1;
-    if (named) {
-      odom = tf_find(config_.odometry_frame, std::strlen(config_.odometry_frame), false);
-    } else {
-      for (int f = camera, steps = 0; f >= 0 && steps <= tf_count_; f = tf_[f].parent, ++steps) {
-        if (is_odom(tf_[f].name)) {
-          odom = f;
-          break;
-        }
-      }
-    }
+    Held image;
+    bool has_pose = false;
     Se3d T_O_C;
-    if (odom < 0 || !tf_chain(camera, odom, &T_O_C)) continue;
-    on_pose(context, stamp_ns, T_O_C);
+    NextFrame skip;
+    const Pull pulled = pull(false, &image, &has_pose, &T_O_C, &skip);
+    if (pulled == Pull::failed) return StatusCode::data_loss;
+    if (pulled != Pull::image) break;
+    ++images;
+    if (tf_.find(image.frame_id, std::strlen(image.frame_id)) >= 0) {
+      std::memcpy(camera_name, image.frame_id, sizeof(camera_name));
+    }
+    if (!has_pose) continue;
+    on_pose(context, image.time_ns, T_O_C);
     ++poses;
   }
   if (poses == 0) {
     // Name the chain the images' frame has, so that the odometry frame can be chosen from it.
     char chain[256] = {};
     std::size_t used = 0;
-    const int camera = camera_name[0] ? tf_find(camera_name, std::strlen(camera_name), false) : -1;
-    for (int f = camera, steps = 0; f >= 0 && steps <= tf_count_; f = tf_[f].parent, ++steps) {
+    const int camera = camera_name[0] ? tf_.find(camera_name, std::strlen(camera_name)) : -1;
+    for (int f = camera, steps = 0; f >= 0 && steps <= tf_.count(); f = tf_.parent(f), ++steps) {
       const int wrote = std::snprintf(chain + used, sizeof(chain) - used, "%s%s",
-                                      used ? " -> " : "", tf_[f].name);
+                                      used ? " -> " : "", tf_.name(f));
       if (wrote < 0 || used + static_cast<std::size_t>(wrote) >= sizeof(chain)) break;
       used += static_cast<std::size_t>(wrote);
     }
@@ -1011,7 +1120,7 @@ Status BagSource::read_tf_poses(void (*on_pose)(void* context, std::int64_t stam
                  depth_topic_);
     } else if (camera < 0) {
       error_.set("%s: /tf never names the depth images' frame: no odometry poses", config_.path);
-    } else if (named) {
+    } else if (config_.odometry_frame[0] != '\0') {
       error_.set("%s: no TF chain from '%s' to '%s' (the chain: %s)", config_.path, camera_name,
                  config_.odometry_frame, chain);
     } else {

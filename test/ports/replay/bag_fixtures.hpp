@@ -4,6 +4,7 @@
 
 #include <sys/wait.h>
 
+#include <catch2/catch.hpp>
 #include <cstdint>
 #include <cstdlib>
 #include <fstream>
@@ -12,6 +13,7 @@
 #include <vector>
 
 #include "octofuse/sensor/depth_source.hpp"
+#include "support/test_dir.hpp"
 
 namespace octofuse::test {
 
@@ -119,5 +121,45 @@ inline int make_rosbags(const std::string& dump,
   }
   return make_rosbag("--batch", batch, "");
 }
+
+// A dump of `frames` in a test directory, and the bags the writers make of it.
+struct Fixture {
+  std::string dir = make_test_dir("bag");
+  std::string dump = dir + "/frames.bin";
+  KeptFrames kept;
+  explicit Fixture(KeptFrames frames) : kept(std::move(frames)) { write_frame_dump(dump, kept); }
+  // The bag's path, or empty when the writer lacks a compression module (the case skips).
+  std::string bag(const std::string& name, const std::string& options) {
+    const std::string path = dir + "/" + name;
+    const int rc = make_bag(dump, path, options);
+    if (rc == 77) {
+      WARN("make_bag.py " << options << ": python module missing, case skipped");
+      return std::string();
+    }
+    REQUIRE(rc == 0);
+    return path;
+  }
+  // ROS 1 bags (make_rosbag.py, in one run): {name, options} each. Their paths, or none when
+  // python3-rosbag or roslz4 is missing (the case skips).
+  std::vector<std::string> rosbags(const std::vector<std::pair<std::string, std::string>>& bags) {
+    std::vector<std::pair<std::string, std::string>> jobs;
+    std::vector<std::string> paths;
+    for (const auto& bag : bags) {
+      paths.push_back(dir + "/" + bag.first);
+      jobs.push_back({paths.back(), bag.second});
+    }
+    const int rc = make_rosbags(dump, jobs);
+    if (rc == 77) {
+      WARN("make_rosbag.py: python3-rosbag or roslz4 missing, case skipped");
+      return {};
+    }
+    REQUIRE(rc == 0);
+    return paths;
+  }
+  std::string rosbag(const std::string& name, const std::string& options) {
+    const std::vector<std::string> paths = rosbags({{name, options}});
+    return paths.empty() ? std::string() : paths[0];
+  }
+};
 
 }  // namespace octofuse::test

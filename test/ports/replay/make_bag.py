@@ -18,6 +18,11 @@ usage: make_bag.py DUMP OUT.mcap [--compression none|zstd|lz4] [--unchunked] [--
        [--encoding 16UC1|32FC1|mono16] [--big-endian]
        [--pose tf|odom_tf|odometry|pose_stamped|none]
        [--distortion K1] [--extra-image]
+       [--motion single|chain|odometry [--tf-hz HZ] [--tf-offset-ms MS] [--tf2-hz HZ]
+        [--tf2-offset-ms MS] [--depth-latency-ms MS] [--tf-end-ms MS]]
+
+--motion replaces the dump's poses by an analytic trajectory (motion_edges) published at its own
+rate and offset from the depth stamps, for the test of poses at each image's own stamp.
 """
 import argparse
 import math
@@ -175,10 +180,10 @@ def tf_msg(transforms):
     return bytes(c.buf)
 
 
-def odometry_msg(stamp_ns, T):
+def odometry_msg(stamp_ns, T, child="camera_depth"):
     c = Cdr()
     c.header(stamp_ns, "world")
-    c.string("camera_depth")
+    c.string(child)
     pose_fields(c, T)
     for _ in range(36):
         c.f64(0.0)
@@ -301,6 +306,61 @@ def odom_body(T):
     return mat_mul(mat_mul(rigid_inverse(MAP_ODOM), T), rigid_inverse(BODY_CAMERA))
 
 
+def rot_z(a, p):
+    c, s = math.cos(a), math.sin(a)
+    return (c, -s, 0, p[0], s, c, 0, p[1], 0, 0, 1.0, p[2], 0, 0, 0, 1.0)
+
+
+def rot_x(a, p):
+    c, s = math.cos(a), math.sin(a)
+    return (1.0, 0, 0, p[0], 0, c, -s, p[1], 0, s, c, p[2], 0, 0, 0, 1.0)
+
+
+def motion_edges(kind, t):
+    """The moving edges of --motion at t seconds after the first image: [(parent, child, T)].
+    Constant velocities and turn rates, so that the pose between two transforms is their lerp
+    and slerp; bag_source_test.cpp has the same numbers. camera_depth hangs from body at
+    BODY_CAMERA (static)."""
+    if kind == "chain":
+        return [("world", "odom", rot_z(0.7 * t, (0.3 * t, 0.0, 0.0))),
+                ("odom", "body", rot_x(-1.1 * t, (0.6 * t, 0.4 * t, -0.1 * t)))]
+    return [("world", "body", rot_z(1.5 * t, (0.8 * t, -0.5 * t, 0.2 * t)))]
+
+
+def motion_messages(args, frames):
+    """--motion: (log_ns, kind, payload) in log-time order. kind tf or tf_static (payload: the
+    transforms), odometry (stamp, T), frame (index: its camera info and image). Each moving edge
+    is published alone at its rate from 100 ms before the first image to 100 ms after the last
+    (up to --tf-end-ms before the last image when given); images are logged --depth-latency-ms
+    after their stamps."""
+    t0 = frames[0][0] * 1000
+    last = frames[-1][0] * 1000
+    out = [(t0 - 100000000, "tf_static", [(t0, "body", "camera_depth", BODY_CAMERA)])]
+    rates = [(args.tf_hz, args.tf_offset_ms), (args.tf2_hz, args.tf2_offset_ms)]
+    for e, (hz, offset_ms) in enumerate(rates[:len(motion_edges(args.motion, 0.0))]):
+        period = int(round(1e9 / hz))
+        k = -(100000000 // period) - 1
+        while True:
+            stamp = t0 + int(round(offset_ms * 1e6)) + k * period
+            k += 1
+            if stamp > last + 100000000:
+                break
+            if stamp < t0 - 100000000:
+                continue
+            if args.tf_end_ms is not None and stamp > last - int(round(args.tf_end_ms * 1e6)):
+                break
+            parent, child, T = motion_edges(args.motion, (stamp - t0) * 1e-9)[e]
+            if args.motion == "odometry":
+                out.append((stamp, "odometry", (stamp, T)))
+            else:
+                out.append((stamp, "tf", [(stamp, parent, child, T)]))
+    latency = int(round(args.depth_latency_ms * 1e6))
+    for i, frame in enumerate(frames):
+        out.append((frame[0] * 1000 + latency, "frame", i))
+    out.sort(key=lambda m: m[0])  # stable: ties keep the order above
+    return out
+
+
 def compress(data, how):
     if how == "zstd":
         import zstandard
@@ -328,6 +388,13 @@ def main():
     ap.add_argument("--compressed", choices=["png", "rvl"],
                     help="compressedDepth CompressedImage instead of Image")
     ap.add_argument("--extra-image", action="store_true", help="a second (colour) image topic")
+    ap.add_argument("--motion", choices=["single", "chain", "odometry"])
+    ap.add_argument("--tf-hz", type=float, default=100.0)
+    ap.add_argument("--tf-offset-ms", type=float, default=3.0)
+    ap.add_argument("--tf2-hz", type=float, default=40.0)
+    ap.add_argument("--tf2-offset-ms", type=float, default=7.0)
+    ap.add_argument("--depth-latency-ms", type=float, default=0.0)
+    ap.add_argument("--tf-end-ms", type=float)
     args = ap.parse_args()
     try:
         if args.compression == "zstd":
@@ -340,6 +407,8 @@ def main():
     if args.dump.endswith(".mcap"):
         return rewrite(args)
     width, height, k4, frames = read_dump(args.dump)
+    if args.motion:
+        return write_motion(args, width, height, k4, frames)
     image_type = "CompressedImage" if args.compressed else "Image"
     schemas = [(1, "sensor_msgs/msg/" + image_type), (2, "sensor_msgs/msg/CameraInfo"),
                (3, "tf2_msgs/msg/TFMessage"), (4, "nav_msgs/msg/Odometry"),
@@ -390,6 +459,36 @@ def main():
             messages.append((1, stamp, image_msg(stamp, width, height, pixels, mpu,
                                                  args.encoding, args.big_endian)))
 
+    schema_records = [record(0x03, struct.pack("<H", sid) + mcap_string(name) +
+                             mcap_string("ros2msg") + struct.pack("<I", 0))
+                      for sid, name in schemas]
+    channel_records = [record(0x04, struct.pack("<HH", cid, sid) + mcap_string(topic) +
+                              mcap_string("cdr") + struct.pack("<I", 0))
+                       for cid, sid, topic in channels]
+    write_mcap(args, schema_records, channel_records, messages)
+
+
+def write_motion(args, width, height, k4, frames):
+    schemas = [(1, "sensor_msgs/msg/Image"), (2, "sensor_msgs/msg/CameraInfo"),
+               (3, "tf2_msgs/msg/TFMessage"), (4, "nav_msgs/msg/Odometry")]
+    channels = [(1, 1, "/camera/depth/image_raw"), (2, 2, "/camera/depth/camera_info"),
+                (3, 3, "/tf"), (4, 3, "/tf_static")]
+    if args.motion == "odometry":
+        channels.append((5, 4, "/odom"))
+    messages = []
+    for log_ns, kind, payload in motion_messages(args, frames):
+        if kind == "tf":
+            messages.append((3, log_ns, tf_msg(payload)))
+        elif kind == "tf_static":
+            messages.append((4, log_ns, tf_msg(payload)))
+        elif kind == "odometry":
+            messages.append((5, log_ns, odometry_msg(payload[0], payload[1], "body")))
+        else:
+            ts_us, mpu, _, _, pixels = frames[payload]
+            stamp = ts_us * 1000
+            messages.append((2, log_ns, camera_info_msg(stamp, width, height, k4, 0.0)))
+            messages.append((1, log_ns, image_msg(stamp, width, height, pixels, mpu,
+                                                  args.encoding, args.big_endian)))
     schema_records = [record(0x03, struct.pack("<H", sid) + mcap_string(name) +
                              mcap_string("ros2msg") + struct.pack("<I", 0))
                       for sid, name in schemas]

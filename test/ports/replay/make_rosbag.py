@@ -14,7 +14,7 @@ the same topics with their log times.
 
 usage: make_rosbag.py DUMP OUT.bag [--compression none|bz2|lz4] [--chunk-threshold BYTES]
        [--encoding 16UC1|32FC1|mono16] [--pose tf|odom_tf|odometry|pose_stamped|none] [--tum]
-       [--distortion K1] [--overlap]
+       [--distortion K1] [--overlap] [--motion single|chain|odometry ...as make_bag.py]
        make_rosbag.py --batch FILE   (one "DUMP OUT.bag [options]" a line: one interpreter start,
                                       which with rosbag's imports is most of the time, for many)
 
@@ -28,7 +28,8 @@ import shlex
 import struct
 import sys
 
-from make_bag import BODY_CAMERA, IDENTITY, MAP_ODOM, odom_body, quaternion, read_dump
+from make_bag import (BODY_CAMERA, IDENTITY, MAP_ODOM, motion_messages, odom_body, quaternion,
+                      read_dump)
 
 MD5 = {
     "sensor_msgs/Image": "060021388200f6f0f447d0fcd9c64743",
@@ -130,10 +131,10 @@ def tf_msg(transforms):
     return bytes(c.buf)
 
 
-def odometry_msg(seq, stamp_ns, T):
+def odometry_msg(seq, stamp_ns, T, child="camera_depth"):
     c = Ros1()
     c.header(seq, stamp_ns, "world")
-    c.string("camera_depth")
+    c.string(child)
     pose_fields(c, T)
     for _ in range(36 + 6 + 36):
         c.f64(0.0)
@@ -272,6 +273,13 @@ def main(argv):
     ap.add_argument("--overlap", action="store_true",
                     help="pose messages written ahead of the frames they belong to")
     ap.add_argument("--distortion", type=float, default=0.0)
+    ap.add_argument("--motion", choices=["single", "chain", "odometry"])
+    ap.add_argument("--tf-hz", type=float, default=100.0)
+    ap.add_argument("--tf-offset-ms", type=float, default=3.0)
+    ap.add_argument("--tf2-hz", type=float, default=40.0)
+    ap.add_argument("--tf2-offset-ms", type=float, default=7.0)
+    ap.add_argument("--depth-latency-ms", type=float, default=0.0)
+    ap.add_argument("--tf-end-ms", type=float)
     args = ap.parse_args(argv)
     try:
         import genpy
@@ -311,6 +319,11 @@ def main(argv):
         else:
             write(bag, topic, type_name, data, stamp_ns)
 
+    if args.motion:
+        with rosbag.Bag(args.out, "w", compression=compression,
+                        chunk_threshold=args.chunk_threshold) as bag:
+            write_motion(args, frames, width, height, k4, lambda *m: write(bag, *m))
+        return
     with rosbag.Bag(args.out, "w", compression=compression,
                     chunk_threshold=args.chunk_threshold) as bag:
         write_frames(args, frames, width, height, k4, lambda *m: put(bag, *m))
@@ -338,6 +351,26 @@ def main(argv):
             for _, _, group in keyed:
                 for m in group:
                     write(bag, *m)
+
+
+def write_motion(args, frames, width, height, k4, write):
+    """make_bag.py's --motion messages in ROS 1 form, /tf_static included."""
+    seq = 0
+    for log_ns, kind, payload in motion_messages(args, frames):
+        if kind in ("tf", "tf_static"):
+            write("/" + kind, "tf2_msgs/TFMessage", tf_msg(payload), log_ns)
+        elif kind == "odometry":
+            write("/odom", "nav_msgs/Odometry", odometry_msg(seq, payload[0], payload[1], "body"),
+                  log_ns)
+            seq += 1
+        else:
+            ts_us, mpu, _, _, pixels = frames[payload]
+            stamp = ts_us * 1000
+            write("/camera/depth/camera_info", "sensor_msgs/CameraInfo",
+                  camera_info_msg(payload, stamp, "camera_depth", width, height, k4, 0.0), log_ns)
+            write("/camera/depth/image_raw", "sensor_msgs/Image",
+                  image_msg(payload, stamp, "camera_depth", width, height, pixels, mpu,
+                            args.encoding), log_ns)
 
 
 def write_frames(args, frames, width, height, k4, write):

@@ -18,10 +18,14 @@
 // the only image topic with "depth" in its name); otherwise open() names the candidates.
 //
 // open() reads the file once to count topics and find the camera info, then next() streams it
-// again in log-time order (bag_reader.hpp's reorder window), keeping the newest pose of each
-// kind. Messages the window could not put in order end the stream with a warning (the status
-// out_of_range, or data_loss with a cut's). Memory is fixed at open(): the MCAP
-// reader's two buffers (McapLimits), the frame ring and a table of TF frames.
+// again in log-time order (bag_reader.hpp's reorder window). Each depth image gets the pose at
+// its header stamp: the TF edges (and the pose topic) each taken at that stamp, blended between
+// the transforms around it (tf_buffer.hpp). An image is held (up to hold_frames of them) until
+// every edge it needs has a transform at or after its stamp; at the end of the bag, or when more
+// images wait, it takes the newest, and the stream's end says how many did. Messages the window
+// could not put in order end the stream with a warning (the status out_of_range, or data_loss
+// with a cut's). Memory is fixed at open(): the reader's buffers (McapLimits), the frame ring
+// (ring_size + hold_frames images) and the TF table with its transforms.
 
 #include <cstddef>
 #include <cstdint>
@@ -32,6 +36,7 @@
 #include "octofuse/ports/replay/mcap_reader.hpp"
 #include "octofuse/ports/replay/png_depth.hpp"
 #include "octofuse/ports/replay/ros_messages.hpp"
+#include "octofuse/ports/replay/tf_buffer.hpp"
 #include "octofuse/sensor/depth_source.hpp"
 
 namespace octofuse::replay {
@@ -57,11 +62,17 @@ struct BagConfig {
   int max_height = 1024;
   int ring_size = 2;
   int max_tf_frames = 64;
+  // Transforms kept per TF edge (and of the pose topic), newest first: enough for a depth image
+  // stamped this many transforms before the newest one read.
+  int tf_history = 64;
+  // Depth images held while the transforms after their stamps are read (?hold=N); 0: each image
+  // takes the transforms read so far.
+  int hold_frames = 4;
   McapLimits limits;
 };
 
 // Fills `config` from "mcap:FILE?key=value&..." or "rosbag:FILE?..." (keys depth, info, pose,
-// world, tf, buffer, reorder).
+// world, tf, buffer, reorder, hold).
 // invalid_argument for another prefix, an empty path, an unknown key or a value too long.
 Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
 
@@ -69,10 +80,12 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
 // topic), in file order, for use as the odometry prior: `on_pose(context, stamp_ns, T)` with the
 // pose of the message's child frame (the camera's, when the bag records the camera) in its
 // parent frame. invalid_argument when there is no such topic or several; data_loss for a
-// corrupt bag. A bag cut short gives the poses before the cut.
+// corrupt bag. A bag cut short gives the poses before the cut. From TF: the camera's pose in the
+// odometry's frame at each depth image's stamp; `warning` (when given) says when some took an
+// earlier transform (the bag ended first).
 Status read_bag_poses(const BagConfig& config,
                       void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
-                      void* context, ErrorText* error);
+                      void* context, ErrorText* error, ErrorText* warning = nullptr);
 
 // What a topic holds, for --list and the automatic choice.
 struct BagTopic {
@@ -112,15 +125,17 @@ class BagSource final : public DepthSource {
 
   // Frames whose pose could not be found (no TF chain to the world, no pose yet).
   std::uint64_t frames_without_pose() const { return frames_without_pose_; }
+  // Frames whose pose took a transform from before their stamp: the bag ended first, more than
+  // hold_frames images were waiting, or (history_short) the stamp was older than tf_history
+  // transforms of an edge.
+  std::uint64_t frames_pose_past_end() const { return pose_past_end_; }
+  std::uint64_t frames_pose_not_waited() const { return pose_not_waited_; }
+  std::uint64_t frames_pose_history_short() const { return pose_history_short_; }
+  // Those counts as one line appended to `text` (nothing when all are 0).
+  void note_tf(ErrorText* text) const;
   std::size_t bytes_reserved() const { return memory_bytes_ + reader_.bytes_reserved(); }
   const char* depth_topic() const { return depth_topic_; }
   const char* pose_topic() const { return pose_topic_; }
-
-  struct TfFrame {
-    char name[64] = {};
-    int parent = -1;
-    Se3d T_parent_child = Se3d::Identity();
-  };
 
   // Channel kinds, indexed like the reader's channels.
   enum class Kind : std::uint8_t { other, image, compressed, camera_info, tf, odometry, pose };
@@ -132,15 +147,28 @@ class BagSource final : public DepthSource {
   void note_disorder(ErrorText* text) const;
   Status read_tf_poses(void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),
                        void* context);
-  int tf_find(const char* name, std::size_t size, bool insert);
-  void tf_update(const RosPose& transform);
-  bool tf_chain(int from, int to, Se3d* T_to_from) const;
-  bool pose_for(const RosString& camera_frame, Se3d* T_W_C);
-  NextFrame convert(const RosImage& image, std::int64_t log_time_ns, DepthFrame& frame);
-  NextFrame convert_compressed(const RosCompressedImage& image, std::int64_t log_time_ns,
-                               DepthFrame& frame);
-  NextFrame finish(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
-                   const RosString& frame_id, std::int64_t log_time_ns, DepthFrame& frame);
+
+  // A depth image waiting for the transforms after its stamp.
+  struct Held {
+    std::int64_t time_ns = 0;  // header stamp, or log time when the stamp is 0
+    char frame_id[TfBuffer::kMaxName] = {};
+    std::uint16_t* pixels = nullptr;  // in the ring (none when only poses are read)
+    int slot = -1;
+    float units_per_m = 0.0f;
+  };
+  // What pull() gives: the oldest held image with its pose.
+  enum class Pull : std::uint8_t { image, skipped, ended, failed };
+  template <typename Arena>
+  Status reserve_tracking(Arena& arena);
+  Pull pull(bool decode, Held* image, bool* has_pose, Se3d* T, NextFrame* skip);
+  TfAt resolve(const Held& image, bool final, Se3d* T, unsigned* stale) const;
+  bool valid_tracking_config() const;
+  NextFrame convert(const RosImage& image, std::int64_t log_time_ns);
+  NextFrame convert_compressed(const RosCompressedImage& image, std::int64_t log_time_ns);
+  void hold(std::uint16_t* pixels, float units_per_m, std::int64_t stamp_ns,
+            const RosString& frame_id, std::int64_t log_time_ns);
+  std::uint16_t* ring_slot() const;
+  void give_out(int slot);
 
   BagConfig config_;
   ErrorText error_;
@@ -154,9 +182,21 @@ class BagSource final : public DepthSource {
   void* memory_ = nullptr;
   std::size_t memory_bytes_ = 0;
   std::uint16_t* ring_ = nullptr;
-  TfFrame* tf_ = nullptr;
+  int ring_slots_ = 0;
+  int* free_slots_ = nullptr;  // a stack of ring slots free to decode into
+  int free_count_ = 0;
+  int* given_slots_ = nullptr;  // the slots of the frames given out last, oldest first
+  int given_first_ = 0;
+  int given_count_ = 0;
+  TfBuffer tf_;
   PngDepthDecoder png_;
-  int tf_count_ = 0;
+  TfHistory pose_history_;  // the pose topic's (its child frame's pose in the world)
+  Held* held_ = nullptr;    // a ring of hold_frames + 1
+  int held_first_ = 0;
+  int held_count_ = 0;
+  bool odometry_mode_ = false;  // read_tf_poses: chain to the odometry's frame
+  bool stream_ended_ = false;
+  McapNext end_state_ = McapNext::end;
 
   static constexpr int kMaxChannels = 256;
   Kind kinds_[kMaxChannels] = {};
@@ -175,14 +215,14 @@ class BagSource final : public DepthSource {
   int info_channel_ = -1;
   int pose_channel_ = -1;  // odometry or pose topic; -1 with use_tf_ for TF
   bool use_tf_ = false;
-  bool have_pose_ = false;
-  Se3d T_W_B_ = Se3d::Identity();  // the newest pose message
-  char pose_child_[64] = {};
+  char pose_child_[TfBuffer::kMaxName] = {};
 
   PinholeCamera intrinsics_;
   std::uint64_t sequence_ = 0;
   std::uint64_t frames_without_pose_ = 0;
-  int ring_next_ = 0;
+  std::uint64_t pose_past_end_ = 0;
+  std::uint64_t pose_not_waited_ = 0;
+  std::uint64_t pose_history_short_ = 0;
 };
 
 }  // namespace octofuse::replay

@@ -911,25 +911,29 @@ std::uint32_t Integrator<VoxelT>::integrate_blocks(Octree<VoxelT>& map, const Fr
 }
 
 template <typename VoxelT>
-IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<const float> depth,
-                                                const PinholeCamera& camera, const Se3d& T_W_C,
-                                                std::uint32_t frame_index,
-                                                const FusionBudget& budget,
-                                                const WorkerTeam& team) {
+IntegrationReport Integrator<VoxelT>::collect_and_look_up(const Octree<VoxelT>& map, const Frame& f,
+                                                          const PinholeCamera& camera,
+                                                          const WorkerTeam& team) {
   IntegrationReport report;
-  report.status = check_inputs(map, depth, camera, T_W_C);
-  if (!report.status.ok()) return report;
-  Frame f = frame_constants(map, depth, camera, T_W_C);
-
   // 1. Blocks the bands cross.
   start_frame_set();
   const std::uint32_t touched = collect_blocks(map, f, report, team);
   report.blocks_touched = touched;
+  // 2a-b. Look the blocks up and pick their scales (read-only on the map).
+  report.blocks_requested = look_up_blocks(map, f, camera, touched, team);
+  return report;
+}
 
-  // 2. Look the blocks up and pick their scales (read-only on the map), allocate the missing ones
-  // (block_indices_ is free until step 4 and lists their positions) and keep those that exist.
-  const std::uint32_t missing = look_up_blocks(map, f, camera, touched, team);
-  report.blocks_requested = missing;
+template <typename VoxelT>
+IntegrationReport Integrator<VoxelT>::integrate_looked_up(Octree<VoxelT>& map, Frame& f,
+                                                          std::uint32_t frame_index,
+                                                          const FusionBudget& budget,
+                                                          const WorkerTeam& team,
+                                                          IntegrationReport report) {
+  // 2c. Allocate the missing blocks (block_indices_ is free until step 4 and lists their
+  // positions) and keep those that exist.
+  const std::uint32_t touched = report.blocks_touched;
+  const std::uint32_t missing = report.blocks_requested;
   if (missing > 0) {
     allocate_missing_blocks(map, frame_blocks_, touched, missing, budget, block_indices_, keys_,
                             report);
@@ -949,6 +953,64 @@ IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<c
   // 5. Node summaries above the integrated blocks (their parents, listed by step 4).
   map.propagate_summaries_from_parents(block_indices_, integrated, team);
   return report;
+}
+
+template <typename VoxelT>
+IntegrationReport Integrator<VoxelT>::integrate(Octree<VoxelT>& map, ImageView<const float> depth,
+                                                const PinholeCamera& camera, const Se3d& T_W_C,
+                                                std::uint32_t frame_index,
+                                                const FusionBudget& budget,
+                                                const WorkerTeam& team) {
+  begun_ = Begun();
+  IntegrationReport report;
+  report.status = check_inputs(map, depth, camera, T_W_C);
+  if (!report.status.ok()) return report;
+  Frame f = frame_constants(map, depth, camera, T_W_C);
+  return integrate_looked_up(map, f, frame_index, budget, team,
+                             collect_and_look_up(map, f, camera, team));
+}
+
+template <typename VoxelT>
+IntegrationReport Integrator<VoxelT>::begin_frame(const Octree<VoxelT>& map,
+                                                  ImageView<const float> depth,
+                                                  const PinholeCamera& camera, const Se3d& T_W_C,
+                                                  const WorkerTeam& team) {
+  begun_ = Begun();
+  IntegrationReport report;
+  report.status = check_inputs(map, depth, camera, T_W_C);
+  if (!report.status.ok()) return report;
+  const Frame f = frame_constants(map, depth, camera, T_W_C);
+  report = collect_and_look_up(map, f, camera, team);
+  begun_.map = &map;
+  begun_.depth = depth.data;
+  begun_.T_W_C = T_W_C;
+  begun_.report = report;
+  return report;
+}
+
+template <typename VoxelT>
+IntegrationReport Integrator<VoxelT>::finish_frame(Octree<VoxelT>& map,
+                                                   ImageView<const float> depth,
+                                                   const PinholeCamera& camera, const Se3d& T_W_C,
+                                                   std::uint32_t frame_index,
+                                                   const FusionBudget& budget,
+                                                   const WorkerTeam& team) {
+  IntegrationReport report;
+  report.status = check_inputs(map, depth, camera, T_W_C);
+  if (!report.status.ok()) return report;
+  const bool same =
+      begun_.map == &map && begun_.depth == depth.data && begun_.T_W_C.matrix() == T_W_C.matrix();
+  report = begun_.report;
+  begun_ = Begun();
+  if (!same) {
+    IntegrationReport refused;
+    refused.status = StatusCode::failed_precondition;
+    return refused;
+  }
+  Frame f = frame_constants(map, depth, camera, T_W_C);
+  // 2a-b again: the collected list stands, the blocks' pool indices and scales may not.
+  report.blocks_requested = look_up_blocks(map, f, camera, report.blocks_touched, team);
+  return integrate_looked_up(map, f, frame_index, budget, team, report);
 }
 
 template class Integrator<TsdfVoxel>;

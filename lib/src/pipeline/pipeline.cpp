@@ -548,21 +548,13 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
 }
 
 template <typename VoxelT>
-std::uint32_t Pipeline<VoxelT>::new_block_demand(const FusionBudget& budget) {
-  if (!config_.eviction.enabled) return 0;
+bool Pipeline<VoxelT>::room_short(const FusionBudget& budget) const {
+  if (!config_.eviction.enabled) return false;
   const MapMemory memory = map_.memory();
   // A frame allocates at most its list of touched blocks: with that much room, nothing to do.
   const std::uint32_t most =
       std::min(budget.max_new_blocks, integrator_.config().max_blocks_per_frame);
-  if (memory.block_capacity - memory.blocks_used >= most) return 0;
-  FusionBudget dry = budget;
-  dry.max_new_blocks = 0;
-  dry.max_integrated_blocks = 0;
-  dry.max_voxel_updates = ~std::uint64_t{0};
-  const IntegrationReport probe =
-      integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
-                            static_cast<std::uint32_t>(current_.frame_index), dry, team_);
-  return std::min(probe.blocks_requested, budget.max_new_blocks);
+  return memory.block_capacity - memory.blocks_used < most;
 }
 
 template <typename VoxelT>
@@ -1137,12 +1129,25 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
     // frame will allocate, then integration.
     read_back_from_ = map_.memory().blocks_used;
     if (store_ != nullptr) reload_stored(stats.store);
-    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index), new_block_demand(budget));
+    // When the room is short, the integration is done in two parts: the frame's blocks are
+    // collected and counted once, and the blocks not allocated yet (after the reads) are what
+    // eviction makes room for.
+    const ImageView<const float> depth_m = preprocessor_.pyramid().depth_m[0];
+    const bool short_room = room_short(budget);
+    std::uint32_t new_blocks = 0;
+    if (short_room) {
+      const IntegrationReport begun =
+          integrator_.begin_frame(map_, depth_m, working_camera_, T_W_C_, team_);
+      new_blocks = std::min(begun.blocks_requested, budget.max_new_blocks);
+    }
+    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index), new_blocks);
     read_back_from_ = 0xFFFFFFFFu;
     const std::uint64_t node_refusals_before = map_.memory().node_refusals;
-    stats.integration =
-        integrator_.integrate(map_, preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
-                              static_cast<std::uint32_t>(stats.frame_index), budget, team_);
+    const auto frame_index = static_cast<std::uint32_t>(stats.frame_index);
+    stats.integration = short_room ? integrator_.finish_frame(map_, depth_m, working_camera_,
+                                                              T_W_C_, frame_index, budget, team_)
+                                   : integrator_.integrate(map_, depth_m, working_camera_, T_W_C_,
+                                                           frame_index, budget, team_);
     stats.integration.node_refusals =
         static_cast<std::uint32_t>(map_.memory().node_refusals - node_refusals_before);
     progress.integrated = true;

@@ -499,6 +499,9 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
       break;
     }
     ++report.node_visits;
+    // Counting: a leaf that exists makes no node whatever the frame shows in it (only its state
+    // would change), so it is not classified.
+    if (counting && e.level == leaf && real(e.node)) continue;
     const int size = 1 << (depth - e.level);
     float room_m = 0.0f;
     const Seen seen =

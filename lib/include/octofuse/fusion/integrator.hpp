@@ -169,6 +169,22 @@ class Integrator {
                               std::uint32_t frame_index, const FusionBudget& budget,
                               const WorkerTeam& team);
 
+  // integrate() in two parts, for a caller that makes room in the map between them (the pipeline
+  // evicts exactly the blocks this frame will allocate). begin_frame() does step 1 and step 2's
+  // look-up, changes nothing on the map, and returns the blocks not allocated yet in
+  // blocks_requested (with the status and step 1's counts). finish_frame(), with the same map and
+  // inputs, looks the collected blocks up again (blocks may have been evicted, demoted or read
+  // back in between: the look-up is cheap, the collection is not and depends on no block) and
+  // does the rest: the same report and map as integrate() on the map as it is then.
+  // failed_precondition: finish_frame() without a begin_frame() for these inputs.
+  IntegrationReport begin_frame(const Octree<VoxelT>& map, ImageView<const float> depth_m,
+                                const PinholeCamera& camera, const Se3d& T_W_C,
+                                const WorkerTeam& team);
+  IntegrationReport finish_frame(Octree<VoxelT>& map, ImageView<const float> depth_m,
+                                 const PinholeCamera& camera, const Se3d& T_W_C,
+                                 std::uint32_t frame_index, const FusionBudget& budget,
+                                 const WorkerTeam& team);
+
   const FusionConfig& config() const { return config_; }
   // Between frames (a frame deadline's step): allocation marches every step-th pixel's ray in x
   // and y; below 1 is 1. Blocks only the skipped rays cross are not integrated that frame.
@@ -182,6 +198,13 @@ class Integrator {
   Frame frame_constants(const Octree<VoxelT>& map, ImageView<const float> depth_m,
                         const PinholeCamera& camera, const Se3d& T_W_C) const;
   void start_frame_set();
+  // Steps 1 and 2's look-up; `missing`: the blocks not allocated yet.
+  IntegrationReport collect_and_look_up(const Octree<VoxelT>& map, const Frame& frame,
+                                        const PinholeCamera& camera, const WorkerTeam& team);
+  // Steps 2 (allocation) to 5 over the looked-up list; `report` holds steps 1-2's counts.
+  IntegrationReport integrate_looked_up(Octree<VoxelT>& map, Frame& frame,
+                                        std::uint32_t frame_index, const FusionBudget& budget,
+                                        const WorkerTeam& team, IntegrationReport report);
   // Returns the blocks not allocated yet.
   std::uint32_t look_up_blocks(const Octree<VoxelT>& map, const Frame& frame,
                                const PinholeCamera& camera, std::uint32_t touched,
@@ -219,6 +242,14 @@ class Integrator {
   fusion_internal::TaskTally* tallies_ = nullptr;
   std::uint32_t stamp_ = 0;
   bool reserved_ = false;
+  // What begin_frame() collected for (finish_frame() checks it got the same), and its counts.
+  struct Begun {
+    const void* map = nullptr;
+    const float* depth = nullptr;
+    Se3d T_W_C = Se3d::Identity();
+    IntegrationReport report;
+  };
+  Begun begun_;
 };
 
 extern template class Integrator<TsdfVoxel>;

@@ -382,9 +382,9 @@ class Pipeline {
   // Step (2): evicts blocks when a pool is above its high-water mark (see EvictionConfig), or
   // when the frame's `new_blocks` (not yet allocated) would not fit below the block pool's mark.
   EvictionReport evict(std::uint32_t frame_index, std::uint32_t new_blocks);
-  // The blocks this frame's integration would allocate (a pass of the integrator with no block
-  // allocated or integrated), when the pool's room could be short of them; 0 otherwise.
-  std::uint32_t new_block_demand(const FusionBudget& budget);
+  // Whether the block pool's room could be short of what this frame allocates: then the frame's
+  // blocks are collected and counted before eviction (Integrator::begin_frame()).
+  bool room_short(const FusionBudget& budget) const;
   // Before step (2): reads back stored blocks in the camera's view (set_block_store()).
   void reload_stored(StoreReport& report);
   // In step (2): hands the first `count` blocks of eviction_indices_ to the store.

@@ -17,6 +17,7 @@ constexpr int kChunkCells = 8;
 // How far, in reaches (half a cell diagonal and a voxel), a cell looks for a thin part's dip.
 constexpr float kValleyReach = 2.0f;
 constexpr int kValleyBisections = 4;
+constexpr float kValleyRise = 0.2f;  // least slope beyond a dip's bottom (as the seeding's)
 
 bool finite(const Eigen::Vector3f& v) {
   return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
@@ -237,13 +238,16 @@ bool bisect_dip(const Octree<VoxelT>& map, const Eigen::Vector3f& from_W,
 // reach_m. A negative one is a gap fusion closed.
 template <typename VoxelT>
 Valley find_valley(const Octree<VoxelT>& map, const Eigen::Vector3f& at_W, float d_m,
-                   const Eigen::Vector3f& n, float step, float reach_m, float mu_m) {
+                   const Eigen::Vector3f& n, float step, float reach_m, float voxel_m, float mu_m) {
   Valley out;
   TsdfSample there;
   if (!sample_tsdf(map, at_W - step * n, there)) return out;
   const float v_m = there.tsdf * mu_m;
   const float rise = -there.gradient.dot(n) * mu_m;  // along -n, beyond the projected point
-  if (!(rise > 0.0f) || v_m * d_m <= 0.0f || there.tsdf >= 1.0f || there.tsdf <= -1.0f) {
+  // Noise about a zero crossing turns gradients too: a dip counts where the TSDF stays a voxel
+  // away from zero and rises clearly beyond the point.
+  if (!(rise > kValleyRise) || !(std::abs(v_m) >= voxel_m) || v_m * d_m <= 0.0f ||
+      there.tsdf >= 1.0f || there.tsdf <= -1.0f) {
     return out;
   }
   if (d_m < 0.0f) {
@@ -342,9 +346,10 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
               const Eigen::Vector3f n = g / slope;
               const float step = d_m / (d_m > 0.0f ? std::max(slope, 1.0f) : slope);
               const float reach = half_diagonal_m + voxel_m_;
-              const Valley valley = std::abs(step) <= kValleyReach * reach
-                                        ? find_valley(map, at_W, d_m, n, step, reach, mu_m)
-                                        : Valley();
+              const Valley valley =
+                  std::abs(step) <= kValleyReach * reach
+                      ? find_valley(map, at_W, d_m, n, step, reach, voxel_m_, mu_m)
+                      : Valley();
               // A dip is looked for a little further than a site is projected: beside thin
               // parts the TSDF reads several times the distance. Only one within reach makes a
               // site (a seed keeps its site, and one far off would hide its neighbours' nearer

@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "octofuse/map/interpolation.hpp"
 #include "octofuse/pipeline/mapper.hpp"
 #include "octofuse/pipeline/steady_clock.hpp"
 #include "octofuse/ports/sim/sim_source.hpp"
@@ -465,6 +466,24 @@ int main(int argc, char** argv) {
               static_cast<double>(q.x()), static_cast<double>(q.y()), static_cast<double>(q.z()),
               unseen ? " (unseen)" : "", point_state_name(at_q.state),
               static_cast<double>(at_q.distance_m), static_cast<double>(field_q.distance_m));
+          // The map's TSDF (m, slope, scale) along the line from p through the exact surface
+          // point to a few voxels inside, every half voxel: a zero crossing the field missed, or
+          // none at all.
+          const Eigen::Vector3f dir = (q - p).normalized();
+          const float length = (q - p).norm() + 3.0f * voxel;
+          std::printf("  profile:");
+          for (float t = std::max(0.0f, (q - p).norm() - 6.0f * voxel); t <= length;
+               t += 0.5f * voxel) {
+            TsdfSample s;
+            if (sample_tsdf(pipeline.map(), p + t * dir, s)) {
+              std::printf(" [%.3f %.4f/%.2f s%d]", static_cast<double>(t - (q - p).norm()),
+                          static_cast<double>(s.tsdf * mu),
+                          static_cast<double>(s.gradient.norm() * mu), s.scale);
+            } else {
+              std::printf(" [%.3f -]", static_cast<double>(t - (q - p).norm()));
+            }
+          }
+          std::printf("\n");
         }
       }
       if (static_cast<double>(d.lower_bound_m) > exact) ++over_bound;

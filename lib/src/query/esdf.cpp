@@ -14,6 +14,10 @@ constexpr float kHalfDiagonal = 0.8660254f;  // sqrt(3) / 2, in cells
 // face diagonal of one: each site stands for the disc of that radius around it.
 constexpr float kDiscRadius = 0.70710678f;
 constexpr int kChunkCells = 8;
+// How far, in reaches (half a cell diagonal and a voxel), a cell looks for a thin part's dip.
+constexpr float kValleyReach = 2.0f;
+constexpr int kValleyBisections = 4;
+constexpr float kValleyRise = 0.2f;  // least slope beyond a dip's bottom (as the seeding's)
 
 bool finite(const Eigen::Vector3f& v) {
   return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
@@ -151,6 +155,12 @@ float EsdfField::site_distance(const Cell& cell, const Eigen::Vector3f& q,
   const float rho = lateral.norm();
   Eigen::Vector3f w = h * n;
   if (rho > kDiscRadius) w += lateral * (1.0f - kDiscRadius / rho);
+  // Behind the disc, across its normal (towards the map's inside): the map holds the point
+  // inside a part, whatever it lies behind. Out of it is along the normal.
+  if (h < 0.0f && rho <= kDiscRadius) {
+    if (away != nullptr) *away = n;
+    return 0.0f;
+  }
   const float d = w.norm();
   if (away != nullptr) *away = d > 0.0f ? (w / d).eval() : Eigen::Vector3f::Zero();
   return d;
@@ -192,6 +202,82 @@ bool EsdfField::chunk_changed(const Octree<VoxelT>& map, int chunk) const {
   return false;
 }
 
+namespace {
+struct Valley {
+  enum Kind { none, positive, negative } kind = none;
+  Eigen::Vector3f bottom_W = Eigen::Vector3f::Zero();
+};
+
+// The bottom of a dip of the TSDF along `dir` from `from_W` (falling there, rising `length` on),
+// by bisection on the slope's sign; false where the TSDF reaches zero on the way (no dip) or a
+// sample fails.
+template <typename VoxelT>
+bool bisect_dip(const Octree<VoxelT>& map, const Eigen::Vector3f& from_W,
+                const Eigen::Vector3f& dir, float length, Eigen::Vector3f* bottom_W) {
+  float lo = 0.0f;
+  float hi = length;
+  for (int i = 0; i < kValleyBisections; ++i) {
+    const float mid = 0.5f * (lo + hi);
+    TsdfSample at_mid;
+    if (!sample_tsdf(map, from_W + mid * dir, at_mid) || at_mid.tsdf <= 0.0f) return false;
+    if (at_mid.gradient.dot(dir) > 0.0f) {
+      hi = mid;
+    } else {
+      lo = mid;
+    }
+  }
+  *bottom_W = from_W + 0.5f * (lo + hi) * dir;
+  return true;
+}
+
+// Checks the surface point projected from `at_W` (TSDF d_m, unit gradient n, projected `step`
+// along -n): where the gradient there has turned against n while the TSDF kept its sign, the
+// projection passed an extremum that never reached zero. A positive one is a thin part whose
+// TSDF fusion raised above zero (rays grazing past it write free space into its voxels): its
+// bottom, searched along -n and then across (the line may pass beside the part), within
+// reach_m. A negative one is a gap fusion closed.
+template <typename VoxelT>
+Valley find_valley(const Octree<VoxelT>& map, const Eigen::Vector3f& at_W, float d_m,
+                   const Eigen::Vector3f& n, float step, float reach_m, float voxel_m, float mu_m) {
+  Valley out;
+  TsdfSample there;
+  if (!sample_tsdf(map, at_W - step * n, there)) return out;
+  const float v_m = there.tsdf * mu_m;
+  const float rise = -there.gradient.dot(n) * mu_m;  // along -n, beyond the projected point
+  // Noise about a zero crossing turns gradients too: a dip counts where the TSDF stays a voxel
+  // away from zero and rises clearly beyond the point.
+  if (!(rise > kValleyRise) || !(std::abs(v_m) >= voxel_m) || v_m * d_m <= 0.0f ||
+      there.tsdf >= 1.0f || there.tsdf <= -1.0f) {
+    return out;
+  }
+  if (d_m < 0.0f) {
+    out.kind = Valley::negative;
+    return out;
+  }
+  // The projection may have jumped across a part thicker than it, the TSDF crossing zero on
+  // the way: no dip then.
+  Eigen::Vector3f bottom_W;
+  if (!bisect_dip(map, at_W, -n, step, &bottom_W)) return out;
+  // That line may pass beside the part: the gradient at its bottom points away from the part,
+  // across the line. The dip's bottom along it, within the same reach.
+  TsdfSample at_bottom;
+  if (sample_tsdf(map, bottom_W, at_bottom)) {
+    const float across = at_bottom.gradient.norm();
+    if (across > 0.0f) {
+      const Eigen::Vector3f m = -at_bottom.gradient / across;
+      TsdfSample far;
+      const bool rising =
+          sample_tsdf(map, bottom_W + reach_m * m, far) && far.gradient.dot(m) > 0.0f;
+      Eigen::Vector3f better_W;
+      if (rising && bisect_dip(map, bottom_W, m, reach_m, &better_W)) bottom_W = better_W;
+    }
+  }
+  out.bottom_W = bottom_W;
+  out.kind = Valley::positive;
+  return out;
+}
+}  // namespace
+
 template <typename VoxelT>
 void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                            int chunk, bool from_map) {
@@ -228,6 +314,7 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         bool observed = false;
         bool box = false;
         bool site = false;
+        bool valley_site = false;  // a box around a dip's bottom, not around the cell's centre
         int normal = kNoNormal;
         Eigen::Vector3f site_W = p_W;
         // With unknown space as obstacle, a cell whose centre is unobserved stays one.
@@ -252,14 +339,33 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
             Eigen::Vector3f g = sample.gradient * mu_m;
             const float slope = g.norm();
             if (sample.tsdf > -1.0f && sample.tsdf < 1.0f && slope > 0.2f) {
-              // Ray distances exceed Euclidean ones by the gradient's length on slanted surfaces.
-              if (slope > 1.0f) {
-                d_m /= slope;
-                g /= slope;
-              }
-              if (std::abs(d_m) <= half_diagonal_m + voxel_m_) {
+              // Ray distances exceed Euclidean ones by the gradient's length on slanted
+              // surfaces. In front of a surface a flatter gradient (blending, truncation) says
+              // nothing: the surface lies no further than the sample reads. Behind one, fusion
+              // averages thin parts' insides towards zero: the gradient's length counts there.
+              const Eigen::Vector3f n = g / slope;
+              const float step = d_m / (d_m > 0.0f ? std::max(slope, 1.0f) : slope);
+              const float reach = half_diagonal_m + voxel_m_;
+              const Valley valley =
+                  std::abs(step) <= kValleyReach * reach
+                      ? find_valley(map, at_W, d_m, n, step, reach, voxel_m_, mu_m)
+                      : Valley();
+              // A dip is looked for a little further than a site is projected: beside thin
+              // parts the TSDF reads several times the distance. Only one within reach makes a
+              // site (a seed keeps its site, and one far off would hide its neighbours' nearer
+              // ones from queries).
+              if (valley.kind == Valley::positive && (valley.bottom_W - at_W).norm() <= reach) {
+                // The part lies around the dip's bottom, in no known direction, and the bottom
+                // is found to about a cell: the site is a box there.
                 site = true;
-                site_W = at_W - d_m * g / g.squaredNorm();
+                valley_site = true;
+                site_W = valley.bottom_W;
+              } else if (valley.kind == Valley::negative && std::abs(step) <= reach) {
+                site = true;
+                box = true;
+              } else if (std::abs(step) <= reach) {
+                site = true;
+                site_W = at_W - step * n;
                 normal = encode_normal(g);
               } else if (d_m < 0.0f) {
                 site = true;
@@ -298,12 +404,14 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         }
         if (site) {
           const Eigen::Vector3f s_cells =
-              box ? Eigen::Vector3f(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f,
+              box && !valley_site
+                  ? Eigen::Vector3f(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f,
                                     static_cast<float>(z) + 0.5f)
                   : (site_W - window_min_W_) / cell_m_;
           out.sx = to_site_units(s_cells.x(), n_);
           out.sy = to_site_units(s_cells.y(), n_);
           out.sz = to_site_units(s_cells.z(), n_);
+          box = box || valley_site;
           out.flags = static_cast<std::uint8_t>(kHasSite | kSeed | (box ? kBoxSite : 0));
           set_normal_code(out, box ? kNoNormal : normal);
         }

@@ -245,6 +245,96 @@ TEST_CASE("a bar thinner than a voxel is in the field though its TSDF never cros
   CHECK(unsafe == 0);
 }
 
+// A capsule of radius 7 mm along a slanted axis, off the cells' grid, over a floor.
+struct ThinBar {
+  Eigen::Vector3f point = Eigen::Vector3f(0.013f, 0.217f, 0.193f);
+  Eigen::Vector3f axis = Eigen::Vector3f(1.0f, 0.3f, 0.1f).normalized();
+  float radius = 0.007f;
+  float axis_distance(const Eigen::Vector3f& p) const {
+    const Eigen::Vector3f v = p - point;
+    const float t = std::min(std::max(v.dot(axis), -0.6f), 0.6f);
+    return (v - t * axis).norm();
+  }
+  float operator()(const Eigen::Vector3f& p) const {
+    return std::min(p.z() + 0.8f, axis_distance(p) - radius);
+  }
+};
+
+TEST_CASE("a thin part whose fused TSDF dips without crossing zero is in the field") {
+  // Rays grazing past a part thinner than a couple of voxels write free space into its voxels:
+  // the fused TSDF dips towards it, steeply, but its bottom stays well above zero (5-6 cm at
+  // 2 cm voxels beside the sim room's chair stretchers, 3.5 cm at 1 cm beside the desk's
+  // cable). Projecting a cell's centre along the gradient then lands beyond the part or short
+  // of it, and cells a little further read too far for a site: no site on the part.
+  constexpr float kWideMu_m = 0.16f;  // the sim's mu at 2 cm voxels
+  const ThinBar bar;
+  const auto fused = [&bar](const Eigen::Vector3f& p) {
+    const float r = bar.axis_distance(p);
+    const float dip = r < 0.02f ? 0.06f + 3.0f * r : 0.12f + (r - 0.02f);
+    return std::min(p.z() + 0.8f, dip);
+  };
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  test::fill_band(owned.map, kWideMu_m, fused, [](const Eigen::Vector3i&) { return 0; });
+  Field f(field_config());
+  REQUIRE(f.field.flush(owned.map, nullptr, kWideMu_m, 1, 1).published);
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> along(-0.5f, 0.5f);
+  std::uniform_real_distribution<float> across(-0.15f, 0.15f);
+  long points = 0, unsafe = 0;
+  float worst = -1.0f;
+  for (int i = 0; i < 20000; ++i) {
+    const Eigen::Vector3f p =
+        bar.point + along(rng) * bar.axis + Eigen::Vector3f(0.0f, across(rng), across(rng));
+    const float exact = bar(p);
+    if (exact <= 0.0f) continue;
+    const EsdfAnswer a = f.field.distance(p).value();
+    REQUIRE(a.has_distance);
+    ++points;
+    worst = std::max(worst, a.distance_m - exact);
+    if (a.distance_m > exact + kVoxel_m) ++unsafe;
+  }
+  INFO("worst over " << worst << " m");
+  REQUIRE(points > 19000);
+  CHECK(unsafe == 0);
+  // Far from the bar the floor still reads right.
+  const EsdfAnswer floor = f.field.distance(Eigen::Vector3f(-1.0f, -1.0f, -0.5f)).value();
+  CHECK(floor.distance_m == Approx(0.3f).margin(kVoxel_m));
+}
+
+TEST_CASE("a point the map holds inside a part reads no distance to its surface") {
+  // Where the map places a surface more than a voxel off (an underside or a floor seen at
+  // grazing angles: fused 1-2 cm low at 2 cm voxels in the sim room), a point between the two
+  // surfaces is free in truth but inside for the map. Its distance to the map's surface is
+  // then no bound on its distance to the true one: it reads zero.
+  constexpr float kFloor_m = -0.8f;
+  constexpr float kFat_m = 0.03f;  // the map's floor lies 1.5 voxels above the true one
+  const auto fused = [](const Eigen::Vector3f& p) { return 2.0f * (p.z() - kFloor_m - kFat_m); };
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  test::fill_band(owned.map, kMu_m, fused, [](const Eigen::Vector3i&) { return 0; });
+  Field f(field_config());
+  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 1, 1).published);
+  std::mt19937 rng(19);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::uniform_real_distribution<float> height(0.0f, 0.2f);
+  long unsafe = 0, inside = 0;
+  for (int i = 0; i < 20000; ++i) {
+    const Eigen::Vector3f p(u(rng), u(rng), kFloor_m + height(rng));
+    const float exact = p.z() - kFloor_m;
+    const EsdfAnswer a = f.field.distance(p).value();
+    REQUIRE(a.has_distance);
+    if (a.distance_m > exact + kVoxel_m) ++unsafe;
+    if (exact < 0.8f * kFat_m) {
+      ++inside;
+      CHECK(a.distance_m == 0.0f);
+    } else if (exact > kFat_m + kVoxel_m) {
+      // In front of the map's surface: the distance to it.
+      CHECK(a.distance_m == Approx(exact - kFat_m).margin(0.25f * kVoxel_m));
+    }
+  }
+  REQUIRE(inside > 1000);
+  CHECK(unsafe == 0);
+}
+
 TEST_CASE("an update re-seeds only what changed and matches a rebuild from scratch") {
   test::OwnedMap<TsdfVoxel> owned(map_config());
   Scene scene;

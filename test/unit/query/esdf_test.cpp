@@ -60,6 +60,30 @@ struct Field {
   EsdfField field;
 };
 
+// Over `samples` points drawn by `draw`, those outside the exact surface (`exact` > 0): how many,
+// how many the field reports farther than the exact distance plus a finest voxel (unsafe), and
+// the largest excess.
+struct UnsafeTally {
+  long points = 0;
+  long unsafe = 0;
+  float worst = -1.0f;
+};
+template <typename Exact, typename Draw>
+UnsafeTally tally_unsafe(const EsdfField& field, const Exact& exact, Draw&& draw, int samples) {
+  UnsafeTally t;
+  for (int i = 0; i < samples; ++i) {
+    const Eigen::Vector3f p = draw();
+    const float exact_m = exact(p);
+    if (exact_m <= 0.0f) continue;
+    const EsdfAnswer a = field.distance(p).value();
+    REQUIRE(a.has_distance);
+    ++t.points;
+    t.worst = std::max(t.worst, a.distance_m - exact_m);
+    if (a.distance_m > exact_m + kVoxel_m) ++t.unsafe;
+  }
+  return t;
+}
+
 struct Errors {
   long points = 0;
   long unsafe = 0;      // reported distance above the exact one by more than a finest voxel
@@ -228,21 +252,15 @@ TEST_CASE("a bar thinner than a voxel is in the field though its TSDF never cros
   std::mt19937 rng(13);
   std::uniform_real_distribution<float> along(-0.5f, 0.5f);
   std::uniform_real_distribution<float> across(-0.3f, 0.3f);
-  long points = 0, unsafe = 0;
-  float worst = -1.0f;
-  for (int i = 0; i < 20000; ++i) {
-    const Eigen::Vector3f p = bar.centre + Eigen::Vector3f(along(rng), across(rng), across(rng));
-    const float exact = bar(p);
-    if (exact <= 0.0f) continue;
-    const EsdfAnswer a = f.field.distance(p).value();
-    REQUIRE(a.has_distance);
-    ++points;
-    worst = std::max(worst, a.distance_m - exact);
-    if (a.distance_m > exact + kVoxel_m) ++unsafe;
-  }
-  INFO("worst over " << worst << " m");
-  REQUIRE(points > 19000);
-  CHECK(unsafe == 0);
+  const UnsafeTally t = tally_unsafe(
+      f.field, bar,
+      [&] {
+        return Eigen::Vector3f(bar.centre + Eigen::Vector3f(along(rng), across(rng), across(rng)));
+      },
+      20000);
+  INFO("worst over " << t.worst << " m");
+  REQUIRE(t.points > 19000);
+  CHECK(t.unsafe == 0);
 }
 
 // A capsule of radius 7 mm along a slanted axis, off the cells' grid, over a floor.
@@ -280,22 +298,16 @@ TEST_CASE("a thin part whose fused TSDF dips without crossing zero is in the fie
   std::mt19937 rng(17);
   std::uniform_real_distribution<float> along(-0.5f, 0.5f);
   std::uniform_real_distribution<float> across(-0.15f, 0.15f);
-  long points = 0, unsafe = 0;
-  float worst = -1.0f;
-  for (int i = 0; i < 20000; ++i) {
-    const Eigen::Vector3f p =
-        bar.point + along(rng) * bar.axis + Eigen::Vector3f(0.0f, across(rng), across(rng));
-    const float exact = bar(p);
-    if (exact <= 0.0f) continue;
-    const EsdfAnswer a = f.field.distance(p).value();
-    REQUIRE(a.has_distance);
-    ++points;
-    worst = std::max(worst, a.distance_m - exact);
-    if (a.distance_m > exact + kVoxel_m) ++unsafe;
-  }
-  INFO("worst over " << worst << " m");
-  REQUIRE(points > 19000);
-  CHECK(unsafe == 0);
+  const UnsafeTally t = tally_unsafe(
+      f.field, bar,
+      [&] {
+        return Eigen::Vector3f(bar.point + along(rng) * bar.axis +
+                               Eigen::Vector3f(0.0f, across(rng), across(rng)));
+      },
+      20000);
+  INFO("worst over " << t.worst << " m");
+  REQUIRE(t.points > 19000);
+  CHECK(t.unsafe == 0);
   // Far from the bar the floor still reads right.
   const EsdfAnswer floor = f.field.distance(Eigen::Vector3f(-1.0f, -1.0f, -0.5f)).value();
   CHECK(floor.distance_m == Approx(0.3f).margin(kVoxel_m));

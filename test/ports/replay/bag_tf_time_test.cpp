@@ -137,6 +137,17 @@ Replayed replay(BagSource& bag, const KeptFrames& kept) {
   }
 }
 
+// Every frame replayed, each pose the trajectory's (chained or not) at the frame's own stamp.
+void check_poses_at_stamps(const Replayed& got, bool chain) {
+  REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
+  for (int i = 0; i < kFrames; ++i) {
+    INFO("frame " << i);
+    const auto error = pose_error(got.poses[i], T_W_C_at(chain, got.stamps_ns[i]));
+    CHECK(error.first < 1e-6);
+    CHECK(error.second < 1e-6);
+  }
+}
+
 // The bags of both containers for `options` (a ROS 1 one only with python3-rosbag).
 std::vector<std::string> motion_bags(Fixture& fixture, const std::string& name,
                                      const std::string& options) {
@@ -201,12 +212,7 @@ TEST_CASE("bag: each depth image gets the pose at its own stamp (TF at another r
       INFO(spec << query);
       std::unique_ptr<BagSource> bag = open_spec(spec + query);
       const Replayed got = replay(*bag, fixture.kept);
-      REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
-      for (int i = 0; i < kFrames; ++i) {
-        const auto error = pose_error(got.poses[i], T_W_C_at(false, got.stamps_ns[i]));
-        CHECK(error.first < 1e-6);
-        CHECK(error.second < 1e-6);
-      }
+      check_poses_at_stamps(got, false);
       CHECK(got.end.status.code() == StatusCode::end_of_stream);
     }
   }
@@ -221,12 +227,7 @@ TEST_CASE("bag: images wait for a slow /tf several at a time (hold=N)", "[replay
     {
       std::unique_ptr<BagSource> bag = open_spec(spec);
       const Replayed got = replay(*bag, fixture.kept);  // pixels intact while others wait
-      REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
-      for (int i = 0; i < kFrames; ++i) {
-        const auto error = pose_error(got.poses[i], T_W_C_at(false, got.stamps_ns[i]));
-        CHECK(error.first < 1e-6);
-        CHECK(error.second < 1e-6);
-      }
+      check_poses_at_stamps(got, false);
       CHECK(got.end.status.code() == StatusCode::end_of_stream);
     }
     {  // hold=1: an image that finds another waiting gives the older one the transforms so far
@@ -253,13 +254,7 @@ TEST_CASE("bag: a chain of two moving TF edges at their own rates is taken at th
     INFO(spec);
     std::unique_ptr<BagSource> bag = open_spec(spec);
     const Replayed got = replay(*bag, fixture.kept);
-    REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
-    for (int i = 0; i < kFrames; ++i) {
-      INFO("frame " << i);
-      const auto error = pose_error(got.poses[i], T_W_C_at(true, got.stamps_ns[i]));
-      CHECK(error.first < 1e-6);
-      CHECK(error.second < 1e-6);
-    }
+    check_poses_at_stamps(got, true);
     CHECK(got.end.status.code() == StatusCode::end_of_stream);
 
     // The odometry prior from the same TF (?tf=odom): T_odom_camera at each image's stamp.
@@ -300,12 +295,7 @@ TEST_CASE("bag: the pose topic's poses are taken at each image's stamp too",
     INFO(spec);
     std::unique_ptr<BagSource> bag = open_spec(spec);
     const Replayed got = replay(*bag, fixture.kept);
-    REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
-    for (int i = 0; i < kFrames; ++i) {
-      const auto error = pose_error(got.poses[i], T_W_C_at(false, got.stamps_ns[i]));
-      CHECK(error.first < 1e-6);
-      CHECK(error.second < 1e-6);
-    }
+    check_poses_at_stamps(got, false);
     CHECK(got.end.status.code() == StatusCode::end_of_stream);
   }
 }

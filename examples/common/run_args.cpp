@@ -279,13 +279,20 @@ const RunOption kRunOptions[] = {
               o.budget.raycast_steps <= static_cast<std::uint64_t>(INT64_MAX);
      }},
     {"raycast-half", nullptr,
-     "reference ray-cast at half resolution (every other pixel in x and y, a quarter of\n"
-     "its work; the model ICP tracks against is coarser)",
+     "reference ray-cast at half resolution (the default: every other pixel in x and y, a\n"
+     "quarter of its work; the model ICP tracks against is coarser)",
      [](RunOptions& o, const std::string&) {
        o.budget.raycast_half = true;
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.budget.raycast_half, v); }},
+    {"raycast-full", nullptr,
+     "reference ray-cast at every pixel (four times the work of --raycast-half)",
+     [](RunOptions& o, const std::string&) {
+       o.budget.raycast_half = false;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(!o.budget.raycast_half, v); }},
     {"budget-icp", "A,B,C", "per-frame work budget: ICP iterations (finest,middle,coarsest)",
      [](RunOptions& o, const std::string& v) {
        int levels[3];

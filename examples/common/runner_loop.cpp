@@ -116,8 +116,8 @@ struct FrameWarnings {
 
 // Fills the live view's snapshot from the run so far; `rgb` is the reused shading buffer.
 template <typename VoxelT>
-void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, long processed,
-                   double fps, std::vector<Rgb8>* rgb, LiveSnapshot* snapshot) {
+void fill_snapshot(Pipeline<VoxelT>& pipeline, const RunSummary& summary, long processed,
+                   double fps, bool refresh_view, std::vector<Rgb8>* rgb, LiveSnapshot* snapshot) {
   const FrameStats& last = summary.frames.back();
   snapshot->frame = processed;
   snapshot->fps = fps;
@@ -143,6 +143,9 @@ void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, 
     const Eigen::Vector3d p_W = summary.trajectory[i].T_W_C.translation();
     for (int k = 0; k < 3; ++k) snapshot->trajectory_p_W.push_back(static_cast<float>(p_W[k]));
   }
+  // The view is cast at every pixel (about what a guided reference cast at every pixel costs),
+  // so the image is refreshed less often than the figures.
+  if (!refresh_view) return;
   const PinholeCamera& camera = pipeline.working_camera();
   rgb->resize(static_cast<std::size_t>(camera.width) * camera.height);
   ImageView<Rgb8> view(rgb->data(), camera.width, camera.height);
@@ -150,7 +153,8 @@ void fill_snapshot(const Pipeline<VoxelT>& pipeline, const RunSummary& summary, 
   snapshot->width = 0;
   snapshot->height = 0;
   snapshot->rgb.clear();
-  if (shade_by_scale(pipeline.surface_W(), pipeline.scale_image(), light_W, view).ok()) {
+  if (pipeline.cast_view().ok() &&
+      shade_by_scale(pipeline.view_surface_W(), pipeline.view_scale_image(), light_W, view).ok()) {
     snapshot->width = camera.width;
     snapshot->height = camera.height;
     const auto* bytes = reinterpret_cast<const std::uint8_t*>(rgb->data());
@@ -251,6 +255,7 @@ struct FrameDisplay {
   std::chrono::steady_clock::time_point last_status = std::chrono::steady_clock::now();
   bool show_progress = false;
   std::chrono::steady_clock::time_point last_slice;  // the distance field's slice, once a second
+  std::chrono::steady_clock::time_point last_view;   // the shaded view, twice a second
   EsdfSliceImage slice;
 };
 
@@ -275,9 +280,8 @@ void fill_slice(const Pipeline<VoxelT>& pipeline, EsdfSliceImage* slice, LiveSna
 }
 
 template <typename VoxelT>
-int show_frame(const RunOptions& options, const Pipeline<VoxelT>& pipeline,
-               const RunSummary& summary, long processed, const FrameStats& stats,
-               LiveServer* server, FrameDisplay* display) {
+int show_frame(const RunOptions& options, Pipeline<VoxelT>& pipeline, const RunSummary& summary,
+               long processed, const FrameStats& stats, LiveServer* server, FrameDisplay* display) {
   LiveSnapshot& snapshot = display->snapshot;
   std::vector<Rgb8>& snapshot_rgb = display->snapshot_rgb;
   auto& last_publish = display->last_publish;
@@ -293,13 +297,17 @@ int show_frame(const RunOptions& options, const Pipeline<VoxelT>& pipeline,
                                         sink.indices.data(), sink.indices.size() / 3));
   }
   if (server != nullptr) {
-    // At most 10 snapshots a second: shading and copying cost the loop about a millisecond.
+    // At most 10 snapshots a second, and a new view (a cast at every pixel) in at most two.
     ++frames_since_publish;
     const auto now = std::chrono::steady_clock::now();
     const double since_s = std::chrono::duration<double>(now - last_publish).count();
     if (since_s >= 0.1) {
+      const bool refresh_view =
+          std::chrono::duration<double>(now - display->last_view).count() >= 0.5;
+      if (refresh_view) display->last_view = now;
       fill_snapshot(pipeline, summary, processed,
-                    static_cast<double>(frames_since_publish) / since_s, &snapshot_rgb, &snapshot);
+                    static_cast<double>(frames_since_publish) / since_s, refresh_view,
+                    &snapshot_rgb, &snapshot);
       // A slice costs a point query and a field query a cell (tens of milliseconds).
       if (pipeline.esdf().reserved() &&
           std::chrono::duration<double>(now - display->last_slice).count() >= 1.0) {

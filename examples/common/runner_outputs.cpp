@@ -363,12 +363,16 @@ void write_mesh(const RunOptions& options, const Pipeline<VoxelT>& pipeline, Run
 }  // namespace
 
 template <typename VoxelT>
-bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText* error) {
+bool write_render(Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText* error) {
   const PinholeCamera& camera = pipeline.working_camera();
   std::vector<Rgb8> rgb(static_cast<std::size_t>(camera.width) * camera.height);
   ImageView<Rgb8> view(rgb.data(), camera.width, camera.height);
   const Eigen::Vector3f light_W = pipeline.reference_T_W_C().translation().template cast<float>();
-  if (!shade_by_scale(pipeline.surface_W(), pipeline.scale_image(), light_W, view).ok()) {
+  if (!pipeline.cast_view().ok()) {
+    error->set("cannot ray-cast the view");
+    return false;
+  }
+  if (!shade_by_scale(pipeline.view_surface_W(), pipeline.view_scale_image(), light_W, view).ok()) {
     error->set("cannot shade the ray-cast");
     return false;
   }
@@ -521,7 +525,8 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
 
   if (options.out_dir.empty()) return late_failure.count == 0 ? 0 : 1;
 
-  // render.png: the last ray-cast, shaded and coloured by interpolation scale.
+  // render.png: the map ray-cast at every pixel from the last reference pose, shaded and coloured
+  // by interpolation scale.
   {
     ErrorText png_error;
     if (write_render(pipeline, join(options.out_dir, "render.png"), &png_error)) {
@@ -554,10 +559,9 @@ template bool extract_mesh<Multires16Voxel>(const Pipeline<Multires16Voxel>&, co
                                             VectorMeshSink*);
 template bool extract_mesh<TsdfVoxel>(const Pipeline<TsdfVoxel>&, const RunOptions&,
                                       VectorMeshSink*);
-template bool write_render<MultiresVoxel>(const Pipeline<MultiresVoxel>&, const std::string&,
-                                          ErrorText*);
-template bool write_render<Multires16Voxel>(const Pipeline<Multires16Voxel>&, const std::string&,
+template bool write_render<MultiresVoxel>(Pipeline<MultiresVoxel>&, const std::string&, ErrorText*);
+template bool write_render<Multires16Voxel>(Pipeline<Multires16Voxel>&, const std::string&,
                                             ErrorText*);
-template bool write_render<TsdfVoxel>(const Pipeline<TsdfVoxel>&, const std::string&, ErrorText*);
+template bool write_render<TsdfVoxel>(Pipeline<TsdfVoxel>&, const std::string&, ErrorText*);
 
 }  // namespace octofuse::examples::detail

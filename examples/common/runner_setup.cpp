@@ -318,6 +318,8 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
   config.fusion.behind_mu = options.band_behind_mu;
   if (load_map) config.fusion.mu_m = loaded.mu_m;  // the TSDF is normalised by it
   config.workers = options.threads;
+  // render.png, frames/ and the live view show the map at every pixel whatever the reference.
+  config.view_cast = !options.out_dir.empty() || !options.serve.empty();
   config.pose_source = options.pose_source;
   if (options.odometry_noise[0] > 0.0) {
     config.prior_noise_m = options.odometry_noise[0];

@@ -105,6 +105,6 @@ bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,
                   VectorMeshSink* sink);
 // The last ray-cast, shaded and coloured by interpolation scale, as a PNG.
 template <typename VoxelT>
-bool write_render(const Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText* error);
+bool write_render(Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText* error);
 
 }  // namespace octofuse::examples::detail

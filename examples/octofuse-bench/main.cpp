@@ -36,14 +36,14 @@ struct Cell {
   octofuse::PoseSource poses = octofuse::PoseSource::track;
   long frames = 0;
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
-  bool raycast_half = false;  // the reference ray-cast at half resolution
+  bool raycast_half = true;  // the reference ray-cast at half resolution (the default)
 
   std::string label() const {
     char text[160];
     std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s%s", scene.c_str(),
                   octofuse::examples::map_option_name(map), static_cast<double>(voxel_m) * 1000.0,
                   threads, poses == octofuse::PoseSource::track ? "track" : "gt-poses",
-                  raycast_half ? " half-cast" : "");
+                  raycast_half ? "" : " full-cast");
     return text;
   }
   std::string slug() const {
@@ -235,7 +235,7 @@ struct BenchArgs {
   std::vector<octofuse::MapKind> maps = {octofuse::MapKind::multires,
                                          octofuse::MapKind::single_res};
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
-  bool raycast_half = false;
+  bool raycast_half = true;
   std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
                                                   octofuse::PoseSource::ground_truth};
   bool soak = false;
@@ -360,10 +360,17 @@ const Option kOptions[] = {
        return std::string();
      }},
     {"--raycast-half", nullptr,
-     "every run's reference ray-cast at half resolution (octofuse-replay\n"
-     "--raycast-half)",
+     "every run's reference ray-cast at half resolution (the default;\n"
+     "octofuse-replay --raycast-half)",
      [](BenchArgs& a, const std::string&) {
        a.raycast_half = true;
+       return std::string();
+     }},
+    {"--raycast-full", nullptr,
+     "every run's reference ray-cast at every pixel (octofuse-replay\n"
+     "--raycast-full)",
+     [](BenchArgs& a, const std::string&) {
+       a.raycast_half = false;
        return std::string();
      }},
     {"--soak", nullptr,

@@ -94,7 +94,7 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "0",
                  "--budget-raycast-steps",
                  "123456789",
-                 "--raycast-half",
+                 "--raycast-full",
                  "--budget-icp",
                  "1,2,3",
                  "--evict",
@@ -169,7 +169,7 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
   CHECK(reread.budget.max_new_blocks == 100u);
   CHECK(reread.budget.max_integrated_blocks == 0u);
   CHECK(reread.budget.raycast_steps == 123456789u);
-  CHECK(reread.budget.raycast_half);
+  CHECK_FALSE(reread.budget.raycast_half);  // --raycast-full against the default half
   CHECK(reread.budget.icp_iterations[2] == 3);
   CHECK(reread.eviction.enabled);
   CHECK(reread.eviction.high_water == 0.85f);
@@ -238,6 +238,7 @@ TEST_CASE("The defaults print as a config that reads back to the defaults", "[ex
   CHECK(printed.find("bilateral = false\n") != std::string::npos);
   RunOptions reread;
   reread.source_spec = "openni2";  // what the file says must win over the program's default
+  reread.budget.raycast_half = false;
   std::string error;
   const bool applied = apply_run_config(printed, "defaults", &reread, &error);
   INFO(error);
@@ -246,7 +247,7 @@ TEST_CASE("The defaults print as a config that reads back to the defaults", "[ex
   CHECK(reread.source_spec == "sim:desk");
   CHECK(reread.mu_m == 0.0f);
   CHECK(reread.budget.raycast_steps == 0u);
-  CHECK_FALSE(reread.budget.raycast_half);
+  CHECK(reread.budget.raycast_half);  // the default, half resolution
 }
 
 TEST_CASE("The command line overrides the config file wherever --config stands",

@@ -103,7 +103,8 @@ std::string hex(std::uint64_t bits) {
 // and checks the final pose's 12 doubles and a hash of every block's voxels against the pinned
 // bits; prints what it got, for re-pinning after a deliberate change.
 template <typename VoxelT>
-void check_pinned_bits(MapKind map_kind, const std::uint64_t (&expected_pose_bits)[12],
+void check_pinned_bits(MapKind map_kind, bool raycast_half,
+                       const std::uint64_t (&expected_pose_bits)[12],
                        std::uint64_t expected_map_hash) {
   constexpr int kFrames = 6;
   const sim::SimConfig sim_config = small_sim(40);
@@ -113,6 +114,7 @@ void check_pinned_bits(MapKind map_kind, const std::uint64_t (&expected_pose_bit
     REQUIRE(source.open().ok());
     PipelineConfig config = small_config(source, 0.02f, workers);
     config.map_kind = map_kind;
+    config.budget.raycast_half = raycast_half;
     Buffer buffer(bytes_required(config));
     Pipeline<VoxelT> pipeline;
     REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
@@ -146,6 +148,7 @@ void check_pinned_bits(MapKind map_kind, const std::uint64_t (&expected_pose_bit
 }
 
 TEST_CASE("the same frames give the same pose and map bits on x86-64, aarch64 and armhf") {
+  // With the reference cast at every pixel (the test below pins the default, half resolution).
   // The constants are what the x86-64 Release build printed; the aarch64 and armhf builds, run
   // under qemu, give the same. A change that moves a rounding anywhere in sensing, fusion,
   // ray-casting or tracking changes them: check that the new values are the same on all three
@@ -154,7 +157,16 @@ TEST_CASE("the same frames give the same pose and map bits on x86-64, aarch64 an
       0x3fef9881fa83fdce, 0xbfb7d73944f865b7, 0x3fc068bc1a0543dd, 0x3fae518b1119c423,
       0xbfc4481d4d538344, 0xbfe2ad15920d52ba, 0x3fe97c33dad2d4a2, 0xbfde1c8ae555bb71,
       0x3f45546843d272ea, 0xbfe9d02eba611799, 0xbfe2e990d6ebd0de, 0x3ff149855efa4182};
-  check_pinned_bits<MultiresVoxel>(MapKind::multires, kPoseBits, 0x92d7f9723d100089);
+  check_pinned_bits<MultiresVoxel>(MapKind::multires, false, kPoseBits, 0x92d7f9723d100089);
+}
+
+// The default reference cast at half resolution (ICP paired with its marched pixels), the same.
+TEST_CASE("with the half-resolution reference cast the bits are the same on every machine") {
+  constexpr std::uint64_t kPoseBits[12] = {
+      0x3fef99263f213c0b, 0xbfb7c51033692c8e, 0x3fc05b87f67dc444, 0x3fae2db4a47d1115,
+      0xbfc4381718a72918, 0xbfe2af8ac2b67131, 0x3fe97b325b32e9c9, 0xbfde1d0d7d7f7efa,
+      0x3f467c3569986080, 0xbfe9ceaa551448ba, 0xbfe2eba2b288f8f0, 0x3ff149f2c7d5d3b4};
+  check_pinned_bits<MultiresVoxel>(MapKind::multires, true, kPoseBits, 0x38c475af7b168e67);
 }
 
 // The 16-bit map, the same way: its rounding is integer arithmetic on exactly computed floats,
@@ -166,7 +178,7 @@ TEST_CASE("the 16-bit map gives the same pose and map bits for 1 and 3 workers a
       0x3fef98f3daaa77b5, 0xbfb7c8d5442f76eb, 0x3fc0603e12232b76, 0x3fae2342f6f5dcff,
       0xbfc43d029938630c, 0xbfe2adc0624082fc, 0x3fe97c43e97d5a8b, 0xbfde1cdbdabf8ff7,
       0x3f466c04a65ce5c0, 0xbfe9cfe83bf1e18d, 0xbfe2e9f0f88e03e5, 0x3ff149ae184cf3a9};
-  check_pinned_bits<Multires16Voxel>(MapKind::multires16, kPoseBits, 0xa999aa0e772fca2d);
+  check_pinned_bits<Multires16Voxel>(MapKind::multires16, false, kPoseBits, 0xa999aa0e772fca2d);
 }
 
 }  // namespace

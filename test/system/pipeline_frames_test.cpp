@@ -42,9 +42,10 @@ TEST_CASE("tracking on the noiseless sim stays within a centimetre of ground tru
   const sim::SimConfig sim_config = small_sim(30, /*noise=*/false);
   sim::SimSource truth(sim_config);
   REQUIRE(truth.open().ok());
+  PipelineConfig config = small_config(truth, 0.01f, 1);
+  config.budget.raycast_half = false;  // every pixel; the default half is the test below
   std::vector<FrameStats> stats;
-  const std::vector<Se3d> poses =
-      run<MultiresVoxel>(sim_config, small_config(truth, 0.01f, 1), &stats);
+  const std::vector<Se3d> poses = run<MultiresVoxel>(sim_config, config, &stats);
   REQUIRE(poses.size() == 30);
   for (std::size_t i = 0; i < poses.size(); ++i) {
     CAPTURE(i);
@@ -62,7 +63,7 @@ TEST_CASE("with the reference ray-cast at half resolution tracking stays within 
   sim::SimSource truth(sim_config);
   REQUIRE(truth.open().ok());
   PipelineConfig config = small_config(truth, 0.01f, 1);
-  config.budget.raycast_half = true;
+  REQUIRE(config.budget.raycast_half);  // the default
   std::vector<FrameStats> stats;
   const std::vector<Se3d> poses = run<MultiresVoxel>(sim_config, config, &stats);
   REQUIRE(poses.size() == 30);
@@ -79,6 +80,103 @@ TEST_CASE("with the reference ray-cast at half resolution tracking stays within 
             .norm();
     REQUIRE(error_m < kMaxError_m);
   }
+}
+
+TEST_CASE("the view cast shows every pixel and leaves the reference and the tracking as they are") {
+  // The noiseless sim at 1 cm, which the test above shows to track at half resolution.
+  const sim::SimConfig sim_config = small_sim(30, /*noise=*/false);
+  sim::SimSource source(sim_config);
+  REQUIRE(source.open().ok());
+  PipelineConfig config = small_config(source, 0.01f, 2);
+  REQUIRE(config.budget.raycast_half);
+  config.view_cast = true;
+  Buffer buffer(bytes_required(config));
+  Pipeline<MultiresVoxel> pipeline;
+  REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+  // An independent cast at every pixel of the same map from the same pose, guided by the same
+  // depth, called as often (a guided cast's skipped misses depend on the one before).
+  RaycastConfig full;
+  full.width = pipeline.working_camera().width;
+  full.height = pipeline.working_camera().height;
+  full.near_m = config.validator.near_m;
+  full.far_m = config.validator.far_m;
+  full.mu_m = config.fusion.mu_m;
+  const std::size_t cast_bytes = Raycaster<MultiresVoxel>::bytes_required(full);
+  Buffer cast_buffer(cast_bytes);
+  LinearArena cast_arena(cast_buffer.data, cast_bytes);
+  Raycaster<MultiresVoxel> expected;
+  REQUIRE(expected.reserve(cast_arena, full).ok());
+  auto same = [](const Eigen::Vector3f& a, const Eigen::Vector3f& b) {
+    return std::memcmp(a.data(), b.data(), sizeof(Eigen::Vector3f)) == 0;
+  };
+  std::vector<Se3d> poses;
+  DepthFrame frame;
+  int odd_pixels_differing = 0;
+  while (source.next(frame).outcome == FrameOutcome::frame) {
+    FrameStats stats;
+    REQUIRE(pipeline.process(frame, &stats).ok());
+    poses.push_back(pipeline.T_W_C());
+    const ConstSurfaceMap reference = pipeline.surface_W();
+    REQUIRE(reference.pixel_stride == 2);
+    std::vector<Eigen::Vector3f> reference_before;
+    for (int y = 0; y < full.height; ++y) {
+      for (int x = 0; x < full.width; ++x) reference_before.push_back(reference.vertices(x, y));
+    }
+    REQUIRE(pipeline.cast_view().ok());
+    const ConstSurfaceMap view = pipeline.view_surface_W();
+    REQUIRE(&view.vertices(0, 0) != &reference.vertices(0, 0));
+    REQUIRE(view.pixel_stride == 1);
+    REQUIRE(stats.result != FrameResult::lost);
+    REQUIRE_FALSE(pipeline.reference_guide_depth_m().empty());
+    REQUIRE(expected
+                .raycast(pipeline.map(), pipeline.working_camera(), pipeline.reference_T_W_C(),
+                         pipeline.team(), pipeline.reference_guide_depth_m())
+                .ok());
+    const SurfaceMap want = expected.surface_W();
+    for (int y = 0; y < full.height; ++y) {
+      for (int x = 0; x < full.width; ++x) {
+        CAPTURE(x, y);
+        // Bit for bit what a cast at every pixel gives.
+        REQUIRE(view.valid(x, y) == want.valid(x, y));
+        REQUIRE(same(view.normals(x, y), want.normals(x, y)));
+        if (want.valid(x, y)) REQUIRE(same(view.vertices(x, y), want.vertices(x, y)));
+        // The reference is as the frame left it.
+        REQUIRE(same(reference.vertices(x, y),
+                     reference_before[static_cast<std::size_t>(y * full.width + x)]));
+        if (((x | y) & 1) != 0 && view.valid(x, y) && reference.valid(x, y) &&
+            !same(view.vertices(x, y), reference.vertices(x, y))) {
+          ++odd_pixels_differing;
+        }
+      }
+    }
+  }
+  REQUIRE(poses.size() == 30);
+  // The view is not the reference's copies: pixels between marched ones are cast themselves.
+  REQUIRE(odd_pixels_differing > 1000);
+  // Casting views between frames changes nothing the pipeline computes.
+  REQUIRE(bit_identical(poses, run<MultiresVoxel>(sim_config, config)));
+  // Without a view cast reserved, the view is the reference cast.
+  PipelineConfig plain = config;
+  plain.view_cast = false;
+  REQUIRE(bytes_required(plain) < bytes_required(config));
+  Buffer plain_buffer(bytes_required(plain));
+  Pipeline<MultiresVoxel> without;
+  REQUIRE(without.init(plain_buffer.data, bytes_required(plain), plain).ok());
+  sim::SimSource again(sim_config);
+  REQUIRE(again.open().ok());
+  REQUIRE(again.next(frame).outcome == FrameOutcome::frame);
+  FrameStats first;
+  REQUIRE(without.process(frame, &first).ok());
+  REQUIRE(without.cast_view().ok());
+  REQUIRE(&without.view_surface_W().vertices(0, 0) == &without.surface_W().vertices(0, 0));
+  // A frame that does not cast the reference (rejected here) leaves no guide for the view.
+  DepthFrame empty_frame = frame;
+  empty_frame.depth_raw = ImageView<const std::uint16_t>();
+  FrameStats rejected;
+  REQUIRE_FALSE(pipeline.process(empty_frame, &rejected).ok());
+  REQUIRE(pipeline.reference_guide_depth_m().empty());
+  REQUIRE(pipeline.cast_view().ok());
+  REQUIRE(&pipeline.view_surface_W().vertices(0, 0) != &pipeline.surface_W().vertices(0, 0));
 }
 
 TEST_CASE("a very low budget is never exceeded and the run completes") {

@@ -119,6 +119,7 @@ TEST_CASE("at 2 mm every pixel with fused depth gets a vertex on the surface, ac
   config.preprocess.downsample_factor = 1;  // the exact depth is the working depth
   config.pose_source = PoseSource::ground_truth;
   config.free_space.enabled = false;
+  config.budget.raycast_half = false;  // every pixel of the guided reference cast is checked
   // The same frames through a pipeline with 3 workers give the same ray-cast.
   PipelineConfig config3 = config;
   config3.workers = 3;

@@ -249,6 +249,11 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
   raycast.step_budget = config.budget.raycast_steps;
   raycast.pixel_stride = config.budget.raycast_half ? 2 : 1;
   OCTOFUSE_TRY(raycaster_.reserve(arena, raycast));
+  if (config.view_cast) {
+    raycast.step_budget = 0;
+    raycast.pixel_stride = 1;
+    OCTOFUSE_TRY(view_raycaster_.reserve(arena, raycast));
+  }
   if (config.free_space.enabled) {
     FreeSpaceConfig free_space = config.free_space;
     if (!(free_space.clearance_m > 0.0f)) free_space.clearance_m = 0.5f * config.fusion.mu_m;
@@ -360,8 +365,11 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   }
   team_ = WorkerTeam(config.workers);
   working_camera_ = config.input_camera.downsampled(config.preprocess.downsample_factor);
+  // A reference cast already at half resolution leaves the deadline's half step nothing to give.
+  DeadlineConfig deadline = config.deadline;
+  if (config.budget.raycast_half) deadline.raycast_half_resolution = false;
   deadline_.reset(
-      config.deadline, config.budget.icp_iterations, working_camera_.width, working_camera_.height,
+      deadline, config.budget.icp_iterations, working_camera_.width, working_camera_.height,
       config.pose_source == PoseSource::track || config.pose_source == PoseSource::external_prior,
       config.free_space.enabled);
   current_ = FrameStats{};
@@ -372,6 +380,8 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
   have_prior_prev_ = false;
   restart_prior_statistics();
   have_reference_ = false;
+  view_cast_done_ = false;
+  reference_guided_ = false;
   pose_set_ = false;
   frame_index_ = 0;
   frames_lost_ = 0;
@@ -509,6 +519,8 @@ Status Pipeline<VoxelT>::reset() {
   have_last_prior_ = false;
   restart_prior_statistics();
   have_reference_ = false;
+  view_cast_done_ = false;
+  reference_guided_ = false;
   pose_set_ = false;
   raycaster_.forget_previous_cast();
   // frame_index_ keeps counting: the integrator's per-frame stamps must not repeat.
@@ -541,6 +553,8 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
     raycaster_.set_step_budget(config_.budget.raycast_steps);
     raycaster_.set_pixel_stride(1);
   }
+  view_cast_done_ = false;
+  reference_guided_ = false;
   const Result<RaycastStats> raycast = raycaster_.raycast(map_, working_camera_, T_W_C_, team_);
   if (!raycast.ok()) return raycast.status();
   T_W_Cref_ = T_W_C_;
@@ -1235,6 +1249,20 @@ Status Pipeline<VoxelT>::cast_reference_view(FrameProgress& progress) {
   if (!raycast.ok()) return raycast.status();
   T_W_Cref_ = T_W_C_;
   have_reference_ = true;
+  view_cast_done_ = false;
+  reference_guided_ = true;
+  return ok_status();
+}
+
+template <typename VoxelT>
+Status Pipeline<VoxelT>::cast_view() {
+  if (!initialised_) return StatusCode::failed_precondition;
+  if (!config_.view_cast) return ok_status();
+  view_cast_done_ = false;
+  const Result<RaycastStats> view =
+      view_raycaster_.raycast(map_, working_camera_, T_W_Cref_, team_, reference_guide_depth_m());
+  if (!view.ok()) return view.status();
+  view_cast_done_ = true;
   return ok_status();
 }
 
@@ -1268,6 +1296,7 @@ Status Pipeline<VoxelT>::process(const DepthFrame& frame, const PosePrior& prior
     return StatusCode::failed_precondition;
   }
   FrameProgress progress = start_frame(frame);
+  reference_guided_ = false;
 
   // 1. Validate and convert to metres; a bad prior rejects the frame before anything changes.
   const Status valid = validate_frame(frame, prior);

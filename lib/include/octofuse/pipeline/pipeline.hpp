@@ -75,7 +75,10 @@ struct PipelineBudget {
   std::uint64_t raycast_steps = 0;  // 0 = unbounded
   // The reference ray-cast marches every other pixel in x and y and copies it to the other three
   // (RaycastConfig::pixel_stride 2): a quarter of its work, the model ICP tracks against coarser.
-  bool raycast_half = false;
+  // On by default: tracking pairs with the marched pixels only, and its accuracy holds on real
+  // and synthetic data (lib/README.md, "Half resolution"). A display casts its own view at every
+  // pixel (PipelineConfig::view_cast). false: every pixel (the frame deadline may still halve it).
+  bool raycast_half = true;
   std::uint32_t max_evictions = 0xFFFFFFFFu;  // blocks evicted per frame (EvictionConfig)
   // With a BlockStore (Pipeline::set_block_store()): records written (evictions beyond wait for
   // the next frame) and read back per frame, step (2) of the degradation order.
@@ -149,6 +152,9 @@ struct PipelineConfig {
   // A per-frame time limit the budgets are derived from (0 = off: the budgets above as they are).
   DeadlineConfig deadline;
   int workers = 1;
+  // Reserves a second ray-cast at the working resolution (about 25 bytes a pixel) for
+  // Pipeline::cast_view(): a display at every pixel while the reference is cast at half.
+  bool view_cast = false;
   PoseSource pose_source = PoseSource::track;
   bool initial_pose_from_ground_truth = true;
   // ICP starts from the pose extrapolated with the last tracked motion (constant velocity)
@@ -347,9 +353,30 @@ class Pipeline {
   }
   const PipelineConfig& config() const { return config_; }
   const WorkerTeam& team() const { return team_; }
-  // The last ray-cast (world frame) and its scale image, at the working resolution.
+  // The last reference ray-cast (world frame) and its scale image, at the working resolution;
+  // at half resolution (PipelineBudget::raycast_half) each marched pixel fills its 2 x 2.
   ConstSurfaceMap surface_W() const { return raycaster_.surface_W(); }
   ImageView<const std::uint8_t> scale_image() const { return raycaster_.scale_image(); }
+  // For display: ray-casts the map from the reference pose at every pixel, without a step budget,
+  // into the view cast (PipelineConfig::view_cast), so the reference cast ICP tracks against is
+  // left as it was. Guided by the depth the reference was cast with when the last frame cast it
+  // (reference_guide_depth_m()), unguided otherwise: a guided view costs about half. Call between
+  // frames (it uses the workers); allocates nothing. Without view_cast it casts nothing and the
+  // view is the reference cast.
+  Status cast_view();
+  // The working-resolution depth the last frame fused and cast the reference with; empty when the
+  // last frame did not cast it (lost, rejected, a deadline's turn) or after set_pose()/reset().
+  ImageView<const float> reference_guide_depth_m() const {
+    if (!reference_guided_) return ImageView<const float>();
+    return preprocessor_.pyramid().depth_m[0];
+  }
+  // The view cast_view() made (the reference cast before any, or without view_cast).
+  ConstSurfaceMap view_surface_W() const {
+    return view_cast_done_ ? view_raycaster_.surface_W() : raycaster_.surface_W();
+  }
+  ImageView<const std::uint8_t> view_scale_image() const {
+    return view_cast_done_ ? view_raycaster_.scale_image() : raycaster_.scale_image();
+  }
   const PinholeCamera& working_camera() const { return working_camera_; }
   const Se3d& reference_T_W_C() const { return T_W_Cref_; }
   // The frame deadline's cost model as learnt so far (config().deadline.model before any frame);
@@ -429,6 +456,9 @@ class Pipeline {
   Map map_;
   Integrator<VoxelT> integrator_;
   Raycaster<VoxelT> raycaster_;
+  Raycaster<VoxelT> view_raycaster_;  // reserved with config.view_cast only
+  bool view_cast_done_ = false;       // view_raycaster_ holds the view (cast_view())
+  bool reference_guided_ = false;     // this frame cast the reference guided by its own depth
   FreeSpace free_space_;
   EsdfField esdf_;
   DeadlineController deadline_;

@@ -54,6 +54,7 @@ struct RunOptions {
   EvictionConfig eviction = {true, 0.9f, 0.8f};
   bool bilateral = false;
   float icp_depth_knee_m = -1.0f;  // < 0: the library's default
+  bool icp_quarter = false;        // TrackConfig::finest_level_quarter_on_half_model
   bool write_mesh = true;
   MeshReadScale mesh_read_scale = MeshReadScale::current;
   bool write_frames = false;      // frames/render_NNNNNN.png after every frame

@@ -95,6 +95,7 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "--budget-raycast-steps",
                  "123456789",
                  "--raycast-full",
+                 "--icp-quarter",
                  "--budget-icp",
                  "1,2,3",
                  "--evict",
@@ -170,6 +171,7 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
   CHECK(reread.budget.max_integrated_blocks == 0u);
   CHECK(reread.budget.raycast_steps == 123456789u);
   CHECK_FALSE(reread.budget.raycast_half);  // --raycast-full against the default half
+  CHECK(reread.icp_quarter);
   CHECK(reread.budget.icp_iterations[2] == 3);
   CHECK(reread.eviction.enabled);
   CHECK(reread.eviction.high_water == 0.85f);

@@ -121,7 +121,7 @@ const char* deadline_step_name(DeadlineStep step) {
 
 void DeadlineController::reset(const DeadlineConfig& config,
                                const int icp_iterations[kPyramidLevels], int width, int height,
-                               bool icp_used, bool free_space_used) {
+                               bool icp_used, bool free_space_used, double finest_icp_share) {
   config_ = config;
   model_ = config.model;
   icp_used_ = icp_used;
@@ -131,6 +131,7 @@ void DeadlineController::reset(const DeadlineConfig& config,
     icp_floor_[level] = std::min(config.min_icp_iterations[level], icp_iterations[level]);
     level_pixels_[level] =
         static_cast<double>(width >> level) * static_cast<double>(height >> level);
+    icp_level_units_[level] = level_pixels_[level] * (level == 0 ? finest_icp_share : 1.0);
   }
   half_pixels_ = static_cast<double>((width + 1) / 2) * static_cast<double>((height + 1) / 2);
   icp_fit_ = integrate_fit_ = raycast_fit_ = free_space_fit_ = Regression{};
@@ -145,7 +146,7 @@ void DeadlineController::reset(const DeadlineConfig& config,
 double DeadlineController::icp_units(const int iterations[kPyramidLevels]) const {
   double units = 0.0;
   for (int level = 0; level < kPyramidLevels; ++level) {
-    units += static_cast<double>(iterations[level]) * level_pixels_[level];
+    units += static_cast<double>(iterations[level]) * icp_level_units_[level];
   }
   return units;
 }
@@ -214,7 +215,7 @@ DeadlineReport DeadlineController::plan_stages(bool fuse, bool cast) const {
     while (over_ms > kNegligible_ms && r.icp_iterations[level] > icp_floor_[level]) {
       --r.icp_iterations[level];
       ++r.icp_iterations_given_up;
-      over_ms -= level_pixels_[level] * icp_rate;
+      over_ms -= icp_level_units_[level] * icp_rate;
       r.deepest = DeadlineStep::icp;
     }
   }

@@ -12,6 +12,9 @@ using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
 // The finest level's checkerboard needs a model over at least this share of the image.
 constexpr double kCheckerboardMinModelFraction = 0.5;
+// The 2 x 2 phases (x % 2 + 2 (y % 2)) in the order the quarter passes take them: the diagonal
+// first, so that any two passes in a row cover both parities of x and of y.
+constexpr int kQuarterOrder[4] = {0, 3, 1, 2};
 
 // Everything one association pass reads; shared by all tasks.
 struct Pass {
@@ -26,7 +29,9 @@ struct Pass {
   float max_distance_sq_m2;
   float min_normal_dot;
   double inv_knee_m;  // 0: equal weights
-  int parity;         // -1: every pixel; 0 / 1: only pixels with (x + y) % 2 == parity
+  // -1: every pixel; 0 / 1: only pixels with (x + y) % 2 == parity; 2 + q (q in 0..3): only
+  // pixels with x % 2 == q % 2 and y % 2 == q / 2 (one of each 2 x 2).
+  int parity;
 };
 
 void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
@@ -38,12 +43,16 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
       task_range(static_cast<std::size_t>(pass.vertices_C.height), task, kTrackTasks);
   const int model_w = pass.model_W.width();
   const int model_h = pass.model_W.height();
+  const bool quarter = pass.parity >= 2;
   for (std::size_t row = rows.begin; row < rows.end; ++row) {
     const int y = static_cast<int>(row);
+    if (quarter && (y & 1) != ((pass.parity - 2) >> 1)) continue;
     const Eigen::Vector3f* v_row = pass.vertices_C.row(y);
     const Eigen::Vector3f* n_row = pass.normals_C.row(y);
     const int x_step = pass.parity < 0 ? 1 : 2;
-    const int x_begin = pass.parity < 0 ? 0 : (y + pass.parity) & 1;
+    const int x_begin = pass.parity < 0 ? 0
+                        : quarter       ? (pass.parity - 2) & 1
+                                        : (y + pass.parity) & 1;
     for (int x = x_begin; x < width; x += x_step) {
       const Eigen::Vector3f& n_C = n_row[x];
       if (is_invalid_normal(n_C)) continue;
@@ -289,12 +298,14 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
     team.for_each_task(kTrackTasks, task_fn);
     Partial total = reduce(partials);
     if (parity >= 0) {
-      // Half the pixels stand for all of them: doubled (exactly), the sums weigh against the
-      // prior, and count against the gates, as a full pass's would; the step is the same.
-      for (double& v : total.jtj) v *= 2.0;
-      for (double& v : total.jtr) v *= 2.0;
-      total.residual_sq *= 2.0;
-      total.count *= 2u;
+      // Half (a quarter of) the pixels stand for all of them: doubled (quadrupled, exactly), the
+      // sums weigh against the prior, and count against the gates, as a full pass's would; the
+      // step is the same.
+      const double scale = parity >= 2 ? 4.0 : 2.0;
+      for (double& v : total.jtj) v *= scale;
+      for (double& v : total.jtr) v *= scale;
+      total.residual_sq *= scale;
+      total.count *= parity >= 2 ? 4u : 2u;
     }
     return total;
   };
@@ -311,6 +322,10 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       static_cast<double>(model_pixels) >= kCheckerboardMinModelFraction *
                                                static_cast<double>(model_W.width()) *
                                                static_cast<double>(model_W.height());
+
+  // A model cast at half resolution has a marched point for every 2 x 2 live pixels.
+  const bool quarter =
+      checkerboard && config_.finest_level_quarter_on_half_model && model_W.pixel_stride == 2;
 
   Se3d estimate = T_W_C;
   bool singular = false;
@@ -330,8 +345,11 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       pull = agrees ? prior : nullptr;
     }
     for (int it = 0; it < config_.iterations[level]; ++it) {
-      // The finest level's passes take every other pixel, alternating between iterations.
-      const int parity = level == 0 && checkerboard ? it & 1 : -1;
+      // The finest level's passes take every other pixel, alternating between iterations; one
+      // pixel of each 2 x 2 against a model cast at half resolution, the four in turn.
+      const int parity = level != 0 || !checkerboard ? -1
+                         : quarter                   ? 2 + kQuarterOrder[it & 3]
+                                                     : it & 1;
       const Partial total = run_pass(level, estimate, parity);
       Vector6d twist;
       if (!solve_step(total, level == 0 ? pull : nullptr, estimate, twist)) {
@@ -349,7 +367,7 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       if (twist.norm() < config_.convergence_norm) break;
     }
   }
-  if (!have_final) final_total = run_pass(0, estimate, checkerboard ? 0 : -1);
+  if (!have_final) final_total = run_pass(0, estimate, !checkerboard ? -1 : quarter ? 2 : 0);
   Vector6d data_twist;
   if (pull != nullptr && have_final &&
       solve_step(final_total, nullptr, final_pass_estimate, data_twist)) {

@@ -112,6 +112,25 @@ TEST_CASE("a small overrun is taken from ICP's finest level first") {
   CHECK_FALSE(r.infeasible);
 }
 
+TEST_CASE("a finest ICP level that takes half the checkerboard's pixels costs half as much") {
+  // Against a half-resolution reference the finest passes take a quarter of the pixels (share
+  // 0.5): one finest iteration is 0.5 ms, ICP at 4, 5, 10 is 3.875 ms, and the frame 27.875 ms.
+  DeadlineController controller;
+  controller.reset(hand_config(27.0), kIcp, kSide, kSide, true, true, 0.5);
+  controller.observe(demand_frame(), controller.plan());
+  const DeadlineReport r = controller.plan();
+  REQUIRE(r.planned);
+  // 0.875 ms over 25 available: two finest iterations (where a full share gives up three).
+  CHECK(r.deepest == DeadlineStep::icp);
+  CHECK(r.icp_iterations[0] == 2);
+  CHECK(r.icp_iterations[1] == 5);
+  CHECK(r.icp_iterations_given_up == 2);
+  CHECK(r.predicted_ms == Approx(26.875).margin(kTolerance_ms));
+  controller.reset(hand_config(40.0), kIcp, kSide, kSide, true, true, 0.5);
+  controller.observe(demand_frame(), controller.plan());
+  CHECK(controller.plan().predicted_ms == Approx(27.875).margin(kTolerance_ms));
+}
+
 TEST_CASE("a larger overrun takes ICP and voxels to their floors, then ray-casts at half size") {
   // 14.875 ms over 13 available: ICP gives 3 + 1 + 0.5 ms at floors 1, 1, 2; voxel updates
   // give 7.5 ms down to a quarter; the 2.875 ms left cost a half-resolution ray-cast, which

@@ -133,6 +133,51 @@ TEST_CASE("a model cast at half resolution is paired at its cast pixels only") {
   CHECK(translation_error_m(pose_full_read, pose_half) > 1e-3);
 }
 
+TEST_CASE("against a half-resolution model the finest level takes one pixel of each 2 x 2") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackFixture halves;  // the default: the checkerboard
+  TrackConfig quarter_config;
+  quarter_config.finest_level_quarter_on_half_model = true;
+  TrackFixture quarters(quarter_config);
+  const Se3d T_W_Cref = reference_pose();
+  const Se3d T_W_C_true = offset_pose();
+  const test::RenderedModel full = scene.render_model(quarters.camera_level0(), T_W_Cref);
+  const test::RenderedModel half = half_resolution_copy(full);
+  ConstSurfaceMap half_map = half.map();
+  half_map.pixel_stride = 2;
+  halves.set_live(scene, T_W_C_true, 1, 0.002f);
+  quarters.set_live(scene, T_W_C_true, 1, 0.002f);
+  const WorkerTeam team(1);
+  Se3d pose_halves = T_W_Cref;
+  Se3d pose_quarters = T_W_Cref;
+  const TrackReport a = halves.tracker.track(halves.pre.pyramid(), half_map, halves.camera_level0(),
+                                             T_W_Cref, pose_halves, team);
+  const TrackReport b = quarters.tracker.track(
+      quarters.pre.pyramid(), half_map, quarters.camera_level0(), T_W_Cref, pose_quarters, team);
+  REQUIRE(a.tracked());
+  REQUIRE(b.tracked());
+  CHECK(translation_error_m(pose_quarters, T_W_C_true) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(pose_quarters, T_W_C_true) < kRotationTolerance_deg);
+  CHECK(translation_error_m(pose_quarters, pose_halves) < 2e-4);
+  CHECK(rotation_error_deg(pose_quarters, pose_halves) < 0.02);
+  // The quarter's count, times four, stands for the whole image.
+  CHECK(b.inliers % 4 == 0u);
+  CHECK(std::abs(static_cast<double>(b.inliers) - static_cast<double>(a.inliers)) <
+        0.03 * static_cast<double>(a.inliers));
+  CHECK(pose_quarters.matrix() != pose_halves.matrix());  // not the same passes
+  // Against a model cast at every pixel the setting changes nothing, bit for bit.
+  Se3d pose_full_halves = T_W_Cref;
+  Se3d pose_full_quarters = T_W_Cref;
+  const TrackReport c = halves.tracker.track(
+      halves.pre.pyramid(), full.map(), halves.camera_level0(), T_W_Cref, pose_full_halves, team);
+  const TrackReport d =
+      quarters.tracker.track(quarters.pre.pyramid(), full.map(), quarters.camera_level0(), T_W_Cref,
+                             pose_full_quarters, team);
+  REQUIRE(c.tracked());
+  CHECK(pose_full_halves.matrix() == pose_full_quarters.matrix());
+  CHECK(c.inliers == d.inliers);
+}
+
 TEST_CASE("ICP stays at the identity when already aligned") {
   const test::AnalyticScene scene = test::corner_scene();
   TrackFixture f;

@@ -130,9 +130,12 @@ class DeadlineController {
  public:
   // `icp_iterations`: the configured budget per level; `width` x `height`: the working
   // resolution (pyramid level 0); `icp_used`: the pose source tracks; `free_space_used`: carving
-  // is on. Forgets the demand estimates and starts from config.model.
+  // is on; `finest_icp_share`: the share of the finest level's pixels an ICP pass takes, relative
+  // to the checkerboard's (a quarter of the pixels against a half-resolution reference: 0.5), so
+  // that the units weigh the levels as the passes cost. Forgets the demand estimates and starts
+  // from config.model.
   void reset(const DeadlineConfig& config, const int icp_iterations[kPyramidLevels], int width,
-             int height, bool icp_used, bool free_space_used);
+             int height, bool icp_used, bool free_space_used, double finest_icp_share = 1.0);
   bool active() const { return config_.deadline_ms > 0.0; }
   // The next frame's budgets (see DeadlineReport); configured ones before any observation.
   DeadlineReport plan() const;
@@ -162,6 +165,7 @@ class DeadlineController {
   int icp_iterations_[kPyramidLevels] = {0, 0, 0};
   int icp_floor_[kPyramidLevels] = {0, 0, 0};
   double level_pixels_[kPyramidLevels] = {0.0, 0.0, 0.0};
+  double icp_level_units_[kPyramidLevels] = {0.0, 0.0, 0.0};  // one ICP iteration's units
   double half_pixels_ = 0.0;  // the rays a half-resolution ray-cast marches
   bool icp_used_ = true;
   bool free_space_used_ = true;

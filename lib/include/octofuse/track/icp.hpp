@@ -54,6 +54,11 @@ struct TrackConfig {
   // count doubled. Only while the model covers at least half of the image: a smaller one leaves
   // too few pairs to halve.
   bool finest_level_checkerboard = true;
+  // With the checkerboard, against a model cast at half resolution (SurfaceMap::pixel_stride 2,
+  // one marched point per 2 x 2 pixels) the passes take one pixel of each 2 x 2 instead, the four
+  // in turn between iterations: as many live points as the model has, half the checkerboard's
+  // work. Off by default: on sim:desk it tracked 1-2 % worse (lib/README.md, "Tracking").
+  bool finest_level_quarter_on_half_model = false;
 
   // True when every field is finite and in range (iterations >= 0, gates and knee >= 0, dot in
   // [-1, 1]).

@@ -28,7 +28,7 @@ FreeSpace::PixelRange FreeSpace::pixel_range(int u0, int v0, int u1, int v1) con
 }
 
 FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look,
-                                    float* room_m) const {
+                                    FootprintDepths* depths) const {
   const float voxel = map_.voxel_size_m;
   const Eigen::Vector3f lo_W =
       map_.origin_W + min_voxel.cast<float>() * voxel - Eigen::Vector3f::Constant(margin_m_);
@@ -83,12 +83,12 @@ FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_v
     v_max = std::max(v_max, px.y());
   }
   // The projection of a convex body in front of the camera lies in the hull of its corners'.
-  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, look, room_m);
+  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, look, depths);
 }
 
 FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_min, float u_max,
                                               float v_min, float v_max, Look look,
-                                              float* room_m) const {
+                                              FootprintDepths* depths) const {
   const float w = static_cast<float>(width_);
   const float h = static_cast<float>(height_);
   if (u_max < -0.5f || v_max < -0.5f || u_min >= w - 0.5f || v_min >= h - 0.5f) {
@@ -133,7 +133,10 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   int zone_level = -1;
   // The footprint's exact range decides, but for the silhouette test tile by tile.
   auto classify_range = [&](const PixelRange& range) {
-    if (room_m != nullptr) *room_m = range.hi_m - z_min;
+    if (depths != nullptr) {
+      depths->room_m = range.hi_m - z_min;
+      depths->far_m = range.hi_m;
+    }
     // Nothing measured in the footprint: this frame says nothing about the octant.
     if (range.lo_m >= kNoDepth) return Seen::not_seen;
     if (z_max < range.lo_m - clearance_m_) {
@@ -254,6 +257,35 @@ FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, i
   }
   if (any_through && all_through && !invalid && inside) return Seen::free;
   return any_through ? Seen::clear : Seen::not_seen;
+}
+
+bool FreeSpace::sub_cell_may_be_free(const Eigen::Vector3i& leaf_min_voxel, int size_voxels,
+                                     float far_m) const {
+  // The leaf's centre is a corner of every sub-cell, so each sub-cell's far bound
+  // (classify_sub_cells: its corners' depths + r) is at least the centre's depth + r, and each
+  // one's footprint holds the pixel the centre projects to (footprints are grown by a pixel).
+  // A free sub-cell needs every pixel of its footprint measured beyond its far bound by the
+  // clearance: that pixel too, and so the deepest pixel of the leaf's footprint (its farthest
+  // surface, or a ray measured beyond the range), which holds that pixel.
+  const float voxel = map_.voxel_size_m;
+  const float half = 0.5f * static_cast<float>(size_voxels);
+  const Eigen::Vector3f centre_W =
+      map_.origin_W + (leaf_min_voxel.cast<float>() + Eigen::Vector3f::Constant(half)) * voxel;
+  const Eigen::Vector3f centre_C = R_C_W_ * centre_W + t_C_W_;
+  const float r = margin_m_ * 1.7320508f;
+  // 1 mm of slack covers the rounding between these bounds and classify_sub_cells' arithmetic.
+  constexpr float kSlack_m = 1e-3f;
+  const float least_free_m = centre_C.z() + r + clearance_m_ - kSlack_m;
+  if (std::max(far_m, beyond_free_m_) <= least_free_m) return false;
+  // The centre's pixel: outside the image or without depth, no sub-cell is wholly measured.
+  const Eigen::Vector2f px = camera_.project(centre_C);
+  const int u = clamped_floor(px.x() + 0.5f);
+  const int v = clamped_floor(px.y() + 0.5f);
+  if (u < 0 || v < 0 || u >= width_ || v >= height_) return false;
+  const std::size_t i =
+      static_cast<std::size_t>(v) * static_cast<std::size_t>(width_) + static_cast<std::size_t>(u);
+  if (ranges_.level_invalid(0)[i] != 0) return false;
+  return ranges_.level_min(0)[i] > least_free_m;
 }
 
 FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
@@ -395,6 +427,7 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     beyond_range = ImageView<const std::uint8_t>();
   }
   ranges_.build(depth_m, beyond_range, beyond_free_m);
+  beyond_free_m_ = beyond_range.empty() ? 0.0f : beyond_free_m;
   const Se3f T_C_W = T_W_C.inverse().cast<float>();
   R_C_W_ = T_C_W.linear();
   t_C_W_ = T_C_W.translation();
@@ -503,9 +536,9 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
     // would change), so it is not classified.
     if (counting && e.level == leaf && real(e.node)) continue;
     const int size = 1 << (depth - e.level);
-    float room_m = 0.0f;
+    FootprintDepths depths;
     const Seen seen =
-        classify(e.min_voxel, size, e.level == leaf ? Look::leaf : Look::coarse, &room_m);
+        classify(e.min_voxel, size, e.level == leaf ? Look::leaf : Look::coarse, &depths);
     if (seen == Seen::not_seen) continue;
     std::uint32_t index = e.node;
     if (seen == Seen::clear) {
@@ -538,9 +571,13 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
       SubCellUpdate update;
       // Occluded wholly, or no measured depth lies beyond its nearest point by more than the
       // clearance (so no half of it can be free): cleared without a closer look.
-      if (seen == Seen::occluded || (seen == Seen::partial && room_m <= clearance_m_)) {
+      if (seen == Seen::occluded || (seen == Seen::partial && depths.room_m <= clearance_m_)) {
         update.clear = kAllSubCells;
       } else if (gain_only && ((static_cast<std::uint32_t>(leaf_index) + frame) & 1u) != 0) {
+        continue;
+      } else if (gain_only && !sub_cell_may_be_free(e.min_voxel, size, depths.far_m)) {
+        // Only a free sub-cell would change it, and none can be: the closer look would find
+        // nothing (the same answer, without projecting the 27 grid points).
         continue;
       } else {
         update = classify_sub_cells(e.min_voxel);

@@ -86,14 +86,19 @@ class FreeSpace : public FreeOctree {
   // but some not measured or outside the image; not_seen; partial: a measured depth within it;
   // occluded: behind every measured depth; straddle: across the camera plane (no footprint).
   enum class Seen : std::uint8_t { free, clear, not_seen, partial, occluded, straddle };
-  // room_m (optional): how far the farthest measured depth in the footprint lies beyond the
-  // octant's nearest point.
+  // depths (optional): how far the farthest measured depth in the footprint lies beyond the
+  // octant's nearest point (room_m), and that depth (far_m; 0: none).
+  struct FootprintDepths {
+    float room_m = 0.0f;
+    float far_m = 0.0f;
+  };
   // How closely an octant is looked at: coarse (it descends anyway), a leaf or a leaf's
   // sub-cell (final answers).
   enum class Look : std::uint8_t { coarse, leaf, sub_cell };
-  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look, float* room_m) const;
+  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look,
+                FootprintDepths* depths) const;
   Seen classify_footprint(float z_min, float z_max, float u_min, float u_max, float v_min,
-                          float v_max, Look look, float* room_m) const;
+                          float v_max, Look look, FootprintDepths* depths) const;
   // The partial answer of a leaf or sub-cell whose window holds depths both in front of and
   // behind the zone, settled pixel by pixel where the tiles of `level` covering its footprint
   // [u0, u1] x [v0, v1] do not settle it (FreeSpaceConfig::exact_silhouettes).
@@ -104,6 +109,10 @@ class FreeSpace : public FreeOctree {
     std::uint8_t clear = 0;  // sub-cells with a measured depth within or just before them
   };
   SubCellUpdate classify_sub_cells(const Eigen::Vector3i& leaf_min_voxel) const;
+  // False when no sub-cell of the leaf can be free this frame: `far_m`, the farthest surface in
+  // the leaf's footprint (and any ray measured beyond the range), lies too near for any.
+  bool sub_cell_may_be_free(const Eigen::Vector3i& leaf_min_voxel, int size_voxels,
+                            float far_m) const;
   // The walk from the root. counting: nothing is written and histogram[b] gets the nodes the
   // walk would make at distance band b; otherwise nodes are made only in bands below `bands`.
   void walk(std::uint32_t frame, bool counting, std::uint32_t bands, FreeSpaceReport& report,
@@ -118,6 +127,7 @@ class FreeSpace : public FreeOctree {
   int height_ = 0;
   float clearance_m_ = 0.0f;
   float occlusion_clear_m_ = 0.0f;
+  float beyond_free_m_ = 0.0f;  // this frame's, 0 without rays measured beyond the range
   // Per-frame projection (set by carve()).
   Eigen::Matrix3f R_C_W_ = Eigen::Matrix3f::Identity();
   Eigen::Vector3f t_C_W_ = Eigen::Vector3f::Zero();

@@ -259,25 +259,21 @@ FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, i
   return any_through ? Seen::clear : Seen::not_seen;
 }
 
-bool FreeSpace::sub_cell_may_be_free(const Eigen::Vector3i& leaf_min_voxel, int size_voxels,
-                                     float far_m) const {
-  // The leaf's centre is a corner of every sub-cell, so each sub-cell's far bound
-  // (classify_sub_cells: its corners' depths + r) is at least the centre's depth + r, and each
-  // one's footprint holds the pixel the centre projects to (footprints are grown by a pixel).
-  // A free sub-cell needs every pixel of its footprint measured beyond its far bound by the
-  // clearance: that pixel too, and so the deepest pixel of the leaf's footprint (its farthest
-  // surface, or a ray measured beyond the range), which holds that pixel.
+bool FreeSpace::centre_seen_beyond(const Eigen::Vector3i& min_voxel, int size_voxels,
+                                   float behind_m, float far_m) const {
   const float voxel = map_.voxel_size_m;
   const float half = 0.5f * static_cast<float>(size_voxels);
   const Eigen::Vector3f centre_W =
-      map_.origin_W + (leaf_min_voxel.cast<float>() + Eigen::Vector3f::Constant(half)) * voxel;
+      map_.origin_W + (min_voxel.cast<float>() + Eigen::Vector3f::Constant(half)) * voxel;
   const Eigen::Vector3f centre_C = R_C_W_ * centre_W + t_C_W_;
-  const float r = margin_m_ * 1.7320508f;
-  // 1 mm of slack covers the rounding between these bounds and classify_sub_cells' arithmetic.
+  // At the camera plane the projection says nothing: it may.
+  if (!(centre_C.z() > config_.near_m)) return true;
+  // 1 mm of slack covers the rounding between these bounds and the classification's arithmetic.
   constexpr float kSlack_m = 1e-3f;
-  const float least_free_m = centre_C.z() + r + clearance_m_ - kSlack_m;
+  const float least_free_m = centre_C.z() + behind_m + clearance_m_ - kSlack_m;
   if (std::max(far_m, beyond_free_m_) <= least_free_m) return false;
-  // The centre's pixel: outside the image or without depth, no sub-cell is wholly measured.
+  // The centre's pixel: outside the image or without depth, no footprint holding it is wholly
+  // measured.
   const Eigen::Vector2f px = camera_.project(centre_C);
   const int u = clamped_floor(px.x() + 0.5f);
   const int v = clamped_floor(px.y() + 0.5f);
@@ -304,7 +300,7 @@ FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
   float px[kPoints];
   float py[kPoints];
   float pz[kPoints];
-  const float r = margin_m_ * 1.7320508f;
+  const float r = margin_m_ * kSubCellGrowth;
   const Eigen::Vector3f lo_W = map_.origin_W + leaf_min_voxel.cast<float>() * voxel;
   const Eigen::Vector3f base_C = R_C_W_ * lo_W + t_C_W_;
   const Eigen::Vector3f sx = R_C_W_.col(0) * sub_side;
@@ -535,6 +531,12 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
     // Counting: a leaf that exists makes no node whatever the frame shows in it (only its state
     // would change), so it is not classified.
     if (counting && e.level == leaf && real(e.node)) continue;
+    // A leaf not in the tree changes only if it or one of its sub-cells is seen free, which needs
+    // the pixel its centre projects to (in every such footprint) measured beyond the centre.
+    if (e.level == leaf && !real(e.node) &&
+        !centre_seen_beyond(e.min_voxel, 1 << (depth - e.level), 0.0f, kNoDepth)) {
+      continue;
+    }
     const int size = 1 << (depth - e.level);
     FootprintDepths depths;
     const Seen seen =
@@ -575,7 +577,8 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
         update.clear = kAllSubCells;
       } else if (gain_only && ((static_cast<std::uint32_t>(leaf_index) + frame) & 1u) != 0) {
         continue;
-      } else if (gain_only && !sub_cell_may_be_free(e.min_voxel, size, depths.far_m)) {
+      } else if (gain_only &&
+                 !centre_seen_beyond(e.min_voxel, size, margin_m_ * kSubCellGrowth, depths.far_m)) {
         // Only a free sub-cell would change it, and none can be: the closer look would find
         // nothing (the same answer, without projecting the 27 grid points).
         continue;

@@ -109,10 +109,17 @@ class FreeSpace : public FreeOctree {
     std::uint8_t clear = 0;  // sub-cells with a measured depth within or just before them
   };
   SubCellUpdate classify_sub_cells(const Eigen::Vector3i& leaf_min_voxel) const;
-  // False when no sub-cell of the leaf can be free this frame: `far_m`, the farthest surface in
-  // the leaf's footprint (and any ray measured beyond the range), lies too near for any.
-  bool sub_cell_may_be_free(const Eigen::Vector3i& leaf_min_voxel, int size_voxels,
-                            float far_m) const;
+  // Sub-cells are tested with boxes of half-side margin_m * this around their corners.
+  static constexpr float kSubCellGrowth = 1.7320508f;  // sqrt(3)
+  // Every octant or sub-cell with the octant's centre as a point can be free this frame only if
+  // this holds (false: none can): the pixel the centre projects to, which each such footprint
+  // holds (footprints are grown by a pixel), in the image, measured, and seen more than the
+  // clearance beyond the centre's depth + `behind_m` (what each one's far bound exceeds the
+  // centre's depth by at least); and `far_m` (the farthest surface in a footprint holding that
+  // pixel, kNoDepth: not known) or a ray measured beyond the range as far. True at the camera
+  // plane.
+  bool centre_seen_beyond(const Eigen::Vector3i& min_voxel, int size_voxels, float behind_m,
+                          float far_m) const;
   // The walk from the root. counting: nothing is written and histogram[b] gets the nodes the
   // walk would make at distance band b; otherwise nodes are made only in bands below `bands`.
   void walk(std::uint32_t frame, bool counting, std::uint32_t bands, FreeSpaceReport& report,

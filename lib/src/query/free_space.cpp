@@ -533,8 +533,9 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
     if (counting && e.level == leaf && real(e.node)) continue;
     // A leaf not in the tree changes only if it or one of its sub-cells is seen free, which needs
     // the pixel its centre projects to (in every such footprint) measured beyond the centre.
-    if (e.level == leaf && !real(e.node) &&
+    if (!exhaustive_ && e.level == leaf && !real(e.node) &&
         !centre_seen_beyond(e.min_voxel, 1 << (depth - e.level), 0.0f, kNoDepth)) {
+      ++report.looks_skipped;
       continue;
     }
     const int size = 1 << (depth - e.level);
@@ -577,10 +578,11 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
         update.clear = kAllSubCells;
       } else if (gain_only && ((static_cast<std::uint32_t>(leaf_index) + frame) & 1u) != 0) {
         continue;
-      } else if (gain_only &&
+      } else if (!exhaustive_ && gain_only &&
                  !centre_seen_beyond(e.min_voxel, size, margin_m_ * kSubCellGrowth, depths.far_m)) {
         // Only a free sub-cell would change it, and none can be: the closer look would find
         // nothing (the same answer, without projecting the 27 grid points).
+        ++report.looks_skipped;
         continue;
       } else {
         update = classify_sub_cells(e.min_voxel);

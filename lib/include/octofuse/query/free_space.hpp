@@ -33,6 +33,9 @@ struct FreeSpaceReport {
   // New nodes not made because they lay beyond the distance from the camera within which the
   // frame's carving fits the pool's room (the farthest air is forgotten first; not a refusal).
   std::uint32_t far_dropped = 0;
+  // Leaves not classified and leaves' sub-cell looks not taken because the centre's pixel showed
+  // they could change nothing (the same tree as taking them).
+  std::uint32_t looks_skipped = 0;
   std::uint32_t pruned = 0;      // nodes forgotten after this frame to make room (prune())
   bool budget_hit = false;       // visits or allocations ran out
   std::uint32_t nodes_used = 0;  // after this frame
@@ -75,6 +78,11 @@ class FreeSpace : public FreeOctree {
   using PixelRange = DepthRangeTable::Range;
   static constexpr float kNoDepth = DepthRangeTable::kNoDepth;
   PixelRange pixel_range(int u0, int v0, int u1, int v1) const;
+
+  // true: every leaf the walk reaches is classified and every sub-cell look taken, without the
+  // shortcuts that skip those that can change nothing (FreeSpaceReport::looks_skipped); the same
+  // tree, for tests that check that.
+  void set_exhaustive(bool exhaustive) { exhaustive_ = exhaustive; }
 
   // Changes the node-visit budget between frames (a frame deadline sets it); 0 reads as 1.
   void set_visit_budget(std::uint32_t max_node_visits) {
@@ -134,6 +142,7 @@ class FreeSpace : public FreeOctree {
   int height_ = 0;
   float clearance_m_ = 0.0f;
   float occlusion_clear_m_ = 0.0f;
+  bool exhaustive_ = false;
   float beyond_free_m_ = 0.0f;  // this frame's, 0 without rays measured beyond the range
   // Per-frame projection (set by carve()).
   Eigen::Matrix3f R_C_W_ = Eigen::Matrix3f::Identity();

@@ -28,7 +28,7 @@ FreeSpace::PixelRange FreeSpace::pixel_range(int u0, int v0, int u1, int v1) con
 }
 
 FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look,
-                                    float* room_m) const {
+                                    FootprintDepths* depths) const {
   const float voxel = map_.voxel_size_m;
   const Eigen::Vector3f lo_W =
       map_.origin_W + min_voxel.cast<float>() * voxel - Eigen::Vector3f::Constant(margin_m_);
@@ -83,12 +83,12 @@ FreeSpace::Seen FreeSpace::classify(const Eigen::Vector3i& min_voxel, int size_v
     v_max = std::max(v_max, px.y());
   }
   // The projection of a convex body in front of the camera lies in the hull of its corners'.
-  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, look, room_m);
+  return classify_footprint(z_min, z_max, u_min, u_max, v_min, v_max, look, depths);
 }
 
 FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_min, float u_max,
                                               float v_min, float v_max, Look look,
-                                              float* room_m) const {
+                                              FootprintDepths* depths) const {
   const float w = static_cast<float>(width_);
   const float h = static_cast<float>(height_);
   if (u_max < -0.5f || v_max < -0.5f || u_min >= w - 0.5f || v_min >= h - 0.5f) {
@@ -133,7 +133,10 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   int zone_level = -1;
   // The footprint's exact range decides, but for the silhouette test tile by tile.
   auto classify_range = [&](const PixelRange& range) {
-    if (room_m != nullptr) *room_m = range.hi_m - z_min;
+    if (depths != nullptr) {
+      depths->room_m = range.hi_m - z_min;
+      depths->far_m = range.hi_m;
+    }
     // Nothing measured in the footprint: this frame says nothing about the octant.
     if (range.lo_m >= kNoDepth) return Seen::not_seen;
     if (z_max < range.lo_m - clearance_m_) {
@@ -256,6 +259,31 @@ FreeSpace::Seen FreeSpace::refine_footprint(int level, int u0, int v0, int u1, i
   return any_through ? Seen::clear : Seen::not_seen;
 }
 
+bool FreeSpace::centre_seen_beyond(const Eigen::Vector3i& min_voxel, int size_voxels,
+                                   float behind_m, float far_m) const {
+  const float voxel = map_.voxel_size_m;
+  const float half = 0.5f * static_cast<float>(size_voxels);
+  const Eigen::Vector3f centre_W =
+      map_.origin_W + (min_voxel.cast<float>() + Eigen::Vector3f::Constant(half)) * voxel;
+  const Eigen::Vector3f centre_C = R_C_W_ * centre_W + t_C_W_;
+  // At the camera plane the projection says nothing: it may.
+  if (!(centre_C.z() > config_.near_m)) return true;
+  // 1 mm of slack covers the rounding between these bounds and the classification's arithmetic.
+  constexpr float kSlack_m = 1e-3f;
+  const float least_free_m = centre_C.z() + behind_m + clearance_m_ - kSlack_m;
+  if (std::max(far_m, beyond_free_m_) <= least_free_m) return false;
+  // The centre's pixel: outside the image or without depth, no footprint holding it is wholly
+  // measured.
+  const Eigen::Vector2f px = camera_.project(centre_C);
+  const int u = clamped_floor(px.x() + 0.5f);
+  const int v = clamped_floor(px.y() + 0.5f);
+  if (u < 0 || v < 0 || u >= width_ || v >= height_) return false;
+  const std::size_t i =
+      static_cast<std::size_t>(v) * static_cast<std::size_t>(width_) + static_cast<std::size_t>(u);
+  if (ranges_.level_invalid(0)[i] != 0) return false;
+  return ranges_.level_min(0)[i] > least_free_m;
+}
+
 FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
     const Eigen::Vector3i& leaf_min_voxel) const {
   SubCellUpdate update;
@@ -272,7 +300,7 @@ FreeSpace::SubCellUpdate FreeSpace::classify_sub_cells(
   float px[kPoints];
   float py[kPoints];
   float pz[kPoints];
-  const float r = margin_m_ * 1.7320508f;
+  const float r = margin_m_ * kSubCellGrowth;
   const Eigen::Vector3f lo_W = map_.origin_W + leaf_min_voxel.cast<float>() * voxel;
   const Eigen::Vector3f base_C = R_C_W_ * lo_W + t_C_W_;
   const Eigen::Vector3f sx = R_C_W_.col(0) * sub_side;
@@ -395,6 +423,7 @@ FreeSpaceReport FreeSpace::carve(ImageView<const float> depth_m, const PinholeCa
     beyond_range = ImageView<const std::uint8_t>();
   }
   ranges_.build(depth_m, beyond_range, beyond_free_m);
+  beyond_free_m_ = beyond_range.empty() ? 0.0f : beyond_free_m;
   const Se3f T_C_W = T_W_C.inverse().cast<float>();
   R_C_W_ = T_C_W.linear();
   t_C_W_ = T_C_W.translation();
@@ -502,10 +531,17 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
     // Counting: a leaf that exists makes no node whatever the frame shows in it (only its state
     // would change), so it is not classified.
     if (counting && e.level == leaf && real(e.node)) continue;
+    // A leaf not in the tree changes only if it or one of its sub-cells is seen free, which needs
+    // the pixel its centre projects to (in every such footprint) measured beyond the centre.
+    if (!exhaustive_ && e.level == leaf && !real(e.node) &&
+        !centre_seen_beyond(e.min_voxel, 1 << (depth - e.level), 0.0f, kNoDepth)) {
+      ++report.looks_skipped;
+      continue;
+    }
     const int size = 1 << (depth - e.level);
-    float room_m = 0.0f;
+    FootprintDepths depths;
     const Seen seen =
-        classify(e.min_voxel, size, e.level == leaf ? Look::leaf : Look::coarse, &room_m);
+        classify(e.min_voxel, size, e.level == leaf ? Look::leaf : Look::coarse, &depths);
     if (seen == Seen::not_seen) continue;
     std::uint32_t index = e.node;
     if (seen == Seen::clear) {
@@ -538,9 +574,15 @@ void FreeSpace::walk(std::uint32_t frame, bool counting, std::uint32_t bands,
       SubCellUpdate update;
       // Occluded wholly, or no measured depth lies beyond its nearest point by more than the
       // clearance (so no half of it can be free): cleared without a closer look.
-      if (seen == Seen::occluded || (seen == Seen::partial && room_m <= clearance_m_)) {
+      if (seen == Seen::occluded || (seen == Seen::partial && depths.room_m <= clearance_m_)) {
         update.clear = kAllSubCells;
       } else if (gain_only && ((static_cast<std::uint32_t>(leaf_index) + frame) & 1u) != 0) {
+        continue;
+      } else if (!exhaustive_ && gain_only &&
+                 !centre_seen_beyond(e.min_voxel, size, margin_m_ * kSubCellGrowth, depths.far_m)) {
+        // Only a free sub-cell would change it, and none can be: the closer look would find
+        // nothing (the same answer, without projecting the 27 grid points).
+        ++report.looks_skipped;
         continue;
       } else {
         update = classify_sub_cells(e.min_voxel);

@@ -92,6 +92,53 @@ TEST_CASE("carving is bit-identical for 1 and 2 workers and stays within its bud
   REQUIRE(capped.free_space.node_count() <= 11);
 }
 
+TEST_CASE("skipping leaves and sub-cell looks that can change nothing gives the full walk's tree") {
+  // A wall, a sphere in front of it (a silhouette with air behind), a box and a tilted plane,
+  // seen from poses that turn so that part of the view misses everything (pixels without depth):
+  // the shortcuts must leave every node as classifying everything does.
+  AnalyticScene scene = wall_at(kWall_m);
+  scene.spheres.push_back({Eigen::Vector3d(0.2, 0.1, 1.3), 0.15});
+  scene.boxes.push_back({Eigen::Vector3d(-0.3, 0.2, 1.6), Eigen::Vector3d(0.1, 0.2, 0.1),
+                         Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitY()).toRotationMatrix()});
+  scene.planes.push_back({Eigen::Vector3d(0.0, -0.8, 0.6).normalized(), -0.1});
+  for (const int octant_voxels : {8, 4, 2}) {
+    for (const bool exact : {false, true}) {
+      FreeSpaceConfig config;
+      config.finest_octant_voxels = octant_voxels;
+      config.exact_silhouettes = exact;
+      Mapper full(config);
+      Mapper fast(config);
+      full.free_space.set_exhaustive(true);
+      std::uint64_t skipped = 0;
+      for (int i = 0; i < 6; ++i) {
+        Se3d T_W_C = Se3d::Identity();
+        T_W_C.linear() = (Eigen::AngleAxisd(0.12 * i, Eigen::Vector3d::UnitY()) *
+                          Eigen::AngleAxisd(-0.05 * i, Eigen::Vector3d::UnitX()))
+                             .toRotationMatrix();
+        T_W_C.translation() = Eigen::Vector3d(-0.04 * i, 0.02 * i, 0.08 * i);
+        const FreeSpaceReport a = full.fuse(scene, T_W_C);
+        const FreeSpaceReport b = fast.fuse(scene, T_W_C);
+        REQUIRE(a.looks_skipped == 0);
+        REQUIRE(a.node_visits == b.node_visits);
+        REQUIRE(a.marked_free == b.marked_free);
+        REQUIRE(a.cleared == b.cleared);
+        skipped += b.looks_skipped;
+      }
+      CAPTURE(octant_voxels, exact);
+      REQUIRE(skipped > 0);
+      REQUIRE(full.free_space.node_count() == fast.free_space.node_count());
+      int free_halves = 0;
+      for (std::uint32_t i = 0; i < full.free_space.node_count(); ++i) {
+        REQUIRE(std::memcmp(&full.free_space.node(i), &fast.free_space.node(i), sizeof(FreeNode)) ==
+                0);
+        if (full.free_space.node(i).sub_free != 0) ++free_halves;
+      }
+      // Leaves carved by halves: the sub-cell looks were taken and mattered.
+      REQUIRE(free_halves > 0);
+    }
+  }
+}
+
 TEST_CASE("octants down to 2 voxels carve closer to the view's edges, and no closer to the wall") {
   FreeSpaceConfig fine_config;
   fine_config.finest_octant_voxels = 2;

@@ -27,7 +27,7 @@ struct CostModel {
   StageCost icp = {0.5, 33.0};          // per million pixel-iterations
   StageCost integrate = {5.0, 10.0};    // per million voxels
   StageCost raycast = {5.0, 90.0};      // per million march steps
-  StageCost free_space = {0.5, 400.0};  // per million node visits
+  StageCost free_space = {0.5, 250.0};  // per million node visits
   double safety = 1.0;
 };
 

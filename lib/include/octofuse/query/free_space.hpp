@@ -33,6 +33,9 @@ struct FreeSpaceReport {
   // New nodes not made because they lay beyond the distance from the camera within which the
   // frame's carving fits the pool's room (the farthest air is forgotten first; not a refusal).
   std::uint32_t far_dropped = 0;
+  // Leaves not classified and leaves' sub-cell looks not taken because the centre's pixel showed
+  // they could change nothing (the same tree as taking them).
+  std::uint32_t looks_skipped = 0;
   std::uint32_t pruned = 0;      // nodes forgotten after this frame to make room (prune())
   bool budget_hit = false;       // visits or allocations ran out
   std::uint32_t nodes_used = 0;  // after this frame
@@ -76,6 +79,11 @@ class FreeSpace : public FreeOctree {
   static constexpr float kNoDepth = DepthRangeTable::kNoDepth;
   PixelRange pixel_range(int u0, int v0, int u1, int v1) const;
 
+  // true: every leaf the walk reaches is classified and every sub-cell look taken, without the
+  // shortcuts that skip those that can change nothing (FreeSpaceReport::looks_skipped); the same
+  // tree, for tests that check that.
+  void set_exhaustive(bool exhaustive) { exhaustive_ = exhaustive; }
+
   // Changes the node-visit budget between frames (a frame deadline sets it); 0 reads as 1.
   void set_visit_budget(std::uint32_t max_node_visits) {
     config_.max_node_visits = max_node_visits > 0 ? max_node_visits : 1u;
@@ -86,14 +94,19 @@ class FreeSpace : public FreeOctree {
   // but some not measured or outside the image; not_seen; partial: a measured depth within it;
   // occluded: behind every measured depth; straddle: across the camera plane (no footprint).
   enum class Seen : std::uint8_t { free, clear, not_seen, partial, occluded, straddle };
-  // room_m (optional): how far the farthest measured depth in the footprint lies beyond the
-  // octant's nearest point.
+  // depths (optional): how far the farthest measured depth in the footprint lies beyond the
+  // octant's nearest point (room_m), and that depth (far_m; 0: none).
+  struct FootprintDepths {
+    float room_m = 0.0f;
+    float far_m = 0.0f;
+  };
   // How closely an octant is looked at: coarse (it descends anyway), a leaf or a leaf's
   // sub-cell (final answers).
   enum class Look : std::uint8_t { coarse, leaf, sub_cell };
-  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look, float* room_m) const;
+  Seen classify(const Eigen::Vector3i& min_voxel, int size_voxels, Look look,
+                FootprintDepths* depths) const;
   Seen classify_footprint(float z_min, float z_max, float u_min, float u_max, float v_min,
-                          float v_max, Look look, float* room_m) const;
+                          float v_max, Look look, FootprintDepths* depths) const;
   // The partial answer of a leaf or sub-cell whose window holds depths both in front of and
   // behind the zone, settled pixel by pixel where the tiles of `level` covering its footprint
   // [u0, u1] x [v0, v1] do not settle it (FreeSpaceConfig::exact_silhouettes).
@@ -104,6 +117,17 @@ class FreeSpace : public FreeOctree {
     std::uint8_t clear = 0;  // sub-cells with a measured depth within or just before them
   };
   SubCellUpdate classify_sub_cells(const Eigen::Vector3i& leaf_min_voxel) const;
+  // Sub-cells are tested with boxes of half-side margin_m * this around their corners.
+  static constexpr float kSubCellGrowth = 1.7320508f;  // sqrt(3)
+  // Every octant or sub-cell with the octant's centre as a point can be free this frame only if
+  // this holds (false: none can): the pixel the centre projects to, which each such footprint
+  // holds (footprints are grown by a pixel), in the image, measured, and seen more than the
+  // clearance beyond the centre's depth + `behind_m` (what each one's far bound exceeds the
+  // centre's depth by at least); and `far_m` (the farthest surface in a footprint holding that
+  // pixel, kNoDepth: not known) or a ray measured beyond the range as far. True at the camera
+  // plane.
+  bool centre_seen_beyond(const Eigen::Vector3i& min_voxel, int size_voxels, float behind_m,
+                          float far_m) const;
   // The walk from the root. counting: nothing is written and histogram[b] gets the nodes the
   // walk would make at distance band b; otherwise nodes are made only in bands below `bands`.
   void walk(std::uint32_t frame, bool counting, std::uint32_t bands, FreeSpaceReport& report,
@@ -118,6 +142,8 @@ class FreeSpace : public FreeOctree {
   int height_ = 0;
   float clearance_m_ = 0.0f;
   float occlusion_clear_m_ = 0.0f;
+  bool exhaustive_ = false;
+  float beyond_free_m_ = 0.0f;  // this frame's, 0 without rays measured beyond the range
   // Per-frame projection (set by carve()).
   Eigen::Matrix3f R_C_W_ = Eigen::Matrix3f::Identity();
   Eigen::Vector3f t_C_W_ = Eigen::Vector3f::Zero();

@@ -326,8 +326,9 @@ bool RosbagReader::handle_record(const Header& header, const std::uint8_t* data,
       return false;
     }
     channel.id = static_cast<std::uint16_t>(channel_count_);
-    std::memcpy(channel.topic, topic.data, topic.size);
-    std::memcpy(channel.schema_name, fields.type.data, fields.type.size);
+    // An empty field may have no data pointer, which memcpy must not be given even for 0 bytes.
+    if (topic.size > 0) std::memcpy(channel.topic, topic.data, topic.size);
+    if (fields.type.size > 0) std::memcpy(channel.schema_name, fields.type.data, fields.type.size);
     std::memcpy(channel.message_encoding, "ros1", 5);
     connection_ids_[channel_count_] = header.conn;
     channels_[channel_count_++] = channel;

@@ -103,7 +103,8 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
 template <typename VoxelT>
 bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,
                   VectorMeshSink* sink);
-// The last ray-cast, shaded and coloured by interpolation scale, as a PNG.
+// The map cast at every pixel from the reference pose (Pipeline::cast_view()), shaded and
+// coloured by interpolation scale, as a PNG.
 template <typename VoxelT>
 bool write_render(Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText* error);
 

@@ -301,11 +301,12 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
       // Half (a quarter of) the pixels stand for all of them: doubled (quadrupled, exactly), the
       // sums weigh against the prior, and count against the gates, as a full pass's would; the
       // step is the same.
-      const double scale = parity >= 2 ? 4.0 : 2.0;
+      const std::uint32_t pixels_per_sample = parity >= 2 ? 4u : 2u;
+      const double scale = static_cast<double>(pixels_per_sample);
       for (double& v : total.jtj) v *= scale;
       for (double& v : total.jtr) v *= scale;
       total.residual_sq *= scale;
-      total.count *= parity >= 2 ? 4u : 2u;
+      total.count *= pixels_per_sample;
     }
     return total;
   };
@@ -324,8 +325,7 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
                                                static_cast<double>(model_W.height());
 
   // A model cast at half resolution has a marched point for every 2 x 2 live pixels.
-  const bool quarter =
-      checkerboard && config_.finest_level_quarter_on_half_model && model_W.pixel_stride == 2;
+  const bool quarter = checkerboard && config_.finest_level_quarter(model_W.pixel_stride);
 
   Se3d estimate = T_W_C;
   bool singular = false;

@@ -59,6 +59,12 @@ struct TrackConfig {
   // in turn between iterations: as many live points as the model has, half the checkerboard's
   // work. Off by default: on sim:desk it tracked 1-2 % worse (lib/README.md, "Tracking").
   bool finest_level_quarter_on_half_model = false;
+  // Whether the finest passes take the quarter against a model cast with this pixel stride (the
+  // checkerboard's coverage condition aside); the deadline's cost model asks the same.
+  bool finest_level_quarter(int model_pixel_stride) const {
+    return finest_level_checkerboard && finest_level_quarter_on_half_model &&
+           model_pixel_stride == 2;
+  }
 
   // True when every field is finite and in range (iterations >= 0, gates and knee >= 0, dot in
   // [-1, 1]).

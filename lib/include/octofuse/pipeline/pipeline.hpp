@@ -86,7 +86,8 @@ struct PipelineBudget {
   std::uint32_t max_store_reads = 512;
   // Index 0 = finest level. When tracking, at least one level must iterate (init() returns
   // invalid_argument otherwise): no iteration would report every frame tracked, unchecked.
-  int icp_iterations[kPyramidLevels] = {4, 5, 10};
+  // The defaults are TrackConfig's (lib/README.md, "Tracking", says why two at the finest level).
+  int icp_iterations[kPyramidLevels] = {2, 4, 8};
 };
 
 // When to evict blocks (lib/README.md, "Bounded memory"). Marks are fractions of each pool's

@@ -150,6 +150,20 @@ const RunOption kRunOptions[] = {
        *v = text_of(o.band_behind_mu);
        return o.band_behind_mu != 1.0f;
      }},
+    {"allocation-step", "N",
+     "allocation marches every N-th pixel's ray in x and y (default 1:\n"
+     "every pixel; 2 marches a quarter of them and can miss blocks only\n"
+     "pixels apart see)",
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 1, 16, integer)) return std::string(" needs a count in [1, 16]");
+       o.allocation_step = static_cast<int>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.allocation_step);
+       return o.allocation_step != 1;
+     }},
     {"map-size", "M", "side of the mapped cube in metres (default 8)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 0.1, 10000.0, &o.map_size_m, " needs metres in [0.1, 10000]");

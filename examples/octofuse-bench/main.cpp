@@ -37,13 +37,17 @@ struct Cell {
   long frames = 0;
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   bool raycast_half = true;  // the reference ray-cast at half resolution (the default)
+  int allocation_step = 1;   // allocation marches every n-th pixel's ray (the default: every one)
 
   std::string label() const {
-    char text[160];
-    std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s%s", scene.c_str(),
+    char text[192];
+    char allocation[32] = "";
+    if (allocation_step != 1)
+      std::snprintf(allocation, sizeof(allocation), " alloc%d", allocation_step);
+    std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s%s%s", scene.c_str(),
                   octofuse::examples::map_option_name(map), static_cast<double>(voxel_m) * 1000.0,
                   threads, poses == octofuse::PoseSource::track ? "track" : "gt-poses",
-                  raycast_half ? "" : " full-cast");
+                  raycast_half ? "" : " full-cast", allocation);
     return text;
   }
   std::string slug() const {
@@ -136,6 +140,7 @@ Repeat run_cell(const Cell& cell, const std::string& out_dir, const SimEvaluatio
   options.keep_mesh = eval != nullptr;
   options.mesh_read_scale = cell.mesh_read_scale;
   options.budget.raycast_half = cell.raycast_half;
+  options.allocation_step = cell.allocation_step;
   options.progress = false;
   options.map_memory_mb = cell.voxel_m < 0.005f ? 2048.0f : 1024.0f;
   Repeat r;
@@ -236,6 +241,7 @@ struct BenchArgs {
                                          octofuse::MapKind::single_res};
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   bool raycast_half = true;
+  int allocation_step = 1;
   std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
                                                   octofuse::PoseSource::ground_truth};
   bool soak = false;
@@ -373,6 +379,17 @@ const Option kOptions[] = {
        a.raycast_half = false;
        return std::string();
      }},
+    {"--allocation-step", "N",
+     "every run's allocation marches every N-th pixel's ray in x and y\n"
+     "(default 1; octofuse-replay --allocation-step)",
+     [](BenchArgs& a, const std::string& v) {
+       std::int64_t n = 0;
+       if (!octofuse::cli::parse_int(v, 1, 16, n)) {
+         return std::string("--allocation-step needs a count in [1, 16]");
+       }
+       a.allocation_step = static_cast<int>(n);
+       return std::string();
+     }},
     {"--soak", nullptr,
      "instead of the matrix: replay a source in a loop under a memory cap and\n"
      "again with a large one; fails (exit 1) when the capped run lost a frame\n"
@@ -499,7 +516,7 @@ int main(int argc, char** argv) {
                                                                  octofuse::MapKind::single_res}
                                 : maps) {
             cells.push_back(Cell{scene, map, voxel, threads, poses, frames, mesh_read_scale,
-                                 args.raycast_half});
+                                 args.raycast_half, args.allocation_step});
           }
         }
       }

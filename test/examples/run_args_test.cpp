@@ -72,6 +72,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "0.07",
                  "--band-behind",
                  "0.375",
+                 "--allocation-step",
+                 "3",
                  "--map-size",
                  "5.5",
                  "--map-memory",
@@ -147,6 +149,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
         "# odometry-noise = (default)\n");
   CHECK(printed.find("voxel-size = 0.013\n") != std::string::npos);
   CHECK(printed.find("band-behind = 0.375\n") != std::string::npos);
+  CHECK(printed.find("allocation-step = 3\n") != std::string::npos);
+  CHECK(options.allocation_step == 3);
   CHECK(printed.find("intrinsics = 525,525.5,319.5,239.25\n") != std::string::npos);
   CHECK(printed.find("gt-poses = true\n") != std::string::npos);
 
@@ -301,6 +305,8 @@ TEST_CASE("Config errors name the file and the line", "[examples][config]") {
       {"voxel-size =\n", "f.cfg:1: voxel-size needs metres in [0.0001, 1]"},
       {"map = octree\n", "f.cfg:1: map must be multires, single or multires16, not 'octree'"},
       {"band-behind = 0\n", "f.cfg:1: band-behind needs a share of mu in [0.01, 1]"},
+      {"allocation-step = 0\n", "f.cfg:1: allocation-step needs a count in [1, 16]"},
+      {"allocation-step = 17\n", "f.cfg:1: allocation-step needs a count in [1, 16]"},
       {"threads 2\n", "f.cfg:1: expected 'key = value', got 'threads 2'"},
       {"= 2\n", "f.cfg:1: missing key before '='"},
       {"bilateral = yes\n", "f.cfg:1: bilateral takes true or false, not 'yes'"},

@@ -152,8 +152,8 @@ const RunOption kRunOptions[] = {
      }},
     {"allocation-step", "N",
      "allocation marches every N-th pixel's ray in x and y (default 1:\n"
-     "every pixel; 2 marches a quarter of them and can miss blocks only\n"
-     "pixels apart see)",
+     "every pixel's; 2 marches a quarter of them, and free space beside\n"
+     "thin bars is then not always safe, see docs/results.md)",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;
        if (!cli::parse_int(v, 1, 16, integer)) return std::string(" needs a count in [1, 16]");
@@ -162,7 +162,7 @@ const RunOption kRunOptions[] = {
      },
      [](const RunOptions& o, std::string* v) {
        *v = std::to_string(o.allocation_step);
-       return o.allocation_step != 1;
+       return o.allocation_step != FusionConfig{}.allocation_pixel_step;
      }},
     {"map-size", "M", "side of the mapped cube in metres (default 8)",
      [](RunOptions& o, const std::string& v) {

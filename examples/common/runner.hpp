@@ -26,11 +26,11 @@ struct RunOptions {
   std::string out_dir;  // empty: write nothing
   MapKind map_kind = MapKind::multires;
   float voxel_size_m = 0.01f;
-  float mu_m = 0.0f;            // 0: 8 voxels
-  float band_behind_mu = 1.0f;  // FusionConfig::behind_mu
-  int allocation_step = 1;      // FusionConfig::allocation_pixel_step
-  float map_size_m = 8.0f;      // cube side (rounded up to a power of two of voxels)
-  long max_frames = -1;         // stop after this many frames; -1 = the whole source
+  float mu_m = 0.0f;                                           // 0: 8 voxels
+  float band_behind_mu = 1.0f;                                 // FusionConfig::behind_mu
+  int allocation_step = FusionConfig{}.allocation_pixel_step;  // --allocation-step
+  float map_size_m = 8.0f;  // cube side (rounded up to a power of two of voxels)
+  long max_frames = -1;     // stop after this many frames; -1 = the whole source
   int threads = default_thread_count();
   PoseSource pose_source = PoseSource::track;
   // --odometry: a TUM trajectory file, or "sim[:drift=..,noise=..,seed=..]" for a drifting noisy

@@ -37,12 +37,12 @@ struct Cell {
   long frames = 0;
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   bool raycast_half = true;  // the reference ray-cast at half resolution (the default)
-  int allocation_step = 1;   // allocation marches every n-th pixel's ray (the default: every one)
+  int allocation_step = octofuse::FusionConfig{}.allocation_pixel_step;  // --allocation-step
 
   std::string label() const {
     char text[192];
     char allocation[32] = "";
-    if (allocation_step != 1)
+    if (allocation_step != octofuse::FusionConfig{}.allocation_pixel_step)
       std::snprintf(allocation, sizeof(allocation), " alloc%d", allocation_step);
     std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s%s%s", scene.c_str(),
                   octofuse::examples::map_option_name(map), static_cast<double>(voxel_m) * 1000.0,
@@ -241,7 +241,7 @@ struct BenchArgs {
                                          octofuse::MapKind::single_res};
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   bool raycast_half = true;
-  int allocation_step = 1;
+  int allocation_step = octofuse::FusionConfig{}.allocation_pixel_step;
   std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
                                                   octofuse::PoseSource::ground_truth};
   bool soak = false;

@@ -1,5 +1,6 @@
 #include "octofuse/image/depth_filters.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <utility>
 
@@ -32,60 +33,92 @@ Status downsample_depth(ImageView<const float> in, ImageView<float> out, int fac
   if (!(band_m >= 0.0f) || out.width * factor > in.width || out.height * factor > in.height) {
     return StatusCode::invalid_argument;
   }
+  // One output pixel from the valid samples of its block: the mean of those within band_m of
+  // their median.
+  auto block_fn = [&](int x, int y) {
+    // Valid samples of the block, sorted (at most 16).
+    float samples[kMaxDownsampleFactor * kMaxDownsampleFactor];
+    int n = 0;
+    for (int dy = 0; dy < factor; ++dy) {
+      const float* in_row = in.row(factor * y + dy) + factor * x;
+      for (int dx = 0; dx < factor; ++dx) {
+        const float d = in_row[dx];
+        if (!valid_depth(d)) continue;
+        int i = n++;
+        while (i > 0 && samples[i - 1] > d) {
+          samples[i] = samples[i - 1];
+          --i;
+        }
+        samples[i] = d;
+      }
+    }
+    if (n == 0) return 0.0f;
+    const float median = samples[(n - 1) / 2];
+    float sum = 0.0f;
+    int count = 0;
+    for (int i = 0; i < n; ++i) {
+      if (std::fabs(samples[i] - median) <= band_m) {
+        sum += samples[i];
+        ++count;
+      }
+    }
+    return sum / static_cast<float>(count);  // count >= 1: the median itself
+  };
   auto row_fn = [&](int y) {
     float* out_row = out.row(y);
-    for (int x = 0; x < out.width; ++x) {
-      // Valid samples of the block, sorted (at most 16).
-      float samples[kMaxDownsampleFactor * kMaxDownsampleFactor];
-      int n = 0;
-      const float* r0 = in.row(factor * y) + factor * x;
-      const float* r1 = factor == 2 ? in.row(factor * y + 1) + factor * x : nullptr;
-      if (factor == 2 && valid_depth(r0[0]) && valid_depth(r0[1]) && valid_depth(r1[0]) &&
-          valid_depth(r1[1])) {
-        // The common case, four valid samples, through a sorting network instead of insertion:
-        // the same sorted samples in a fraction of the work.
-        samples[0] = r0[0];
-        samples[1] = r0[1];
-        samples[2] = r1[0];
-        samples[3] = r1[1];
-        auto order = [&samples](int i, int j) {
-          if (samples[j] < samples[i]) std::swap(samples[i], samples[j]);
+    if (factor != 2) {
+      for (int x = 0; x < out.width; ++x) out_row[x] = block_fn(x, y);
+      return;
+    }
+    // The common case, a 2 x 2 block of four valid samples, in a loop without branches
+    // (vectorised where the target's SIMD rounds as scalar code does): a sorting network of
+    // min/max, the median the second sample, the band's samples summed in sorted order, as
+    // block_fn() does them. Blocks with an invalid sample are done again by block_fn().
+    const float* r0 = in.row(2 * y);
+    const float* r1 = in.row(2 * y + 1);
+    constexpr int kChunk = 64;
+    for (int x0 = 0; x0 < out.width; x0 += kChunk) {
+      const int count = std::min(kChunk, out.width - x0);
+      unsigned char all_valid[kChunk];
+      for (int k = 0; k < count; ++k) {
+        const int x = x0 + k;
+        float s0 = r0[2 * x];
+        float s1 = r0[2 * x + 1];
+        float s2 = r1[2 * x];
+        float s3 = r1[2 * x + 1];
+        all_valid[k] = static_cast<unsigned char>(valid_depth(s0) & valid_depth(s1) &
+                                                  valid_depth(s2) & valid_depth(s3));
+        auto order = [](float& a, float& b) {
+          const float lo = b < a ? b : a;
+          const float hi = b < a ? a : b;
+          a = lo;
+          b = hi;
         };
-        order(0, 1);
-        order(2, 3);
-        order(0, 2);
-        order(1, 3);
-        order(1, 2);
-        n = 4;
-      } else {
-        for (int dy = 0; dy < factor; ++dy) {
-          const float* in_row = in.row(factor * y + dy) + factor * x;
-          for (int dx = 0; dx < factor; ++dx) {
-            const float d = in_row[dx];
-            if (!valid_depth(d)) continue;
-            int i = n++;
-            while (i > 0 && samples[i - 1] > d) {
-              samples[i] = samples[i - 1];
-              --i;
-            }
-            samples[i] = d;
-          }
-        }
+        order(s0, s1);
+        order(s2, s3);
+        order(s0, s2);
+        order(s1, s3);
+        order(s1, s2);
+        const float median = s1;
+        float sum = 0.0f;
+        float n = 0.0f;
+        const bool in0 = std::fabs(s0 - median) <= band_m;
+        const bool in1 = std::fabs(s1 - median) <= band_m;
+        const bool in2 = std::fabs(s2 - median) <= band_m;
+        const bool in3 = std::fabs(s3 - median) <= band_m;
+        sum = in0 ? sum + s0 : sum;
+        n = in0 ? n + 1.0f : n;
+        sum = in1 ? sum + s1 : sum;
+        n = in1 ? n + 1.0f : n;
+        sum = in2 ? sum + s2 : sum;
+        n = in2 ? n + 1.0f : n;
+        sum = in3 ? sum + s3 : sum;
+        n = in3 ? n + 1.0f : n;
+        out_row[x] = sum / n;  // n >= 1 for valid samples: the median itself
       }
-      if (n == 0) {
-        out_row[x] = 0.0f;
-        continue;
+      for (int k = 0; k < count; ++k) {
+        if (all_valid[k] == 0) out_row[x0 + k] = block_fn(x0 + k, y);
       }
-      const float median = samples[(n - 1) / 2];
-      float sum = 0.0f;
-      int count = 0;
-      for (int i = 0; i < n; ++i) {
-        if (std::fabs(samples[i] - median) <= band_m) {
-          sum += samples[i];
-          ++count;
-        }
-      }
-      out_row[x] = sum / static_cast<float>(count);  // count >= 1: the median itself
     }
   };
   for_each_row(out.height, team, row_fn);
@@ -177,29 +210,64 @@ Status vertices_to_normals(ImageView<const float> depth_m,
   }
   const int w = depth_m.width;
   const int h = depth_m.height;
+  // Chunks of a row in three passes: the vertex differences copied out of the interleaved
+  // vertices, the tests and the normal in a loop without branches (vectorised where the target's
+  // SIMD rounds as the scalar code does), and the normals stored back. Each pixel's operations
+  // and their order are those of the plain per-pixel code, so the bits are too.
+  constexpr int kChunk = 64;
+  const float jump_m = max_depth_jump_m;
   auto row_fn = [&](int y) {
     Eigen::Vector3f* n_row = normals_C.row(y);
-    for (int x = 0; x < w; ++x) {
-      n_row[x] = Eigen::Vector3f::Zero();
-      if (x == 0 || y == 0 || x == w - 1 || y == h - 1) continue;
-      const float d = depth_m(x, y);
-      const float d_left = depth_m(x - 1, y);
-      const float d_right = depth_m(x + 1, y);
-      const float d_up = depth_m(x, y - 1);
-      const float d_down = depth_m(x, y + 1);
-      if (!valid_depth(d) || !valid_depth(d_left) || !valid_depth(d_right) || !valid_depth(d_up) ||
-          !valid_depth(d_down)) {
-        continue;
+    if (y == 0 || y == h - 1 || w < 3) {
+      for (int x = 0; x < w; ++x) n_row[x] = Eigen::Vector3f::Zero();
+      return;
+    }
+    n_row[0] = Eigen::Vector3f::Zero();
+    n_row[w - 1] = Eigen::Vector3f::Zero();
+    const float* d_up = depth_m.row(y - 1);
+    const float* d_mid = depth_m.row(y);
+    const float* d_down = depth_m.row(y + 1);
+    const Eigen::Vector3f* v_up = vertices_C.row(y - 1);
+    const Eigen::Vector3f* v_mid = vertices_C.row(y);
+    const Eigen::Vector3f* v_down = vertices_C.row(y + 1);
+    for (int x0 = 1; x0 < w - 1; x0 += kChunk) {
+      const int count = std::min(kChunk, w - 1 - x0);
+      float dx[3][kChunk];
+      float dy[3][kChunk];
+      for (int k = 0; k < count; ++k) {
+        const int x = x0 + k;
+        for (int c = 0; c < 3; ++c) {
+          dx[c][k] = v_mid[x + 1][c] - v_mid[x - 1][c];
+          dy[c][k] = v_down[x][c] - v_up[x][c];
+        }
       }
-      if (std::fabs(d_left - d) > max_depth_jump_m || std::fabs(d_right - d) > max_depth_jump_m ||
-          std::fabs(d_up - d) > max_depth_jump_m || std::fabs(d_down - d) > max_depth_jump_m) {
-        continue;
+      float n[3][kChunk];
+      for (int k = 0; k < count; ++k) {
+        const int x = x0 + k;
+        const float d = d_mid[x];
+        const float d_left = d_mid[x - 1];
+        const float d_right = d_mid[x + 1];
+        const float d_above = d_up[x];
+        const float d_below = d_down[x];
+        // Bitwise, not short-circuit: no branch in the loop.
+        const bool valid = valid_depth(d) & valid_depth(d_left) & valid_depth(d_right) &
+                           valid_depth(d_above) & valid_depth(d_below);
+        const bool smooth = (std::fabs(d_left - d) <= jump_m) & (std::fabs(d_right - d) <= jump_m) &
+                            (std::fabs(d_above - d) <= jump_m) & (std::fabs(d_below - d) <= jump_m);
+        // dy x dx, as Eigen's cross() computes it; the norm as its squaredNorm() sums (a
+        // binary tree: x^2 + (y^2 + z^2)).
+        const float nx = dy[1][k] * dx[2][k] - dy[2][k] * dx[1][k];
+        const float ny = dy[2][k] * dx[0][k] - dy[0][k] * dx[2][k];
+        const float nz = dy[0][k] * dx[1][k] - dy[1][k] * dx[0][k];
+        const float norm = std::sqrt(nx * nx + (ny * ny + nz * nz));
+        // norm <= FLT_MAX: finite (false for NaN too).
+        const bool ok = valid & smooth & (norm > 0.0f) & (norm <= 3.402823466e38f);
+        const float divisor = ok ? norm : 1.0f;
+        n[0][k] = ok ? nx / divisor : 0.0f;
+        n[1][k] = ok ? ny / divisor : 0.0f;
+        n[2][k] = ok ? nz / divisor : 0.0f;
       }
-      const Eigen::Vector3f dx = vertices_C(x + 1, y) - vertices_C(x - 1, y);
-      const Eigen::Vector3f dy = vertices_C(x, y + 1) - vertices_C(x, y - 1);
-      const Eigen::Vector3f n = dy.cross(dx);
-      const float norm = n.norm();
-      if (norm > 0.0f && std::isfinite(norm)) n_row[x] = n / norm;
+      for (int k = 0; k < count; ++k) n_row[x0 + k] = Eigen::Vector3f(n[0][k], n[1][k], n[2][k]);
     }
   };
   for_each_row(h, team, row_fn);

@@ -271,5 +271,128 @@ TEST_CASE("every filter gives bit-identical output for 1 and 2 workers") {
                     one.normals.size() * sizeof(Eigen::Vector3f)) == 0);
 }
 
+// The per-pixel code the filters were first written as: the branch-free loops must give its bits.
+float reference_downsample_pixel(const std::vector<float>& in, int in_width, int x, int y,
+                                 float band_m) {
+  float samples[4];
+  int n = 0;
+  for (int dy = 0; dy < 2; ++dy) {
+    for (int dx = 0; dx < 2; ++dx) {
+      const float d = in[(2 * y + dy) * in_width + 2 * x + dx];
+      if (!valid_depth(d)) continue;
+      int i = n++;
+      while (i > 0 && samples[i - 1] > d) {
+        samples[i] = samples[i - 1];
+        --i;
+      }
+      samples[i] = d;
+    }
+  }
+  if (n == 0) return 0.0f;
+  const float median = samples[(n - 1) / 2];
+  float sum = 0.0f;
+  int count = 0;
+  for (int i = 0; i < n; ++i) {
+    if (std::fabs(samples[i] - median) <= band_m) {
+      sum += samples[i];
+      ++count;
+    }
+  }
+  return sum / static_cast<float>(count);
+}
+
+Eigen::Vector3f reference_normal(const std::vector<float>& depth,
+                                 const std::vector<Eigen::Vector3f>& vertices, int w, int h, int x,
+                                 int y, float jump_m) {
+  if (x == 0 || y == 0 || x == w - 1 || y == h - 1) return Eigen::Vector3f::Zero();
+  const float d = depth[y * w + x];
+  const float around[4] = {depth[y * w + x - 1], depth[y * w + x + 1], depth[(y - 1) * w + x],
+                           depth[(y + 1) * w + x]};
+  if (!valid_depth(d)) return Eigen::Vector3f::Zero();
+  for (const float a : around) {
+    if (!valid_depth(a) || std::fabs(a - d) > jump_m) return Eigen::Vector3f::Zero();
+  }
+  const Eigen::Vector3f dx = vertices[y * w + x + 1] - vertices[y * w + x - 1];
+  const Eigen::Vector3f dy = vertices[(y + 1) * w + x] - vertices[(y - 1) * w + x];
+  const Eigen::Vector3f n = dy.cross(dx);
+  const float norm = n.norm();
+  return norm > 0.0f && std::isfinite(norm) ? Eigen::Vector3f(n / norm) : Eigen::Vector3f::Zero();
+}
+
+TEST_CASE("down-sampling and normals give the bits of the per-pixel code") {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const float inf = std::numeric_limits<float>::infinity();
+  // Widths around the filters' 64-pixel chunks; depth steps, holes, NaN, infinities, negatives.
+  for (const int out_width : {1, 3, 63, 64, 65, 131}) {
+    CAPTURE(out_width);
+    const int out_height = 9;
+    const int in_width = 2 * out_width + 1;  // one column more than the blocks use
+    const int in_height = 2 * out_height;
+    std::mt19937 rng(static_cast<unsigned>(out_width));
+    std::uniform_real_distribution<float> noise_m(-0.01f, 0.01f);
+    std::uniform_int_distribution<int> kind(0, 99);
+    std::vector<float> in(static_cast<std::size_t>(in_width * in_height));
+    for (int y = 0; y < in_height; ++y) {
+      for (int x = 0; x < in_width; ++x) {
+        float& d = in[static_cast<std::size_t>(y * in_width + x)];
+        switch (kind(rng)) {
+          case 0:
+            d = 0.0f;
+            break;
+          case 1:
+            d = nan;
+            break;
+          case 2:
+            d = inf;
+            break;
+          case 3:
+            d = -1.0f;
+            break;
+          // Steps of 0.5 m every 40 columns, at an odd column: some blocks straddle them.
+          default:
+            d = 1.0f + 0.5f * static_cast<float>((x + 1) / 40) + noise_m(rng);
+            break;
+        }
+      }
+    }
+    const WorkerTeam team(1);
+    std::vector<float> half(static_cast<std::size_t>(out_width * out_height), -7.0f);
+    REQUIRE(downsample_depth(view(in, in_width, in_height),
+                             ImageView<float>(half.data(), out_width, out_height), 2, 0.1f, team)
+                .ok());
+    for (int y = 0; y < out_height; ++y) {
+      for (int x = 0; x < out_width; ++x) {
+        const float expected = reference_downsample_pixel(in, in_width, x, y, 0.1f);
+        const float got = half[static_cast<std::size_t>(y * out_width + x)];
+        CHECK(std::memcmp(&expected, &got, sizeof(float)) == 0);
+      }
+    }
+    const PinholeCamera camera = small_camera(out_width, out_height);
+    std::vector<Eigen::Vector3f> vertices(half.size());
+    std::vector<Eigen::Vector3f> normals(half.size(), Eigen::Vector3f::Constant(-7.0f));
+    REQUIRE(depth_to_vertices(view(half, out_width, out_height), camera,
+                              ImageView<Eigen::Vector3f>(vertices.data(), out_width, out_height),
+                              team)
+                .ok());
+    REQUIRE(vertices_to_normals(
+                view(half, out_width, out_height),
+                ImageView<const Eigen::Vector3f>(vertices.data(), out_width, out_height), 0.05f,
+                ImageView<Eigen::Vector3f>(normals.data(), out_width, out_height), team)
+                .ok());
+    int normals_valid = 0;
+    for (int y = 0; y < out_height; ++y) {
+      for (int x = 0; x < out_width; ++x) {
+        const Eigen::Vector3f expected =
+            reference_normal(half, vertices, out_width, out_height, x, y, 0.05f);
+        const Eigen::Vector3f& got = normals[static_cast<std::size_t>(y * out_width + x)];
+        CAPTURE(x, y);
+        CHECK(std::memcmp(expected.data(), got.data(), sizeof(Eigen::Vector3f)) == 0);
+        if (!expected.isZero()) ++normals_valid;
+      }
+    }
+    if (out_width >= 63) CHECK(normals_valid > out_width);  // the comparison covered real normals
+  }
+}
+
 }  // namespace
 }  // namespace octofuse

@@ -351,6 +351,14 @@ const RunOption kRunOptions[] = {
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.icp_quarter, v); }},
+    {"icp-full-middle", nullptr,
+     "ICP's middle-level passes take every pixel (default: every other pixel, the\n"
+     "halves in turn, a quarter less ICP work)",
+     [](RunOptions& o, const std::string&) {
+       o.icp_full_middle = true;
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) { return flag(o.icp_full_middle, v); }},
     {"bilateral", nullptr, "bilateral-filter the depth before tracking",
      [](RunOptions& o, const std::string&) {
        o.bilateral = true;

@@ -56,6 +56,7 @@ struct RunOptions {
   bool bilateral = false;
   float icp_depth_knee_m = -1.0f;  // < 0: the library's default
   bool icp_quarter = false;        // TrackConfig::finest_level_quarter_on_half_model
+  bool icp_full_middle = false;    // !TrackConfig::middle_level_checkerboard
   bool write_mesh = true;
   MeshReadScale mesh_read_scale = MeshReadScale::current;
   bool write_frames = false;      // frames/render_NNNNNN.png after every frame

@@ -363,6 +363,7 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
   config.preprocess.bilateral = options.bilateral;
   if (options.icp_depth_knee_m >= 0.0f) config.track.depth_weight_knee_m = options.icp_depth_knee_m;
   config.track.finest_level_quarter_on_half_model = options.icp_quarter;
+  config.track.middle_level_checkerboard = !options.icp_full_middle;
   config.initial_T_W_C = T_W_C0;
   config.initial_pose_from_ground_truth = !options.have_initial_pose;
   if (options.adjust_config) options.adjust_config(&config);

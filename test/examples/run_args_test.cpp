@@ -98,6 +98,7 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "123456789",
                  "--raycast-full",
                  "--icp-quarter",
+                 "--icp-full-middle",
                  "--budget-icp",
                  "1,2,3",
                  "--evict",
@@ -176,6 +177,7 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
   CHECK(reread.budget.raycast_steps == 123456789u);
   CHECK_FALSE(reread.budget.raycast_half);  // --raycast-full against the default half
   CHECK(reread.icp_quarter);
+  CHECK(reread.icp_full_middle);
   CHECK(reread.budget.icp_iterations[2] == 3);
   CHECK(reread.eviction.enabled);
   CHECK(reread.eviction.high_water == 0.85f);

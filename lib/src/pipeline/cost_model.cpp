@@ -121,7 +121,8 @@ const char* deadline_step_name(DeadlineStep step) {
 
 void DeadlineController::reset(const DeadlineConfig& config,
                                const int icp_iterations[kPyramidLevels], int width, int height,
-                               bool icp_used, bool free_space_used, double finest_icp_share) {
+                               bool icp_used, bool free_space_used, double finest_icp_share,
+                               double middle_icp_share) {
   config_ = config;
   model_ = config.model;
   icp_used_ = icp_used;
@@ -131,7 +132,9 @@ void DeadlineController::reset(const DeadlineConfig& config,
     icp_floor_[level] = std::min(config.min_icp_iterations[level], icp_iterations[level]);
     level_pixels_[level] =
         static_cast<double>(width >> level) * static_cast<double>(height >> level);
-    icp_level_units_[level] = level_pixels_[level] * (level == 0 ? finest_icp_share : 1.0);
+    icp_level_units_[level] = level_pixels_[level] * (level == 0   ? finest_icp_share
+                                                      : level == 1 ? middle_icp_share
+                                                                   : 1.0);
   }
   half_pixels_ = static_cast<double>((width + 1) / 2) * static_cast<double>((height + 1) / 2);
   icp_fit_ = integrate_fit_ = raycast_fit_ = free_space_fit_ = Regression{};

@@ -372,7 +372,8 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
       deadline, config.budget.icp_iterations, working_camera_.width, working_camera_.height,
       config.pose_source == PoseSource::track || config.pose_source == PoseSource::external_prior,
       config.free_space.enabled,
-      config.track.finest_level_quarter(config.budget.raycast_half ? 2 : 1) ? 0.5 : 1.0);
+      config.track.finest_level_quarter(config.budget.raycast_half ? 2 : 1) ? 0.5 : 1.0,
+      config.track.middle_level_halved(working_camera_.width, working_camera_.height) ? 0.5 : 1.0);
   current_ = FrameStats{};
   T_W_C_ = rigid_from(config.initial_T_W_C.matrix());
   T_W_Cref_ = T_W_C_;

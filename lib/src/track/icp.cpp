@@ -327,6 +327,8 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   // A model cast at half resolution has a marched point for every 2 x 2 live pixels.
   const bool quarter = checkerboard && config_.finest_level_quarter(model_W.pixel_stride);
 
+  const bool middle_halved = config_.middle_level_halved(width_, height_);
+
   Se3d estimate = T_W_C;
   bool singular = false;
   // Residual statistics for the report: from the last level-0 pass, taken at the estimate before
@@ -347,9 +349,9 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
     for (int it = 0; it < config_.iterations[level]; ++it) {
       // The finest level's passes take every other pixel, alternating between iterations; one
       // pixel of each 2 x 2 against a model cast at half resolution, the four in turn.
-      const int parity = level != 0 || !checkerboard ? -1
-                         : quarter                   ? 2 + kQuarterOrder[it & 3]
-                                                     : it & 1;
+      // The middle level's take every other pixel too, alternating the same way.
+      const bool halved = checkerboard && (level == 0 || (level == 1 && middle_halved));
+      const int parity = !halved ? -1 : level == 0 && quarter ? 2 + kQuarterOrder[it & 3] : it & 1;
       const Partial total = run_pass(level, estimate, parity);
       Vector6d twist;
       if (!solve_step(total, level == 0 ? pull : nullptr, estimate, twist)) {

@@ -72,6 +72,36 @@ TEST_CASE("the finest level's checkerboard lands where every pixel does, at half
   CHECK(std::abs(b.rms_residual_m - a.rms_residual_m) < 0.1f * a.rms_residual_m);
 }
 
+TEST_CASE("the middle level's checkerboard lands where every middle pixel does") {
+  const test::AnalyticScene scene = test::corner_scene();
+  TrackConfig full_middle;
+  full_middle.middle_level_checkerboard = false;
+  TrackFixture full(full_middle);
+  TrackFixture half;  // the default: both finer levels take every other pixel
+  REQUIRE(half.tracker.config().middle_level_checkerboard);
+  const Se3d T_W_Cref = reference_pose();
+  const Se3d T_W_C_true = offset_pose();
+  const test::RenderedModel model = scene.render_model(full.camera_level0(), T_W_Cref);
+  full.set_live(scene, T_W_C_true, 1, 0.002f);
+  half.set_live(scene, T_W_C_true, 1, 0.002f);
+  const WorkerTeam team(1);
+  Se3d pose_full = T_W_Cref;
+  Se3d pose_half = T_W_Cref;
+  const TrackReport a = full.tracker.track(full.pre.pyramid(), model.map(), full.camera_level0(),
+                                           T_W_Cref, pose_full, team);
+  const TrackReport b = half.tracker.track(half.pre.pyramid(), model.map(), half.camera_level0(),
+                                           T_W_Cref, pose_half, team);
+  REQUIRE(a.tracked());
+  REQUIRE(b.tracked());
+  CHECK(b.iterations[1] >= 1);
+  CHECK(translation_error_m(pose_half, T_W_C_true) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(pose_half, T_W_C_true) < kRotationTolerance_deg);
+  CHECK(translation_error_m(pose_half, pose_full) < 2e-4);
+  CHECK(rotation_error_deg(pose_half, pose_full) < 0.02);
+  // The middle passes did take other pairs: the estimates are not the same bits.
+  CHECK_FALSE(pose_half.matrix() == pose_full.matrix());
+}
+
 // What the ray-caster leaves at half resolution (RaycastConfig::pixel_stride 2): pixels with even
 // x and y cast, each odd one a copy of its even neighbour above and to the left.
 test::RenderedModel half_resolution_copy(const test::RenderedModel& full) {

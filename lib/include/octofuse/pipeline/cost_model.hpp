@@ -132,10 +132,12 @@ class DeadlineController {
   // resolution (pyramid level 0); `icp_used`: the pose source tracks; `free_space_used`: carving
   // is on; `finest_icp_share`: the share of the finest level's pixels an ICP pass takes, relative
   // to the checkerboard's (a quarter of the pixels against a half-resolution reference: 0.5), so
-  // that the units weigh the levels as the passes cost. Forgets the demand estimates and starts
-  // from config.model.
+  // that the units weigh the levels as the passes cost; `middle_icp_share`: the same for the
+  // middle level, relative to all its pixels (0.5 with its checkerboard). Forgets the demand
+  // estimates and starts from config.model.
   void reset(const DeadlineConfig& config, const int icp_iterations[kPyramidLevels], int width,
-             int height, bool icp_used, bool free_space_used, double finest_icp_share = 1.0);
+             int height, bool icp_used, bool free_space_used, double finest_icp_share = 1.0,
+             double middle_icp_share = 1.0);
   bool active() const { return config_.deadline_ms > 0.0; }
   // The next frame's budgets (see DeadlineReport); configured ones before any observation.
   DeadlineReport plan() const;

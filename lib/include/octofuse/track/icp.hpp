@@ -58,6 +58,21 @@ struct TrackConfig {
   // count doubled. Only while the model covers at least half of the image: a smaller one leaves
   // too few pairs to halve.
   bool finest_level_checkerboard = true;
+  // With the checkerboard on, the middle level's passes take every other pixel the same way
+  // where that level has at least kMiddleCheckerboardMinPixels (a 640 x 480 camera at the
+  // default working resolution): ICP's work per frame falls by a quarter; the 7-Scenes and sim
+  // ATE stayed within 0.5 % (the sim:desk path squeezed into 30-40 frames 2-3 % worse:
+  // lib/README.md, "Tracking"). At 80 x 60 the halves' 2 400 pixels left a resumed small-sim
+  // run 1 cm off.
+  bool middle_level_checkerboard = true;
+  static constexpr int kMiddleCheckerboardMinPixels = 160 * 120;
+  // Whether the middle level's passes take the checkerboard at this working (level-0)
+  // resolution (the finest level's coverage condition aside); the deadline's cost model asks
+  // the same.
+  bool middle_level_halved(int width, int height) const {
+    return finest_level_checkerboard && middle_level_checkerboard &&
+           (width >> 1) * (height >> 1) >= kMiddleCheckerboardMinPixels;
+  }
   // With the checkerboard, against a model cast at half resolution (SurfaceMap::pixel_stride 2,
   // one marched point per 2 x 2 pixels) the passes take one pixel of each 2 x 2 instead, the four
   // in turn between iterations: as many live points as the model has, half the checkerboard's

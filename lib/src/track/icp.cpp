@@ -34,6 +34,9 @@ struct Pass {
   int parity;
 };
 
+// kWeighted: pairs weighed by depth (pass.inv_knee_m > 0); otherwise every weight is 1 and is
+// left out (x * 1.0 is x: the same sums).
+template <bool kWeighted>
 void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
   // Sums in a local, stored once at the end: the compiler cannot keep sums that live behind
   // `out` in registers across the image reads.
@@ -86,7 +89,7 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
 
       const double r = static_cast<double>(n_model_W.dot(diff_W));
       double w = 1.0;
-      if (pass.inv_knee_m > 0.0) {
+      if constexpr (kWeighted) {
         const double z_rel = static_cast<double>(v_row[x].z()) * pass.inv_knee_m;
         const double z_rel_sq = z_rel * z_rel;
         w = 1.0 / (1.0 + z_rel_sq * z_rel_sq);
@@ -96,7 +99,7 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
                            p_cross_n.x(), p_cross_n.y(), p_cross_n.z()};
       int k = 0;
       for (int a = 0; a < 6; ++a) {
-        const double wj = w * j[a];
+        const double wj = kWeighted ? w * j[a] : j[a];
         for (int b = a; b < 6; ++b) sums.jtj[k++] += wj * j[b];
         sums.jtr[a] += wj * r;
       }
@@ -294,7 +297,13 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
                           : 0.0;
     pass.R_W_C = T_W_C_estimate.linear().cast<float>();
     pass.t_W_C = T_W_C_estimate.translation().cast<float>();
-    auto task_fn = [&](std::size_t task) { accumulate_rows(pass, task, partials[task]); };
+    auto task_fn = [&](std::size_t task) {
+      if (pass.inv_knee_m > 0.0) {
+        accumulate_rows<true>(pass, task, partials[task]);
+      } else {
+        accumulate_rows<false>(pass, task, partials[task]);
+      }
+    };
     team.for_each_task(kTrackTasks, task_fn);
     Partial total = reduce(partials);
     if (parity >= 0) {

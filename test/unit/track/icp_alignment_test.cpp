@@ -41,30 +41,44 @@ TEST_CASE("ICP recovers a known small offset on a synthetic pair") {
         static_cast<std::uint32_t>(report.inlier_fraction * report.model_pixels + 0.5f));
 }
 
-TEST_CASE("the finest level's checkerboard lands where every pixel does, at half the pairs") {
+// The corner scene tracked from the reference pose by two configs, `full` and `half`.
+struct TwoTracks {
+  TrackReport full_report;
+  TrackReport half_report;
+  Se3d pose_full = reference_pose();
+  Se3d pose_half = reference_pose();
+};
+
+TwoTracks track_with(const TrackConfig& full_config, const TrackConfig& half_config) {
   const test::AnalyticScene scene = test::corner_scene();
-  TrackConfig every_pixel;
-  every_pixel.finest_level_checkerboard = false;
-  TrackFixture full(every_pixel);
-  TrackFixture half;  // the default: checkerboard
+  TrackFixture full(full_config);
+  TrackFixture half(half_config);
   const Se3d T_W_Cref = reference_pose();
   const Se3d T_W_C_true = offset_pose();
   const test::RenderedModel model = scene.render_model(full.camera_level0(), T_W_Cref);
   full.set_live(scene, T_W_C_true, 1, 0.002f);
   half.set_live(scene, T_W_C_true, 1, 0.002f);
   const WorkerTeam team(1);
-  Se3d pose_full = T_W_Cref;
-  Se3d pose_half = T_W_Cref;
-  const TrackReport a = full.tracker.track(full.pre.pyramid(), model.map(), full.camera_level0(),
-                                           T_W_Cref, pose_full, team);
-  const TrackReport b = half.tracker.track(half.pre.pyramid(), model.map(), half.camera_level0(),
-                                           T_W_Cref, pose_half, team);
+  TwoTracks t;
+  t.full_report = full.tracker.track(full.pre.pyramid(), model.map(), full.camera_level0(),
+                                     T_W_Cref, t.pose_full, team);
+  t.half_report = half.tracker.track(half.pre.pyramid(), model.map(), half.camera_level0(),
+                                     T_W_Cref, t.pose_half, team);
+  return t;
+}
+
+TEST_CASE("the finest level's checkerboard lands where every pixel does, at half the pairs") {
+  TrackConfig every_pixel;
+  every_pixel.finest_level_checkerboard = false;
+  const TwoTracks t = track_with(every_pixel, TrackConfig{});  // the default: checkerboard
+  const TrackReport& a = t.full_report;
+  const TrackReport& b = t.half_report;
   REQUIRE(a.tracked());
   REQUIRE(b.tracked());
-  CHECK(translation_error_m(pose_half, T_W_C_true) < kTranslationTolerance_m);
-  CHECK(rotation_error_deg(pose_half, T_W_C_true) < kRotationTolerance_deg);
-  CHECK(translation_error_m(pose_half, pose_full) < 2e-4);
-  CHECK(rotation_error_deg(pose_half, pose_full) < 0.02);
+  CHECK(translation_error_m(t.pose_half, offset_pose()) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(t.pose_half, offset_pose()) < kRotationTolerance_deg);
+  CHECK(translation_error_m(t.pose_half, t.pose_full) < 2e-4);
+  CHECK(rotation_error_deg(t.pose_half, t.pose_full) < 0.02);
   // The half's count, doubled, stands for the whole image; the RMS is the half's own.
   CHECK(b.inliers % 2 == 0u);
   CHECK(std::abs(static_cast<double>(b.inliers) - static_cast<double>(a.inliers)) <
@@ -73,33 +87,23 @@ TEST_CASE("the finest level's checkerboard lands where every pixel does, at half
 }
 
 TEST_CASE("the middle level's checkerboard lands where every middle pixel does") {
-  const test::AnalyticScene scene = test::corner_scene();
   TrackConfig full_middle;
   full_middle.middle_level_checkerboard = false;
-  TrackFixture full(full_middle);
-  TrackFixture half;  // the default: both finer levels take every other pixel
-  REQUIRE(half.tracker.config().middle_level_checkerboard);
-  const Se3d T_W_Cref = reference_pose();
-  const Se3d T_W_C_true = offset_pose();
-  const test::RenderedModel model = scene.render_model(full.camera_level0(), T_W_Cref);
-  full.set_live(scene, T_W_C_true, 1, 0.002f);
-  half.set_live(scene, T_W_C_true, 1, 0.002f);
-  const WorkerTeam team(1);
-  Se3d pose_full = T_W_Cref;
-  Se3d pose_half = T_W_Cref;
-  const TrackReport a = full.tracker.track(full.pre.pyramid(), model.map(), full.camera_level0(),
-                                           T_W_Cref, pose_full, team);
-  const TrackReport b = half.tracker.track(half.pre.pyramid(), model.map(), half.camera_level0(),
-                                           T_W_Cref, pose_half, team);
-  REQUIRE(a.tracked());
-  REQUIRE(b.tracked());
-  CHECK(b.iterations[1] >= 1);
-  CHECK(translation_error_m(pose_half, T_W_C_true) < kTranslationTolerance_m);
-  CHECK(rotation_error_deg(pose_half, T_W_C_true) < kRotationTolerance_deg);
-  CHECK(translation_error_m(pose_half, pose_full) < 2e-4);
-  CHECK(rotation_error_deg(pose_half, pose_full) < 0.02);
+  REQUIRE(TrackConfig{}.middle_level_checkerboard);
+  // By default at a 320 x 240 working resolution (the fixture's) both finer levels take every
+  // other pixel; at 160 x 120 the middle level keeps all of its 80 x 60.
+  REQUIRE(TrackConfig{}.middle_level_halved(320, 240));
+  REQUIRE_FALSE(TrackConfig{}.middle_level_halved(160, 120));
+  const TwoTracks t = track_with(full_middle, TrackConfig{});
+  REQUIRE(t.full_report.tracked());
+  REQUIRE(t.half_report.tracked());
+  CHECK(t.half_report.iterations[1] >= 1);
+  CHECK(translation_error_m(t.pose_half, offset_pose()) < kTranslationTolerance_m);
+  CHECK(rotation_error_deg(t.pose_half, offset_pose()) < kRotationTolerance_deg);
+  CHECK(translation_error_m(t.pose_half, t.pose_full) < 2e-4);
+  CHECK(rotation_error_deg(t.pose_half, t.pose_full) < 0.02);
   // The middle passes did take other pairs: the estimates are not the same bits.
-  CHECK_FALSE(pose_half.matrix() == pose_full.matrix());
+  CHECK_FALSE(t.pose_half.matrix() == t.pose_full.matrix());
 }
 
 // What the ray-caster leaves at half resolution (RaycastConfig::pixel_stride 2): pixels with even

@@ -86,8 +86,12 @@ Status downsample_depth(ImageView<const float> in, ImageView<float> out, int fac
         float s1 = r0[2 * x + 1];
         float s2 = r1[2 * x];
         float s3 = r1[2 * x + 1];
-        all_valid[k] = static_cast<unsigned char>(valid_depth(s0) & valid_depth(s1) &
-                                                  valid_depth(s2) & valid_depth(s3));
+        // Locals, then bitwise: no branch in the loop.
+        const bool valid0 = valid_depth(s0);
+        const bool valid1 = valid_depth(s1);
+        const bool valid2 = valid_depth(s2);
+        const bool valid3 = valid_depth(s3);
+        all_valid[k] = static_cast<unsigned char>(valid0 & valid1 & valid2 & valid3);
         auto order = [](float& a, float& b) {
           const float lo = b < a ? b : a;
           const float hi = b < a ? a : b;
@@ -249,11 +253,18 @@ Status vertices_to_normals(ImageView<const float> depth_m,
         const float d_right = d_mid[x + 1];
         const float d_above = d_up[x];
         const float d_below = d_down[x];
-        // Bitwise, not short-circuit: no branch in the loop.
-        const bool valid = valid_depth(d) & valid_depth(d_left) & valid_depth(d_right) &
-                           valid_depth(d_above) & valid_depth(d_below);
-        const bool smooth = (std::fabs(d_left - d) <= jump_m) & (std::fabs(d_right - d) <= jump_m) &
-                            (std::fabs(d_above - d) <= jump_m) & (std::fabs(d_below - d) <= jump_m);
+        // Each test in a local, then combined bitwise: no branch in the loop.
+        const bool valid_centre = valid_depth(d);
+        const bool valid_left = valid_depth(d_left);
+        const bool valid_right = valid_depth(d_right);
+        const bool valid_above = valid_depth(d_above);
+        const bool valid_below = valid_depth(d_below);
+        const bool smooth_left = std::fabs(d_left - d) <= jump_m;
+        const bool smooth_right = std::fabs(d_right - d) <= jump_m;
+        const bool smooth_above = std::fabs(d_above - d) <= jump_m;
+        const bool smooth_below = std::fabs(d_below - d) <= jump_m;
+        const bool valid = valid_centre & valid_left & valid_right & valid_above & valid_below;
+        const bool smooth = smooth_left & smooth_right & smooth_above & smooth_below;
         // dy x dx, as Eigen's cross() computes it; the norm as its squaredNorm() sums (a
         // binary tree: x^2 + (y^2 + z^2)).
         const float nx = dy[1][k] * dx[2][k] - dy[2][k] * dx[1][k];

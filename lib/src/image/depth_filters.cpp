@@ -2,13 +2,16 @@
 
 #include <algorithm>
 #include <cmath>
-#include <utility>
+#include <limits>
 
 #include <Eigen/Geometry>  // cross()
 
 namespace octofuse {
 
 namespace {
+
+// Pixels per chunk of a row in the branch-free loops (their scratch arrays live on the stack).
+constexpr int kRowChunk = 64;
 
 bool same_size(int w0, int h0, int w1, int h1) {
   return w0 == w1 && h0 == h1;
@@ -76,10 +79,9 @@ Status downsample_depth(ImageView<const float> in, ImageView<float> out, int fac
     // block_fn() does them. Blocks with an invalid sample are done again by block_fn().
     const float* r0 = in.row(2 * y);
     const float* r1 = in.row(2 * y + 1);
-    constexpr int kChunk = 64;
-    for (int x0 = 0; x0 < out.width; x0 += kChunk) {
-      const int count = std::min(kChunk, out.width - x0);
-      unsigned char all_valid[kChunk];
+    for (int x0 = 0; x0 < out.width; x0 += kRowChunk) {
+      const int count = std::min(kRowChunk, out.width - x0);
+      unsigned char all_valid[kRowChunk];
       for (int k = 0; k < count; ++k) {
         const int x = x0 + k;
         float s0 = r0[2 * x];
@@ -218,8 +220,6 @@ Status vertices_to_normals(ImageView<const float> depth_m,
   // vertices, the tests and the normal in a loop without branches (vectorised where the target's
   // SIMD rounds as the scalar code does), and the normals stored back. Each pixel's operations
   // and their order are those of the plain per-pixel code, so the bits are too.
-  constexpr int kChunk = 64;
-  const float jump_m = max_depth_jump_m;
   auto row_fn = [&](int y) {
     Eigen::Vector3f* n_row = normals_C.row(y);
     if (y == 0 || y == h - 1 || w < 3) {
@@ -234,10 +234,10 @@ Status vertices_to_normals(ImageView<const float> depth_m,
     const Eigen::Vector3f* v_up = vertices_C.row(y - 1);
     const Eigen::Vector3f* v_mid = vertices_C.row(y);
     const Eigen::Vector3f* v_down = vertices_C.row(y + 1);
-    for (int x0 = 1; x0 < w - 1; x0 += kChunk) {
-      const int count = std::min(kChunk, w - 1 - x0);
-      float dx[3][kChunk];
-      float dy[3][kChunk];
+    for (int x0 = 1; x0 < w - 1; x0 += kRowChunk) {
+      const int count = std::min(kRowChunk, w - 1 - x0);
+      float dx[3][kRowChunk];
+      float dy[3][kRowChunk];
       for (int k = 0; k < count; ++k) {
         const int x = x0 + k;
         for (int c = 0; c < 3; ++c) {
@@ -245,7 +245,7 @@ Status vertices_to_normals(ImageView<const float> depth_m,
           dy[c][k] = v_down[x][c] - v_up[x][c];
         }
       }
-      float n[3][kChunk];
+      float n[3][kRowChunk];
       for (int k = 0; k < count; ++k) {
         const int x = x0 + k;
         const float d = d_mid[x];
@@ -259,10 +259,10 @@ Status vertices_to_normals(ImageView<const float> depth_m,
         const bool valid_right = valid_depth(d_right);
         const bool valid_above = valid_depth(d_above);
         const bool valid_below = valid_depth(d_below);
-        const bool smooth_left = std::fabs(d_left - d) <= jump_m;
-        const bool smooth_right = std::fabs(d_right - d) <= jump_m;
-        const bool smooth_above = std::fabs(d_above - d) <= jump_m;
-        const bool smooth_below = std::fabs(d_below - d) <= jump_m;
+        const bool smooth_left = std::fabs(d_left - d) <= max_depth_jump_m;
+        const bool smooth_right = std::fabs(d_right - d) <= max_depth_jump_m;
+        const bool smooth_above = std::fabs(d_above - d) <= max_depth_jump_m;
+        const bool smooth_below = std::fabs(d_below - d) <= max_depth_jump_m;
         const bool valid = valid_centre & valid_left & valid_right & valid_above & valid_below;
         const bool smooth = smooth_left & smooth_right & smooth_above & smooth_below;
         // dy x dx, as Eigen's cross() computes it; the norm as its squaredNorm() sums (a
@@ -271,8 +271,9 @@ Status vertices_to_normals(ImageView<const float> depth_m,
         const float ny = dy[2][k] * dx[0][k] - dy[0][k] * dx[2][k];
         const float nz = dy[0][k] * dx[1][k] - dy[1][k] * dx[0][k];
         const float norm = std::sqrt(nx * nx + (ny * ny + nz * nz));
-        // norm <= FLT_MAX: finite (false for NaN too).
-        const bool ok = valid & smooth & (norm > 0.0f) & (norm <= 3.402823466e38f);
+        // Finite: no more than the largest float (false for NaN too).
+        const bool ok =
+            valid & smooth & (norm > 0.0f) & (norm <= std::numeric_limits<float>::max());
         const float divisor = ok ? norm : 1.0f;
         n[0][k] = ok ? nx / divisor : 0.0f;
         n[1][k] = ok ? ny / divisor : 0.0f;

@@ -202,6 +202,101 @@ TEST_CASE("the thin-structure promise: close, far at scale 3, close again keeps 
   CHECK(std::abs(after - truth) <= kAfterTolerance_m);
 }
 
+// The first update of a voxel at `scale` as the voxel-by-voxel rule gives it, in double from the
+// voxel's own centre: false where that is too close to a decision (a pixel edge, the band's back
+// end, -mu) for a float computation to be sure of it.
+struct ExpectedUpdate {
+  bool applies = false;
+  double tsdf = 1.0;
+};
+bool expected_first_update(const Fusion<MultiresVoxel>& fusion, const FusionConfig& fc,
+                           const Se3d& T_W_C, const Eigen::Vector3d& centre_W, double cell_m,
+                           ExpectedUpdate& out) {
+  const Eigen::Vector3d p_C = T_W_C.inverse() * centre_W;
+  if (p_C.z() <= 0.0) return false;
+  const PinholeCamera& cam = fusion.camera;
+  const double u = cam.fx * p_C.x() / p_C.z() + cam.cx + 0.5;
+  const double v = cam.fy * p_C.y() / p_C.z() + cam.cy + 0.5;
+  const double u_edge = u - std::floor(u);
+  const double v_edge = v - std::floor(v);
+  if (u_edge < 1e-3 || u_edge > 1.0 - 1e-3 || v_edge < 1e-3 || v_edge > 1.0 - 1e-3) return false;
+  if (u < 0.0 || v < 0.0 || u >= cam.width || v >= cam.height) {
+    out.applies = false;
+    return true;
+  }
+  const double m =
+      fusion.depth[static_cast<std::size_t>(std::floor(v)) * static_cast<std::size_t>(cam.width) +
+                   static_cast<std::size_t>(std::floor(u))];
+  if (!(m >= fc.near_m && m <= fc.far_m)) {
+    out.applies = false;
+    return true;
+  }
+  const double xn = p_C.x() / p_C.z();
+  const double yn = p_C.y() / p_C.z();
+  const double d = (m - p_C.z()) * std::sqrt(1.0 + xn * xn + yn * yn);
+  const double mu = fc.mu_m;
+  const double behind = std::max(fc.behind_mu * mu, 2.5 * cell_m);
+  if (std::abs(d + behind) < 1e-4 || std::abs(d + mu) < 1e-4) return false;
+  out.applies = d >= -behind;
+  out.tsdf = d < -mu ? -1.0 : std::min(1.0, d / mu);
+  return true;
+}
+
+TEST_CASE("at every scale each voxel takes the update of its own centre's pixel",
+          "[fusion][integrator]") {
+  // Coarse levels project several rows of a block at once; a voxel paired with another's
+  // projection would read a pixel a voxel or more away (at least 0.125 of mu here).
+  const AnalyticScene scene = near_and_far_spheres();
+  Se3d turned = test::looking_along_z({0.05, -0.02, -0.25});
+  turned.linear() = (Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitY()) *
+                     Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitX()))
+                        .toRotationMatrix();
+  for (const Se3d& T_W_C : {test::looking_along_z({0, 0, -0.25}), turned}) {
+    for (int scale = 0; scale <= kMaxBlockScale; ++scale) {
+      CAPTURE(scale);
+      const FusionConfig fc = fusion_config(0.08f, scale);
+      Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fc,
+                                   test::centred_camera(160, 120, 131.0f));
+      REQUIRE(fusion.fuse(scene, T_W_C).status.ok());
+      const MapConfig& mc = fusion.map.config();
+      const int n = block_scale_side(scale);
+      const double cell_m = static_cast<double>(mc.voxel_size_m) * (1 << scale);
+      int checked = 0;
+      int updated = 0;
+      for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+        const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+        if (!b.integrated()) continue;
+        REQUIRE(b.current_scale == scale);
+        for (int z = 0; z < n; ++z)
+          for (int y = 0; y < n; ++y)
+            for (int x = 0; x < n; ++x) {
+              const Eigen::Vector3d local =
+                  (Eigen::Vector3d(x, y, z) + Eigen::Vector3d::Constant(0.5)) * cell_m;
+              const Eigen::Vector3d centre_W = mc.origin_W.cast<double>() +
+                                               b.coords.cast<double>() * (8.0 * mc.voxel_size_m) +
+                                               local;
+              ExpectedUpdate expected;
+              if (!expected_first_update(fusion, fc, T_W_C, centre_W, cell_m, expected)) continue;
+              CAPTURE(b.coords.transpose(), x, y, z);
+              const MultiresVoxel& voxel = b.at(x, y, z, scale);
+              ++checked;
+              if (!expected.applies) {
+                REQUIRE(voxel.y == 0.0f);
+                continue;
+              }
+              ++updated;
+              REQUIRE(voxel.y == 1.0f);
+              REQUIRE(voxel.delta_y == 1.0f);
+              REQUIRE(std::abs(voxel.x - expected.tsdf) < 2e-3);
+            }
+      }
+      // Enough voxels on both sides of the decision to mean something at every scale.
+      CHECK(updated > 20);
+      CHECK(checked - updated > 20);
+    }
+  }
+}
+
 TEST_CASE("blocks never integrated at scale 0 hold no finest level",
           "[fusion][integrator][finest]") {
   const AnalyticScene scene = near_and_far_spheres();

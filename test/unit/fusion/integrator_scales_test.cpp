@@ -270,11 +270,10 @@ TEST_CASE("at every scale each voxel takes the update of its own centre's pixel"
         for (int z = 0; z < n; ++z)
           for (int y = 0; y < n; ++y)
             for (int x = 0; x < n; ++x) {
-              const Eigen::Vector3d local =
-                  (Eigen::Vector3d(x, y, z) + Eigen::Vector3d::Constant(0.5)) * cell_m;
-              const Eigen::Vector3d centre_W = mc.origin_W.cast<double>() +
-                                               b.coords.cast<double>() * (8.0 * mc.voxel_size_m) +
-                                               local;
+              const Eigen::Vector3i finest =
+                  b.min_voxel() + Eigen::Vector3i(x, y, z) * (1 << scale);
+              const Eigen::Vector3d centre_W =
+                  fusion.map.voxel_centre_W(finest, scale).cast<double>();
               ExpectedUpdate expected;
               if (!expected_first_update(fusion, fc, T_W_C, centre_W, cell_m, expected)) continue;
               CAPTURE(b.coords.transpose(), x, y, z);

@@ -7,10 +7,13 @@
 namespace {
 std::atomic<std::uint64_t> g_allocations{0};
 std::atomic<std::uint64_t> g_bytes{0};
+// Zero-initialised and trivial: the executable's static TLS, so counting allocates nothing.
+thread_local std::uint64_t t_allocations = 0;
 
 void note(std::size_t bytes) {
   g_allocations.fetch_add(1, std::memory_order_relaxed);
   g_bytes.fetch_add(bytes, std::memory_order_relaxed);
+  ++t_allocations;
 }
 
 // Sanitizers replace malloc themselves (and ThreadSanitizer's runtime calls it before it is
@@ -54,6 +57,10 @@ std::uint64_t allocation_count() {
 }
 std::uint64_t allocated_bytes() {
   return g_bytes.load();
+}
+
+std::uint64_t thread_allocation_count() {
+  return t_allocations;
 }
 bool counts_malloc() {
   return OCTOFUSE_COUNT_MALLOC != 0;

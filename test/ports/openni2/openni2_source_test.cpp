@@ -202,12 +202,13 @@ long long driver_frames_acquired() {
 // libOpenNI2 itself allocates once per frame a driver acquires: FrameManager::acquireFrame takes
 // the frame from an xnl::Pool, whose Acquire() links it into an in-use list with a new 24-byte
 // node (freed on release). That is inside OpenNI2, on the driver's thread, and no port can avoid
-// it; the frame buffers themselves come from the port's pool. So the test counts every
-// allocation in the process and requires that they are exactly those nodes: none from the port
-// (next(), wait, read, copy, release) or from the test driver. The allocation and the count of a
+// it; the frame buffers themselves come from the port's pool. So the port's own calls (next(),
+// wait, read, copy, release, all on this thread) must allocate nothing, and the process as a
+// whole only those nodes: one per frame the driver acquired. The allocation and the count of a
 // frame happen one after the other on the driver's thread, so a frame straddling either end of
-// the window may be in one number and not the other: allocations lie in [acquired - 2,
-// acquired + 1].
+// the window may be in one number and not the other. On a loaded machine OpenNI2 has once been
+// seen to allocate one more block of its own on its threads (112 bytes, not per frame): two such
+// are allowed, which a per-frame allocation anywhere (30 or more) still exceeds.
 TEST_CASE("openni2: no heap allocation per frame after open() beyond OpenNI2's own") {
   OpenNi2Options options;
   options.width = 320;
@@ -227,9 +228,11 @@ TEST_CASE("openni2: no heap allocation per frame after open() beyond OpenNI2's o
   const long long acquired = driver_frames_acquired() - acquired_before;
   CHECK(frames == 30);
   CHECK(acquired >= 30);
+  CHECK(scope.thread_allocations() == 0);
+  constexpr long long kRareOpenNi2Blocks = 2;
   CHECK(static_cast<long long>(allocations) >= acquired - 2);
-  CHECK(static_cast<long long>(allocations) <= acquired + 1);
-  CHECK(bytes == allocations * 24);
+  CHECK(static_cast<long long>(allocations) <= acquired + 1 + kRareOpenNi2Blocks);
+  CHECK(static_cast<long long>(bytes) >= 24 * (acquired - 2));
 }
 
 TEST_CASE("openni2: a recording made with OpenNI2's recorder replays through libOniFile") {

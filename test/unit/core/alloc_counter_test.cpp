@@ -7,6 +7,7 @@
 #include <cstdlib>
 #include <memory>
 #include <new>
+#include <thread>
 #include <vector>
 
 #include "octofuse/core/arena.hpp"
@@ -37,6 +38,25 @@ TEST_CASE("AllocationScope counts operator new and new[]") {
   delete[] many;
   REQUIRE(scope.allocations() >= after_one + 1);
   REQUIRE(scope.bytes() >= sizeof(int) + 10 * sizeof(double));
+}
+
+TEST_CASE("AllocationScope tells this thread's allocations from another thread's") {
+  const test::AllocationScope scope;
+  std::thread other([] {
+    int* p = new int(5);
+    g_sink = p;
+    delete p;
+  });
+  other.join();  // std::thread's own start-up state is allocated by this thread
+  const std::uint64_t mine_before = scope.thread_allocations();
+  const std::uint64_t all_before = scope.allocations();
+  REQUIRE(all_before >= mine_before + 1);  // the other thread's int at least
+
+  int* mine = new int(7);
+  g_sink = mine;
+  delete mine;
+  REQUIRE(scope.thread_allocations() == mine_before + 1);
+  REQUIRE(scope.allocations() == all_before + 1);
 }
 
 TEST_CASE("AllocationScope counts over-aligned and nothrow new") {

@@ -17,6 +17,7 @@
 #include "octofuse/ports/sim/sim_source.hpp"
 #include "support/alloc_counter.hpp"
 #include "support/small_sim.hpp"
+#include "support/test_data.hpp"
 #include "support/test_dir.hpp"
 
 using octofuse::FrameOutcome;
@@ -566,13 +567,14 @@ TEST_CASE("mcap: bad input gets one clear error", "[replay][bag]") {
 }
 
 TEST_CASE("mcap: a bag of 7-Scenes frames gives their trajectory", "[replay][bag][data]") {
-  const char* data_dir = std::getenv("OCTOFUSE_TEST_DATA_DIR");
-  if (data_dir == nullptr || data_dir[0] == '\0') {
-    WARN("OCTOFUSE_TEST_DATA_DIR is not set: skipping the 7-Scenes bag test");
+  std::string why;
+  const std::string recording = octofuse::test::recording_dir("7scenes-redkitchen", &why);
+  if (recording.empty()) {
+    WARN(why << ": skipping the 7-Scenes bag test");
     return;
   }
   constexpr int kFrames = 4;
-  const std::string spec = std::string("7scenes:") + data_dir + "/7scenes-redkitchen";
+  const std::string spec = "7scenes:" + recording;
   octofuse::replay::ReplayConfig config;
   octofuse::ErrorText error;
   REQUIRE(octofuse::replay::parse_replay_spec(spec.c_str(), &config, &error).ok());
@@ -994,13 +996,14 @@ TEST_CASE("rosbag: bad input gets one clear error", "[replay][bag][rosbag]") {
 
 TEST_CASE("rosbag: a bag of 7-Scenes frames gives their trajectory",
           "[replay][bag][rosbag][data]") {
-  const char* data_dir = std::getenv("OCTOFUSE_TEST_DATA_DIR");
-  if (data_dir == nullptr || data_dir[0] == '\0') {
-    WARN("OCTOFUSE_TEST_DATA_DIR is not set: skipping the 7-Scenes ROS 1 bag test");
+  std::string why;
+  const std::string recording = octofuse::test::recording_dir("7scenes-redkitchen", &why);
+  if (recording.empty()) {
+    WARN(why << ": skipping the 7-Scenes ROS 1 bag test");
     return;
   }
   constexpr int kFrames = 4;
-  const std::string spec = std::string("7scenes:") + data_dir + "/7scenes-redkitchen";
+  const std::string spec = "7scenes:" + recording;
   octofuse::replay::ReplayConfig config;
   octofuse::ErrorText error;
   REQUIRE(octofuse::replay::parse_replay_spec(spec.c_str(), &config, &error).ok());

@@ -1,10 +1,10 @@
 // All 1000 frames of the real 7-Scenes "redkitchen" recording (../shared/data, found through
 // OCTOFUSE_TEST_DATA_DIR): counts, the 65535 invalid marker, and ground-truth poses.
 #include <catch2/catch.hpp>
-#include <cstdlib>
 #include <string>
 
 #include "octofuse/ports/replay/replay_source.hpp"
+#include "support/test_data.hpp"
 
 using octofuse::DepthFrame;
 using octofuse::FrameOutcome;
@@ -21,12 +21,13 @@ constexpr std::uint16_t kMaxPlausibleDepth_mm = 10000;
 }  // namespace
 
 TEST_CASE("7-Scenes redkitchen: all frames, invalid pixels and poses", "[replay][data]") {
-  const char* data_dir = std::getenv("OCTOFUSE_TEST_DATA_DIR");
-  if (data_dir == nullptr || data_dir[0] == '\0') {
-    WARN("OCTOFUSE_TEST_DATA_DIR is not set: skipping the 7scenes-redkitchen test");
+  std::string why;
+  const std::string recording = octofuse::test::recording_dir("7scenes-redkitchen", &why);
+  if (recording.empty()) {
+    WARN(why << ": skipping the 7scenes-redkitchen test");
     return;
   }
-  const std::string spec = std::string("7scenes:") + data_dir + "/7scenes-redkitchen";
+  const std::string spec = "7scenes:" + recording;
   ReplayConfig config;
   octofuse::ErrorText error;
   REQUIRE(octofuse::replay::parse_replay_spec(spec.c_str(), &config, &error).ok());

@@ -414,9 +414,13 @@ TEST_CASE(
 TEST_CASE("deeper still, allocation marches every other pixel's ray, deterministically") {
   sim::SimSource probe(small_sim(kSimFrames));
   REQUIRE(probe.open().ok());
-  const Run unbounded = run(small_config(probe, 1), ClockKind::model);
+  // Every ray of the step, not in groups: the rays' ratio below is then the step's alone.
+  PipelineConfig every_ray = small_config(probe, 1);
+  every_ray.fusion.allocation_group_block_px = 0.0f;
+  const Run unbounded = run(every_ray, ClockKind::model);
   const double deadline_ms = kAllocationHalfShare * deadline_for(unbounded);
-  const PipelineConfig config = floors_only(frozen_config(probe, deadline_ms));
+  PipelineConfig config = floors_only(frozen_config(probe, deadline_ms));
+  config.fusion.allocation_group_block_px = 0.0f;
   const Run a = run(config, ClockKind::model);
   int halved = 0;
   for (std::size_t i = 1; i < a.stats.size(); ++i) {

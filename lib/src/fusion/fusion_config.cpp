@@ -17,6 +17,9 @@ Status validate(const FusionConfig& c) {
   if (c.allocation_pixel_step < 1 || c.max_blocks_per_frame == 0) {
     return StatusCode::invalid_argument;
   }
+  if (!(c.allocation_group_block_px >= 0.0f && c.allocation_group_block_px <= 1e6f)) {
+    return StatusCode::invalid_argument;
+  }
   if (!(c.scale_hysteresis >= 0.0f && c.scale_hysteresis < 1.0f)) {
     return StatusCode::invalid_argument;
   }

@@ -425,87 +425,149 @@ struct MarchSetup {
   float inv_fy = 0;
   int side_blocks = 0;
   int step = 1;
+  // > 0: the marched pixels go in 2 x 2 groups, and a group's other rays are skipped where its
+  // first ray's depth is at most this (a block spans enough pixels there that a ray a step over
+  // crosses the same blocks, nearly always) and their depths lie within `group_depth_gap_m` of it.
+  float group_max_depth_m = 0.0f;
+  float group_depth_gap_m = 0.0f;
 };
 
-// Marches the rays of pixel rows [v_begin, v_end) (every step-th row and column), the first row
-// from column u_begin, over the band depth +- mu, and emits each block cell inside the cube that
-// `seen` (a direct-mapped cache of cells emitted recently) does not hold. room(n) says whether n
-// more cells can be taken; when a ray might not fit, the march stops before it and returns true
-// with its pixel in (stop_v, stop_u). Cells outside the cube and far-off rays add to `outside`.
+// What one ray's march did.
+enum class RayMarch { done, skipped, no_room };
+
+// Marches pixel (u, v)'s ray over the band depth +- mu and emits each block cell inside the cube
+// that `seen` (a direct-mapped cache of cells emitted recently) does not hold. room(n) says whether
+// n more cells can be taken; no_room when the ray might not fit (nothing emitted). Cells outside
+// the cube and far-off rays add to `outside`.
+template <typename FrameT, typename Room, typename Emit>
+inline RayMarch march_ray(const FrameT& f, const MarchSetup& m, int u, float depth, float yn2_1,
+                          const Eigen::Vector3f& row_dir, std::uint64_t* seen,
+                          std::uint32_t& outside, std::uint32_t& rays, Room& room, Emit& emit) {
+  if (!(depth >= f.near_m && depth <= f.far_m)) return RayMarch::skipped;
+  const float xn = (static_cast<float>(u) - f.cx) * m.inv_fx;
+  const Eigen::Vector3f dir = row_dir + m.M.col(0) * xn;
+  // The band +- mu along the ray is +- mu/|ray| in camera z.
+  const float half_band_z = f.mu_m / std::sqrt(xn * xn + yn2_1);
+  const Eigen::Vector3f a = m.centre_B + dir * (depth - half_band_z);
+  const Eigen::Vector3f b = m.centre_B + dir * (depth + half_band_z);
+  // Far outside the cube (a wild pose): skip before float-to-int conversions can overflow.
+  constexpr float kLimit = static_cast<float>(1 << 22);
+  if (!(a.cwiseAbs().maxCoeff() < kLimit && b.cwiseAbs().maxCoeff() < kLimit)) {
+    ++outside;
+    return RayMarch::skipped;
+  }
+  // Amanatides-Woo traversal of the block grid from a to b.
+  const Eigen::Vector3f d = b - a;
+  int cell[3] = {floor_to_int(a.x()), floor_to_int(a.y()), floor_to_int(a.z())};
+  const int last[3] = {floor_to_int(b.x()), floor_to_int(b.y()), floor_to_int(b.z())};
+  int step_axis[3];
+  float t_max[3];
+  float t_delta[3];
+  int max_cells = 1;
+  for (int k = 0; k < 3; ++k) {
+    if (d[k] > 0.0f) {
+      step_axis[k] = 1;
+      t_delta[k] = 1.0f / d[k];
+      t_max[k] = (static_cast<float>(cell[k] + 1) - a[k]) * t_delta[k];
+      max_cells += last[k] - cell[k];
+    } else if (d[k] < 0.0f) {
+      step_axis[k] = -1;
+      t_delta[k] = -1.0f / d[k];
+      t_max[k] = (a[k] - static_cast<float>(cell[k])) * t_delta[k];
+      max_cells += cell[k] - last[k];
+    } else {
+      step_axis[k] = 0;
+      t_max[k] = 2.0f;
+      t_delta[k] = 2.0f;
+    }
+  }
+  if (!room(max_cells)) return RayMarch::no_room;
+  ++rays;
+  for (int c = 0; c < max_cells; ++c) {
+    if (static_cast<unsigned>(cell[0]) < static_cast<unsigned>(m.side_blocks) &&
+        static_cast<unsigned>(cell[1]) < static_cast<unsigned>(m.side_blocks) &&
+        static_cast<unsigned>(cell[2]) < static_cast<unsigned>(m.side_blocks)) {
+      const std::uint64_t key = pack_cell(cell[0], cell[1], cell[2]);
+      std::uint64_t& recent = seen[seen_slot(key)];
+      if (recent != key) {
+        recent = key;
+        emit(key);
+      }
+    } else {
+      ++outside;
+    }
+    if (cell[0] == last[0] && cell[1] == last[1] && cell[2] == last[2]) break;
+    const int k =
+        t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
+    if (t_max[k] > 1.0f) break;
+    cell[k] += step_axis[k];
+    t_max[k] += t_delta[k];
+  }
+  return RayMarch::done;
+}
+
+// A pixel row's ray geometry.
+struct RowRays {
+  const float* depth;
+  Eigen::Vector3f dir;  // the ray direction at xn = 0
+  float yn2_1;          // yn^2 + 1
+};
+
+template <typename FrameT>
+inline RowRays row_rays(const FrameT& f, const MarchSetup& m, int v) {
+  RowRays r;
+  r.depth = f.depth + v * f.stride;
+  const float yn = (static_cast<float>(v) - f.cy) * m.inv_fy;
+  r.dir = m.M.col(1) * yn + m.M.col(2);
+  r.yn2_1 = yn * yn + 1.0f;
+  return r;
+}
+
+// Marches the rays of pixel rows [v_begin, v_end), the first row from column u_begin: every
+// step-th row and column, or (group_max_depth_m > 0) those pixels in 2 x 2 groups, where a
+// group's first ray stands for the others as MarchSetup says. When a ray might not fit, the
+// march stops before it (before its group) and returns true with its pixel in (stop_v, stop_u).
 template <typename FrameT, typename Room, typename Emit>
 bool march_rows(const FrameT& f, const MarchSetup& m, int v_begin, int u_begin, int v_end,
                 std::uint64_t* seen, std::uint32_t& outside, std::uint32_t& rays, Room&& room,
                 Emit&& emit, int& stop_v, int& stop_u) {
-  for (int v = v_begin; v < v_end; v += m.step) {
-    const float* row = f.depth + v * f.stride;
-    const float yn = (static_cast<float>(v) - f.cy) * m.inv_fy;
-    const Eigen::Vector3f row_dir = m.M.col(1) * yn + m.M.col(2);
-    const float yn2_1 = yn * yn + 1.0f;
-    for (int u = v == v_begin ? u_begin : 0; u < f.width; u += m.step) {
-      const float depth = row[u];
-      if (!(depth >= f.near_m && depth <= f.far_m)) continue;
-      const float xn = (static_cast<float>(u) - f.cx) * m.inv_fx;
-      const Eigen::Vector3f dir = row_dir + m.M.col(0) * xn;
-      // The band +- mu along the ray is +- mu/|ray| in camera z.
-      const float half_band_z = f.mu_m / std::sqrt(xn * xn + yn2_1);
-      const Eigen::Vector3f a = m.centre_B + dir * (depth - half_band_z);
-      const Eigen::Vector3f b = m.centre_B + dir * (depth + half_band_z);
-      // Far outside the cube (a wild pose): skip before float-to-int conversions can overflow.
-      constexpr float kLimit = static_cast<float>(1 << 22);
-      if (!(a.cwiseAbs().maxCoeff() < kLimit && b.cwiseAbs().maxCoeff() < kLimit)) {
-        ++outside;
-        continue;
-      }
-      // Amanatides-Woo traversal of the block grid from a to b.
-      const Eigen::Vector3f d = b - a;
-      int cell[3] = {floor_to_int(a.x()), floor_to_int(a.y()), floor_to_int(a.z())};
-      const int last[3] = {floor_to_int(b.x()), floor_to_int(b.y()), floor_to_int(b.z())};
-      int step_axis[3];
-      float t_max[3];
-      float t_delta[3];
-      int max_cells = 1;
-      for (int k = 0; k < 3; ++k) {
-        if (d[k] > 0.0f) {
-          step_axis[k] = 1;
-          t_delta[k] = 1.0f / d[k];
-          t_max[k] = (static_cast<float>(cell[k] + 1) - a[k]) * t_delta[k];
-          max_cells += last[k] - cell[k];
-        } else if (d[k] < 0.0f) {
-          step_axis[k] = -1;
-          t_delta[k] = -1.0f / d[k];
-          t_max[k] = (a[k] - static_cast<float>(cell[k])) * t_delta[k];
-          max_cells += cell[k] - last[k];
-        } else {
-          step_axis[k] = 0;
-          t_max[k] = 2.0f;
-          t_delta[k] = 2.0f;
+  if (m.group_max_depth_m <= 0.0f) {
+    for (int v = v_begin; v < v_end; v += m.step) {
+      const RowRays row = row_rays(f, m, v);
+      for (int u = v == v_begin ? u_begin : 0; u < f.width; u += m.step) {
+        if (march_ray(f, m, u, row.depth[u], row.yn2_1, row.dir, seen, outside, rays, room, emit) ==
+            RayMarch::no_room) {
+          stop_v = v;
+          stop_u = u;
+          return true;
         }
       }
-      if (!room(max_cells)) {
-        stop_v = v;
-        stop_u = u;
-        return true;
-      }
-      ++rays;
-      for (int c = 0; c < max_cells; ++c) {
-        if (static_cast<unsigned>(cell[0]) < static_cast<unsigned>(m.side_blocks) &&
-            static_cast<unsigned>(cell[1]) < static_cast<unsigned>(m.side_blocks) &&
-            static_cast<unsigned>(cell[2]) < static_cast<unsigned>(m.side_blocks)) {
-          const std::uint64_t key = pack_cell(cell[0], cell[1], cell[2]);
-          std::uint64_t& recent = seen[seen_slot(key)];
-          if (recent != key) {
-            recent = key;
-            emit(key);
-          }
-        } else {
-          ++outside;
+    }
+    return false;
+  }
+  const int s = m.step;
+  for (int v = v_begin; v < v_end; v += 2 * s) {
+    const int row_count = v + s < f.height ? 2 : 1;
+    const RowRays rows[2] = {row_rays(f, m, v), row_rays(f, m, row_count == 2 ? v + s : v)};
+    for (int u = v == v_begin ? u_begin : 0; u < f.width; u += 2 * s) {
+      const float first = rows[0].depth[u];
+      const bool stands_for_group =
+          first >= f.near_m && first <= f.far_m && first <= m.group_max_depth_m;
+      const int column_count = u + s < f.width ? 2 : 1;
+      for (int i = 0; i < 4; ++i) {
+        const int dv = i >> 1;
+        const int du = i & 1;
+        if (dv >= row_count || du >= column_count) continue;
+        const float depth = rows[dv].depth[u + du * s];
+        if (i > 0 && stands_for_group && std::fabs(depth - first) <= m.group_depth_gap_m) {
+          continue;
         }
-        if (cell[0] == last[0] && cell[1] == last[1] && cell[2] == last[2]) break;
-        const int k =
-            t_max[0] < t_max[1] ? (t_max[0] < t_max[2] ? 0 : 2) : (t_max[1] < t_max[2] ? 1 : 2);
-        if (t_max[k] > 1.0f) break;
-        cell[k] += step_axis[k];
-        t_max[k] += t_delta[k];
+        if (march_ray(f, m, u + du * s, depth, rows[dv].yn2_1, rows[dv].dir, seen, outside, rays,
+                      room, emit) == RayMarch::no_room) {
+          stop_v = v;
+          stop_u = u;
+          return true;
+        }
       }
     }
   }
@@ -528,11 +590,19 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
   m.inv_fy = 1.0f / f.fy;
   m.side_blocks = map.voxels_per_side() >> kBlockSideLog2;
   m.step = config_.allocation_pixel_step;
-  const int step = m.step;
-  const std::size_t rows = static_cast<std::size_t>((f.height + step - 1) / step);
+  if (config_.allocation_group_block_px > 0.0f) {
+    // A block of 8 voxels spans fx * 8 voxels / depth pixels; a skipped ray lies `step` pixels
+    // from its group's first.
+    m.group_max_depth_m = f.fx * 8.0f * f.voxel_size_m /
+                          (config_.allocation_group_block_px * static_cast<float>(m.step));
+    m.group_depth_gap_m = 0.5f * f.mu_m;
+  }
+  // Rows per band unit: the step, or two of them for 2 x 2 groups.
+  const int row_unit = m.group_max_depth_m > 0.0f ? 2 * m.step : m.step;
+  const std::size_t rows = static_cast<std::size_t>((f.height + row_unit - 1) / row_unit);
   auto band_v = [&](std::size_t task, bool end) {
     const TaskRange r = task_range(rows, task, kCollectTasks);
-    return static_cast<int>(end ? r.end : r.begin) * step;
+    return static_cast<int>(end ? r.end : r.begin) * row_unit;
   };
   // 1a. Each band of rows lists its cells. Neighbouring rays cross the same blocks, in this row and
   // the rows above: the band's seen-cell cache keeps most repeats off its list.

@@ -22,6 +22,11 @@ struct FusionConfig {
   float behind_mu = 1.0f;
   // Allocation marches every n-th pixel's ray in x and y (1 = every pixel).
   int allocation_pixel_step = 1;
+  // > 0: allocation takes the pixels it marches in 2 x 2 groups and marches only the first
+  // pixel's ray of a group where a block spans at least this many pixels per step at its depth,
+  // unless another pixel of the group lies more than mu / 2 in depth from it (an edge, a thin
+  // part), whose ray is marched too. 0 marches every (step-th) ray.
+  float allocation_group_block_px = 8.0f;
   // Distinct blocks one frame may touch (existing and new together); sizes the per-frame key
   // list and set. Rays beyond it are dropped and counted (IntegrationReport::keys_dropped).
   std::uint32_t max_blocks_per_frame = 1u << 17;

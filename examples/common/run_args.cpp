@@ -164,6 +164,17 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.allocation_step);
        return o.allocation_step != FusionConfig{}.allocation_pixel_step;
      }},
+    {"allocation-group-px", "PX",
+     "allocation marches one ray of each 2 x 2 group of pixels where a block\n"
+     "spans at least PX pixels at its depth and the group's depths agree\n"
+     "(default 8; 0 marches every ray, as before it)",
+     [](RunOptions& o, const std::string& v) {
+       return set_float(v, 0.0, 1000.0, &o.allocation_group_block_px, " needs pixels in [0, 1000]");
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.allocation_group_block_px);
+       return o.allocation_group_block_px != FusionConfig{}.allocation_group_block_px;
+     }},
     {"map-size", "M", "side of the mapped cube in metres (default 8)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 0.1, 10000.0, &o.map_size_m, " needs metres in [0.1, 10000]");

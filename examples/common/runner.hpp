@@ -29,6 +29,8 @@ struct RunOptions {
   float mu_m = 0.0f;                                           // 0: 8 voxels
   float band_behind_mu = 1.0f;                                 // FusionConfig::behind_mu
   int allocation_step = FusionConfig{}.allocation_pixel_step;  // --allocation-step
+  float allocation_group_block_px =
+      FusionConfig{}.allocation_group_block_px;  // --allocation-group-px
   float map_size_m = 8.0f;  // cube side (rounded up to a power of two of voxels)
   long max_frames = -1;     // stop after this many frames; -1 = the whole source
   int threads = default_thread_count();

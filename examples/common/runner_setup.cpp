@@ -317,6 +317,7 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
   if (options.mu_m > 0.0f) config.fusion.mu_m = options.mu_m;
   config.fusion.behind_mu = options.band_behind_mu;
   config.fusion.allocation_pixel_step = options.allocation_step;
+  config.fusion.allocation_group_block_px = options.allocation_group_block_px;
   if (load_map) config.fusion.mu_m = loaded.mu_m;  // the TSDF is normalised by it
   config.workers = options.threads;
   // render.png, frames/ and the live view show the map at every pixel whatever the reference.

@@ -38,12 +38,19 @@ struct Cell {
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   bool raycast_half = true;  // the reference ray-cast at half resolution (the default)
   int allocation_step = octofuse::FusionConfig{}.allocation_pixel_step;  // --allocation-step
+  // --allocation-group-px
+  float allocation_group_px = octofuse::FusionConfig{}.allocation_group_block_px;
 
   std::string label() const {
     char text[192];
-    char allocation[32] = "";
+    char allocation[64] = "";
     if (allocation_step != octofuse::FusionConfig{}.allocation_pixel_step)
       std::snprintf(allocation, sizeof(allocation), " alloc%d", allocation_step);
+    if (allocation_group_px != octofuse::FusionConfig{}.allocation_group_block_px) {
+      const std::size_t used = std::strlen(allocation);
+      std::snprintf(allocation + used, sizeof(allocation) - used, " group%gpx",
+                    static_cast<double>(allocation_group_px));
+    }
     std::snprintf(text, sizeof(text), "%s %s %gmm %dt %s%s%s", scene.c_str(),
                   octofuse::examples::map_option_name(map), static_cast<double>(voxel_m) * 1000.0,
                   threads, poses == octofuse::PoseSource::track ? "track" : "gt-poses",
@@ -141,6 +148,7 @@ Repeat run_cell(const Cell& cell, const std::string& out_dir, const SimEvaluatio
   options.mesh_read_scale = cell.mesh_read_scale;
   options.budget.raycast_half = cell.raycast_half;
   options.allocation_step = cell.allocation_step;
+  options.allocation_group_block_px = cell.allocation_group_px;
   options.progress = false;
   options.map_memory_mb = cell.voxel_m < 0.005f ? 2048.0f : 1024.0f;
   Repeat r;
@@ -242,6 +250,7 @@ struct BenchArgs {
   octofuse::MeshReadScale mesh_read_scale = octofuse::MeshReadScale::current;
   bool raycast_half = true;
   int allocation_step = octofuse::FusionConfig{}.allocation_pixel_step;
+  float allocation_group_px = octofuse::FusionConfig{}.allocation_group_block_px;
   std::vector<octofuse::PoseSource> pose_modes = {octofuse::PoseSource::track,
                                                   octofuse::PoseSource::ground_truth};
   bool soak = false;
@@ -390,6 +399,18 @@ const Option kOptions[] = {
        a.allocation_step = static_cast<int>(n);
        return std::string();
      }},
+    {"--allocation-group-px", "PX",
+     "every run's allocation marches one ray of a 2 x 2 group where a block\n"
+     "spans at least PX pixels (default 8; 0: every ray; octofuse-replay\n"
+     "--allocation-group-px)",
+     [](BenchArgs& a, const std::string& v) {
+       double px = 0.0;
+       if (!octofuse::cli::parse_double(v, 0.0, 1000.0, px)) {
+         return std::string("--allocation-group-px needs pixels in [0, 1000]");
+       }
+       a.allocation_group_px = static_cast<float>(px);
+       return std::string();
+     }},
     {"--soak", nullptr,
      "instead of the matrix: replay a source in a loop under a memory cap and\n"
      "again with a large one; fails (exit 1) when the capped run lost a frame\n"
@@ -516,7 +537,8 @@ int main(int argc, char** argv) {
                                                                  octofuse::MapKind::single_res}
                                 : maps) {
             cells.push_back(Cell{scene, map, voxel, threads, poses, frames, mesh_read_scale,
-                                 args.raycast_half, args.allocation_step});
+                                 args.raycast_half, args.allocation_step,
+                                 args.allocation_group_px});
           }
         }
       }

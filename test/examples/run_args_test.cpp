@@ -74,6 +74,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "0.375",
                  "--allocation-step",
                  "3",
+                 "--allocation-group-px",
+                 "12.5",
                  "--map-size",
                  "5.5",
                  "--map-memory",
@@ -152,6 +154,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
   CHECK(printed.find("band-behind = 0.375\n") != std::string::npos);
   CHECK(printed.find("allocation-step = 3\n") != std::string::npos);
   CHECK(options.allocation_step == 3);
+  CHECK(printed.find("allocation-group-px = 12.5\n") != std::string::npos);
+  CHECK(options.allocation_group_block_px == 12.5f);
   CHECK(printed.find("intrinsics = 525,525.5,319.5,239.25\n") != std::string::npos);
   CHECK(printed.find("gt-poses = true\n") != std::string::npos);
 
@@ -309,6 +313,8 @@ TEST_CASE("Config errors name the file and the line", "[examples][config]") {
       {"band-behind = 0\n", "f.cfg:1: band-behind needs a share of mu in [0.01, 1]"},
       {"allocation-step = 0\n", "f.cfg:1: allocation-step needs a count in [1, 16]"},
       {"allocation-step = 17\n", "f.cfg:1: allocation-step needs a count in [1, 16]"},
+      {"allocation-group-px = -1\n", "f.cfg:1: allocation-group-px needs pixels in [0, 1000]"},
+      {"allocation-group-px = nan\n", "f.cfg:1: allocation-group-px needs pixels in [0, 1000]"},
       {"threads 2\n", "f.cfg:1: expected 'key = value', got 'threads 2'"},
       {"= 2\n", "f.cfg:1: missing key before '='"},
       {"bilateral = yes\n", "f.cfg:1: bilateral takes true or false, not 'yes'"},

@@ -94,5 +94,27 @@ TEST_CASE("a bar one pixel wide that only a group's other pixels see keeps its b
   REQUIRE(grouped.rays < 160u * 120u / 2);
 }
 
+TEST_CASE("groups are taken only on frames where a quarter of the depths can stand for a group",
+          "[fusion][integrator]") {
+  // Blocks span 8 px up to 1.2 m (120 px focal length, 8 cm blocks). A wall at 3 m with a near
+  // box at 1 m over a tenth of the image: too few groups could stand, every ray marches (the same
+  // rays and blocks as with groups off).
+  auto small_box = [](int u, int v) { return u < 40 && v < 48 ? 1.0f : 3.0f; };
+  const Fused every_small = fuse_image(0.0f, 160, 120, 120.0f, small_box);
+  const Fused grouped_small = fuse_image(8.0f, 160, 120, 120.0f, small_box);
+  REQUIRE(every_small.rays == 160u * 120u);
+  REQUIRE(grouped_small.rays == every_small.rays);
+  REQUIRE(grouped_small.blocks == every_small.blocks);
+  // The box over half of the image: its groups march one ray in four, the wall every ray.
+  auto large_box = [](int u, int) { return u < 80 ? 1.0f : 3.0f; };
+  const Fused every_large = fuse_image(0.0f, 160, 120, 120.0f, large_box);
+  const Fused grouped_large = fuse_image(8.0f, 160, 120, 120.0f, large_box);
+  CAPTURE(every_large.rays, grouped_large.rays);
+  REQUIRE(every_large.rays == 160u * 120u);
+  REQUIRE(grouped_large.rays < every_large.rays * 3 / 4);
+  REQUIRE(grouped_large.rays > every_large.rays / 2);
+  REQUIRE(contains_all(every_large.blocks, grouped_large.blocks));
+}
+
 }  // namespace
 }  // namespace octofuse

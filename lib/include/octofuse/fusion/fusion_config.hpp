@@ -25,7 +25,9 @@ struct FusionConfig {
   // > 0: allocation takes the pixels it marches in 2 x 2 groups and marches only the first
   // pixel's ray of a group where a block spans at least this many pixels per step at its depth,
   // unless another pixel of the group lies more than mu / 2 in depth from it (an edge, a thin
-  // part), whose ray is marched too. 0 marches every (step-th) ray.
+  // part), whose ray is marched too. Only on frames where at least a quarter of the valid depths
+  // (sampled every 8th pixel) lie near enough for a group to stand: elsewhere (far views, small
+  // voxels) the grouped loop costs more than it saves. 0 marches every (step-th) ray.
   float allocation_group_block_px = 8.0f;
   // Distinct blocks one frame may touch (existing and new together); sizes the per-frame key
   // list and set. Rays beyond it are dropped and counted (IntegrationReport::keys_dropped).

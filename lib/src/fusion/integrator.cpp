@@ -71,13 +71,12 @@ bool pose_ok(const Se3d& T) {
 struct RowProjection {
   float z_m[kBlockSide];        // camera-frame depth of the voxel centre
   float ray_scale[kBlockSide];  // |ray| per unit of z: depth differences to distances along the ray
-  int u[kBlockSide];            // pixel column, -1 when the centre does not project into the image
-  int v[kBlockSide];
+  int pixel[kBlockSide];  // the pixel's index in the depth image (v * stride + u), -1 when outside
 };
 
 inline void project_row(const float (&x_C)[kBlockSide], const float (&y_C)[kBlockSide],
                         const float (&z_C)[kBlockSide], float fx, float fy, float cx, float cy,
-                        float u_end, float v_end, RowProjection& out) {
+                        float u_end, float v_end, int stride, RowProjection& out) {
   // Kept a loop (not unrolled first), so the loop vectoriser takes it whole.
 #pragma GCC unroll 1
   for (int k = 0; k < kBlockSide; ++k) {
@@ -94,8 +93,7 @@ inline void project_row(const float (&x_C)[kBlockSide], const float (&y_C)[kBloc
     const float v_round = w + 0.5f;
     const float u_px = inside ? u_round : 0.0f;
     const float v_px = inside ? v_round : 0.0f;
-    out.u[k] = inside ? static_cast<int>(u_px) : -1;
-    out.v[k] = static_cast<int>(v_px);
+    out.pixel[k] = inside ? static_cast<int>(v_px) * stride + static_cast<int>(u_px) : -1;
     out.z_m[k] = z;
     out.ray_scale[k] = std::sqrt(1.0f + xn * xn + yn * yn);
   }
@@ -234,7 +232,7 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
     // The frame's constants in locals: the voxel stores are floats, which could alias f's floats,
     // so read through f they are loaded again for every voxel.
     const float* const depth = f.depth;
-    const std::ptrdiff_t stride = f.stride;
+    const int pixel_stride = static_cast<int>(f.stride);
     const float fx = f.fx;
     const float fy = f.fy;
     const float cx = f.cx;
@@ -248,9 +246,9 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
     // projection.
     auto visit_voxel = [&](const RowProjection& row, int k, int x, int y, int z) {
       VoxelT& v = voxels[i++];
-      if (row.u[k] >= 0 &&
-          update_voxel<kPastMu>(v, depth[row.v[k] * stride + row.u[k]], row.z_m[k],
-                                row.ray_scale[k], near_m, far_m, mu_m, inv_mu, behind_m, y_max)) {
+      if (row.pixel[k] >= 0 &&
+          update_voxel<kPastMu>(v, depth[row.pixel[k]], row.z_m[k], row.ray_scale[k], near_m, far_m,
+                                mu_m, inv_mu, behind_m, y_max)) {
         ++updated;
       }
       if (!voxel_observed(v)) return;
@@ -283,7 +281,7 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
             z_C[x] = p_C.z();
           }
           RowProjection row;
-          project_row(x_C, y_C, z_C, fx, fy, cx, cy, u_end, v_end, row);
+          project_row(x_C, y_C, z_C, fx, fy, cx, cy, u_end, v_end, pixel_stride, row);
           for (int x = 0; x < n; ++x) visit_voxel(row, x, x, y, z);
         }
       }
@@ -312,7 +310,7 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
           z_C[k] = z_C[0];
         }
         RowProjection row;
-        project_row(x_C, y_C, z_C, fx, fy, cx, cy, u_end, v_end, row);
+        project_row(x_C, y_C, z_C, fx, fy, cx, cy, u_end, v_end, pixel_stride, row);
         for (int r = 0; r < rows_per_projection; ++r) {
           const int y = (first_row + r) % n;
           const int z = (first_row + r) / n;

@@ -74,16 +74,18 @@ struct RowProjection {
   int pixel[kBlockSide];  // the pixel's index in the depth image (v * stride + u), -1 when outside
 };
 
-inline void project_row(const float (&x_C)[kBlockSide], const float (&y_C)[kBlockSide],
-                        const float (&z_C)[kBlockSide], float fx, float fy, float cx, float cy,
+// Lane k's voxel centre in the camera frame is start + (offset_x[k], offset_y[k], offset_z[k]).
+inline void project_row(float start_x, float start_y, float start_z,
+                        const float (&offset_x)[kBlockSide], const float (&offset_y)[kBlockSide],
+                        const float (&offset_z)[kBlockSide], float fx, float fy, float cx, float cy,
                         float u_end, float v_end, int stride, RowProjection& out) {
   // Kept a loop (not unrolled first), so the loop vectoriser takes it whole.
 #pragma GCC unroll 1
   for (int k = 0; k < kBlockSide; ++k) {
-    const float z = z_C[k];
+    const float z = start_z + offset_z[k];
     const float inv_z = 1.0f / z;  // inf or negative lanes are masked below
-    const float xn = x_C[k] * inv_z;
-    const float yn = y_C[k] * inv_z;
+    const float xn = (start_x + offset_x[k]) * inv_z;
+    const float yn = (start_y + offset_y[k]) * inv_z;
     const float u = fx * xn + cx;
     const float w = fy * yn + cy;
     // Bitwise, not short-circuit: no branch in the loop. Also false for NaN.
@@ -267,23 +269,25 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
         ++lift_count[parent];
       }
     };
-    // Voxel centres by repeated addition from their row's start, as a voxel-by-voxel loop steps
-    // them, kBlockSide lanes per projection.
+    // Voxel centres: a row's start plus the voxel's offset along the row (x dx, computed once per
+    // block), added inside the vectorised projection, not stepped voxel by voxel.
+    float offset_x[kBlockSide];
+    float offset_y[kBlockSide];
+    float offset_z[kBlockSide];
+    for (int x = 0; x < kBlockSide; ++x) {
+      offset_x[x] = static_cast<float>(x) * dx.x();
+      offset_y[x] = static_cast<float>(x) * dx.y();
+      offset_z[x] = static_cast<float>(x) * dx.z();
+    }
     if constexpr (kScale0) {
       // Scale 0: one row per projection.
       for (int z = 0; z < n; ++z) {
         for (int y = 0; y < n; ++y) {
-          float x_C[kBlockSide];
-          float y_C[kBlockSide];
-          float z_C[kBlockSide];
-          Eigen::Vector3f p_C = base_C + static_cast<float>(y) * dy + static_cast<float>(z) * dz;
-          for (int x = 0; x < kBlockSide; ++x, p_C += dx) {
-            x_C[x] = p_C.x();
-            y_C[x] = p_C.y();
-            z_C[x] = p_C.z();
-          }
+          const Eigen::Vector3f start_C =
+              base_C + static_cast<float>(y) * dy + static_cast<float>(z) * dz;
           RowProjection row;
-          project_row(x_C, y_C, z_C, fx, fy, cx, cy, u_end, v_end, pixel_stride, row);
+          project_row(start_C.x(), start_C.y(), start_C.z(), offset_x, offset_y, offset_z, fx, fy,
+                      cx, cy, u_end, v_end, pixel_stride, row);
           for (int x = 0; x < n; ++x) visit_voxel(row, x, x, y, z);
         }
       }
@@ -299,11 +303,12 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
         for (int r = 0; r < rows_per_projection; ++r) {
           const int y = (first_row + r) % n;
           const int z = (first_row + r) / n;
-          Eigen::Vector3f p_C = base_C + static_cast<float>(y) * dy + static_cast<float>(z) * dz;
-          for (int x = 0; x < n; ++x, p_C += dx) {
-            x_C[r * n + x] = p_C.x();
-            y_C[r * n + x] = p_C.y();
-            z_C[r * n + x] = p_C.z();
+          const Eigen::Vector3f start_C =
+              base_C + static_cast<float>(y) * dy + static_cast<float>(z) * dz;
+          for (int x = 0; x < n; ++x) {
+            x_C[r * n + x] = start_C.x() + offset_x[x];
+            y_C[r * n + x] = start_C.y() + offset_y[x];
+            z_C[r * n + x] = start_C.z() + offset_z[x];
           }
         }
         for (int k = n * rows_per_projection; k < kBlockSide; ++k) {
@@ -312,7 +317,10 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
           z_C[k] = z_C[0];
         }
         RowProjection row;
-        project_row(x_C, y_C, z_C, fx, fy, cx, cy, u_end, v_end, pixel_stride, row);
+        // The lanes hold whole centres: a start of 0 adds nothing (0 + -0 is +0, which projects
+        // the same).
+        project_row(0.0f, 0.0f, 0.0f, x_C, y_C, z_C, fx, fy, cx, cy, u_end, v_end, pixel_stride,
+                    row);
         for (int r = 0; r < rows_per_projection; ++r) {
           const int y = (first_row + r) % n;
           const int z = (first_row + r) / n;

@@ -248,7 +248,8 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
     // projection.
     auto visit_voxel = [&](const RowProjection& row, int k, int x, int y, int z) {
       VoxelT& v = voxels[i++];
-      // An updated voxel is observed: only the others are checked.
+      // An updated voxel is observed (its weight is at least 1: FusionConfig validates
+      // y_max >= 1), so only the others test their weight.
       if (row.pixel[k] >= 0 &&
           update_voxel<kPastMu>(v, depth[row.pixel[k]], row.z_m[k], row.ray_scale[k], near_m, far_m,
                                 mu_m, inv_mu, behind_m, y_max)) {

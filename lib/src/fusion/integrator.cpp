@@ -79,6 +79,7 @@ inline void project_row(float start_x, float start_y, float start_z,
                         const float (&offset_x)[kBlockSide], const float (&offset_y)[kBlockSide],
                         const float (&offset_z)[kBlockSide], float fx, float fy, float cx, float cy,
                         float u_end, float v_end, int stride, RowProjection& out) {
+  const float stride_f = static_cast<float>(stride);
   // Kept a loop (not unrolled first), so the loop vectoriser takes it whole.
 #pragma GCC unroll 1
   for (int k = 0; k < kBlockSide; ++k) {
@@ -95,7 +96,11 @@ inline void project_row(float start_x, float start_y, float start_z,
     const float v_round = w + 0.5f;
     const float u_px = inside ? u_round : 0.0f;
     const float v_px = inside ? v_round : 0.0f;
-    out.pixel[k] = inside ? static_cast<int>(v_px) * stride + static_cast<int>(u_px) : -1;
+    // v * stride + u in float: SSE2 has no 32-bit integer multiply. Exact, as the integer sum
+    // is, while the image has fewer than 2^24 pixels (Integrator::integrate checks).
+    const float index = static_cast<float>(static_cast<int>(v_px)) * stride_f +
+                        static_cast<float>(static_cast<int>(u_px));
+    out.pixel[k] = inside ? static_cast<int>(index) : -1;
     out.z_m[k] = z;
     out.ray_scale[k] = std::sqrt(1.0f + xn * xn + yn * yn);
   }
@@ -958,7 +963,8 @@ StatusCode Integrator<VoxelT>::check_inputs(const Octree<VoxelT>& map, ImageView
                                             const PinholeCamera& camera, const Se3d& T_W_C) const {
   if (!reserved_ || !map.reserved()) return StatusCode::failed_precondition;
   if (depth.empty() || !camera.valid() || camera.width != depth.width ||
-      camera.height != depth.height || !pose_ok(T_W_C)) {
+      camera.height != depth.height || !pose_ok(T_W_C) ||
+      static_cast<std::int64_t>(depth.stride) * depth.height > fusion_internal::kMaxImageSpan_px) {
     return StatusCode::invalid_argument;
   }
   if (depth.width != width_ || depth.height != height_) return StatusCode::failed_precondition;

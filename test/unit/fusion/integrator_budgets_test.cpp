@@ -124,6 +124,46 @@ TEST_CASE("no heap allocation per frame", "[fusion][integrator][alloc]") {
   CHECK(scope.allocations() == 0);
 }
 
+TEST_CASE("a padded depth image fuses as a packed one; one spanning 2^24 pixels is refused",
+          "[fusion][integrator]") {
+  AnalyticScene scene;
+  scene.spheres.push_back({Eigen::Vector3d(0.05, -0.02, 1.1), 0.25});
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.7});
+  const PinholeCamera camera = test::centred_camera(96, 72, 80.0f);
+  const Se3d pose = test::looking_along_z({0.0, 0.0, 0.0});
+  Fusion<MultiresVoxel> packed(map_config(0.02f, 8, 4000), fusion_config(0.1f), camera);
+  Fusion<MultiresVoxel> padded(map_config(0.02f, 8, 4000), fusion_config(0.1f), camera);
+  REQUIRE(packed.fuse(scene, pose).status.ok());
+  // The same depth with rows 37 pixels apart more than the image is wide.
+  constexpr int kPad = 37;
+  const std::ptrdiff_t stride = camera.width + kPad;
+  std::vector<float> rows(static_cast<std::size_t>(stride) * camera.height, -1.0f);
+  for (int y = 0; y < camera.height; ++y) {
+    std::copy_n(packed.depth.data() + y * camera.width, camera.width, rows.data() + y * stride);
+  }
+  WorkerTeam team(1);
+  const IntegrationReport report = padded.integrator.integrate(
+      padded.map, ImageView<const float>(rows.data(), camera.width, camera.height, stride), camera,
+      pose, 0, FusionBudget(), team);
+  REQUIRE(report.status.ok());
+  CHECK(report.voxels_updated > 10000);
+  require_same_map(packed.map, padded.map);
+
+  // Pixel indices are formed in float: an image spanning more than 2^24 is refused up front.
+  CHECK(Integrator<MultiresVoxel>::bytes_required(FusionConfig(), 4096, 4096) > 0);
+  CHECK(Integrator<MultiresVoxel>::bytes_required(FusionConfig(), 4096, 4097) == 0);
+  CHECK(Integrator<TsdfVoxel>::bytes_required(FusionConfig(), 4097, 4096) == 0);
+  // ... and so is a view whose row stride makes it span more (nothing is read or changed).
+  const std::uint32_t blocks = padded.map.block_count();
+  const std::ptrdiff_t huge_stride = fusion_internal::kMaxImageSpan_px / camera.height + 1;
+  const IntegrationReport refused = padded.integrator.integrate(
+      padded.map, ImageView<const float>(rows.data(), camera.width, camera.height, huge_stride),
+      camera, pose, 1, FusionBudget(), team);
+  CHECK(refused.status == StatusCode::invalid_argument);
+  CHECK(padded.map.block_count() == blocks);
+  require_same_map(packed.map, padded.map);
+}
+
 TEST_CASE("a full block pool is reported and the map stays usable", "[fusion][integrator]") {
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.0});

@@ -61,6 +61,10 @@ struct FrameSetEntry {
 inline constexpr int kSeenCacheLog2 = 12;
 inline constexpr std::size_t kSeenCacheSize = std::size_t{1} << kSeenCacheLog2;
 
+// The most pixels (rows times row stride) a depth image may span: the voxel projection forms
+// pixel indices in float, exact below 2^24.
+inline constexpr std::int64_t kMaxImageSpan_px = std::int64_t{1} << 24;
+
 // Block collection marches the image in this many bands of rows, in parallel; each band lists the
 // cells it passes (after its own seen-cell cache) for a serial merge into the frame set.
 inline constexpr std::size_t kCollectTasks = 8;
@@ -97,12 +101,15 @@ class Integrator {
     return sizer.bytes_used();
   }
 
-  // invalid_argument: validate(config) failed or the image size is not positive;
-  // resource_exhausted: the arena is too small.
+  // invalid_argument: validate(config) failed or the image size is not positive or spans more
+  // than fusion_internal::kMaxImageSpan_px; resource_exhausted: the arena is too small.
   template <typename Arena>
   Status reserve(Arena& arena, const FusionConfig& config, int image_width, int image_height) {
     OCTOFUSE_TRY(validate(config));
-    if (image_width <= 0 || image_height <= 0) return StatusCode::invalid_argument;
+    if (image_width <= 0 || image_height <= 0 ||
+        std::int64_t{image_width} * image_height > fusion_internal::kMaxImageSpan_px) {
+      return StatusCode::invalid_argument;
+    }
     using namespace fusion_internal;
     std::size_t set_size = 16;
     int set_bits = 4;

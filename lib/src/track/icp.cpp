@@ -44,8 +44,8 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
   const int width = pass.vertices_C.width;
   const TaskRange rows =
       task_range(static_cast<std::size_t>(pass.vertices_C.height), task, kTrackTasks);
-  const int model_w = pass.model_W.width();
-  const int model_h = pass.model_W.height();
+  const unsigned model_w_u = static_cast<unsigned>(pass.model_W.width());
+  const unsigned model_h_u = static_cast<unsigned>(pass.model_W.height());
   const bool quarter = pass.parity >= 2;
   for (std::size_t row = rows.begin; row < rows.end; ++row) {
     const int y = static_cast<int>(row);
@@ -79,7 +79,8 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
         u = static_cast<int>(px.x() + 0.5f);
         v = static_cast<int>(px.y() + 0.5f);
       }
-      if (u < 0 || v < 0 || u >= model_w || v >= model_h) continue;
+      // Unsigned: negative u or v wrap past the bounds, two tests instead of four.
+      if (static_cast<unsigned>(u) >= model_w_u || static_cast<unsigned>(v) >= model_h_u) continue;
       if (!pass.model_W.valid(u, v)) continue;
       const Eigen::Vector3f& n_model_W = pass.model_W.normals(u, v);
       const Eigen::Vector3f diff_W = p_W - pass.model_W.vertices(u, v);

@@ -39,7 +39,7 @@ std::string supported_sources() {
 #if defined(OCTOFUSE_EXAMPLES_HAVE_REPLAY)
   out += "                       tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE (recordings)\n";
   out += "                       mcap:FILE[?depth=T&info=T&pose=T&world=F&buffer=MB&reorder=MB\n";
-  out += "                         &hold=N] (ROS 2 bag; poses at each image's stamp)\n";
+  out += "                         &hold=N&tf_history=N] (ROS 2 bag; poses at image stamps)\n";
   out += "                       rosbag:FILE[?same options] (ROS 1 bag, format 2.0)\n";
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)

@@ -132,6 +132,23 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
       query = end;
       continue;
     }
+    if (key_size == 10 && std::strncmp(key, "tf_history", 10) == 0) {
+      // Transforms kept per TF edge (and of the pose topic): an image logged this many
+      // transforms after its stamp still finds the two around it.
+      char number[8] = {};
+      char* end_number = nullptr;
+      const long count = copy_value(value, value_size, number, sizeof(number))
+                             ? std::strtol(number, &end_number, 10)
+                             : -1;
+      if (end_number == number || end_number == nullptr || *end_number != '\0' || count < 2 ||
+          count > 4096) {
+        error->set("%s: tf_history=N needs 2 to 4096 transforms", name);
+        return StatusCode::invalid_argument;
+      }
+      config->tf_history = static_cast<int>(count);
+      query = end;
+      continue;
+    }
     if (key_size == 6 && std::strncmp(key, "buffer", 6) == 0) {
       // Megabytes for each of the reader's two buffers (record and chunk).
       std::size_t bytes = 0;
@@ -151,8 +168,10 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     if (key_size == 5 && std::strncmp(key, "world", 5) == 0) out = config->world_frame;
     if (key_size == 2 && std::strncmp(key, "tf", 2) == 0) out = config->odometry_frame;
     if (out == nullptr) {
-      error->set("%s: unknown option '%.*s' (depth, info, pose, world, tf, buffer, reorder, hold)",
-                 name, static_cast<int>(key_size), key);
+      error->set(
+          "%s: unknown option '%.*s' (depth, info, pose, world, tf, buffer, reorder, hold, "
+          "tf_history)",
+          name, static_cast<int>(key_size), key);
       return StatusCode::invalid_argument;
     }
     if (value_size == 0 || !copy_value(value, value_size, out, BagConfig::kMaxName)) {
@@ -753,7 +772,7 @@ BagSource::Pull BagSource::pull(bool decode, Held* image, bool* has_pose, Se3d* 
 
 // How many frames took a transform from before their stamp, appended to `text`.
 void BagSource::note_tf(ErrorText* text) const {
-  char line[200];
+  char line[320];
   int used = 0;
   auto add = [&](std::uint64_t count, const char* what) {
     if (count == 0 || used < 0 || used >= static_cast<int>(sizeof(line))) return;
@@ -762,7 +781,8 @@ void BagSource::note_tf(ErrorText* text) const {
   };
   add(pose_past_end_, "frames past the last /tf took its newest transform");
   add(pose_not_waited_, "frames took the transforms read so far (more than hold=N waited)");
-  add(pose_history_short_, "frames older than the transforms kept took the oldest");
+  add(pose_history_short_,
+      "frames older than the transforms kept took the oldest (?tf_history=N keeps more)");
   if (used <= 0) return;
   if (text->c_str()[0] != '\0') {
     text->set("%s; %s", ErrorText(*text).c_str(), line);

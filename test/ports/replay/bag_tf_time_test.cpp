@@ -246,6 +246,54 @@ TEST_CASE("bag: images wait for a slow /tf several at a time (hold=N)", "[replay
   }
 }
 
+TEST_CASE("bag: images logged long after their stamps need tf_history=N transforms an edge",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(motion_frames());
+  // Images logged 90 ms late against /tf at 1 kHz: 90 transforms of the edge are read after
+  // each image's stamp before the image, more than the default 64 an edge keeps.
+  for (const std::string& spec :
+       motion_bags(fixture, "late", "--motion single --tf-hz 1000 --depth-latency-ms 90")) {
+    INFO(spec);
+    {
+      std::unique_ptr<BagSource> bag = open_spec(spec);
+      const Replayed got = replay(*bag, fixture.kept);
+      REQUIRE(got.poses.size() == static_cast<std::size_t>(kFrames));
+      CHECK(bag->frames_pose_history_short() == static_cast<std::uint64_t>(kFrames));
+      // Each took the oldest transform kept, which is after its stamp: not its pose.
+      for (int i = 0; i < kFrames; ++i) {
+        const auto error = pose_error(got.poses[i], T_W_C_at(false, got.stamps_ns[i]));
+        CHECK(error.first > 1e-4);
+      }
+      CHECK(got.end_text.find("frames older than the transforms kept took the oldest "
+                              "(?tf_history=N keeps more)") != std::string::npos);
+    }
+    {
+      std::unique_ptr<BagSource> bag = open_spec(spec + "?tf_history=128");
+      const Replayed got = replay(*bag, fixture.kept);
+      check_poses_at_stamps(got, false);
+      CHECK(bag->frames_pose_history_short() == 0);
+      CHECK(got.end.status.code() == StatusCode::end_of_stream);
+    }
+  }
+  // Out of range or not a number: one clear error naming the option.
+  for (const char* query :
+       {"?tf_history=1", "?tf_history=4097", "?tf_history=", "?tf_history=6x"}) {
+    INFO(query);
+    BagConfig config;
+    octofuse::ErrorText error;
+    CHECK(octofuse::replay::parse_bag_spec((std::string("mcap:x.mcap") + query).c_str(), &config,
+                                           &error)
+              .code() == StatusCode::invalid_argument);
+    CHECK(std::string(error.c_str()) == "mcap: tf_history=N needs 2 to 4096 transforms");
+  }
+  BagConfig config;
+  octofuse::ErrorText error;
+  REQUIRE(octofuse::replay::parse_bag_spec("rosbag:x.bag?hold=2&tf_history=4096", &config, &error)
+              .ok());
+  CHECK(config.tf_history == 4096);
+  CHECK(config.hold_frames == 2);
+}
+
 TEST_CASE("bag: a chain of two moving TF edges at their own rates is taken at the stamp",
           "[replay][bag][rosbag]") {
   Fixture fixture(motion_frames());

@@ -63,7 +63,7 @@ struct BagConfig {
   int ring_size = 2;
   int max_tf_frames = 64;
   // Transforms kept per TF edge (and of the pose topic), newest first: enough for a depth image
-  // stamped this many transforms before the newest one read.
+  // stamped this many transforms before the newest one read (?tf_history=N, 2 to 4096).
   int tf_history = 64;
   // Depth images held while the transforms after their stamps are read (?hold=N); 0: each image
   // takes the transforms read so far.
@@ -72,7 +72,7 @@ struct BagConfig {
 };
 
 // Fills `config` from "mcap:FILE?key=value&..." or "rosbag:FILE?..." (keys depth, info, pose,
-// world, tf, buffer, reorder, hold).
+// world, tf, buffer, reorder, hold, tf_history).
 // invalid_argument for another prefix, an empty path, an unknown key or a value too long.
 Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
 

@@ -34,6 +34,62 @@ struct Pass {
   int parity;
 };
 
+// The pair sums of a batch of pairs in float lanes, added into the double sums (Partial) batch by
+// batch: the products of float inputs and 64 of them summed round by at most about 64 x 2^-24
+// (4e-6) of the sums, far below what moves a Gauss-Newton step, in fewer instructions than
+// double sums (7-Scenes at 1 cm: ICP 34.7 -> 32.1 M a frame). The same operations in the same order
+// on every target (armhf, without IEEE float lanes, runs them one by one).
+class BatchSums {
+ public:
+  using Lanes = float __attribute__((vector_size(16)));
+  static constexpr int kBatch = 64;
+
+  // j = (n, p x n) of one pair, w its weight (1 for equal weights), r its residual.
+  void add(const float (&j)[6], float w, float r) {
+    const Lanes j0123 = {j[0], j[1], j[2], j[3]};
+    const Lanes j45 = {j[4], j[5], 0.0f, 0.0f};
+    const Lanes wj0123 = j0123 * w;
+    const Lanes wj45 = j45 * w;
+    s00_ += wj0123[0] * j0123;
+    s01_ += wj0123[0] * j45;
+    s10_ += wj0123[1] * j0123;
+    s11_ += wj0123[1] * j45;
+    s20_ += wj0123[2] * j0123;
+    s21_ += wj0123[2] * j45;
+    s30_ += wj0123[3] * j0123;
+    s31_ += wj0123[3] * j45;
+    s4_ += wj45[0] * j45;
+    s5_ += wj45[1] * j45;
+    r0_ += wj0123 * r;
+    r1_ += wj45 * r;
+    ++count_;
+  }
+  bool full() const { return count_ == kBatch; }
+
+  // Adds the batch into `out` (row-major upper triangle of J^T W J, and J^T W r) and starts a
+  // new one. Rows 0-3 are two vectors each (columns 0-3, then 4, 5 and two unused lanes), rows 4
+  // and 5 one each.
+  void flush(IcpTracker::Partial& out) {
+    if (count_ == 0) return;
+    const Lanes rows[6][2] = {{s00_, s01_}, {s10_, s11_}, {s20_, s21_},
+                              {s30_, s31_}, {s4_, s4_},   {s5_, s5_}};
+    int k = 0;
+    for (int a = 0; a < 6; ++a) {
+      for (int b = a; b < 6; ++b) {
+        const float v = a < 4 ? rows[a][b >> 2][b & 3] : rows[a][0][b - 4];
+        out.jtj[k++] += static_cast<double>(v);
+      }
+    }
+    for (int a = 0; a < 6; ++a) out.jtr[a] += static_cast<double>(a < 4 ? r0_[a] : r1_[a - 4]);
+    *this = BatchSums();
+  }
+
+ private:
+  Lanes s00_ = {}, s01_ = {}, s10_ = {}, s11_ = {}, s20_ = {}, s21_ = {}, s30_ = {}, s31_ = {};
+  Lanes s4_ = {}, s5_ = {}, r0_ = {}, r1_ = {};
+  int count_ = 0;
+};
+
 // kWeighted: pairs weighed by depth (pass.inv_knee_m > 0); otherwise every weight is 1 and is
 // left out (x * 1.0 is x: the same sums).
 template <bool kWeighted>
@@ -41,6 +97,7 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
   // Sums in a local, stored once at the end: the compiler cannot keep sums that live behind
   // `out` in registers across the image reads.
   IcpTracker::Partial sums{};
+  BatchSums batch;
   const int width = pass.vertices_C.width;
   const TaskRange rows =
       task_range(static_cast<std::size_t>(pass.vertices_C.height), task, kTrackTasks);
@@ -88,26 +145,24 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
       const Eigen::Vector3f n_live_W = pass.R_W_C * n_C;
       if (!(n_live_W.dot(n_model_W) >= pass.min_normal_dot)) continue;
 
-      const double r = static_cast<double>(n_model_W.dot(diff_W));
-      double w = 1.0;
+      const float r = n_model_W.dot(diff_W);
+      float w = 1.0f;
       if constexpr (kWeighted) {
         const double z_rel = static_cast<double>(v_row[x].z()) * pass.inv_knee_m;
         const double z_rel_sq = z_rel * z_rel;
-        w = 1.0 / (1.0 + z_rel_sq * z_rel_sq);
+        w = static_cast<float>(1.0 / (1.0 + z_rel_sq * z_rel_sq));
       }
       const Eigen::Vector3f p_cross_n = p_W.cross(n_model_W);
-      const double j[6] = {n_model_W.x(), n_model_W.y(), n_model_W.z(),
-                           p_cross_n.x(), p_cross_n.y(), p_cross_n.z()};
-      int k = 0;
-      for (int a = 0; a < 6; ++a) {
-        const double wj = kWeighted ? w * j[a] : j[a];
-        for (int b = a; b < 6; ++b) sums.jtj[k++] += wj * j[b];
-        sums.jtr[a] += wj * r;
-      }
-      sums.residual_sq += r * r;
+      const float j[6] = {n_model_W.x(), n_model_W.y(), n_model_W.z(),
+                          p_cross_n.x(), p_cross_n.y(), p_cross_n.z()};
+      batch.add(j, w, r);
+      if (batch.full()) batch.flush(sums);
+      const double r_d = static_cast<double>(r);
+      sums.residual_sq += r_d * r_d;
       ++sums.count;
     }
   }
+  batch.flush(sums);
   out = sums;
 }
 

@@ -5,11 +5,13 @@
 // the reference camera (the pose T_W_Cref the model was ray-cast from, level-0 intrinsics; coarse
 // levels associate into the same level-0 model), rejects pairs farther apart than
 // max_distance_m or whose normals disagree (dot < min_normal_dot), and accumulates the 6x6 normal
-// equations of r = n_W . (T_W_C p_C - q_W) in double, level-0 pairs weighted down with their
-// depth (far depth is noisier, see depth_weight_knee_m). The rows are split into kTrackTasks fixed
-// chunks whose partial sums are added in task order, so the pose is bit-identical for any worker
-// count. The increment (left-multiplied, twist (v, w)) comes from an LDLT solve and is applied
-// with se3_exp; a level stops when the increment's norm drops below convergence_norm.
+// equations of r = n_W . (T_W_C p_C - q_W), level-0 pairs weighted down with their depth (far
+// depth is noisier, see depth_weight_knee_m): batches of 64 pairs summed in float lanes, the
+// batches in double (a batch's float sums round by at most about 64 x 2^-24, 4e-6 of their size).
+// The rows are split into kTrackTasks fixed chunks whose partial sums are added in task order, so
+// the pose is bit-identical for any worker count. The increment (left-multiplied, twist (v, w))
+// comes from an LDLT solve and is applied with se3_exp; a level stops when the increment's norm
+// drops below convergence_norm.
 //
 // The reported residual and inliers are those of the last level-0 pass when it converged, else
 // of one more pass at the final estimate. Tracking is lost when the RMS residual exceeds

@@ -16,16 +16,40 @@ constexpr double kCheckerboardMinModelFraction = 0.5;
 // first, so that any two passes in a row cover both parities of x and of y.
 constexpr int kQuarterOrder[4] = {0, 3, 1, 2};
 
+// Four float lanes in the compiler's vector type: SSE2 and NEON registers on x86-64 and aarch64;
+// armhf, whose NEON float lanes are not IEEE (flush to zero), computes them one by one. Each lane
+// rounds as scalar code does (no contraction: -ffp-contract=off), so the bits are the same on
+// every target.
+using Lanes4 = float __attribute__((vector_size(16)));
+
+// A rotation and translation as 4-lane columns (the fourth lane unused): R p + t in a few vector
+// operations. Each lane adds as Eigen's scalar 3 x 3 product does, R(i,0) x + (R(i,1) y +
+// R(i,2) z), then t(i), so the results are Eigen's, bit for bit.
+struct RigidLanes {
+  Lanes4 c0, c1, c2, t;
+
+  static RigidLanes from(const Eigen::Matrix3f& R, const Eigen::Vector3f& t) {
+    RigidLanes out;
+    out.c0 = Lanes4{R(0, 0), R(1, 0), R(2, 0), 0.0f};
+    out.c1 = Lanes4{R(0, 1), R(1, 1), R(2, 1), 0.0f};
+    out.c2 = Lanes4{R(0, 2), R(1, 2), R(2, 2), 0.0f};
+    out.t = Lanes4{t.x(), t.y(), t.z(), 0.0f};
+    return out;
+  }
+  Lanes4 rotate(const Eigen::Vector3f& p) const { return c0 * p.x() + (c1 * p.y() + c2 * p.z()); }
+  Lanes4 rotate(Lanes4 p) const { return c0 * p[0] + (c1 * p[1] + c2 * p[2]); }
+  Lanes4 apply(const Eigen::Vector3f& p) const { return rotate(p) + t; }
+  Lanes4 apply(Lanes4 p) const { return rotate(p) + t; }
+};
+
 // Everything one association pass reads; shared by all tasks.
 struct Pass {
   ImageView<const Eigen::Vector3f> vertices_C;
   ImageView<const Eigen::Vector3f> normals_C;
   ConstSurfaceMap model_W;
   PinholeCamera camera;  // level 0, the model's
-  Eigen::Matrix3f R_W_C;
-  Eigen::Vector3f t_W_C;
-  Eigen::Matrix3f R_Cref_W;
-  Eigen::Vector3f t_Cref_W;
+  RigidLanes T_W_C;
+  RigidLanes T_Cref_W;
   float max_distance_sq_m2;
   float min_normal_dot;
   double inv_knee_m;  // 0: equal weights
@@ -37,11 +61,10 @@ struct Pass {
 // The pair sums of a batch of pairs in float lanes, added into the double sums (Partial) batch by
 // batch: the products of float inputs and 64 of them summed round by at most about 64 x 2^-24
 // (4e-6) of the sums, far below what moves a Gauss-Newton step, in fewer instructions than
-// double sums (7-Scenes at 1 cm: ICP 34.7 -> 32.1 M a frame). The same operations in the same order
-// on every target (armhf, without IEEE float lanes, runs them one by one).
+// double sums (7-Scenes at 1 cm: ICP 34.7 -> 32.1 M a frame).
 class BatchSums {
  public:
-  using Lanes = float __attribute__((vector_size(16)));
+  using Lanes = Lanes4;
   static constexpr int kBatch = 64;
 
   // j = (n, p x n) of one pair, w its weight (1 for equal weights), r its residual.
@@ -116,8 +139,10 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
     for (int x = x_begin; x < width; x += x_step) {
       const Eigen::Vector3f& n_C = n_row[x];
       if (is_invalid_normal(n_C)) continue;
-      const Eigen::Vector3f p_W = pass.R_W_C * v_row[x] + pass.t_W_C;
-      const Eigen::Vector3f p_Cref = pass.R_Cref_W * p_W + pass.t_Cref_W;
+      const Lanes4 p_W_lanes = pass.T_W_C.apply(v_row[x]);
+      const Lanes4 p_Cref_lanes = pass.T_Cref_W.apply(p_W_lanes);
+      const Eigen::Vector3f p_W(p_W_lanes[0], p_W_lanes[1], p_W_lanes[2]);
+      const Eigen::Vector3f p_Cref(p_Cref_lanes[0], p_Cref_lanes[1], p_Cref_lanes[2]);
       if (!(p_Cref.z() > 0.0f)) continue;
       const Eigen::Vector2f px = pass.camera.project(p_Cref);
       if (!pass.camera.in_image(px)) continue;  // also rejects NaN
@@ -142,7 +167,8 @@ void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& ou
       const Eigen::Vector3f& n_model_W = pass.model_W.normals(u, v);
       const Eigen::Vector3f diff_W = p_W - pass.model_W.vertices(u, v);
       if (!(diff_W.squaredNorm() <= pass.max_distance_sq_m2)) continue;
-      const Eigen::Vector3f n_live_W = pass.R_W_C * n_C;
+      const Lanes4 n_live_W_lanes = pass.T_W_C.rotate(n_C);
+      const Eigen::Vector3f n_live_W(n_live_W_lanes[0], n_live_W_lanes[1], n_live_W_lanes[2]);
       if (!(n_live_W.dot(n_model_W) >= pass.min_normal_dot)) continue;
 
       const float r = n_model_W.dot(diff_W);
@@ -338,8 +364,8 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   pass.model_W = model_W;
   pass.camera = camera_level0;
   const Se3d T_Cref_W = T_W_Cref.inverse();
-  pass.R_Cref_W = T_Cref_W.linear().cast<float>();
-  pass.t_Cref_W = T_Cref_W.translation().cast<float>();
+  pass.T_Cref_W =
+      RigidLanes::from(T_Cref_W.linear().cast<float>(), T_Cref_W.translation().cast<float>());
   pass.max_distance_sq_m2 = config_.max_distance_m * config_.max_distance_m;
   pass.min_normal_dot = config_.min_normal_dot;
 
@@ -351,8 +377,8 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
     pass.inv_knee_m = level == 0 && config_.depth_weight_knee_m > 0.0f
                           ? 1.0 / static_cast<double>(config_.depth_weight_knee_m)
                           : 0.0;
-    pass.R_W_C = T_W_C_estimate.linear().cast<float>();
-    pass.t_W_C = T_W_C_estimate.translation().cast<float>();
+    pass.T_W_C = RigidLanes::from(T_W_C_estimate.linear().cast<float>(),
+                                  T_W_C_estimate.translation().cast<float>());
     auto task_fn = [&](std::size_t task) {
       if (pass.inv_knee_m > 0.0) {
         accumulate_rows<true>(pass, task, partials[task]);

@@ -132,12 +132,18 @@ __attribute__((always_inline)) inline bool detail::sample_tsdf_checked(
   while (scale <= kMaxBlockScale) {
     const int size = 1 << scale;
     // Continuous coordinates on the grid of this scale, whose samples sit at voxel centres.
-    // 1 / 2^scale is exact, so the product equals the quotient.
-    const Eigen::Vector3f qs =
-        q * (1.0f / static_cast<float>(size)) - Eigen::Vector3f::Constant(0.5f);
-    const Eigen::Vector3i base(detail::floor_to_int(qs.x()), detail::floor_to_int(qs.y()),
-                               detail::floor_to_int(qs.z()));
-    const Eigen::Vector3f frac = qs - base.cast<float>();
+    // 1 / 2^scale is exact, so the product equals the quotient. In 4-lane vectors (the fourth
+    // unused), each lane computing what floor_to_int and the scalar expressions would.
+    using Lanes4 = float __attribute__((vector_size(16)));
+    using Ints4 = std::int32_t __attribute__((vector_size(16)));
+    const Lanes4 qs = Lanes4{q.x(), q.y(), q.z(), 0.0f} * (1.0f / static_cast<float>(size)) - 0.5f;
+    const Ints4 truncated = __builtin_convertvector(qs, Ints4);
+    // Truncation, less one where it rounded up (negative non-integers): floor. The comparison
+    // gives -1 in a true lane.
+    const Ints4 floored = truncated + (qs < __builtin_convertvector(truncated, Lanes4));
+    const Lanes4 frac_lanes = qs - __builtin_convertvector(floored, Lanes4);
+    const Eigen::Vector3i base(floored[0], floored[1], floored[2]);
+    const Eigen::Vector3f frac(frac_lanes[0], frac_lanes[1], frac_lanes[2]);
     float values[8];
     int needed = scale;
     bool ok = true;

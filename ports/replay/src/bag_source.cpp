@@ -68,6 +68,17 @@ bool parse_megabytes(const char* value, std::size_t value_size, long min_mb, lon
   return true;
 }
 
+// A whole number in [min, max] from an option's value (not terminated).
+bool parse_count(const char* value, std::size_t value_size, long min, long max, int* count) {
+  char number[8] = {};
+  if (!copy_value(value, value_size, number, sizeof(number))) return false;
+  char* end_number = nullptr;
+  const long n = std::strtol(number, &end_number, 10);
+  if (end_number == number || *end_number != '\0' || n < min || n > max) return false;
+  *count = static_cast<int>(n);
+  return true;
+}
+
 bool host_is_big_endian() {
   const std::uint16_t one = 1;
   std::uint8_t first = 0;
@@ -118,34 +129,20 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     }
     if (key_size == 4 && std::strncmp(key, "hold", 4) == 0) {
       // Depth images held while the transforms after their stamps are read.
-      char number[8] = {};
-      char* end_number = nullptr;
-      const long frames = copy_value(value, value_size, number, sizeof(number))
-                              ? std::strtol(number, &end_number, 10)
-                              : -1;
-      if (end_number == number || end_number == nullptr || *end_number != '\0' || frames < 0 ||
-          frames > 64) {
+      if (!parse_count(value, value_size, 0, 64, &config->hold_frames)) {
         error->set("%s: hold=N needs 0 to 64 images", name);
         return StatusCode::invalid_argument;
       }
-      config->hold_frames = static_cast<int>(frames);
       query = end;
       continue;
     }
     if (key_size == 10 && std::strncmp(key, "tf_history", 10) == 0) {
       // Transforms kept per TF edge (and of the pose topic): an image logged this many
       // transforms after its stamp still finds the two around it.
-      char number[8] = {};
-      char* end_number = nullptr;
-      const long count = copy_value(value, value_size, number, sizeof(number))
-                             ? std::strtol(number, &end_number, 10)
-                             : -1;
-      if (end_number == number || end_number == nullptr || *end_number != '\0' || count < 2 ||
-          count > 4096) {
+      if (!parse_count(value, value_size, 2, 4096, &config->tf_history)) {
         error->set("%s: tf_history=N needs 2 to 4096 transforms", name);
         return StatusCode::invalid_argument;
       }
-      config->tf_history = static_cast<int>(count);
       query = end;
       continue;
     }

@@ -114,7 +114,7 @@ class BatchSums {
 };
 
 // kWeighted: pairs weighed by depth (pass.inv_knee_m > 0); otherwise every weight is 1 and is
-// left out (x * 1.0 is x: the same sums).
+// not computed (the sums multiply by 1, which changes nothing).
 template <bool kWeighted>
 void accumulate_rows(const Pass& pass, std::size_t task, IcpTracker::Partial& out) {
   // Sums in a local, stored once at the end: the compiler cannot keep sums that live behind

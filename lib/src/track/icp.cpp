@@ -4,6 +4,8 @@
 
 #include <Eigen/Cholesky>
 
+#include "octofuse/core/lanes.hpp"
+
 namespace octofuse {
 
 namespace {
@@ -15,12 +17,6 @@ constexpr double kCheckerboardMinModelFraction = 0.5;
 // The 2 x 2 phases (x % 2 + 2 (y % 2)) in the order the quarter passes take them: the diagonal
 // first, so that any two passes in a row cover both parities of x and of y.
 constexpr int kQuarterOrder[4] = {0, 3, 1, 2};
-
-// Four float lanes in the compiler's vector type: SSE2 and NEON registers on x86-64 and aarch64;
-// armhf, whose NEON float lanes are not IEEE (flush to zero), computes them one by one. Each lane
-// rounds as scalar code does (no contraction: -ffp-contract=off), so the bits are the same on
-// every target.
-using Lanes4 = float __attribute__((vector_size(16)));
 
 // A rotation and translation as 4-lane columns (the fourth lane unused): R p + t in a few vector
 // operations. Each lane adds as Eigen's scalar 3 x 3 product does, R(i,0) x + (R(i,1) y +
@@ -64,15 +60,14 @@ struct Pass {
 // double sums (7-Scenes at 1 cm: ICP 34.7 -> 32.1 M a frame).
 class BatchSums {
  public:
-  using Lanes = Lanes4;
   static constexpr int kBatch = 64;
 
   // j = (n, p x n) of one pair, w its weight (1 for equal weights), r its residual.
   void add(const float (&j)[6], float w, float r) {
-    const Lanes j0123 = {j[0], j[1], j[2], j[3]};
-    const Lanes j45 = {j[4], j[5], 0.0f, 0.0f};
-    const Lanes wj0123 = j0123 * w;
-    const Lanes wj45 = j45 * w;
+    const Lanes4 j0123 = {j[0], j[1], j[2], j[3]};
+    const Lanes4 j45 = {j[4], j[5], 0.0f, 0.0f};
+    const Lanes4 wj0123 = j0123 * w;
+    const Lanes4 wj45 = j45 * w;
     s00_ += wj0123[0] * j0123;
     s01_ += wj0123[0] * j45;
     s10_ += wj0123[1] * j0123;
@@ -94,8 +89,8 @@ class BatchSums {
   // and 5 one each.
   void flush(IcpTracker::Partial& out) {
     if (count_ == 0) return;
-    const Lanes rows[6][2] = {{s00_, s01_}, {s10_, s11_}, {s20_, s21_},
-                              {s30_, s31_}, {s4_, s4_},   {s5_, s5_}};
+    const Lanes4 rows[6][2] = {{s00_, s01_}, {s10_, s11_}, {s20_, s21_},
+                               {s30_, s31_}, {s4_, s4_},   {s5_, s5_}};
     int k = 0;
     for (int a = 0; a < 6; ++a) {
       for (int b = a; b < 6; ++b) {
@@ -108,8 +103,8 @@ class BatchSums {
   }
 
  private:
-  Lanes s00_ = {}, s01_ = {}, s10_ = {}, s11_ = {}, s20_ = {}, s21_ = {}, s30_ = {}, s31_ = {};
-  Lanes s4_ = {}, s5_ = {}, r0_ = {}, r1_ = {};
+  Lanes4 s00_ = {}, s01_ = {}, s10_ = {}, s11_ = {}, s20_ = {}, s21_ = {}, s30_ = {}, s31_ = {};
+  Lanes4 s4_ = {}, s5_ = {}, r0_ = {}, r1_ = {};
   int count_ = 0;
 };
 

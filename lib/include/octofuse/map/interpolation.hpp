@@ -11,6 +11,7 @@
 
 #include <Eigen/Core>
 
+#include "octofuse/core/lanes.hpp"
 #include "octofuse/map/octree.hpp"
 
 namespace octofuse {
@@ -134,8 +135,6 @@ __attribute__((always_inline)) inline bool detail::sample_tsdf_checked(
     // Continuous coordinates on the grid of this scale, whose samples sit at voxel centres.
     // 1 / 2^scale is exact, so the product equals the quotient. In 4-lane vectors (the fourth
     // unused), each lane computing what floor_to_int and the scalar expressions would.
-    using Lanes4 = float __attribute__((vector_size(16)));
-    using Ints4 = std::int32_t __attribute__((vector_size(16)));
     const Lanes4 qs = Lanes4{q.x(), q.y(), q.z(), 0.0f} * (1.0f / static_cast<float>(size)) - 0.5f;
     const Ints4 truncated = __builtin_convertvector(qs, Ints4);
     // Truncation, less one where it rounded up (negative non-integers): floor. The comparison

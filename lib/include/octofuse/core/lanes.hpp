@@ -1,0 +1,16 @@
+#pragma once
+// Four 32-bit lanes in the compiler's vector type (GCC and Clang), for short fixed-size arithmetic
+// that would otherwise be scalar Eigen (the library builds Eigen without its own SIMD): SSE2 and
+// NEON registers on x86-64 and aarch64; armhf, whose NEON float lanes are not IEEE (flush to
+// zero), computes them one by one. Each lane rounds as scalar code does (no contraction:
+// -ffp-contract=off), so an expression written in the scalar code's order of operations gives
+// the same bits on every target.
+
+#include <cstdint>
+
+namespace octofuse {
+
+using Lanes4 = float __attribute__((vector_size(16)));
+using Ints4 = std::int32_t __attribute__((vector_size(16)));
+
+}  // namespace octofuse

@@ -97,7 +97,7 @@ inline void project_row(float start_x, float start_y, float start_z,
     const float u_px = inside ? u_round : 0.0f;
     const float v_px = inside ? v_round : 0.0f;
     // v * stride + u in float: SSE2 has no 32-bit integer multiply. Exact, as the integer sum
-    // is, while the image has fewer than 2^24 pixels (Integrator::integrate checks).
+    // is, while rows x stride is at most kMaxImageSpan_px (2^24; reserve and check_inputs check).
     const float index = static_cast<float>(static_cast<int>(v_px)) * stride_f +
                         static_cast<float>(static_cast<int>(u_px));
     out.pixel[k] = inside ? static_cast<int>(index) : -1;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "octofuse/map/interpolation.hpp"
@@ -799,11 +800,12 @@ struct RowJob {
   // Half resolution: an odd row copies the even row above it, which the same task marched just
   // before (tasks start at even rows), and so its counts.
   void copy_row_above(int y) const {
-    for (int x = 0; x < config->width; ++x) {
-      surface_W.vertices(x, y) = surface_W.vertices(x, y - 1);
-      surface_W.normals(x, y) = surface_W.normals(x, y - 1);
-      scale(x, y) = scale(x, y - 1);
-    }
+    const std::size_t width = static_cast<std::size_t>(config->width);
+    std::memcpy(static_cast<void*>(surface_W.vertices.row(y)), surface_W.vertices.row(y - 1),
+                width * sizeof(Eigen::Vector3f));
+    std::memcpy(static_cast<void*>(surface_W.normals.row(y)), surface_W.normals.row(y - 1),
+                width * sizeof(Eigen::Vector3f));
+    std::memcpy(scale.row(y), scale.row(y - 1), width);
     const RaycastStats& above = row_stats[y - 1];
     RaycastStats& stats = row_stats[y];
     stats = RaycastStats{};

@@ -831,14 +831,17 @@ struct RowJob {
     std::uint64_t steps_left = std::numeric_limits<std::uint64_t>::max();
     if (budget != 0) steps_left = budget / rows + (share_index < budget % rows ? 1u : 0u);
     const float voxel_m = map->voxel_size_m();
+    Eigen::Vector3f* const vertex_row = surface_W.vertices.row(y);
+    Eigen::Vector3f* const normal_row = surface_W.normals.row(y);
+    std::uint8_t* const scale_row = scale.row(y);
     for (int x = 0; x < config->width; x += stride) {
       const bool cut = march_pixel(x, y, cache, voxel_m, steps_left, stats);
       if (stride == 2 && x + 1 < config->width) {
         // The right neighbour copies the marched pixel (as do its counts).
-        surface_W.vertices(x + 1, y) = surface_W.vertices(x, y);
-        surface_W.normals(x + 1, y) = surface_W.normals(x, y);
-        scale(x + 1, y) = scale(x, y);
-        const std::uint8_t s = scale(x, y);
+        std::memcpy(static_cast<void*>(vertex_row + x + 1), vertex_row + x, sizeof(*vertex_row));
+        std::memcpy(static_cast<void*>(normal_row + x + 1), normal_row + x, sizeof(*normal_row));
+        scale_row[x + 1] = scale_row[x];
+        const std::uint8_t s = scale_row[x];
         if (s != kNoScale) {
           ++stats.valid_pixels;
           ++stats.scale_pixels[s];

@@ -46,29 +46,81 @@ struct PixelCounts {
   std::uint32_t beyond = 0;
 };
 
+// The raw values whose metres lie in [near_m, far_m]: value * scale never decreases as value grows
+// (the product of a positive scale rounds monotonically), so they are one interval, found once a
+// frame by bisection with the row loop's own expression. `first` is at least 1 and `last` at most
+// 65534, so the interval holds no zero (no return) and no saturated value.
+struct RawRange {
+  std::uint16_t first = kSaturatedDepthRaw;  // none: no measured value reaches near_m
+  std::uint16_t last = 0;                    // none: every measured value is beyond far_m
+};
+
+inline float raw_to_metres(std::uint16_t value, float scale) {
+  return static_cast<float>(value) * scale;
+}
+
+RawRange raw_range(float scale, float near_m, float far_m) {
+  RawRange r;
+  std::uint32_t lo = 1;
+  std::uint32_t hi = kSaturatedDepthRaw;  // the smallest value reaching near_m is in [lo, hi]
+  while (lo < hi) {
+    const std::uint32_t mid = (lo + hi) / 2;
+    if (raw_to_metres(static_cast<std::uint16_t>(mid), scale) >= near_m) {
+      hi = mid;
+    } else {
+      lo = mid + 1;
+    }
+  }
+  r.first = static_cast<std::uint16_t>(lo);
+  lo = 0;  // 0 m is within far_m (far_m > near_m >= 0): the bisection's floor
+  hi = kSaturatedDepthRaw - 1u;
+  while (lo < hi) {
+    const std::uint32_t mid = (lo + hi + 1) / 2;
+    if (raw_to_metres(static_cast<std::uint16_t>(mid), scale) <= far_m) {
+      lo = mid;
+    } else {
+      hi = mid - 1;
+    }
+  }
+  r.last = static_cast<std::uint16_t>(lo);
+  return r;
+}
+
 // One row of raw depth to metres (0 outside [near_m, far_m] or without a measurement), and the
-// beyond-far mark. Branch-free, so the compiler can convert several pixels per instruction.
+// beyond-far mark. Branch-free, and the tests in 16-bit integers (8 pixels a 128-bit register, not
+// 4 floats), so the compiler converts several pixels per instruction. Counted in 16 bits per chunk
+// of at most 2^15 pixels, then added to the 32-bit totals.
 template <bool kMark>
 void convert_row(const std::uint16_t* raw, float* metres, std::uint8_t* beyond_far, int width,
-                 float scale, float near_m, float far_m, PixelCounts& counts) {
+                 float scale, RawRange range, PixelCounts& counts) {
+  constexpr int kChunk = 1 << 15;
   std::uint32_t zero = 0;
   std::uint32_t saturated = 0;
   std::uint32_t valid = 0;
   std::uint32_t beyond = 0;
-  for (int x = 0; x < width; ++x) {
-    const std::uint16_t value = raw[x];
-    const bool is_zero = value == 0;
-    const bool is_saturated = value == kSaturatedDepthRaw;
-    const bool measured = !(is_zero | is_saturated);
-    const float d = static_cast<float>(value) * scale;
-    const bool in_range = measured & (d >= near_m) & (d <= far_m);
-    const bool is_beyond = measured & (d > far_m);
-    zero += static_cast<std::uint32_t>(is_zero);
-    saturated += static_cast<std::uint32_t>(is_saturated);
-    valid += static_cast<std::uint32_t>(in_range);
-    beyond += static_cast<std::uint32_t>(is_beyond);
-    metres[x] = in_range ? d : 0.0f;
-    if (kMark) beyond_far[x] = static_cast<std::uint8_t>(is_beyond);
+  for (int x0 = 0; x0 < width; x0 += kChunk) {
+    const int end = width - x0 < kChunk ? width : x0 + kChunk;
+    std::uint16_t chunk_zero = 0;
+    std::uint16_t chunk_saturated = 0;
+    std::uint16_t chunk_valid = 0;
+    std::uint16_t chunk_beyond = 0;
+    for (int x = x0; x < end; ++x) {
+      const std::uint16_t value = raw[x];
+      const bool is_zero = value == 0;
+      const bool is_saturated = value == kSaturatedDepthRaw;
+      const bool in_range = (value >= range.first) & (value <= range.last);
+      const bool is_beyond = (value > range.last) & !is_saturated;
+      chunk_zero = static_cast<std::uint16_t>(chunk_zero + is_zero);
+      chunk_saturated = static_cast<std::uint16_t>(chunk_saturated + is_saturated);
+      chunk_valid = static_cast<std::uint16_t>(chunk_valid + in_range);
+      chunk_beyond = static_cast<std::uint16_t>(chunk_beyond + is_beyond);
+      metres[x] = in_range ? raw_to_metres(value, scale) : 0.0f;
+      if (kMark) beyond_far[x] = static_cast<std::uint8_t>(is_beyond);
+    }
+    zero += chunk_zero;
+    saturated += chunk_saturated;
+    valid += chunk_valid;
+    beyond += chunk_beyond;
   }
   counts.zero += zero;
   counts.saturated += saturated;
@@ -152,16 +204,14 @@ Status FrameValidator::validate(const DepthFrame& frame, ImageView<float> depth_
   ++frames_accepted_;
 
   const float scale = frame.metres_per_unit;
-  const float near_m = config_.near_m;
-  const float far_m = config_.far_m;
+  const RawRange range = raw_range(scale, config_.near_m, config_.far_m);
   PixelCounts counts;
   for (int y = 0; y < raw.height; ++y) {
     if (mark_beyond) {
-      convert_row<true>(raw.row(y), depth_m.row(y), beyond_far.row(y), raw.width, scale, near_m,
-                        far_m, counts);
+      convert_row<true>(raw.row(y), depth_m.row(y), beyond_far.row(y), raw.width, scale, range,
+                        counts);
     } else {
-      convert_row<false>(raw.row(y), depth_m.row(y), nullptr, raw.width, scale, near_m, far_m,
-                         counts);
+      convert_row<false>(raw.row(y), depth_m.row(y), nullptr, raw.width, scale, range, counts);
     }
   }
   const std::uint32_t zero = counts.zero;
@@ -184,7 +234,7 @@ Status FrameValidator::validate(const DepthFrame& frame, ImageView<float> depth_
                ": only %u of %u pixels valid (%u zero, %u saturated, %u outside "
                "[%g, %g] m)",
                frame.sequence, valid, out.pixel_count, zero, saturated, out_of_range,
-               static_cast<double>(near_m), static_cast<double>(far_m));
+               static_cast<double>(config_.near_m), static_cast<double>(config_.far_m));
     return StatusCode::data_loss;
   }
   return ok_status();

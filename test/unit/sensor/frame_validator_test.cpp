@@ -101,6 +101,68 @@ TEST_CASE("a good frame converts to metres and counts every pixel class") {
   REQUIRE(f.validator.frames_accepted() == 1);
 }
 
+TEST_CASE("every raw value converts and classifies as value * metres_per_unit against near/far") {
+  // All 65536 raw values in one 256 x 256 frame, against the per-pixel definition in floats, for
+  // scales and limits whose boundaries fall between, on and far outside the raw values.
+  constexpr int kSide = 256;
+  struct Case {
+    float metres_per_unit;
+    float near_m;
+    float far_m;
+  };
+  const Case cases[] = {
+      {0.001f, 0.4f, 4.0f},       {0.0002f, 0.1f, 8.0f}, {0.00025f, 0.3f, 0.30025f},
+      {1.0f / 3.0f, 0.0f, 1e30f}, {1e-3f, 70.0f, 80.0f}, {1e-30f, 0.0f, 1e-40f},
+      {3e38f, 1.0f, 2e38f},       {0.1f, 0.0f, 0.05f},   {7.3e-5f, 0.45f, 4.55f},
+  };
+  const PinholeCamera camera{100.0f, 100.0f, 127.5f, 127.5f, kSide, kSide};
+  std::vector<std::uint16_t> raw(kSide * kSide);
+  for (std::size_t i = 0; i < raw.size(); ++i) raw[i] = static_cast<std::uint16_t>(i);
+  std::vector<float> metres(raw.size());
+  std::vector<std::uint8_t> beyond(raw.size());
+  for (const Case& c : cases) {
+    FrameValidatorConfig config;
+    config.near_m = c.near_m;
+    config.far_m = c.far_m;
+    config.min_valid_fraction = 0.0f;
+    FrameValidator validator;
+    REQUIRE(validator.init(camera, config).ok());
+    DepthFrame frame;
+    frame.depth_raw = ImageView<const std::uint16_t>(raw.data(), kSide, kSide);
+    frame.metres_per_unit = c.metres_per_unit;
+    frame.timestamp_us = 1;
+    frame.sequence = 1;
+    FrameReport report;
+    REQUIRE(validator
+                .validate(frame, ImageView<float>(metres.data(), kSide, kSide), &report,
+                          ImageView<std::uint8_t>(beyond.data(), kSide, kSide))
+                .ok());
+    std::uint32_t valid = 0;
+    std::uint32_t beyond_far = 0;
+    std::size_t mismatches = 0;
+    for (std::size_t i = 0; i < raw.size(); ++i) {
+      const bool measured = raw[i] != 0 && raw[i] != kSaturatedDepthRaw;
+      const float d = static_cast<float>(raw[i]) * c.metres_per_unit;
+      const bool in_range = measured && d >= c.near_m && d <= c.far_m;
+      const bool is_beyond = measured && d > c.far_m;
+      valid += in_range ? 1u : 0u;
+      beyond_far += is_beyond ? 1u : 0u;
+      const float expected = in_range ? d : 0.0f;
+      if (std::memcmp(&metres[i], &expected, sizeof(float)) != 0 ||
+          beyond[i] != (is_beyond ? 1 : 0)) {
+        ++mismatches;
+      }
+    }
+    INFO("metres_per_unit " << c.metres_per_unit << " near " << c.near_m << " far " << c.far_m);
+    REQUIRE(mismatches == 0);
+    REQUIRE(report.zero_pixels == 1);
+    REQUIRE(report.saturated_pixels == 1);
+    REQUIRE(report.valid_pixels == valid);
+    REQUIRE(report.beyond_far_pixels == beyond_far);
+    REQUIRE(report.out_of_range_pixels == kSide * kSide - 2 - valid);
+  }
+}
+
 TEST_CASE("pixels measured beyond far are marked for free space; no return and too near are not") {
   Fixture f;
   f.raw[0] = 0;                   // no measurement

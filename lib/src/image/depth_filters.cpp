@@ -236,13 +236,25 @@ Status vertices_to_normals(ImageView<const float> depth_m,
     const Eigen::Vector3f* v_down = vertices_C.row(y + 1);
     for (int x0 = 1; x0 < w - 1; x0 += kRowChunk) {
       const int count = std::min(kRowChunk, w - 1 - x0);
+      // The differences over the interleaved floats (one contiguous loop: a row of Vector3f is
+      // 3 w floats), then split into one array per component.
+      static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float), "Vector3f is three floats");
+      float dx_xyz[3 * kRowChunk];
+      float dy_xyz[3 * kRowChunk];
+      const float* const right = v_mid[x0 + 1].data();
+      const float* const left = v_mid[x0 - 1].data();
+      const float* const below = v_down[x0].data();
+      const float* const above = v_up[x0].data();
+      for (int j = 0; j < 3 * count; ++j) {
+        dx_xyz[j] = right[j] - left[j];
+        dy_xyz[j] = below[j] - above[j];
+      }
       float dx[3][kRowChunk];
       float dy[3][kRowChunk];
       for (int k = 0; k < count; ++k) {
-        const int x = x0 + k;
         for (int c = 0; c < 3; ++c) {
-          dx[c][k] = v_mid[x + 1][c] - v_mid[x - 1][c];
-          dy[c][k] = v_down[x][c] - v_up[x][c];
+          dx[c][k] = dx_xyz[3 * k + c];
+          dy[c][k] = dy_xyz[3 * k + c];
         }
       }
       float n[3][kRowChunk];

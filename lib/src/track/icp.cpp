@@ -398,10 +398,7 @@ TrackReport IcpTracker::track(const DepthPyramid& live, ConstSurfaceMap model_W,
   };
 
   // Serial integer count: the same for any worker count, and a few tens of microseconds.
-  std::uint32_t model_pixels = 0;
-  for (int y = 0; y < model_W.height(); ++y) {
-    for (int x = 0; x < model_W.width(); ++x) model_pixels += model_W.valid(x, y) ? 1u : 0u;
-  }
+  const std::uint32_t model_pixels = valid_pixel_count(model_W);
   // A model covering little of the view (a full block pool, the first frames of a new area)
   // leaves too few pairs to halve: the checkerboard then lets the estimate slide.
   const bool checkerboard =

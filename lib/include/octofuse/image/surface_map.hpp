@@ -7,6 +7,7 @@
 // ICP's normal-agreement gate compares live and model normals with their signs.
 
 #include <Eigen/Core>
+#include <cstdint>
 
 #include "octofuse/image/image_view.hpp"
 
@@ -42,5 +43,28 @@ struct ConstSurfaceMap {
   int height() const { return vertices.height; }
   bool valid(int x, int y) const { return !is_invalid_normal(normals(x, y)); }
 };
+
+// The valid pixels of `map`. At pixel stride 2 only the cast pixels (even x and y) are read, each
+// counted with the copies beside and below it: the count of the whole image when the copies hold
+// what SurfaceMap::pixel_stride says, a quarter of the reads.
+inline std::uint32_t valid_pixel_count(const ConstSurfaceMap& map) {
+  const int w = map.width();
+  const int h = map.height();
+  std::uint32_t count = 0;
+  if (map.pixel_stride == 2) {
+    for (int y = 0; y < h; y += 2) {
+      std::uint32_t cast = 0;
+      for (int x = 0; x + 1 < w; x += 2) cast += map.valid(x, y) ? 1u : 0u;
+      // An odd width's last column has no copy beside it, an odd height's last row none below.
+      const std::uint32_t last = (w & 1) != 0 && map.valid(w - 1, y) ? 1u : 0u;
+      count += (y + 1 < h ? 2u : 1u) * (2u * cast + last);
+    }
+    return count;
+  }
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) count += map.valid(x, y) ? 1u : 0u;
+  }
+  return count;
+}
 
 }  // namespace octofuse

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "octofuse/core/lanes.hpp"
+
 namespace octofuse {
 
 namespace {
@@ -19,6 +21,23 @@ int clamped_floor(float f) {
   // baseline has no rounding instruction).
   const int i = static_cast<int>(f);
   return i - (f < static_cast<float>(i) ? 1 : 0);
+}
+
+// clamped_floor() of four values in one 4-lane pass, each lane the same integer: clamped first
+// (NaN and below to -kLimit, at or above to kLimit, whose floors are themselves), then truncated
+// and corrected. A comparison gives -1 in a true lane; a cast between the two vector types keeps
+// the bits.
+Ints4 clamped_floor4(Lanes4 f) {
+  constexpr float kLimit = 1e6f;
+  const Lanes4 lo = Lanes4{-kLimit, -kLimit, -kLimit, -kLimit};
+  const Lanes4 hi = Lanes4{kLimit, kLimit, kLimit, kLimit};
+  const Ints4 above_lo = f > lo;
+  const Ints4 below_hi = f < hi;
+  const Ints4 f_or_hi = (below_hi & (Ints4)f) | (~below_hi & (Ints4)hi);
+  const Ints4 clamped_bits = (above_lo & f_or_hi) | (~above_lo & (Ints4)lo);
+  const Lanes4 clamped = (Lanes4)clamped_bits;
+  const Ints4 truncated = __builtin_convertvector(clamped, Ints4);
+  return truncated + (clamped < __builtin_convertvector(truncated, Lanes4));
 }
 }  // namespace
 
@@ -96,10 +115,11 @@ FreeSpace::Seen FreeSpace::classify_footprint(float z_min, float z_max, float u_
   }
   // Pixel u covers [u - 0.5, u + 0.5); one more pixel on each side for the depth step between
   // neighbouring pixels.
-  int u0 = clamped_floor(u_min + 0.5f) - 1;
-  int u1 = clamped_floor(u_max + 0.5f) + 1;
-  int v0 = clamped_floor(v_min + 0.5f) - 1;
-  int v1 = clamped_floor(v_max + 0.5f) + 1;
+  const Ints4 cells = clamped_floor4(Lanes4{u_min, u_max, v_min, v_max} + 0.5f);
+  int u0 = cells[0] - 1;
+  int u1 = cells[1] + 1;
+  int v0 = cells[2] - 1;
+  int v1 = cells[3] + 1;
   const bool inside = u0 >= 0 && v0 >= 0 && u1 < width_ && v1 < height_;
   u0 = std::max(u0, 0);
   v0 = std::max(v0, 0);

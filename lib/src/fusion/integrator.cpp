@@ -568,20 +568,32 @@ bool march_rows(const FrameT& f, const MarchSetup& m, int v_begin, int u_begin, 
       const bool stands_for_group =
           first >= f.near_m && first <= f.far_m && first <= m.group_max_depth_m;
       const int column_count = u + s < f.width ? 2 : 1;
-      for (int i = 0; i < 4; ++i) {
-        const int dv = i >> 1;
-        const int du = i & 1;
-        if (dv >= row_count || du >= column_count) continue;
+      // Group member (dv, du) after the first: skipped where the first stands for it; true when
+      // its ray might not fit.
+      auto no_room = [&](int dv, int du, bool first_ray) {
         const float depth = rows[dv].depth[u + du * s];
-        if (i > 0 && stands_for_group && std::fabs(depth - first) <= m.group_depth_gap_m) {
-          continue;
+        if (!first_ray && stands_for_group && std::fabs(depth - first) <= m.group_depth_gap_m) {
+          return false;
         }
-        if (march_ray(f, m, u + du * s, depth, rows[dv].yn2_1, rows[dv].dir, seen, outside, rays,
-                      room, emit) == RayMarch::no_room) {
-          stop_v = v;
-          stop_u = u;
-          return true;
+        return march_ray(f, m, u + du * s, depth, rows[dv].yn2_1, rows[dv].dir, seen, outside, rays,
+                         room, emit) == RayMarch::no_room;
+      };
+      bool stop = false;
+      if (row_count == 2 && column_count == 2) {
+        // The whole group (all but the image's last odd row or column), in member order.
+        stop = no_room(0, 0, true) || no_room(0, 1, false) || no_room(1, 0, false) ||
+               no_room(1, 1, false);
+      } else {
+        for (int i = 0; i < 4 && !stop; ++i) {
+          const int dv = i >> 1;
+          const int du = i & 1;
+          if (dv < row_count && du < column_count) stop = no_room(dv, du, i == 0);
         }
+      }
+      if (stop) {
+        stop_v = v;
+        stop_u = u;
+        return true;
       }
     }
   }

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <type_traits>
 
+#include "octofuse/core/lanes.hpp"
 #include "octofuse/fusion/detail/propagation.hpp"
 #include "octofuse/map/detail/mip.hpp"
 
@@ -431,10 +432,11 @@ inline int floor_to_int(float f) {
 
 // Ray-march geometry, in block units of the cube, fixed for the frame.
 struct MarchSetup {
-  Eigen::Vector3f centre_B;  // camera centre
-  // World direction of the ray through pixel (u, v) with unit camera z:
-  // M * ((u - cx) / fx, (v - cy) / fy, 1).
-  Eigen::Matrix3f M;
+  // The camera centre and the columns of M, the world direction of the ray through pixel (u, v)
+  // with unit camera z being M * ((u - cx) / fx, (v - cy) / fy, 1): in 4-lane vectors (the fourth
+  // lane 0), each lane computing its component as scalar code would.
+  Lanes4 centre_B;
+  Lanes4 M_col[3];
   float inv_fx = 0;
   float inv_fy = 0;
   int side_blocks = 0;
@@ -455,25 +457,32 @@ enum class RayMarch { done, skipped, no_room };
 // the cube and far-off rays add to `outside`.
 template <typename FrameT, typename Room, typename Emit>
 inline RayMarch march_ray(const FrameT& f, const MarchSetup& m, int u, float depth, float yn2_1,
-                          const Eigen::Vector3f& row_dir, std::uint64_t* seen,
-                          std::uint32_t& outside, std::uint32_t& rays, Room& room, Emit& emit) {
+                          Lanes4 row_dir, std::uint64_t* seen, std::uint32_t& outside,
+                          std::uint32_t& rays, Room& room, Emit& emit) {
   if (!(depth >= f.near_m && depth <= f.far_m)) return RayMarch::skipped;
   const float xn = (static_cast<float>(u) - f.cx) * m.inv_fx;
-  const Eigen::Vector3f dir = row_dir + m.M.col(0) * xn;
+  const Lanes4 dir = row_dir + m.M_col[0] * xn;
   // The band +- mu along the ray is +- mu/|ray| in camera z.
   const float half_band_z = f.mu_m / std::sqrt(xn * xn + yn2_1);
-  const Eigen::Vector3f a = m.centre_B + dir * (depth - half_band_z);
-  const Eigen::Vector3f b = m.centre_B + dir * (depth + half_band_z);
-  // Far outside the cube (a wild pose): skip before float-to-int conversions can overflow.
+  const Lanes4 a = m.centre_B + dir * (depth - half_band_z);
+  const Lanes4 b = m.centre_B + dir * (depth + half_band_z);
+  // Far outside the cube (a wild pose, NaN): skip before float-to-int conversions can overflow.
+  // A comparison gives -1 in a true lane; the fourth lanes are 0.
   constexpr float kLimit = static_cast<float>(1 << 22);
-  if (!(a.cwiseAbs().maxCoeff() < kLimit && b.cwiseAbs().maxCoeff() < kLimit)) {
+  const Ints4 within = (a < kLimit) & (a > -kLimit) & (b < kLimit) & (b > -kLimit);
+  if ((within[0] & within[1] & within[2]) == 0) {
     ++outside;
     return RayMarch::skipped;
   }
-  // Amanatides-Woo traversal of the block grid from a to b.
-  const Eigen::Vector3f d = b - a;
-  int cell[3] = {floor_to_int(a.x()), floor_to_int(a.y()), floor_to_int(a.z())};
-  const int last[3] = {floor_to_int(b.x()), floor_to_int(b.y()), floor_to_int(b.z())};
+  // Amanatides-Woo traversal of the block grid from a to b. Floors by truncation, less one where
+  // it rounded up.
+  const Lanes4 d = b - a;
+  const Ints4 a_truncated = __builtin_convertvector(a, Ints4);
+  const Ints4 b_truncated = __builtin_convertvector(b, Ints4);
+  const Ints4 a_cell = a_truncated + (__builtin_convertvector(a_truncated, Lanes4) > a);
+  const Ints4 b_cell = b_truncated + (__builtin_convertvector(b_truncated, Lanes4) > b);
+  int cell[3] = {a_cell[0], a_cell[1], a_cell[2]};
+  const int last[3] = {b_cell[0], b_cell[1], b_cell[2]};
   int step_axis[3];
   float t_max[3];
   float t_delta[3];
@@ -523,8 +532,8 @@ inline RayMarch march_ray(const FrameT& f, const MarchSetup& m, int u, float dep
 // A pixel row's ray geometry.
 struct RowRays {
   const float* depth;
-  Eigen::Vector3f dir;  // the ray direction at xn = 0
-  float yn2_1;          // yn^2 + 1
+  Lanes4 dir;   // the ray direction at xn = 0
+  float yn2_1;  // yn^2 + 1
 };
 
 template <typename FrameT>
@@ -532,7 +541,7 @@ inline RowRays row_rays(const FrameT& f, const MarchSetup& m, int v) {
   RowRays r;
   r.depth = f.depth + v * f.stride;
   const float yn = (static_cast<float>(v) - f.cy) * m.inv_fy;
-  r.dir = m.M.col(1) * yn + m.M.col(2);
+  r.dir = m.M_col[1] * yn + m.M_col[2];
   r.yn2_1 = yn * yn + 1.0f;
   return r;
 }
@@ -630,8 +639,10 @@ std::uint32_t Integrator<VoxelT>::collect_blocks(const Octree<VoxelT>& map, cons
   using fusion_internal::kCollectTasks;
   const float inv_block = 1.0f / (8.0f * f.voxel_size_m);
   MarchSetup m;
-  m.centre_B = (f.t_W_C - f.origin_W) * inv_block;
-  m.M = f.R_W_C * inv_block;
+  const Eigen::Vector3f centre_B = (f.t_W_C - f.origin_W) * inv_block;
+  const Eigen::Matrix3f M = f.R_W_C * inv_block;
+  m.centre_B = Lanes4{centre_B.x(), centre_B.y(), centre_B.z(), 0.0f};
+  for (int c = 0; c < 3; ++c) m.M_col[c] = Lanes4{M(0, c), M(1, c), M(2, c), 0.0f};
   m.inv_fx = 1.0f / f.fx;
   m.inv_fy = 1.0f / f.fy;
   m.side_blocks = map.voxels_per_side() >> kBlockSideLog2;

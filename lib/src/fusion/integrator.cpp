@@ -425,11 +425,6 @@ inline std::size_t seen_slot(std::uint64_t key) {
   return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> (64 - kSeenCacheLog2));
 }
 
-inline int floor_to_int(float f) {
-  const int i = static_cast<int>(f);
-  return i - (static_cast<float>(i) > f ? 1 : 0);
-}
-
 // Ray-march geometry, in block units of the cube, fixed for the frame.
 struct MarchSetup {
   // The camera centre and the columns of M, the world direction of the ray through pixel (u, v)

@@ -469,13 +469,10 @@ inline RayMarch march_ray(const FrameT& f, const MarchSetup& m, int u, float dep
     ++outside;
     return RayMarch::skipped;
   }
-  // Amanatides-Woo traversal of the block grid from a to b. Floors by truncation, less one where
-  // it rounded up.
+  // Amanatides-Woo traversal of the block grid from a to b.
   const Lanes4 d = b - a;
-  const Ints4 a_truncated = __builtin_convertvector(a, Ints4);
-  const Ints4 b_truncated = __builtin_convertvector(b, Ints4);
-  const Ints4 a_cell = a_truncated + (__builtin_convertvector(a_truncated, Lanes4) > a);
-  const Ints4 b_cell = b_truncated + (__builtin_convertvector(b_truncated, Lanes4) > b);
+  const Ints4 a_cell = floor_lanes(a);
+  const Ints4 b_cell = floor_lanes(b);
   int cell[3] = {a_cell[0], a_cell[1], a_cell[2]};
   const int last[3] = {b_cell[0], b_cell[1], b_cell[2]};
   int step_axis[3];
@@ -572,8 +569,8 @@ bool march_rows(const FrameT& f, const MarchSetup& m, int v_begin, int u_begin, 
       const bool stands_for_group =
           first >= f.near_m && first <= f.far_m && first <= m.group_max_depth_m;
       const int column_count = u + s < f.width ? 2 : 1;
-      // Group member (dv, du) after the first: skipped where the first stands for it; true when
-      // its ray might not fit.
+      // Marches group member (dv, du), a member after the first only where the first does not
+      // stand for it; true when its ray might not fit.
       auto no_room = [&](int dv, int du, bool first_ray) {
         const float depth = rows[dv].depth[u + du * s];
         if (!first_ray && stands_for_group && std::fabs(depth - first) <= m.group_depth_gap_m) {

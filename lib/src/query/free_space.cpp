@@ -24,9 +24,8 @@ int clamped_floor(float f) {
 }
 
 // clamped_floor() of four values in one 4-lane pass, each lane the same integer: clamped first
-// (NaN and below to -kLimit, at or above to kLimit, whose floors are themselves), then truncated
-// and corrected. A comparison gives -1 in a true lane; a cast between the two vector types keeps
-// the bits.
+// (NaN and below to -kLimit, at or above to kLimit, whose floors are themselves), then floored. A
+// comparison gives -1 in a true lane; a cast between the two vector types keeps the bits.
 Ints4 clamped_floor4(Lanes4 f) {
   constexpr float kLimit = 1e6f;
   const Lanes4 lo = Lanes4{-kLimit, -kLimit, -kLimit, -kLimit};
@@ -35,9 +34,7 @@ Ints4 clamped_floor4(Lanes4 f) {
   const Ints4 below_hi = f < hi;
   const Ints4 f_or_hi = (below_hi & (Ints4)f) | (~below_hi & (Ints4)hi);
   const Ints4 clamped_bits = (above_lo & f_or_hi) | (~above_lo & (Ints4)lo);
-  const Lanes4 clamped = (Lanes4)clamped_bits;
-  const Ints4 truncated = __builtin_convertvector(clamped, Ints4);
-  return truncated + (clamped < __builtin_convertvector(truncated, Lanes4));
+  return floor_lanes((Lanes4)clamped_bits);
 }
 }  // namespace
 

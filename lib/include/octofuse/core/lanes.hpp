@@ -13,4 +13,12 @@ namespace octofuse {
 using Lanes4 = float __attribute__((vector_size(16)));
 using Ints4 = std::int32_t __attribute__((vector_size(16)));
 
+// The floor of each lane, for lanes within int's range (callers bound or clamp them first):
+// truncation, less one where it rounded up (negative non-integers). A comparison gives -1 in a
+// true lane.
+inline Ints4 floor_lanes(Lanes4 x) {
+  const Ints4 truncated = __builtin_convertvector(x, Ints4);
+  return truncated + (x < __builtin_convertvector(truncated, Lanes4));
+}
+
 }  // namespace octofuse

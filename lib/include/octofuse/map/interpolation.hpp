@@ -136,10 +136,7 @@ __attribute__((always_inline)) inline bool detail::sample_tsdf_checked(
     // 1 / 2^scale is exact, so the product equals the quotient. In 4-lane vectors (the fourth
     // unused), each lane computing what floor_to_int and the scalar expressions would.
     const Lanes4 qs = Lanes4{q.x(), q.y(), q.z(), 0.0f} * (1.0f / static_cast<float>(size)) - 0.5f;
-    const Ints4 truncated = __builtin_convertvector(qs, Ints4);
-    // Truncation, less one where it rounded up (negative non-integers): floor. The comparison
-    // gives -1 in a true lane.
-    const Ints4 floored = truncated + (qs < __builtin_convertvector(truncated, Lanes4));
+    const Ints4 floored = floor_lanes(qs);
     const Lanes4 frac_lanes = qs - __builtin_convertvector(floored, Lanes4);
     const Eigen::Vector3i base(floored[0], floored[1], floored[2]);
     const Eigen::Vector3f frac(frac_lanes[0], frac_lanes[1], frac_lanes[2]);

@@ -42,6 +42,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("free_space").value(s.times.free_space_ms);
   json.key("raycast").value(s.times.raycast_ms);
   json.key("total").value(s.times.total_ms);
+  json.key("helper_wait").value(s.times.helper_wait_ms);
   json.end_object();
   json.key("valid_pixels").value(static_cast<std::uint64_t>(s.input.valid_pixels));
   if (s.track_attempted) {

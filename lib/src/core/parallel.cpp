@@ -62,8 +62,10 @@ class Pool {
   }
 
   // Runs the job with up to `helpers` pool threads beside the caller; false when the pool is busy
-  // with another job (the caller then runs the tasks itself).
-  bool try_run(int helpers, std::size_t task_count, void (*fn)(std::size_t, void*), void* context) {
+  // with another job (the caller then runs the tasks itself). Adds the caller's wait for helpers,
+  // read on `clock`, to `wait_us`.
+  bool try_run(int helpers, std::size_t task_count, void (*fn)(std::size_t, void*), void* context,
+               const Clock& clock, std::int64_t& wait_us) {
     if (busy_.exchange(true, std::memory_order_acquire)) return false;
     {
       auto lock = take(mutex_);
@@ -79,6 +81,11 @@ class Pool {
     work_.notify_all();
     const std::uint64_t generation = generation_;
     work_on(generation, task_count, fn, context);
+    if (all_done(task_count)) {
+      busy_.store(false, std::memory_order_release);
+      return true;
+    }
+    const std::int64_t wait_start_us = clock.now();
     for (int i = 0; i < kYieldsBeforeBlocking && !all_done(task_count); ++i) {
       std::this_thread::yield();
     }
@@ -86,6 +93,7 @@ class Pool {
       auto lock = take(mutex_);
       finished_.wait(lock, [&] { return all_done(task_count); });
     }
+    wait_us += clock.now() - wait_start_us;
     busy_.store(false, std::memory_order_release);
     return true;
   }
@@ -172,7 +180,7 @@ WorkerTeam::WorkerTeam(int workers) : workers_(workers) {
 void WorkerTeam::run(std::size_t task_count, void (*fn)(std::size_t, void*), void* context) const {
   OCTOFUSE_CHECK(static_cast<std::uint64_t>(task_count) < (std::uint64_t{1} << 32));
   if (workers_ > 1 && task_count > 1 &&
-      Pool::instance().try_run(workers_ - 1, task_count, fn, context)) {
+      Pool::instance().try_run(workers_ - 1, task_count, fn, context, clock_, helper_wait_us_)) {
     return;
   }
   for (std::size_t task = 0; task < task_count; ++task) fn(task, context);

@@ -364,6 +364,7 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
     evict_low_nodes_ = mark(memory.node_capacity, config.eviction.low_water);
   }
   team_ = WorkerTeam(config.workers);
+  team_.set_clock(clock_);  // FrameStats::times.helper_wait_ms
   working_camera_ = config.input_camera.downsampled(config.preprocess.downsample_factor);
   // A reference cast already at half resolution leaves the deadline's half step nothing to give.
   DeadlineConfig deadline = config.deadline;
@@ -951,6 +952,7 @@ typename Pipeline<VoxelT>::FrameProgress Pipeline<VoxelT>::start_frame(const Dep
     stats.deadline.raycast_skipped = false;
   }
   if (stats.deadline.planned) progress.icp_budget = stats.deadline.icp_iterations;
+  (void)team_.take_helper_wait_us();  // waits outside process() are no frame's
   progress.t_start = clock_.now();
   own_error_ = false;
   return progress;
@@ -1277,6 +1279,7 @@ Status Pipeline<VoxelT>::finish_frame(const FrameProgress& progress, FrameResult
   stats.T_W_C = T_W_C_;
   stats.memory = map_.memory();
   stats.times.total_ms = elapsed_ms(progress.t_start, clock_.now());
+  stats.times.helper_wait_ms = static_cast<double>(team_.take_helper_wait_us()) * 1e-3;
   if (deadline_.active()) {
     stats.deadline.over = stats.times.total_ms > stats.deadline.deadline_ms;
     deadline_.observe(

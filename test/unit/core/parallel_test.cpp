@@ -169,6 +169,79 @@ TEST_CASE("WorkerTeam threads that wait for work or for a slow task take no CPU"
   REQUIRE(cpu_s < 0.1);  // a waiter spinning through the sleeps would use 0.3 s or more
 }
 
+std::int64_t steady_us(void*) {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+// Runs small jobs until a helper thread has taken a task: a helper that starts after a job was
+// announced waits for the next one.
+bool helpers_started(const WorkerTeam& team) {
+  const std::thread::id caller = std::this_thread::get_id();
+  for (int job = 0; job < 1000; ++job) {
+    std::atomic<bool> helper_ran{false};
+    auto fn = [&](std::size_t) {
+      if (std::this_thread::get_id() != caller) helper_ran = true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    };
+    team.for_each_task(4, fn);
+    if (helper_ran) return true;
+  }
+  return false;
+}
+
+// Two tasks: the one the caller claims holds until a helper has claimed the other, which sleeps
+// `helper_sleep`; the caller then runs out of tasks and waits for the late helper.
+void run_with_late_helper(const WorkerTeam& team, std::chrono::milliseconds helper_sleep,
+                          bool* helper_ran) {
+  const std::thread::id caller = std::this_thread::get_id();
+  std::atomic<bool> helper_started{false};
+  auto fn = [&](std::size_t) {
+    if (std::this_thread::get_id() != caller) {
+      helper_started = true;
+      std::this_thread::sleep_for(helper_sleep);
+      return;
+    }
+    const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(5);
+    while (!helper_started && std::chrono::steady_clock::now() < give_up) {
+      std::this_thread::yield();
+    }
+  };
+  team.for_each_task(2, fn);
+  *helper_ran = helper_started;
+}
+
+TEST_CASE("WorkerTeam measures the caller's wait for a late helper on its clock") {
+  WorkerTeam team(2);
+  team.set_clock(Clock{&steady_us, nullptr});
+  REQUIRE(helpers_started(team));
+  (void)team.take_helper_wait_us();
+  bool helper_ran = false;
+  run_with_late_helper(team, std::chrono::milliseconds(200), &helper_ran);
+  REQUIRE(helper_ran);
+  const std::int64_t wait_us = team.take_helper_wait_us();
+  CAPTURE(wait_us);
+  // The helper slept 200 ms after the caller saw it start; the caller had nothing left but its
+  // own return from task 0, so it waited nearly all of it.
+  REQUIRE(wait_us >= 100000);
+  REQUIRE(wait_us < 5000000);
+  REQUIRE(team.take_helper_wait_us() == 0);  // taken: the sum starts over
+
+  // Without a clock (the default) nothing is measured; one worker never waits.
+  WorkerTeam unclocked(2);
+  run_with_late_helper(unclocked, std::chrono::milliseconds(20), &helper_ran);
+  REQUIRE(helper_ran);
+  REQUIRE(unclocked.take_helper_wait_us() == 0);
+  WorkerTeam alone(1);
+  alone.set_clock(Clock{&steady_us, nullptr});
+  int calls = 0;
+  auto fn = [&calls](std::size_t) { ++calls; };
+  alone.for_each_task(8, fn);
+  REQUIRE(calls == 8);
+  REQUIRE(alone.take_helper_wait_us() == 0);
+}
+
 TEST_CASE("WorkerTeam needs at least one worker") {
   const auto end = test::run_in_child([](int) { const WorkerTeam team(0); });
   REQUIRE(end.aborted);

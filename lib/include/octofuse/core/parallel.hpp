@@ -5,6 +5,9 @@
 // Helper threads block between jobs (no spinning on shared cores); 1 worker runs tasks inline.
 
 #include <cstddef>
+#include <cstdint>
+
+#include "octofuse/core/clock.hpp"
 
 namespace octofuse {
 
@@ -19,6 +22,18 @@ class WorkerTeam {
   void run(std::size_t task_count, void (*fn)(std::size_t task, void* context),
            void* context) const;
 
+  // Reads `clock` around the caller's wait for helpers still on their tasks after it has run out
+  // of tasks to claim (a helper whose core another program holds keeps its claimed task until it
+  // runs again). A null clock, the default, measures nothing.
+  void set_clock(Clock clock) { clock_ = clock; }
+  // Microseconds the caller has waited so far for helpers, summed over jobs; resets the sum.
+  // For the thread that calls run().
+  std::int64_t take_helper_wait_us() {
+    const std::int64_t wait_us = helper_wait_us_;
+    helper_wait_us_ = 0;
+    return wait_us;
+  }
+
   template <typename Fn>
   void for_each_task(std::size_t task_count, Fn& fn) const {
     run(
@@ -27,6 +42,8 @@ class WorkerTeam {
 
  private:
   int workers_ = 1;
+  Clock clock_;
+  mutable std::int64_t helper_wait_us_ = 0;
 };
 
 // The half-open range of items [begin, end) that task `task` of `task_count` owns when `items`

@@ -225,6 +225,9 @@ struct StageTimes {
   double esdf_ms = 0.0;
   double raycast_ms = 0.0;
   double total_ms = 0.0;
+  // Of the above, the calling thread's wait for helpers still on claimed tasks after it ran out of
+  // tasks (a helper preempted on a core another program holds); 0 with one worker.
+  double helper_wait_ms = 0.0;
 };
 
 enum class FrameResult : std::uint8_t {

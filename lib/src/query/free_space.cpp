@@ -17,10 +17,7 @@ int clamped_floor(float f) {
   constexpr float kLimit = 1e6f;
   if (!(f > -kLimit)) return -1000000;
   if (!(f < kLimit)) return 1000000;
-  // floor by truncation and a correction: exact in this range, without a libm call (the x86-64
-  // baseline has no rounding instruction).
-  const int i = static_cast<int>(f);
-  return i - (f < static_cast<float>(i) ? 1 : 0);
+  return floor_to_int(f);
 }
 
 // clamped_floor() of four values in one 4-lane pass, each lane the same integer: clamped first

@@ -5,6 +5,7 @@
 #include <cstring>
 #include <limits>
 
+#include "octofuse/core/lanes.hpp"
 #include "octofuse/map/interpolation.hpp"
 
 namespace octofuse {
@@ -192,7 +193,7 @@ bool cell_inside_block(const VoxelBlock<VoxelT>& block, const Eigen::Vector3f& q
       q * (1.0f / static_cast<float>(1 << scale)) - Eigen::Vector3f::Constant(0.5f);
   const Eigen::Vector3i block_min = block.min_voxel();
   for (int a = 0; a < 3; ++a) {
-    const int local = detail::floor_to_int(qs[a]) - (block_min[a] >> scale);
+    const int local = floor_to_int(qs[a]) - (block_min[a] >> scale);
     if (local < 0 || local >= side - 1) return false;
   }
   return true;

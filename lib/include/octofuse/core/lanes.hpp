@@ -13,6 +13,13 @@ namespace octofuse {
 using Lanes4 = float __attribute__((vector_size(16)));
 using Ints4 = std::int32_t __attribute__((vector_size(16)));
 
+// floor() of one float for |x| < 2^31 without a libm call (the x86-64 baseline has no SSE4.1
+// round): truncation, less one where it rounded up. floor_lanes() below is its lane-wise form.
+inline int floor_to_int(float x) {
+  const int i = static_cast<int>(x);
+  return i - (x < static_cast<float>(i) ? 1 : 0);
+}
+
 // The floor of each lane, for lanes within int's range (callers bound or clamp them first):
 // truncation, less one where it rounded up (negative non-integers). A comparison gives -1 in a
 // true lane.

@@ -48,12 +48,6 @@ struct BlockNeighbourhood {
 };
 
 namespace detail {
-// floor() for |x| < 2^31 without a libm call (x86-64 baseline has no SSE4.1 round).
-inline int floor_to_int(float x) {
-  const int i = static_cast<int>(x);
-  return i - (x < static_cast<float>(i) ? 1 : 0);
-}
-
 // The trilinear interpolant of a cell's 8 corner values (x fastest) at `frac` in [0, 1]^3, and
 // its gradient per metre for a cell `cell_m` on a side, into `out`.
 inline void interpolate_cell(const float (&values)[8], const Eigen::Vector3f& frac, float cell_m,
@@ -271,8 +265,7 @@ bool sample_tsdf_observed_at_voxel_coords(const Octree<VoxelT>& map, const Eigen
     const int size = 1 << scale;
     const Eigen::Vector3f qs =
         q * (1.0f / static_cast<float>(size)) - Eigen::Vector3f::Constant(0.5f);
-    const Eigen::Vector3i base(detail::floor_to_int(qs.x()), detail::floor_to_int(qs.y()),
-                               detail::floor_to_int(qs.z()));
+    const Eigen::Vector3i base(floor_to_int(qs.x()), floor_to_int(qs.y()), floor_to_int(qs.z()));
     const Eigen::Vector3f frac = qs - base.cast<float>();
     float values[8];
     bool observed[8];

@@ -655,6 +655,23 @@ const RunOption kRunOptions[] = {
        return std::string();
      },
      [](const RunOptions& o, std::string* v) { return flag(o.esdf, v); }},
+    {"esdf-follow", "M",
+     "--esdf with the window following the camera: re-centred on it\n"
+     "whenever the camera is more than M metres from its centre (each\n"
+     "move rebuilds the window over the next frames)",
+     [](RunOptions& o, const std::string& v) {
+       double number = 0.0;
+       if (!cli::parse_double(v, 0.001, 1000.0, number)) {
+         return std::string(" needs metres in [0.001, 1000]");
+       }
+       o.esdf = true;
+       o.esdf_follow_m = static_cast<float>(number);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = text_of(o.esdf_follow_m);
+       return o.esdf_follow_m > 0.0f;
+     }},
     {"query-points", "FILE",
      "answer FILE's points (one 'x y z' per line, metres, world frame)\n"
      "against the final map into DIR/queries.txt:\n"

@@ -65,6 +65,7 @@ struct RunOptions {
   bool free_space = true;         // carve free space (PipelineConfig::free_space.enabled)
   bool free_space_exact = false;  // FreeSpaceConfig::exact_silhouettes
   bool esdf = false;              // PipelineConfig::esdf.enabled (--query-points answers use it)
+  float esdf_follow_m = 0.0f;     // PipelineConfig::esdf.follow_m (--esdf-follow)
   // --query-points FILE: answered against the final map into DIR/queries.txt (empty: none).
   std::string query_points_path;
   // Called with the final multires map's queries before the run returns (benchmarks).

@@ -349,6 +349,7 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
     config.esdf.unknown_is_obstacle = true;
     config.esdf.cell_voxels = 2;
     config.esdf.cells_per_side = std::min(128, config.map.voxels_per_side() / 2);
+    config.esdf.follow_m = options.esdf_follow_m;
   }
   if (load_map && loaded.free_node_count > 0) {
     // The saved free space is read with the settings it was carved with (its distance bounds

@@ -131,6 +131,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "--map-file",
                  "blocks.store",
                  "--no-free-space",
+                 "--esdf-follow",
+                 "0.25",
                  "--query-points",
                  "points.txt",
                  "--deadline-ms",
@@ -204,6 +206,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
   CHECK(reread.save_every == 9);
   CHECK(reread.load_map_path == "in.ofmap");
   CHECK_FALSE(reread.free_space);
+  CHECK(reread.esdf);  // --esdf-follow implies --esdf
+  CHECK(reread.esdf_follow_m == 0.25f);
   CHECK(reread.query_points_path == "points.txt");
 }
 

@@ -102,5 +102,65 @@ TEST_CASE(
   CHECK(over * 50 <= checked);
 }
 
+TEST_CASE("a distance field that follows the camera is rebuilt around it as it moves") {
+  constexpr int kFrames = 24;
+  sim::SimSource source(small_sim(kFrames));
+  REQUIRE(source.open().ok());
+  PipelineConfig config = field_config(source, 2);
+  // Cells of 4 voxels: a 5.12 m window, which reaches the desk 2.5 m from the camera from a
+  // window centred on it. Started a metre off the camera, re-centred whenever the camera is
+  // 10 cm from the window's centre.
+  config.esdf.cell_voxels = 4;
+  const Eigen::Vector3f camera0_W = source.ground_truth_T_W_C(0).translation().cast<float>();
+  config.esdf.centre_W = camera0_W + Eigen::Vector3f(1.0f, 0.0f, 0.0f);
+  config.esdf.follow_m = 0.1f;
+  const std::size_t bytes = bytes_required(config);
+  Buffer buffer(bytes);
+  Pipeline<MultiresVoxel> pipeline;
+  REQUIRE(pipeline.init(buffer.data, bytes, config).ok());
+  const EsdfField& field = pipeline.esdf();
+  const MapConfig& map = pipeline.map().config();
+  const float side_m = field.cell_m() * static_cast<float>(field.cells_per_side());
+  const float cube_m = map.voxel_size_m * static_cast<float>(map.voxels_per_side());
+  const Eigen::Vector3f start_min_W = field.window_min_W();
+  DepthFrame frame;
+  FrameStats stats;
+  int published = 0;
+  test::AllocationScope scope;
+  while (source.next(frame).outcome == FrameOutcome::frame) {
+    REQUIRE(pipeline.process(frame, &stats).ok());
+    published += stats.esdf.published ? 1 : 0;
+    // The window the field builds is centred on the camera within the follow distance (and a
+    // cell of the grid), but where the cube's faces hold it back.
+    const Eigen::Vector3f camera_W = stats.T_W_C.translation().cast<float>();
+    const Eigen::Vector3f target_min_W =
+        field.target_centre_W() - Eigen::Vector3f::Constant(0.5f * side_m);
+    bool clamped = false;
+    for (int a = 0; a < 3; ++a) {
+      clamped = clamped || target_min_W[a] <= map.origin_W[a] + field.cell_m() ||
+                target_min_W[a] + side_m >= map.origin_W[a] + cube_m - field.cell_m();
+    }
+    if (!clamped) {
+      CHECK((camera_W - field.target_centre_W()).norm() <= config.esdf.follow_m + field.cell_m());
+    }
+  }
+  REQUIRE(scope.allocations() == 0);
+  CHECK(published >= 3);
+  pipeline.flush_esdf();
+  const Eigen::Vector3f min_W = field.window_min_W();
+  CHECK((min_W - start_min_W).norm() > 0.5f);  // it moved to the camera
+  CHECK((min_W + Eigen::Vector3f::Constant(0.5f * side_m) - field.target_centre_W()).norm() <
+        1e-4f);
+  // Points 0.3-0.6 m in front of the camera have distances.
+  int answered = 0;
+  for (int i = 0; i < 4; ++i) {
+    const Eigen::Vector3f p_W =
+        (stats.T_W_C.translation() + (0.3 + 0.1 * i) * stats.T_W_C.linear().col(2)).cast<float>();
+    const EsdfAnswer a = field.distance(p_W).value();
+    answered += a.has_distance ? 1 : 0;
+  }
+  CHECK(answered == 4);
+}
+
 }  // namespace
 }  // namespace octofuse

@@ -1194,6 +1194,12 @@ void Pipeline<VoxelT>::update_esdf(FrameProgress& progress) {
   if (!esdf_.reserved()) return;
   FrameStats& stats = current_;
   if (stats.eviction.evicted > 0 || stats.eviction.demoted > 0) esdf_.mark_all_dirty();
+  if (config_.esdf.follow_m > 0.0f) {
+    const Eigen::Vector3f camera_W = T_W_C_.translation().cast<float>();
+    if ((camera_W - esdf_.target_centre_W()).norm() > config_.esdf.follow_m) {
+      esdf_.centre_on(camera_W);
+    }
+  }
   stats.esdf =
       esdf_.update(map_, free_space_.reserved() ? &free_space_ : nullptr, config_.fusion.mu_m,
                    static_cast<std::uint32_t>(stats.frame_index), map_version_);

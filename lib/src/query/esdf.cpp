@@ -41,6 +41,9 @@ Status validate(const EsdfConfig& config, const MapConfig& map) {
   const Eigen::Vector3f& centre = config.centre_W;
   const bool all_nan = std::isnan(centre.x()) && std::isnan(centre.y()) && std::isnan(centre.z());
   if (!all_nan && !finite(centre)) return Status(StatusCode::invalid_argument);
+  if (!std::isfinite(config.follow_m) || config.follow_m < 0.0f) {
+    return Status(StatusCode::invalid_argument);
+  }
   return ok_status();
 }
 
@@ -98,24 +101,41 @@ void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, C
   // A site lies within a cell diagonal of the nearest surface point (both in one cell), and the
   // TSDF places the surface within about a finest voxel.
   error_bound_m_ = 2.0f * kHalfDiagonal * cell_m_ + voxel_m_;
+  map_origin_W_ = map.origin_W;
+  cube_voxels_ = map.voxels_per_side();
+  target_ = window_at(config.centre_W);
+  windows_[0] = windows_[1] = target_;
+  clear();
+}
+
+EsdfField::Window EsdfField::window_at(const Eigen::Vector3f& centre_W) const {
+  Window w;
   const int side = n_ * cell_voxels_;
-  const int cube = map.voxels_per_side();
-  for (int a_i = 0; a_i < 3; ++a_i) {
-    int lo = (cube - side) / 2;
-    if (!std::isnan(config.centre_W[a_i])) {
-      const float centre_voxels = (config.centre_W[a_i] - map.origin_W[a_i]) / voxel_m_;
+  for (int a = 0; a < 3; ++a) {
+    int lo = (cube_voxels_ - side) / 2;
+    if (!std::isnan(centre_W[a])) {
+      const float centre_voxels = (centre_W[a] - map_origin_W_[a]) / voxel_m_;
       const float start = centre_voxels - 0.5f * static_cast<float>(side);
       const float clamped =
-          std::max(0.0f, std::min(static_cast<float>(cube - side), std::floor(start)));
+          std::max(0.0f, std::min(static_cast<float>(cube_voxels_ - side), std::floor(start)));
       lo = static_cast<int>(clamped);
     }
     lo -= lo % cell_voxels_;  // cells on the map's cell grid
-    window_min_voxel_[a_i] = lo;
-    window_min_W_[a_i] = map.origin_W[a_i] + static_cast<float>(lo) * voxel_m_;
-    open_face_[a_i][0] = lo > 0;
-    open_face_[a_i][1] = lo + side < cube;
+    w.min_voxel[a] = lo;
+    w.min_W[a] = map_origin_W_[a] + static_cast<float>(lo) * voxel_m_;
+    w.open_face[a][0] = lo > 0;
+    w.open_face[a][1] = lo + side < cube_voxels_;
   }
-  clear();
+  return w;
+}
+
+void EsdfField::centre_on(const Eigen::Vector3f& centre_W) {
+  if (!reserved() || !finite(centre_W)) return;
+  target_ = window_at(centre_W);
+}
+
+Eigen::Vector3f EsdfField::target_centre_W() const {
+  return target_.min_W + Eigen::Vector3f::Constant(0.5f * static_cast<float>(n_) * cell_m_);
 }
 
 void EsdfField::clear() {
@@ -181,7 +201,8 @@ bool EsdfField::chunk_changed(const Octree<VoxelT>& map, int chunk) const {
   const int cy = (chunk / chunks_per_side_) % chunks_per_side_;
   const int cz = chunk / (chunks_per_side_ * chunks_per_side_);
   const int side_voxels = kChunkCells * cell_voxels_;
-  const Eigen::Vector3i lo = window_min_voxel_ + Eigen::Vector3i(cx, cy, cz) * side_voxels;
+  const Eigen::Vector3i lo =
+      windows_[1 - front_].min_voxel + Eigen::Vector3i(cx, cy, cz) * side_voxels;
   // Every block the chunk's cells sample: the chunk need not be block-aligned, and trilinear
   // samples at its border cells read the voxels one beyond it.
   Eigen::Vector3i b0;
@@ -302,7 +323,7 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         }
         // Cell centre in continuous finest-voxel coordinates, and in the world.
         const Eigen::Vector3f q =
-            window_min_voxel_.cast<float>() +
+            windows_[1 - front_].min_voxel.cast<float>() +
             (Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) +
              Eigen::Vector3f::Constant(0.5f)) *
                 cv;
@@ -407,7 +428,7 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
               box && !valley_site
                   ? Eigen::Vector3f(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f,
                                     static_cast<float>(z) + 0.5f)
-                  : (site_W - window_min_W_) / cell_m_;
+                  : (site_W - windows_[1 - front_].min_W) / cell_m_;
           out.sx = to_site_units(s_cells.x(), n_);
           out.sy = to_site_units(s_cells.y(), n_);
           out.sz = to_site_units(s_cells.z(), n_);
@@ -509,13 +530,16 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
   const std::uint64_t slice_cells = static_cast<std::uint64_t>(n_) * static_cast<std::uint64_t>(n_);
   for (;;) {
     if (phase_ == Phase::idle) {
-      if (have_published_ && map_version == published_version_ && !all_dirty_) break;
-      if (have_published_ && map_version == rebuild_version_ && !all_dirty_) break;
+      // A window moved by centre_on() is built whole, every chunk from the map.
+      const bool moved = target_.min_voxel != windows_[front_].min_voxel;
+      if (have_published_ && map_version == published_version_ && !all_dirty_ && !moved) break;
+      if (have_published_ && map_version == rebuild_version_ && !all_dirty_ && !moved) break;
       phase_ = Phase::seed;
       cursor_ = 0;
       rebuild_start_frame_ = frame;
       rebuild_version_ = map_version;
-      rebuild_all_ = all_dirty_ || !front_valid_ || config_.unknown_is_obstacle;
+      windows_[1 - front_] = target_;
+      rebuild_all_ = all_dirty_ || !front_valid_ || config_.unknown_is_obstacle || moved;
       all_dirty_ = false;
     }
     if (steps >= budget) {
@@ -593,7 +617,8 @@ EsdfReport EsdfField::flush(const Octree<VoxelT>& map, const FreeSpace* free_spa
 EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
   EsdfAnswer out;
   out.map_version = published_version_;
-  const Eigen::Vector3f q = (p_W - window_min_W_) / cell_m_;  // in cells
+  const Window& window = windows_[front_];
+  const Eigen::Vector3f q = (p_W - window.min_W) / cell_m_;  // in cells
   const float n = static_cast<float>(n_);
   if (!(q.x() >= 0.0f && q.y() >= 0.0f && q.z() >= 0.0f && q.x() < n && q.y() < n && q.z() < n)) {
     return out;
@@ -601,8 +626,8 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
   // Surfaces beyond the window's faces inside the cube are not in the field.
   float window_bound = 1e30f;
   for (int a = 0; a < 3; ++a) {
-    if (open_face_[a][0]) window_bound = std::min(window_bound, q[a]);
-    if (open_face_[a][1]) window_bound = std::min(window_bound, n - q[a]);
+    if (window.open_face[a][0]) window_bound = std::min(window_bound, q[a]);
+    if (window.open_face[a][1]) window_bound = std::min(window_bound, n - q[a]);
   }
   window_bound *= cell_m_;
   const int x = static_cast<int>(q.x());

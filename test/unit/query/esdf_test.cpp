@@ -430,6 +430,73 @@ TEST_CASE("a budget spreads a rebuild over frames; queries see the old field unt
   }
 }
 
+TEST_CASE("a window moved by centre_on is built whole; the old one answers until it is published") {
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  const Scene scene;
+  test::fill_band(owned.map, kMu_m, scene, [](const Eigen::Vector3i&) { return 0; });
+  // 32 cells of 2 voxels: a 1.28 m window in the 2.56 m cube, first over the floor's low corner.
+  EsdfConfig config = field_config();
+  config.cells_per_side = 32;
+  config.centre_W = Eigen::Vector3f(-0.6f, -0.6f, -0.6f);
+  config.max_cell_steps = 4000;
+  Field f(config);
+  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 0, 1).published);
+  const Eigen::Vector3f old_min = f.field.window_min_W();
+  const Eigen::Vector3f above_floor(-0.6f, -0.6f, -0.5f);  // 0.3 m over the floor
+  const Eigen::Vector3f above_sphere(0.1f, -0.05f, 0.6f);  // 0.1 m over the sphere's top
+  const EsdfAnswer floor_before = f.field.distance(above_floor).value();
+  REQUIRE(floor_before.has_distance);
+  CHECK(floor_before.distance_m == Approx(0.3f).margin(kVoxel_m));
+  CHECK_FALSE(f.field.distance(above_sphere).value().has_distance);  // outside the window
+
+  // Non-finite centres change nothing; a new one does, for the next rebuild.
+  const Eigen::Vector3f centre_before = f.field.target_centre_W();
+  f.field.centre_on(Eigen::Vector3f(std::numeric_limits<float>::quiet_NaN(), 0.0f, 0.0f));
+  CHECK(f.field.target_centre_W() == centre_before);
+  const Eigen::Vector3f centre(0.4f, 0.4f, 0.4f);
+  f.field.centre_on(centre);
+  CHECK((f.field.target_centre_W() - centre).cwiseAbs().maxCoeff() <= 2.0f * kVoxel_m);
+
+  // The map did not change, yet the moved window is rebuilt: over frames, within the budget,
+  // every chunk from the map; until then queries see the old window.
+  int frames = 0;
+  for (;;) {
+    const EsdfReport r = f.field.update(owned.map, nullptr, kMu_m, 1, 1);
+    ++frames;
+    REQUIRE(frames < 100);
+    if (r.published) break;
+    CHECK(r.budget_hit);
+    CHECK(f.field.window_min_W() == old_min);
+    CHECK(f.field.distance(above_floor).value().distance_m == floor_before.distance_m);
+  }
+  CHECK(frames > 3);
+  CHECK((f.field.window_min_W() - (centre - Eigen::Vector3f::Constant(0.64f))).norm() <=
+        4.0f * kVoxel_m);
+  CHECK_FALSE(f.field.distance(above_floor).value().has_distance);  // left behind
+  const EsdfAnswer sphere = f.field.distance(above_sphere).value();
+  REQUIRE(sphere.has_distance);
+  CHECK(sphere.distance_m == Approx(0.1f).margin(kVoxel_m));
+  // Nothing more to do once it is built.
+  CHECK(f.field.update(owned.map, nullptr, kMu_m, 2, 1).cell_steps == 0);
+
+  // The same bits as a field built there from the start.
+  EsdfConfig there = config;
+  there.centre_W = centre;
+  Field g(there);
+  REQUIRE(g.field.flush(owned.map, nullptr, kMu_m, 0, 1).published);
+  REQUIRE(g.field.window_min_W() == f.field.window_min_W());
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0.0f, 1.28f);
+  for (int i = 0; i < 5000; ++i) {
+    const Eigen::Vector3f q = g.field.window_min_W() + Eigen::Vector3f(u(rng), u(rng), u(rng));
+    const EsdfAnswer a = f.field.distance(q).value();
+    const EsdfAnswer b = g.field.distance(q).value();
+    REQUIRE(a.has_distance == b.has_distance);
+    REQUIRE(a.distance_m == b.distance_m);
+    REQUIRE(a.lower_bound_m == b.lower_bound_m);
+  }
+}
+
 TEST_CASE("unknown as obstacle: distances to the nearest unobserved cell too") {
   test::OwnedMap<TsdfVoxel> owned(map_config());
   const Scene scene;
@@ -458,6 +525,12 @@ TEST_CASE("bad configurations and points are refused") {
   c = field_config();
   c.centre_W = Eigen::Vector3f(0.0f, std::numeric_limits<float>::infinity(), 0.0f);
   CHECK(validate(c, map_config()).code() == StatusCode::invalid_argument);
+  for (const float bad :
+       {-0.1f, std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity()}) {
+    c = field_config();
+    c.follow_m = bad;
+    CHECK(validate(c, map_config()).code() == StatusCode::invalid_argument);
+  }
 
   Field f(field_config());
   const float nan = std::numeric_limits<float>::quiet_NaN();

@@ -38,6 +38,11 @@ struct EsdfConfig {
   // Unknown cells count as obstacles (their whole box) when true; then every update re-seeds
   // the whole window, since carving changes what is unknown.
   bool unknown_is_obstacle = false;
+  // > 0: the window follows the camera (the pipeline re-centres it on the camera whenever the
+  // camera is more than this from the window's centre, m). The next rebuild then builds the new
+  // window, every chunk from the map; queries see the old window until it is published. 0: the
+  // window stays where centre_W put it.
+  float follow_m = 0.0f;
   // Degradation step (8): cells seeded or swept per frame (in whole 8^3 chunks and slices; a
   // rebuild is 3 window volumes). A rebuild that does not finish goes on in the next frames;
   // queries meanwhile see the previous field. 0: no limit (each update finishes in its frame).
@@ -108,6 +113,11 @@ class EsdfField {
                    std::uint32_t frame, std::uint64_t map_version);
   // The next rebuild seeds every chunk afresh (after eviction removed blocks).
   void mark_all_dirty() { all_dirty_ = true; }
+  // The window the next rebuild builds: centred on `centre_W` (clamped into the map's cube, its
+  // cells on the map's cell grid). From the thread that updates; a non-finite centre is ignored.
+  void centre_on(const Eigen::Vector3f& centre_W);
+  // The centre of the window the field is building or has built (centre_on()'s, clamped).
+  Eigen::Vector3f target_centre_W() const;
   // Forgets everything (the map was reset). The caller holds the guard exclusively.
   void clear();
 
@@ -117,8 +127,10 @@ class EsdfField {
   // (those answers stay default).
   Status distances(const Eigen::Vector3f* points_W, std::size_t count, EsdfAnswer* out) const;
 
-  // Window geometry: its minimum corner (world), cell edge (m), cells per side.
-  Eigen::Vector3f window_min_W() const { return window_min_W_; }
+  // Window geometry of the published field: its minimum corner (world), cell edge (m), cells per
+  // side. With follow_m the corner moves when a rebuild is published (under the guard): read it
+  // on the updating thread or holding the guard.
+  Eigen::Vector3f window_min_W() const { return windows_[front_].min_W; }
   float cell_m() const { return cell_m_; }
   int cells_per_side() const { return n_; }
   // The bound every answer's distance is within (see lib/README.md).
@@ -151,6 +163,16 @@ class EsdfField {
   static int encode_normal(const Eigen::Vector3f& n);
   enum class Phase : std::uint8_t { idle, seed, forward, backward };
 
+  // Where a buffer's cells lie in the map, and which of its faces lie inside the cube (beyond
+  // them surfaces are not in the field), per axis lo/hi.
+  struct Window {
+    Eigen::Vector3i min_voxel = Eigen::Vector3i::Zero();
+    Eigen::Vector3f min_W = Eigen::Vector3f::Zero();
+    bool open_face[3][2] = {{false, false}, {false, false}, {false, false}};
+  };
+  // The window centred on `centre_W` (NaN on an axis: the cube's middle there).
+  Window window_at(const Eigen::Vector3f& centre_W) const;
+
   static std::size_t cell_count(int n) {
     return static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   }
@@ -179,13 +201,13 @@ class EsdfField {
   int n_ = 0;
   int chunks_per_side_ = 0;
   int cell_voxels_ = 1;
-  Eigen::Vector3i window_min_voxel_ = Eigen::Vector3i::Zero();
-  Eigen::Vector3f window_min_W_ = Eigen::Vector3f::Zero();
+  Window windows_[2];  // each buffer's
+  Window target_;      // the next rebuild's
+  Eigen::Vector3f map_origin_W_ = Eigen::Vector3f::Zero();
+  int cube_voxels_ = 0;
   float voxel_m_ = 0.0f;
   float cell_m_ = 0.0f;
   float error_bound_m_ = 0.0f;
-  // Window faces inside the cube (beyond them surfaces are not in the field), per axis lo/hi.
-  bool open_face_[3][2] = {{false, false}, {false, false}, {false, false}};
   const MapGuard* guard_ = nullptr;
 
   Phase phase_ = Phase::idle;

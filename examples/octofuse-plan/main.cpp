@@ -49,13 +49,15 @@ struct Options {
   std::uint32_t budget = 1u << 18;
   bool unknown_obstacle = false;
   int cells = 128;
-  int show_unsafe = 0;  // print the first N unsafe points with what the map holds around them
+  int show_unsafe = 0;    // print the first N unsafe points with what the map holds around them
+  float follow_m = 0.0f;  // > 0: the window follows the camera (EsdfConfig::follow_m)
 };
 
 int usage(const char* why) {
   std::fprintf(stderr,
                "error: %s\nusage: octofuse-plan [--scene desk|room] [--voxel M] [--frames N] "
-               "[--cells N] [--budget CELLS] [--unknown-obstacle] [--plan [--start X,Y,Z] [--goal "
+               "[--cells N] [--budget CELLS] [--follow M] [--unknown-obstacle] [--plan [--start "
+               "X,Y,Z] [--goal "
                "X,Y,Z] [--radius M] "
                "[--replan-every N] [--lattice M]] [--points N [--show-unsafe N]]\n",
                why);
@@ -219,6 +221,9 @@ int main(int argc, char** argv) {
       o.budget = static_cast<std::uint32_t>(std::strtoul(value(), nullptr, 10));
     } else if (arg == "--cells") {
       o.cells = std::atoi(value());
+    } else if (arg == "--follow") {
+      o.follow_m = std::strtof(value(), nullptr);
+      if (!(o.follow_m > 0.0f && o.follow_m <= 100.0f)) return usage("--follow in (0, 100]");
     } else if (arg == "--show-unsafe") {
       o.show_unsafe = std::atoi(value());
     } else {
@@ -255,6 +260,7 @@ int main(int argc, char** argv) {
   config.esdf.max_cell_steps = o.budget;
   // The planner keeps the sphere out of unknown space too.
   config.esdf.unknown_is_obstacle = o.unknown_obstacle;
+  config.esdf.follow_m = o.follow_m;
   const std::size_t bytes_with = bytes_required(config);
   PipelineConfig without = config;
   without.esdf.enabled = false;
@@ -287,9 +293,13 @@ int main(int argc, char** argv) {
     return d.ok() && d.value().has_distance &&
            d.value().lower_bound_m >= o.radius_m + 0.25f * o.lattice_m * 1.7320508f;
   };
-  const Eigen::Vector3f lo = field.window_min_W();
-  const Eigen::Vector3f hi =
-      lo + Eigen::Vector3f::Constant(field.cell_m() * field.cells_per_side());
+  // The published window (it moves with --follow).
+  Eigen::Vector3f lo = field.window_min_W();
+  Eigen::Vector3f hi = lo + Eigen::Vector3f::Constant(field.cell_m() * field.cells_per_side());
+  auto read_window = [&]() {
+    lo = field.window_min_W();
+    hi = lo + Eigen::Vector3f::Constant(field.cell_m() * field.cells_per_side());
+  };
   std::vector<Eigen::Vector3f> path;
 
   DepthFrame frame;
@@ -310,6 +320,7 @@ int main(int argc, char** argv) {
     esdf_steps += stats.esdf.cell_steps;
     published += stats.esdf.published ? 1 : 0;
     budget_hits += stats.esdf.budget_hit ? 1 : 0;
+    read_window();
     if (o.plan && frames % o.replan_every == 0) {
       path = plan_path(lo, hi, o.lattice_m, o.start_W, o.goal_W, usable);
       std::printf("frame %d: field of map version %llu, path %s (%zu nodes, %.2f m)\n", frames,
@@ -323,6 +334,15 @@ int main(int argc, char** argv) {
       frames, total_ms / frames, esdf_ms / frames, 100.0 * esdf_ms / total_ms,
       static_cast<double>(esdf_steps) / frames, published, budget_hits);
   mapper.pipeline().flush_esdf();
+  read_window();
+  if (o.follow_m > 0.0f) {
+    std::printf("window [%.2f %.2f %.2f] to [%.2f %.2f %.2f], the camera at %.2f %.2f %.2f\n",
+                static_cast<double>(lo.x()), static_cast<double>(lo.y()),
+                static_cast<double>(lo.z()), static_cast<double>(hi.x()),
+                static_cast<double>(hi.y()), static_cast<double>(hi.z()),
+                stats.T_W_C.translation().x(), stats.T_W_C.translation().y(),
+                stats.T_W_C.translation().z());
+  }
   const MapMemory memory = pipeline.map().memory();
   std::printf("map: %u blocks, %.1f MB in use; the field's %.1f MB are %.1f %% of that\n",
               memory.blocks_used, static_cast<double>(memory.bytes_used) / 1e6,

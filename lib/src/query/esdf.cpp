@@ -9,6 +9,7 @@ namespace octofuse {
 
 namespace {
 constexpr float kSiteUnits = 64.0f;          // site coordinates per cell
+constexpr int kCopyMarginCells = 2;          // see copy_seed()
 constexpr float kHalfDiagonal = 0.8660254f;  // sqrt(3) / 2, in cells
 // Surface sites lie about a cell apart on the surface, so every surface point lies within half a
 // face diagonal of one: each site stands for the disc of that radius around it.
@@ -299,8 +300,31 @@ Valley find_valley(const Octree<VoxelT>& map, const Eigen::Vector3f& at_W, float
 }
 }  // namespace
 
+bool EsdfField::copy_seed(const Cell* front, int x, int y, int z, Cell* out) const {
+  const Eigen::Vector3i source = Eigen::Vector3i(x, y, z) + shift_cells_;
+  // Sites near the published window's faces may have been clamped into it: a moved window
+  // takes only cells a margin inside (a seed's site lies within its cell's reach).
+  const int margin = shift_cells_ == Eigen::Vector3i::Zero() ? 0 : kCopyMarginCells;
+  if ((source.array() < margin).any() || (source.array() >= n_ - margin).any()) return false;
+  const Cell& seed =
+      front[(static_cast<std::size_t>(source.z()) * n_ + static_cast<std::size_t>(source.y())) *
+                n_ +
+            static_cast<std::size_t>(source.x())];
+  *out = Cell();
+  if ((seed.flags & kSeed) == 0) return true;
+  // Sites are kept from the window's corner: from the moved window's corner, shift cells less.
+  const int units = static_cast<int>(kSiteUnits);
+  const Eigen::Vector3i site = Eigen::Vector3i(seed.sx, seed.sy, seed.sz) - shift_cells_ * units;
+  if ((site.array() < 0).any() || (site.array() >= n_ * units).any()) return false;
+  *out = seed;
+  out->sx = static_cast<std::uint16_t>(site.x());
+  out->sy = static_cast<std::uint16_t>(site.y());
+  out->sz = static_cast<std::uint16_t>(site.z());
+  return true;
+}
+
 template <typename VoxelT>
-void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
+bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                            int chunk, bool from_map) {
   Cell* back = buffers_[1 - front_];
   const Cell* front = buffers_[front_];
@@ -310,17 +334,18 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
   const float half_diagonal_m = kHalfDiagonal * cell_m_;
   const float cv = static_cast<float>(cell_voxels_);
   FreeOctant octant;
+  bool any_from_map = from_map;
   for (int z = cz * kChunkCells; z < (cz + 1) * kChunkCells; ++z) {
     for (int y = cy * kChunkCells; y < (cy + 1) * kChunkCells; ++y) {
       for (int x = cx * kChunkCells; x < (cx + 1) * kChunkCells; ++x) {
         const std::size_t index =
             (static_cast<std::size_t>(z) * n_ + static_cast<std::size_t>(y)) * n_ + x;
         Cell out;
-        if (!from_map) {
-          if ((front[index].flags & kSeed) != 0) out = front[index];
+        if (!from_map && copy_seed(front, x, y, z, &out)) {
           back[index] = out;
           continue;
         }
+        any_from_map = true;
         // Cell centre in continuous finest-voxel coordinates, and in the world.
         const Eigen::Vector3f q =
             windows_[1 - front_].min_voxel.cast<float>() +
@@ -440,6 +465,7 @@ void EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
       }
     }
   }
+  return any_from_map;
 }
 
 // Takes `other`'s site into `cell` (centre q, in cells, at distance *d from its site) where it
@@ -530,7 +556,7 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
   const std::uint64_t slice_cells = static_cast<std::uint64_t>(n_) * static_cast<std::uint64_t>(n_);
   for (;;) {
     if (phase_ == Phase::idle) {
-      // A window moved by centre_on() is built whole, every chunk from the map.
+      // A window moved by centre_on() is rebuilt even where the map did not change.
       const bool moved = target_.min_voxel != windows_[front_].min_voxel;
       if (have_published_ && map_version == published_version_ && !all_dirty_ && !moved) break;
       if (have_published_ && map_version == rebuild_version_ && !all_dirty_ && !moved) break;
@@ -539,7 +565,9 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
       rebuild_start_frame_ = frame;
       rebuild_version_ = map_version;
       windows_[1 - front_] = target_;
-      rebuild_all_ = all_dirty_ || !front_valid_ || config_.unknown_is_obstacle || moved;
+      rebuild_all_ = all_dirty_ || !front_valid_ || config_.unknown_is_obstacle;
+      // Cells of a moved window that the published one holds too keep their seeds, shifted.
+      shift_cells_ = (windows_[1 - front_].min_voxel - windows_[front_].min_voxel) / cell_voxels_;
       all_dirty_ = false;
     }
     if (steps >= budget) {
@@ -548,8 +576,7 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
     }
     if (phase_ == Phase::seed) {
       const bool from_map = rebuild_all_ || chunk_changed(map, cursor_);
-      seed_chunk(map, free_space, mu_m, cursor_, from_map);
-      if (from_map) ++report.chunks_reseeded;
+      if (seed_chunk(map, free_space, mu_m, cursor_, from_map)) ++report.chunks_reseeded;
       steps += kChunkCells * kChunkCells * kChunkCells;
       if (++cursor_ == chunks) {
         phase_ = Phase::forward;

@@ -434,13 +434,16 @@ TEST_CASE("a window moved by centre_on is built whole; the old one answers until
   test::OwnedMap<TsdfVoxel> owned(map_config());
   const Scene scene;
   test::fill_band(owned.map, kMu_m, scene, [](const Eigen::Vector3i&) { return 0; });
-  // 32 cells of 2 voxels: a 1.28 m window in the 2.56 m cube, first over the floor's low corner.
+  // 32 cells of 2 voxels: a 1.28 m window in the 2.56 m cube, first towards the floor's low
+  // corner, then moved by 10 cells along each axis.
   EsdfConfig config = field_config();
   config.cells_per_side = 32;
-  config.centre_W = Eigen::Vector3f(-0.6f, -0.6f, -0.6f);
+  config.centre_W = Eigen::Vector3f(-0.3f, -0.3f, -0.3f);
   config.max_cell_steps = 4000;
   Field f(config);
-  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 0, 1).published);
+  // Built at frame 10: the blocks (written at frame 0) count as unchanged since, so the move
+  // copies the seeds of the cells both windows hold.
+  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 10, 1).published);
   const Eigen::Vector3f old_min = f.field.window_min_W();
   const Eigen::Vector3f above_floor(-0.6f, -0.6f, -0.5f);  // 0.3 m over the floor
   const Eigen::Vector3f above_sphere(0.1f, -0.05f, 0.6f);  // 0.1 m over the sphere's top
@@ -453,15 +456,18 @@ TEST_CASE("a window moved by centre_on is built whole; the old one answers until
   const Eigen::Vector3f centre_before = f.field.target_centre_W();
   f.field.centre_on(Eigen::Vector3f(std::numeric_limits<float>::quiet_NaN(), 0.0f, 0.0f));
   CHECK(f.field.target_centre_W() == centre_before);
-  const Eigen::Vector3f centre(0.4f, 0.4f, 0.4f);
+  const Eigen::Vector3f centre(0.1f, 0.1f, 0.1f);
   f.field.centre_on(centre);
   CHECK((f.field.target_centre_W() - centre).cwiseAbs().maxCoeff() <= 2.0f * kVoxel_m);
 
-  // The map did not change, yet the moved window is rebuilt: over frames, within the budget,
-  // every chunk from the map; until then queries see the old window.
+  // The map did not change, yet the moved window is rebuilt over frames, within the budget:
+  // chunks the old window held are copied, shifted (but for a margin at its faces), the others
+  // seeded from the map; until then queries see the old window.
   int frames = 0;
+  std::uint32_t reseeded = 0;
   for (;;) {
-    const EsdfReport r = f.field.update(owned.map, nullptr, kMu_m, 1, 1);
+    const EsdfReport r = f.field.update(owned.map, nullptr, kMu_m, 11, 1);
+    reseeded += r.chunks_reseeded;
     ++frames;
     REQUIRE(frames < 100);
     if (r.published) break;
@@ -470,6 +476,11 @@ TEST_CASE("a window moved by centre_on is built whole; the old one answers until
     CHECK(f.field.distance(above_floor).value().distance_m == floor_before.distance_m);
   }
   CHECK(frames > 3);
+  CAPTURE(reseeded);
+  // 4^3 chunks, moved 10 cells along each axis: the old window gives the cells at least 2 inside
+  // its faces, which fill the new window's first 2 chunks along each axis; the other 56 hold
+  // cells seeded from the map. A chunk whose copied sites were out of place would be seeded too.
+  CHECK(reseeded == 56);
   CHECK((f.field.window_min_W() - (centre - Eigen::Vector3f::Constant(0.64f))).norm() <=
         4.0f * kVoxel_m);
   CHECK_FALSE(f.field.distance(above_floor).value().has_distance);  // left behind
@@ -477,7 +488,7 @@ TEST_CASE("a window moved by centre_on is built whole; the old one answers until
   REQUIRE(sphere.has_distance);
   CHECK(sphere.distance_m == Approx(0.1f).margin(kVoxel_m));
   // Nothing more to do once it is built.
-  CHECK(f.field.update(owned.map, nullptr, kMu_m, 2, 1).cell_steps == 0);
+  CHECK(f.field.update(owned.map, nullptr, kMu_m, 12, 1).cell_steps == 0);
 
   // The same bits as a field built there from the start.
   EsdfConfig there = config;

@@ -40,8 +40,8 @@ struct EsdfConfig {
   bool unknown_is_obstacle = false;
   // > 0: the window follows the camera (the pipeline re-centres it on the camera whenever the
   // camera is more than this from the window's centre, m). The next rebuild then builds the new
-  // window, every chunk from the map; queries see the old window until it is published. 0: the
-  // window stays where centre_W put it.
+  // window, copying the seeds of the cells both windows hold where the map did not change there;
+  // queries see the old window until it is published. 0: the window stays where centre_W put it.
   float follow_m = 0.0f;
   // Degradation step (8): cells seeded or swept per frame (in whole 8^3 chunks and slices; a
   // rebuild is 3 window volumes). A rebuild that does not finish goes on in the next frames;
@@ -180,11 +180,18 @@ class EsdfField {
   template <typename VoxelT>
   EsdfReport advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                      std::uint32_t frame, std::uint64_t map_version, std::uint64_t budget);
+  // Seeds the back buffer's chunk: from the map, or (not from_map) copied from the published
+  // field where copy_seed() can. True when any cell was seeded from the map.
   template <typename VoxelT>
-  void seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m, int chunk,
+  bool seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m, int chunk,
                   bool from_map);
   template <typename VoxelT>
   bool chunk_changed(const Octree<VoxelT>& map, int chunk) const;
+  // The seed of back-buffer cell (x, y, z) from the published cell at the same place, shifted
+  // into the back buffer's window, into `out` (empty where that cell held no seed); false where
+  // the published window does not hold the place or the shifted site leaves the stored range
+  // (the cell is then seeded from the map).
+  bool copy_seed(const Cell* front, int x, int y, int z, Cell* out) const;
   void consider(Cell& cell, float* d, const Eigen::Vector3f& q, const Cell& other) const;
   void sweep_slice(int z, int dz);
   // Plain distance to the site (a box's less its half diagonal), in cells: what propagation keeps.
@@ -203,6 +210,8 @@ class EsdfField {
   int cell_voxels_ = 1;
   Window windows_[2];  // each buffer's
   Window target_;      // the next rebuild's
+  // The rebuild's window less the published one's minimum corner, in cells.
+  Eigen::Vector3i shift_cells_ = Eigen::Vector3i::Zero();
   Eigen::Vector3f map_origin_W_ = Eigen::Vector3f::Zero();
   int cube_voxels_ = 0;
   float voxel_m_ = 0.0f;

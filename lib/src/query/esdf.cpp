@@ -300,11 +300,12 @@ Valley find_valley(const Octree<VoxelT>& map, const Eigen::Vector3f& at_W, float
 }
 }  // namespace
 
-bool EsdfField::copy_seed(const Cell* front, int x, int y, int z, Cell* out) const {
-  const Eigen::Vector3i source = Eigen::Vector3i(x, y, z) + shift_cells_;
+bool EsdfField::copy_seed(const Cell* front, const Eigen::Vector3i& shift_cells, int x, int y,
+                          int z, Cell* out) const {
+  const Eigen::Vector3i source = Eigen::Vector3i(x, y, z) + shift_cells;
   // Sites near the published window's faces may have been clamped into it: a moved window
   // takes only cells a margin inside (a seed's site lies within its cell's reach).
-  const int margin = shift_cells_ == Eigen::Vector3i::Zero() ? 0 : kCopyMarginCells;
+  const int margin = shift_cells == Eigen::Vector3i::Zero() ? 0 : kCopyMarginCells;
   if ((source.array() < margin).any() || (source.array() >= n_ - margin).any()) return false;
   const Cell& seed =
       front[(static_cast<std::size_t>(source.z()) * n_ + static_cast<std::size_t>(source.y())) *
@@ -314,7 +315,7 @@ bool EsdfField::copy_seed(const Cell* front, int x, int y, int z, Cell* out) con
   if ((seed.flags & kSeed) == 0) return true;
   // Sites are kept from the window's corner: from the moved window's corner, shift cells less.
   const int units = static_cast<int>(kSiteUnits);
-  const Eigen::Vector3i site = Eigen::Vector3i(seed.sx, seed.sy, seed.sz) - shift_cells_ * units;
+  const Eigen::Vector3i site = Eigen::Vector3i(seed.sx, seed.sy, seed.sz) - shift_cells * units;
   if ((site.array() < 0).any() || (site.array() >= n_ * units).any()) return false;
   *out = seed;
   out->sx = static_cast<std::uint16_t>(site.x());
@@ -328,6 +329,10 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
                            int chunk, bool from_map) {
   Cell* back = buffers_[1 - front_];
   const Cell* front = buffers_[front_];
+  const Window& window = windows_[1 - front_];
+  // A moved window's cells lie this many cells on from the published window's same cells.
+  const Eigen::Vector3i shift_cells =
+      (window.min_voxel - windows_[front_].min_voxel) / cell_voxels_;
   const int cx = chunk % chunks_per_side_;
   const int cy = (chunk / chunks_per_side_) % chunks_per_side_;
   const int cz = chunk / (chunks_per_side_ * chunks_per_side_);
@@ -341,14 +346,14 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         const std::size_t index =
             (static_cast<std::size_t>(z) * n_ + static_cast<std::size_t>(y)) * n_ + x;
         Cell out;
-        if (!from_map && copy_seed(front, x, y, z, &out)) {
+        if (!from_map && copy_seed(front, shift_cells, x, y, z, &out)) {
           back[index] = out;
           continue;
         }
         any_from_map = true;
         // Cell centre in continuous finest-voxel coordinates, and in the world.
         const Eigen::Vector3f q =
-            windows_[1 - front_].min_voxel.cast<float>() +
+            window.min_voxel.cast<float>() +
             (Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) +
              Eigen::Vector3f::Constant(0.5f)) *
                 cv;
@@ -453,7 +458,7 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
               box && !valley_site
                   ? Eigen::Vector3f(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f,
                                     static_cast<float>(z) + 0.5f)
-                  : (site_W - windows_[1 - front_].min_W) / cell_m_;
+                  : (site_W - window.min_W) / cell_m_;
           out.sx = to_site_units(s_cells.x(), n_);
           out.sy = to_site_units(s_cells.y(), n_);
           out.sz = to_site_units(s_cells.z(), n_);
@@ -566,8 +571,6 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
       rebuild_version_ = map_version;
       windows_[1 - front_] = target_;
       rebuild_all_ = all_dirty_ || !front_valid_ || config_.unknown_is_obstacle;
-      // Cells of a moved window that the published one holds too keep their seeds, shifted.
-      shift_cells_ = (windows_[1 - front_].min_voxel - windows_[front_].min_voxel) / cell_voxels_;
       all_dirty_ = false;
     }
     if (steps >= budget) {

@@ -187,11 +187,12 @@ class EsdfField {
                   bool from_map);
   template <typename VoxelT>
   bool chunk_changed(const Octree<VoxelT>& map, int chunk) const;
-  // The seed of back-buffer cell (x, y, z) from the published cell at the same place, shifted
-  // into the back buffer's window, into `out` (empty where that cell held no seed); false where
-  // the published window does not hold the place or the shifted site leaves the stored range
-  // (the cell is then seeded from the map).
-  bool copy_seed(const Cell* front, int x, int y, int z, Cell* out) const;
+  // The seed of back-buffer cell (x, y, z) from the published cell at the same place
+  // (`shift_cells` on from it), shifted into the back buffer's window, into `out` (empty where that
+  // cell held no seed); false where the published window does not hold the place or the shifted
+  // site leaves the stored range (the cell is then seeded from the map).
+  bool copy_seed(const Cell* front, const Eigen::Vector3i& shift_cells, int x, int y, int z,
+                 Cell* out) const;
   void consider(Cell& cell, float* d, const Eigen::Vector3f& q, const Cell& other) const;
   void sweep_slice(int z, int dz);
   // Plain distance to the site (a box's less its half diagonal), in cells: what propagation keeps.
@@ -210,8 +211,6 @@ class EsdfField {
   int cell_voxels_ = 1;
   Window windows_[2];  // each buffer's
   Window target_;      // the next rebuild's
-  // The rebuild's window less the published one's minimum corner, in cells.
-  Eigen::Vector3i shift_cells_ = Eigen::Vector3i::Zero();
   Eigen::Vector3f map_origin_W_ = Eigen::Vector3f::Zero();
   int cube_voxels_ = 0;
   float voxel_m_ = 0.0f;

@@ -294,12 +294,12 @@ int main(int argc, char** argv) {
            d.value().lower_bound_m >= o.radius_m + 0.25f * o.lattice_m * 1.7320508f;
   };
   // The published window (it moves with --follow).
-  Eigen::Vector3f lo = field.window_min_W();
-  Eigen::Vector3f hi = lo + Eigen::Vector3f::Constant(field.cell_m() * field.cells_per_side());
+  Eigen::Vector3f lo, hi;
   auto read_window = [&]() {
     lo = field.window_min_W();
     hi = lo + Eigen::Vector3f::Constant(field.cell_m() * field.cells_per_side());
   };
+  read_window();
   std::vector<Eigen::Vector3f> path;
 
   DepthFrame frame;

@@ -542,7 +542,8 @@ const RunOption kRunOptions[] = {
      }},
     {"map-file", "FILE",
      "keep evicted blocks in FILE (an append-only store, created when\n"
-     "absent) and read them back when the camera returns (needs eviction)",
+     "absent), and the free space the pool forgets in FILE.free, and read\n"
+     "them back when the camera returns (needs eviction)",
      [](RunOptions& o, const std::string& v) {
        if (v.empty()) return std::string(" needs a file name");
        o.map_file_path = v;

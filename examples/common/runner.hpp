@@ -136,6 +136,10 @@ struct RunSummary {
   std::uint64_t store_keys = 0;
   std::uint64_t store_live_bytes = 0;   // the newest record of every block
   std::uint64_t store_compactions = 0;  // finished in this run
+  // With --map-file and free space: the free-space store (FILE.free), as above.
+  FreeStoreReport free_store_total;
+  std::uint64_t free_store_file_bytes = 0;
+  std::uint64_t free_store_keys = 0;
   std::size_t mesh_vertices = 0;
   std::size_t mesh_triangles = 0;
   std::vector<Eigen::Vector3f> mesh_positions;  // with keep_mesh

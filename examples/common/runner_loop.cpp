@@ -372,6 +372,8 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
   bool store_sync_warned = false;
   bool store_compact_warned = false;
   bool store_write_warned = false;
+  bool free_store_sync_warned = false;
+  bool free_store_failed_warned = false;
   const PipelineBudget default_budget;
   for (int level = 0; level < kPyramidLevels; ++level) {
     warnings.icp_budget_set = warnings.icp_budget_set || options.budget.icp_iterations[level] !=
@@ -524,6 +526,40 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
                      static_cast<unsigned long>(stats.frame_index), stats.store.write_failed);
       }
     }
+    if (run->free_store != nullptr) {
+      FreeStoreReport& t = summary->free_store_total;
+      const FreeStoreReport& f = stats.free_store;
+      t.written += f.written;
+      t.write_failed += f.write_failed;
+      t.read += f.read;
+      t.read_failed += f.read_failed;
+      t.waiting += f.waiting;
+      t.merged += f.merged;
+      t.bytes_written += f.bytes_written;
+      t.bytes_read += f.bytes_read;
+      if (f.written > 0 && !run->free_store->sync().ok() && !free_store_sync_warned) {
+        free_store_sync_warned = true;
+        std::fprintf(stderr, "warning: %s.free: sync failed; the store may lose recent regions\n",
+                     options.map_file_path.c_str());
+      }
+      ErrorText compact_error;
+      const std::size_t compact_budget =
+          static_cast<std::size_t>(2 * f.bytes_written) + (std::size_t{256} << 10);
+      if (!run->free_store->compact_step(compact_budget, &compact_error).ok() &&
+          !store_compact_warned) {
+        store_compact_warned = true;
+        std::fprintf(stderr, "warning: %s (the store keeps growing until one succeeds)\n",
+                     compact_error.c_str());
+      }
+      if ((f.write_failed > 0 || f.read_failed > 0) && !free_store_failed_warned) {
+        free_store_failed_warned = true;
+        std::fprintf(stderr,
+                     "warning: frame %lu: the free-space store failed %u writes and %u reads "
+                     "(that air reads unknown; free_store_write_failed and free_store_read_failed "
+                     "in stats.json)\n",
+                     static_cast<unsigned long>(stats.frame_index), f.write_failed, f.read_failed);
+      }
+    }
     warnings.after(stats);
     const bool fused = stats.integration.blocks_integrated > 0;
     if ((stats.result == FrameResult::tracked || stats.result == FrameResult::first) && !fused) {
@@ -556,7 +592,8 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
     if (options.save_every > 0 && !options.save_map_path.empty() &&
         processed % options.save_every == 0) {
       std::string save_error;
-      if (!save_map_now(options, pipeline, summary, &save_error, run->store.get())) {
+      if (!save_map_now(options, pipeline, summary, &save_error, run->store.get(),
+                        run->free_store.get())) {
         std::fprintf(stderr, "warning: map not saved: %s\n", save_error.c_str());
       }
     }

@@ -77,6 +77,14 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("store_waiting").value(static_cast<std::uint64_t>(s.store.waiting));
   json.key("store_bytes_written").value(s.store.bytes_written);
   json.key("store_bytes_read").value(s.store.bytes_read);
+  json.key("free_store_written").value(static_cast<std::uint64_t>(s.free_store.written));
+  json.key("free_store_merged").value(static_cast<std::uint64_t>(s.free_store.merged));
+  json.key("free_store_write_failed").value(static_cast<std::uint64_t>(s.free_store.write_failed));
+  json.key("free_store_read").value(static_cast<std::uint64_t>(s.free_store.read));
+  json.key("free_store_read_failed").value(static_cast<std::uint64_t>(s.free_store.read_failed));
+  json.key("free_store_waiting").value(static_cast<std::uint64_t>(s.free_store.waiting));
+  json.key("free_store_bytes_written").value(s.free_store.bytes_written);
+  json.key("free_store_bytes_read").value(s.free_store.bytes_read);
   json.key("keys_dropped").value(static_cast<std::uint64_t>(s.integration.keys_dropped));
   json.key("raycast_steps").value(s.raycast.steps);
   json.key("raycast_valid_pixels").value(static_cast<std::uint64_t>(s.raycast.valid_pixels));
@@ -265,6 +273,16 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   json.key("store_keys").value(summary->store_keys);
   json.key("store_live_bytes").value(summary->store_live_bytes);
   json.key("store_compactions").value(summary->store_compactions);
+  const FreeStoreReport& free_total = summary->free_store_total;
+  json.key("free_store_written").value(static_cast<std::uint64_t>(free_total.written));
+  json.key("free_store_merged").value(static_cast<std::uint64_t>(free_total.merged));
+  json.key("free_store_write_failed").value(static_cast<std::uint64_t>(free_total.write_failed));
+  json.key("free_store_read").value(static_cast<std::uint64_t>(free_total.read));
+  json.key("free_store_read_failed").value(static_cast<std::uint64_t>(free_total.read_failed));
+  json.key("free_store_bytes_written").value(free_total.bytes_written);
+  json.key("free_store_bytes_read").value(free_total.bytes_read);
+  json.key("free_store_file_bytes").value(summary->free_store_file_bytes);
+  json.key("free_store_keys").value(summary->free_store_keys);
   json.key("free_space_bytes_used").value(static_cast<std::uint64_t>(summary->free_space_bytes));
   json.key("mesh_vertices").value(static_cast<std::uint64_t>(summary->mesh_vertices));
   json.key("mesh_triangles").value(static_cast<std::uint64_t>(summary->mesh_triangles));
@@ -386,7 +404,8 @@ bool write_render(Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText
 // Writes --save-map's file; false (with the reason in *error) when it could not.
 template <typename VoxelT>
 bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
-                  std::string* error, host::BlockStoreFile* store) {
+                  std::string* error, host::BlockStoreFile* store,
+                  host::BlockStoreFile* free_store) {
   const auto start = std::chrono::steady_clock::now();
   ErrorText text;
   MapSaveInfo info;
@@ -398,7 +417,7 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
   const Status saved =
       store != nullptr
           ? host::save_map_file_with_store(options.save_map_path.c_str(), pipeline.map(),
-                                           free_space, *store, info, &text)
+                                           free_space, *store, info, &text, free_store)
           : host::save_map_file(options.save_map_path.c_str(), pipeline.map(), free_space, info,
                                 &text);
   if (!saved.ok()) {
@@ -468,6 +487,11 @@ int close_run(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>*
     summary->store_live_bytes = store.live_bytes;
     summary->store_compactions = store.compactions;
   }
+  if (run->free_store != nullptr) {
+    const host::BlockStoreFileStats free_store = run->free_store->stats();
+    summary->free_store_file_bytes = free_store.file_bytes;
+    summary->free_store_keys = free_store.keys;
+  }
   if (options.deadline_ms > 0.0) {
     summary->deadline_model = pipeline.cost_model();
     if (!options.deadline_calibration.empty() && !options.deadline_freeze &&
@@ -506,7 +530,8 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
   }
   if (!options.save_map_path.empty()) {
     std::string save_error;
-    if (!save_map_now(options, pipeline, summary, &save_error, run->store.get())) {
+    if (!save_map_now(options, pipeline, summary, &save_error, run->store.get(),
+                      run->free_store.get())) {
       late_failure(save_error);
     }
   }
@@ -549,11 +574,13 @@ template int write_outputs<Multires16Voxel>(const RunOptions&, RunInputs*,
 template int write_outputs<TsdfVoxel>(const RunOptions&, RunInputs*, PipelineRun<TsdfVoxel>*,
                                       LoopResult*, RunSummary*);
 template bool save_map_now<MultiresVoxel>(const RunOptions&, const Pipeline<MultiresVoxel>&,
-                                          RunSummary*, std::string*, host::BlockStoreFile*);
+                                          RunSummary*, std::string*, host::BlockStoreFile*,
+                                          host::BlockStoreFile*);
 template bool save_map_now<Multires16Voxel>(const RunOptions&, const Pipeline<Multires16Voxel>&,
-                                            RunSummary*, std::string*, host::BlockStoreFile*);
+                                            RunSummary*, std::string*, host::BlockStoreFile*,
+                                            host::BlockStoreFile*);
 template bool save_map_now<TsdfVoxel>(const RunOptions&, const Pipeline<TsdfVoxel>&, RunSummary*,
-                                      std::string*, host::BlockStoreFile*);
+                                      std::string*, host::BlockStoreFile*, host::BlockStoreFile*);
 template bool extract_mesh<MultiresVoxel>(const Pipeline<MultiresVoxel>&, const RunOptions&,
                                           VectorMeshSink*);
 template bool extract_mesh<Multires16Voxel>(const Pipeline<Multires16Voxel>&, const RunOptions&,

@@ -89,7 +89,10 @@ bool check_outputs(const RunOptions& options, std::string* error) {
   }
   if (!options.save_map_path.empty()) outputs.push_back({options.save_map_path, "--save-map"});
   if (!options.record.empty()) outputs.push_back({options.record, "--record"});
-  if (!options.map_file_path.empty()) outputs.push_back({options.map_file_path, "--map-file"});
+  if (!options.map_file_path.empty()) {
+    outputs.push_back({options.map_file_path, "--map-file"});
+    if (options.free_space) outputs.push_back({options.map_file_path + ".free", "--map-file"});
+  }
   if (options.deadline_ms > 0.0 && !options.deadline_calibration.empty() &&
       !options.deadline_freeze) {
     outputs.push_back({options.deadline_calibration, "--deadline-calibration"});
@@ -403,6 +406,24 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
     if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
     if (!pipeline.set_block_store(run->store.get()).ok()) {
       return error_exit("--map-file needs eviction (--evict HIGH,LOW)");
+    }
+    if (pipeline.config().free_space.enabled) {
+      // Free space the pool forgets goes to FILE.free, by region.
+      const std::string free_path = options.map_file_path + ".free";
+      std::uint8_t free_geometry[host::kFreeStoreGeometryBytes];
+      host::encode_free_store_geometry(store_geometry, free_geometry);
+      run->free_store = std::make_unique<host::BlockStoreFile>();
+      ErrorText free_warning;
+      if (!run->free_store
+               ->open(free_path.c_str(), free_geometry, sizeof(free_geometry), &store_error,
+                      &free_warning)
+               .ok()) {
+        return error_exit(store_error.c_str());
+      }
+      if (!free_warning.empty()) std::fprintf(stderr, "warning: %s\n", free_warning.c_str());
+      if (!pipeline.set_free_space_store(run->free_store.get()).ok()) {
+        return error_exit("cannot attach the free-space store");
+      }
     }
   }
   return 0;

@@ -56,7 +56,8 @@ struct PipelineRun {
   Pipeline<VoxelT> pipeline;
   std::unique_ptr<AlignedBuffer> buffer;
   const Clock clock = steady_clock();
-  std::unique_ptr<host::BlockStoreFile> store;  // --map-file
+  std::unique_ptr<host::BlockStoreFile> store;       // --map-file
+  std::unique_ptr<host::BlockStoreFile> free_store;  // --map-file's FILE.free (free space on)
 };
 
 // What the frame loop leaves for the outputs.
@@ -98,7 +99,8 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
 // Writes --save-map's file; false (with the reason in *error) when it could not.
 template <typename VoxelT>
 bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
-                  std::string* error, host::BlockStoreFile* store = nullptr);
+                  std::string* error, host::BlockStoreFile* store = nullptr,
+                  host::BlockStoreFile* free_store = nullptr);
 // Meshes the map into `sink`; false when the mesher cannot reserve its memory.
 template <typename VoxelT>
 bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,

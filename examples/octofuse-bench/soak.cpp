@@ -106,6 +106,11 @@ struct PassRow {
   std::uint64_t store_bytes_read = 0;
   std::uint64_t store_bytes_written = 0;
   std::uint64_t frames_waiting = 0;  // frames that left stored blocks in view for a later one
+  // The free-space store (FILE.free): regions read back and written, and their bytes.
+  std::uint64_t free_store_read = 0;
+  std::uint64_t free_store_written = 0;
+  std::uint64_t free_store_bytes_read = 0;
+  std::uint64_t free_store_bytes_written = 0;
 };
 
 struct SoakRun {
@@ -166,6 +171,20 @@ void print_row(const SoakRun& run, const PassRow& row) {
                                     static_cast<double>(row.frames)
                               : 0.0,
                static_cast<unsigned long long>(row.frames_waiting));
+  if (row.free_store_read + row.free_store_written > 0) {
+    std::fprintf(stderr,
+                 "[soak %s %g MB] pass %d: free-space store: read %llu, written %llu regions, "
+                 "%.1f / %.1f KB per frame read / written\n",
+                 run.name, static_cast<double>(run.map_memory_mb), row.pass,
+                 static_cast<unsigned long long>(row.free_store_read),
+                 static_cast<unsigned long long>(row.free_store_written),
+                 row.frames > 0 ? static_cast<double>(row.free_store_bytes_read) / 1024.0 /
+                                      static_cast<double>(row.frames)
+                                : 0.0,
+                 row.frames > 0 ? static_cast<double>(row.free_store_bytes_written) / 1024.0 /
+                                      static_cast<double>(row.frames)
+                                : 0.0);
+  }
 }
 
 void close_pass(SoakRun& run) {
@@ -207,6 +226,10 @@ void on_frame(SoakRun& run, const FrameStats& stats) {
     row.store_bytes_read += stats.store.bytes_read;
     row.store_bytes_written += stats.store.bytes_written;
     if (stats.store.waiting > 0) ++row.frames_waiting;
+    row.free_store_read += stats.free_store.read;
+    row.free_store_written += stats.free_store.written;
+    row.free_store_bytes_read += stats.free_store.bytes_read;
+    row.free_store_bytes_written += stats.free_store.bytes_written;
     row.blocks_resident = stats.memory.blocks_used;
     row.block_capacity = stats.memory.block_capacity;
     run.blocks_high_water = std::max(run.blocks_high_water, stats.memory.blocks_used);
@@ -257,6 +280,7 @@ void run_one(const SoakOptions& soak, SoakRun& run) {
   if (!soak.map_file.empty() && run.map_memory_mb == soak.map_memory_mb &&
       std::string(run.name) == "capped") {
     std::remove(soak.map_file.c_str());  // a fresh store for a fresh run
+    std::remove((soak.map_file + ".free").c_str());
     options.map_file_path = soak.map_file;
   }
   options.on_frame = [&run](const FrameStats& stats) { on_frame(run, stats); };
@@ -291,6 +315,11 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
   json.key("store_keys").value(run.summary.store_keys);
   json.key("store_live_bytes").value(run.summary.store_live_bytes);
   json.key("store_compactions").value(run.summary.store_compactions);
+  json.key("free_store_file_bytes").value(run.summary.free_store_file_bytes);
+  json.key("free_store_keys").value(run.summary.free_store_keys);
+  json.key("free_store_read").value(static_cast<std::uint64_t>(run.summary.free_store_total.read));
+  json.key("free_store_written")
+      .value(static_cast<std::uint64_t>(run.summary.free_store_total.written));
   json.key("rss_end_first_pass_mb").value(run.rss_end_first_pass_mb);
   json.key("max_rss_after_first_pass_mb").value(run.max_rss_after_first_pass_mb);
   json.key("rss_growth_after_first_pass_mb").value(run.growth_mb());
@@ -327,6 +356,10 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
     json.key("store_bytes_read").value(row.store_bytes_read);
     json.key("store_bytes_written").value(row.store_bytes_written);
     json.key("frames_waiting").value(row.frames_waiting);
+    json.key("free_store_read").value(row.free_store_read);
+    json.key("free_store_written").value(row.free_store_written);
+    json.key("free_store_bytes_read").value(row.free_store_bytes_read);
+    json.key("free_store_bytes_written").value(row.free_store_bytes_written);
     json.end_object();
   }
   json.end_array();

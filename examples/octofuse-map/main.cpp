@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <memory>
 #include <string>
 #include <vector>
@@ -162,7 +163,47 @@ int run_store(const std::string& command, const char* path, host::BlockStoreFile
       static_cast<double>(geometry.origin_W.x()), static_cast<double>(geometry.origin_W.y()),
       static_cast<double>(geometry.origin_W.z()));
   print_blocks(map);
-  std::printf("free space      not stored\n");
+  // The free space a run forgot lies beside the store, in FILE.free (by region).
+  const std::string free_path = std::string(path) + ".free";
+  if (!host::is_block_store_file(free_path.c_str())) {
+    std::printf("free space      not stored\n");
+  } else {
+    host::BlockStoreFile free_store;
+    ErrorText warning;
+    if (!free_store.open(free_path.c_str(), nullptr, 0, &error, &warning).ok()) {
+      return error_exit(error.c_str());
+    }
+    if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
+    std::uint8_t expected[host::kFreeStoreGeometryBytes];
+    host::encode_free_store_geometry(geometry, expected);
+    if (free_store.geometry_size() != sizeof(expected) ||
+        std::memcmp(free_store.geometry(), expected, sizeof(expected)) != 0) {
+      return error_exit(free_path + ": not the free space of " + path);
+    }
+    // Every region grafted into an empty tree: each is checked, and the nodes counted.
+    FreeSpaceConfig free_config;
+    free_config.node_capacity = 1;
+    const std::size_t free_bytes = FreeSpace::bytes_required(free_config, config, 1, 1);
+    if (free_bytes == 0) return error_exit(free_path + ": cannot size its free space");
+    MapBuffer free_buffer(free_bytes);
+    if (free_buffer.data == nullptr) return error_exit("cannot reserve the free-space memory");
+    LinearArena free_arena(free_buffer.data, free_bytes);
+    FreeSpace empty;
+    if (!empty.reserve(free_arena, free_config, config, 1, 1).ok()) {
+      return error_exit("cannot reserve the free space");
+    }
+    std::unique_ptr<host::HeapFreeSpace> merged_free;
+    if (!host::merge_free_space_with_store(empty, free_store, free_path.c_str(), &merged_free,
+                                           &error)
+             .ok()) {
+      return error_exit(error.c_str());
+    }
+    std::printf(
+        "free space      %u nodes, %zu bytes, from %llu stored regions in %s (each "
+        "checked)\n",
+        merged_free->space.node_count(), merged_free->space.bytes_used(),
+        static_cast<unsigned long long>(free_store.stats().keys), free_path.c_str());
+  }
   std::printf("memory          %.2f MB (blocks, finest levels and nodes)\n",
               static_cast<double>(map.memory().bytes_used) / 1048576.0);
   return 0;
@@ -286,6 +327,14 @@ int main(int argc, char** argv) {
     }
     if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
     host::StoreGeometry geometry;
+    if (store.geometry_size() == host::kFreeStoreGeometryBytes &&
+        store.geometry()[host::kStoreGeometryBytes] == host::kFreeStoreGeometryTag) {
+      std::fprintf(stderr,
+                   "error: %s: a free-space store; give its block store (the name without "
+                   "\".free\"), which reads it too\n",
+                   path);
+      return 1;
+    }
     if (!host::decode_store_geometry(store.geometry(), store.geometry_size(), &geometry)) {
       std::fprintf(stderr, "error: %s: the store's map geometry is out of range\n", path);
       return 1;

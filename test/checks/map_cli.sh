@@ -125,6 +125,29 @@ cp "${work}/k.store" "${work}/kbad.store"
 printf '\xff' | dd of="${work}/kbad.store" bs=1 seek=20 conv=notrunc status=none
 expect_error storebad "kbad.store: block store header damaged" "${map}" info "${work}/kbad.store"
 
+# At 2 cm the free-space pool is too small for the room: the air it forgets goes beside the store,
+# to FILE.free, by region. octofuse-map reads it with its store (a cut one with a warning), refuses
+# it alone, and --save-map writes it into the map with the air still in memory.
+"${replay}" --source sim:room --voxel-size 0.02 --gt-poses --quiet --frames 60 --map-memory 1 \
+  --map-file "${work}/f.store" --save-map "${work}/f.ofmap" --out "${work}/f" >"${work}/f.out" 2>&1 ||
+  fail "--map-file run at 2 cm: $(cat "${work}/f.out")"
+[[ -s "${work}/f.store.free" ]] || fail "no free-space store beside the block store"
+"${map}" info "${work}/f.store" >"${work}/finfo.out" 2>&1 || fail "store info: $(cat "${work}/finfo.out")"
+stored_free=$(sed -n 's/^free space      \([0-9]*\) nodes, .* from \([1-9][0-9]*\) stored regions.*/\1/p' \
+  "${work}/finfo.out")
+[[ -n "${stored_free}" && "${stored_free}" -gt 1 ]] || fail "store info: no stored free space: $(cat "${work}/finfo.out")"
+"${map}" info "${work}/f.ofmap" >"${work}/fmap.out" 2>&1 || fail "map info: $(cat "${work}/fmap.out")"
+saved_free=$(sed -n 's/^free space      \([0-9]*\) nodes.*/\1/p' "${work}/fmap.out")
+[[ -n "${saved_free}" && "${saved_free}" -ge "${stored_free}" ]] ||
+  fail "the saved map holds ${saved_free} free-space nodes, the store alone ${stored_free}"
+expect_error freealone "a free-space store; give its block store" "${map}" info "${work}/f.store.free"
+cp "${work}/f.store" "${work}/fcut.store"
+free_size=$(stat -c %s "${work}/f.store.free")
+head -c $((free_size - 10)) "${work}/f.store.free" >"${work}/fcut.store.free"
+"${map}" info "${work}/fcut.store" >"${work}/fcut.out" 2>"${work}/fcut.err" ||
+  fail "cut free-space store: $(cat "${work}/fcut.err")"
+grep -q "^warning: .*torn or damaged tail" "${work}/fcut.err" || fail "cut free-space store: no warning"
+
 if [[ -n "${live}" ]]; then
   "${live}" "${common[@]}" --frames 100000 --out "${work}/l" --save-map "${work}/live.ofmap" \
     >"${work}/live.out" 2>&1 &

@@ -19,6 +19,7 @@
 #include "octofuse/ports/host/ply.hpp"
 #include "octofuse/ports/host/trajectory_io.hpp"
 #include "replay_process.hpp"
+#include "support/aligned_buffer.hpp"
 #include "support/test_dir.hpp"
 
 namespace octofuse {
@@ -141,8 +142,8 @@ TEST_CASE("octofuse-replay killed at random moments leaves only complete files",
   CHECK(test::read_file(out + "/trajectory.txt") == whole);
 }
 
-// A store left by a killed run opens (a torn tail dropped with a warning), and the blocks in it
-// merge into a map that saves and loads.
+// A store left by a killed run opens (a torn tail dropped with a warning), the blocks in it merge
+// into a map that saves and loads, and the free space beside it merges into a tree.
 void check_store(const std::string& path, const std::string& map_path) {
   host::BlockStoreFile store;
   ErrorText error;
@@ -166,6 +167,25 @@ void check_store(const std::string& path, const std::string& map_path) {
   info.mu_m = 0.1f;
   // save_map_file() reads the whole file back as the loader does before it claims success.
   REQUIRE(host::save_map_file(map_path.c_str(), merged->map, info, &error).ok());
+  // The free space beside it: every whole region grafts into a tree.
+  const std::string free_path = path + ".free";
+  if (!test::file_exists(free_path)) return;
+  host::BlockStoreFile free_store;
+  REQUIRE(free_store.open(free_path.c_str(), nullptr, 0, &error, &warning).ok());
+  std::uint8_t expected[host::kFreeStoreGeometryBytes];
+  host::encode_free_store_geometry(geometry, expected);
+  REQUIRE(free_store.geometry_size() == sizeof(expected));
+  REQUIRE(std::equal(expected, expected + sizeof(expected), free_store.geometry()));
+  FreeSpaceConfig free_config;
+  free_config.node_capacity = 1;
+  test::ArenaBuffer memory(FreeSpace::bytes_required(free_config, config, 1, 1));
+  FreeSpace empty;
+  REQUIRE(empty.reserve(memory.arena(), free_config, config, 1, 1).ok());
+  std::unique_ptr<host::HeapFreeSpace> merged_free;
+  REQUIRE(
+      host::merge_free_space_with_store(empty, free_store, free_path.c_str(), &merged_free, &error)
+          .ok());
+  REQUIRE(merged_free->space.node_count() >= 1);
 }
 
 TEST_CASE("octofuse-replay --map-file killed at random moments leaves a store that loads",
@@ -179,7 +199,7 @@ TEST_CASE("octofuse-replay --map-file killed at random moments leaves a store th
                                     "--frames",
                                     "40",
                                     "--voxel-size",
-                                    "0.04",
+                                    "0.02",
                                     "--gt-poses",
                                     "--map-memory",
                                     "1",
@@ -196,6 +216,16 @@ TEST_CASE("octofuse-replay --map-file killed at random moments leaves a store th
   INFO(full.output);
   REQUIRE(full.exit_status == 0);
   check_store(dir + "/reference.store", dir + "/reference.ofmap");
+  // At 2 cm the free-space pool is too small for the room: its air is in the store too.
+  REQUIRE(test::file_exists(dir + "/reference.store.free"));
+  {
+    host::BlockStoreFile free_store;
+    ErrorText error;
+    ErrorText warning;
+    REQUIRE(free_store.open((dir + "/reference.store.free").c_str(), nullptr, 0, &error, &warning)
+                .ok());
+    REQUIRE(free_store.stats().keys > 0);
+  }
   std::mt19937 rng(kSeed);
   std::uniform_real_distribution<double> moment(0.2 * run_s, 1.0 * run_s);
   int killed = 0;

@@ -10,6 +10,7 @@
 #include <map>
 #include <vector>
 
+#include "support/memory_store.hpp"
 #include "system/pipeline_support.hpp"
 
 namespace octofuse {
@@ -29,66 +30,12 @@ struct TinyRun {
   // those (with their finest level) differ from their stored record.
   std::size_t clean_blocks = 0;
   std::size_t clean_differing = 0;
-};
-
-// A BlockStore in memory: the newest record of each key.
-class MemoryStore final : public BlockStore {
- public:
-  Status put(std::uint64_t key, const std::uint8_t* record, std::size_t size) override {
-    Entry& e = entries_[key];
-    e.bytes.assign(record, record + size);
-    e.in_memory = false;
-    ++puts;
-    return ok_status();
-  }
-  std::size_t find_in_box(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi, std::uint64_t* keys,
-                          std::size_t capacity) override {
-    std::size_t n = 0;
-    for (const auto& [key, e] : entries_) {
-      const Eigen::Vector3i c = morton_decode(key);
-      if (n == capacity || e.in_memory) continue;
-      if ((c.array() < lo.array()).any() || (c.array() > hi.array()).any()) continue;
-      keys[n++] = key;
-    }
-    return n;
-  }
-  Result<std::size_t> take(std::uint64_t key, std::uint8_t* record, std::size_t capacity) override {
-    const auto it = entries_.find(key);
-    if (it == entries_.end()) return StatusCode::out_of_range;
-    if (it->second.bytes.size() > capacity) return StatusCode::resource_exhausted;
-    std::copy(it->second.bytes.begin(), it->second.bytes.end(), record);
-    it->second.in_memory = true;
-    return it->second.bytes.size();
-  }
-  void release(std::uint64_t key) override {
-    const auto it = entries_.find(key);
-    if (it == entries_.end()) return;  // never stored
-    it->second.in_memory = false;
-    ++releases;
-  }
-  const std::vector<std::uint8_t>* record(std::uint64_t key) const {
-    const auto it = entries_.find(key);
-    return it == entries_.end() ? nullptr : &it->second.bytes;
-  }
-  // Keys taken and not put or released since: blocks the store counts as in memory.
-  std::size_t taken() const {
-    std::size_t n = 0;
-    for (const auto& entry : entries_) n += entry.second.in_memory ? 1 : 0;
-    return n;
-  }
-  std::size_t puts = 0;
-  std::size_t releases = 0;
-
- private:
-  struct Entry {
-    std::vector<std::uint8_t> bytes;
-    bool in_memory = false;
-  };
-  std::map<std::uint64_t, Entry> entries_;
+  // Every 4th voxel within 1.2 m (a cube) of the last camera that reads free at the end.
+  std::vector<Eigen::Vector3i> end_free;
 };
 
 TinyRun run_tiny(const sim::SimConfig& sim_config, const PipelineConfig& config,
-                 MemoryStore* store = nullptr) {
+                 MemoryStore* store = nullptr, MemoryStore* free_store = nullptr) {
   TinyRun out;
   sim::SimSource source(sim_config);
   REQUIRE(source.open().ok());
@@ -96,6 +43,7 @@ TinyRun run_tiny(const sim::SimConfig& sim_config, const PipelineConfig& config,
   Pipeline<MultiresVoxel> pipeline;
   REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
   if (store != nullptr) REQUIRE(pipeline.set_block_store(store).ok());
+  if (free_store != nullptr) REQUIRE(pipeline.set_free_space_store(free_store).ok());
   out.stats.reserve(static_cast<std::size_t>(sim_config.frame_count));
   DepthFrame frame;
   test::AllocationScope scope;
@@ -107,6 +55,23 @@ TinyRun run_tiny(const sim::SimConfig& sim_config, const PipelineConfig& config,
   }
   out.allocations = scope.allocations();
   out.end_memory = pipeline.map().memory();
+  const FreeSpace& space = pipeline.free_space();
+  const Eigen::Vector3i centre =
+      ((pipeline.T_W_C().translation().cast<float>() - space.map_config().origin_W) /
+       space.map_config().voxel_size_m)
+          .array()
+          .floor()
+          .cast<int>()
+          .matrix();
+  const int reach = static_cast<int>(1.2f / space.map_config().voxel_size_m);
+  for (int z = -reach; z <= reach; z += 4) {
+    for (int y = -reach; y <= reach; y += 4) {
+      for (int x = -reach; x <= reach; x += 4) {
+        const Eigen::Vector3i v = centre + Eigen::Vector3i(x, y, z);
+        if (space.find(v).free) out.end_free.push_back(v);
+      }
+    }
+  }
   if (store != nullptr) {
     std::vector<std::uint8_t> record(block_record_max_bytes<MultiresVoxel>());
     const Octree<MultiresVoxel>& map = pipeline.map();
@@ -330,6 +295,58 @@ TEST_CASE("reset() offers the blocks taken from the store again", "[store]") {
   // The first frame after the reset reads back what the first orbit stored in its view.
   REQUIRE(second_orbit.second > 0);
   REQUIRE(second_orbit.first >= first_orbit.first);
+}
+
+TEST_CASE("with a free-space store, forgotten air comes back when the camera returns", "[store]") {
+  // One orbit of the room with a free-space pool for 1.5 of the most one frame carves: the air
+  // of the first views is forgotten long before the orbit closes.
+  const sim::SimConfig sim_config = tiny_room_sim(kOrbitFrames);
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  PipelineConfig config = small_config(truth, 0.02f, 1);
+  config.pose_source = PoseSource::ground_truth;
+  const TinyRun unbounded = run_tiny(sim_config, config);
+  std::uint32_t view_free_nodes = 0;
+  for (const FrameStats& s : unbounded.stats) {
+    view_free_nodes = std::max(view_free_nodes, s.free_space.new_nodes);
+  }
+  config.free_space.node_capacity = view_free_nodes * 3 / 2;
+  config.budget.max_store_reads = 4096;
+  const TinyRun forgetting = run_tiny(sim_config, config);
+  MemoryStore free_store;
+  const TinyRun stored = run_tiny(sim_config, config, nullptr, &free_store);
+
+  FreeStoreReport total;
+  std::uint64_t pruned = 0;
+  for (const FrameStats& s : stored.stats) {
+    REQUIRE(s.free_space.pool_refused == 0);
+    total.written += s.free_store.written;
+    total.read += s.free_store.read;
+    total.read_failed += s.free_store.read_failed;
+    total.write_failed += s.free_store.write_failed;
+    pruned += s.free_space.pruned;
+  }
+  INFO("unbounded " << unbounded.end_free.size() << " free samples at the end, forgetting "
+                    << forgetting.end_free.size() << ", with the store " << stored.end_free.size()
+                    << "; regions written " << total.written << ", read " << total.read);
+  REQUIRE(pruned > 0);
+  REQUIRE(total.written > 0);
+  REQUIRE(total.read > 0);
+  REQUIRE(total.read_failed == 0);
+  REQUIRE(total.write_failed == 0);
+  // Back at the start, the store's run knows more of the air around the camera than the one that
+  // forgot it, and all of it is air: no sample within a voxel of the scene's surfaces (the
+  // unbounded run's nearest is about 9 cm).
+  REQUIRE(stored.end_free.size() > forgetting.end_free.size() + forgetting.end_free.size() / 5);
+  const Eigen::Vector3d origin_W = config.map.origin_W.cast<double>();
+  double nearest_m = 1e9;
+  for (const Eigen::Vector3i& v : stored.end_free) {
+    const Eigen::Vector3d p_W =
+        origin_W + (v.cast<double>() + Eigen::Vector3d::Constant(0.5)) * 0.02;
+    nearest_m = std::min(nearest_m, truth.scene().distance_m(p_W));
+  }
+  INFO("nearest free sample " << nearest_m << " m from a surface");
+  REQUIRE(nearest_m > 0.02);
 }
 
 }  // namespace

@@ -1,6 +1,11 @@
 #include "octofuse/map/free_octree.hpp"
 
 #include <cmath>
+#include <cstring>
+
+#include "octofuse/map/block_store.hpp"
+#include "octofuse/map/keys.hpp"
+#include "octofuse/map/map_io.hpp"
 
 namespace octofuse {
 
@@ -42,7 +47,7 @@ Status FreeOctree::begin_restore(std::uint32_t count) {
 }
 
 std::uint32_t FreeOctree::walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m,
-                                      bool mark) {
+                                      bool mark, bool whole_regions) {
   if (mark) {
     for (std::uint32_t i = 0; i < nodes_.used(); ++i) remap_[i] = 0;
     remap_[0] = 1;
@@ -61,6 +66,7 @@ std::uint32_t FreeOctree::walk_within(const Eigen::Vector3f& centre_W, float kee
   const float voxel = map_.voxel_size_m;
   const float radius_sq = keep_radius_m * keep_radius_m;
   std::uint32_t kept = 1;
+  if (keep_radius_m < 0.0f) return kept;
   while (top > 0) {
     const Entry e = stack[--top];
     const int half = 1 << (depth - e.level - 1);
@@ -72,7 +78,8 @@ std::uint32_t FreeOctree::walk_within(const Eigen::Vector3f& centre_W, float kee
       const Eigen::Vector3f hi_W =
           lo_W + Eigen::Vector3f::Constant(static_cast<float>(half) * voxel);
       const Eigen::Vector3f nearest = centre_W.cwiseMax(lo_W).cwiseMin(hi_W);
-      if (!((nearest - centre_W).squaredNorm() <= radius_sq)) continue;
+      const bool in_kept_region = whole_regions && e.level + 1 > region_level_;
+      if (!in_kept_region && !((nearest - centre_W).squaredNorm() <= radius_sq)) continue;
       ++kept;
       if (mark) remap_[child] = 1;
       if (e.level + 1 < leaf_level_) stack[top++] = Entry{child, e.level + 1, child_min};
@@ -83,31 +90,51 @@ std::uint32_t FreeOctree::walk_within(const Eigen::Vector3f& centre_W, float kee
 
 std::uint32_t FreeOctree::prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
                                    float min_radius_m) {
+  return spill_and_prune_to(centre_W, max_nodes, min_radius_m, nullptr, nullptr);
+}
+
+std::uint32_t FreeOctree::spill_and_prune_to(const Eigen::Vector3f& centre_W,
+                                             std::uint32_t max_nodes, float min_radius_m,
+                                             BlockStore* store, FreeStoreReport* report) {
   if (!reserved_ || nodes_.used() <= max_nodes) return 0;
+  const bool whole_regions = store != nullptr;
   // The largest radius (to 1 %) that keeps at most max_nodes, not below min_radius_m unless the
   // air within min_radius_m alone overflows max_nodes: then the floor gives way (down to the
   // root alone), so a pool of any size keeps room for the next frame's carving.
   float lo = min_radius_m;
   float hi = 2.0f * map_.size_m();
-  if (walk_within(centre_W, lo, false) > max_nodes) {
+  if (walk_within(centre_W, lo, false, whole_regions) > max_nodes) {
     hi = lo;
     lo = 0.0f;
   }
   for (int step = 0; step < 24 && hi - lo > 0.01f * hi; ++step) {
     const float mid = 0.5f * (lo + hi);
-    if (walk_within(centre_W, mid, false) <= max_nodes) {
+    if (walk_within(centre_W, mid, false, whole_regions) <= max_nodes) {
       lo = mid;
     } else {
       hi = mid;
     }
   }
-  return prune(centre_W, lo);
+  return spill_and_prune(centre_W, lo, store, report);
 }
 
 std::uint32_t FreeOctree::prune(const Eigen::Vector3f& centre_W, float keep_radius_m) {
+  return spill_and_prune(centre_W, keep_radius_m, nullptr, nullptr);
+}
+
+std::uint32_t FreeOctree::spill_and_prune(const Eigen::Vector3f& centre_W, float keep_radius_m,
+                                          BlockStore* store, FreeStoreReport* report) {
   if (!reserved_) return 0;
+  walk_within(centre_W, keep_radius_m, true, store != nullptr);
+  if (store != nullptr) {
+    FreeStoreReport unused;
+    spill_below(0, 0, Eigen::Vector3i::Zero(), nullptr, *store, report ? *report : unused);
+  }
+  return compact();
+}
+
+std::uint32_t FreeOctree::compact() {
   const std::uint32_t count = nodes_.used();
-  walk_within(centre_W, keep_radius_m, true);
   // New indices in the old order, then move each kept node down (never up: new <= old).
   std::uint32_t kept = 0;
   for (std::uint32_t i = 0; i < count; ++i) remap_[i] = remap_[i] != 0 ? kept++ : kNoNode;
@@ -121,6 +148,350 @@ std::uint32_t FreeOctree::prune(const Eigen::Vector3f& centre_W, float keep_radi
   }
   for (std::uint32_t i = kept; i < count; ++i) nodes_.pop_back();
   return count - kept;
+}
+
+// --- Regions: the store's records.
+
+namespace {
+
+constexpr std::uint8_t kRegionMagic[4] = {'O', 'F', 'R', 'G'};
+constexpr std::uint8_t kRegionVersion = 1;
+constexpr std::size_t kRegionHeadBytes = 8;  // magic, version, levels below the root, node count
+constexpr std::size_t kRegionNodeBytes = 7;  // child mask, free count, sub-cells, free frame
+
+void put_u32(std::uint8_t* out, std::uint32_t v) {
+  for (int i = 0; i < 4; ++i) out[i] = static_cast<std::uint8_t>(v >> (8 * i));
+}
+std::uint32_t get_u32(const std::uint8_t* in) {
+  std::uint32_t v = 0;
+  for (int i = 0; i < 4; ++i) v |= static_cast<std::uint32_t>(in[i]) << (8 * i);
+  return v;
+}
+bool is_region_corner(const Eigen::Vector3i& min_voxel, int side) {
+  return (min_voxel.x() & (side - 1)) == 0 && (min_voxel.y() & (side - 1)) == 0 &&
+         (min_voxel.z() & (side - 1)) == 0;
+}
+int popcount8(std::uint8_t v) {
+  int n = 0;
+  for (; v != 0; v = static_cast<std::uint8_t>(v & (v - 1))) ++n;
+  return n;
+}
+
+}  // namespace
+
+std::uint64_t FreeOctree::region_key(const Eigen::Vector3i& min_voxel) const {
+  return morton_encode(min_voxel / 8);
+}
+
+void FreeOctree::region_from_tree(std::uint32_t node, int level, RegionTree& out) const {
+  const FreeNode& n = nodes_[node];
+  RegionNode& r = out.nodes[out.count++];
+  r.free_count = n.free_count;
+  r.sub_free = n.sub_free;
+  r.free_frame = n.free_frame;
+  r.child_mask = 0;
+  if (level >= leaf_level_) return;
+  for (int c = 0; c < 8; ++c) {
+    if (n.children[c] == kNoNode) continue;
+    r.child_mask = static_cast<std::uint8_t>(r.child_mask | (1u << c));
+    region_from_tree(n.children[c], level + 1, out);
+  }
+}
+
+std::size_t FreeOctree::encode_region(const RegionTree& tree, std::uint8_t* out) const {
+  std::memcpy(out, kRegionMagic, 4);
+  out[4] = kRegionVersion;
+  out[5] = static_cast<std::uint8_t>(leaf_level_ - region_level_);
+  out[6] = static_cast<std::uint8_t>(tree.count & 0xFF);
+  out[7] = static_cast<std::uint8_t>(tree.count >> 8);
+  std::uint8_t* p = out + kRegionHeadBytes;
+  for (std::uint32_t i = 0; i < tree.count; ++i, p += kRegionNodeBytes) {
+    const RegionNode& r = tree.nodes[i];
+    p[0] = r.child_mask;
+    p[1] = r.free_count;
+    p[2] = r.sub_free;
+    put_u32(p + 3, r.free_frame);
+  }
+  put_u32(p, crc32(out, static_cast<std::size_t>(p - out)));
+  return static_cast<std::size_t>(p - out) + 4;
+}
+
+bool FreeOctree::decode_region(const std::uint8_t* record, std::size_t size,
+                               RegionTree& out) const {
+  if (size < kRegionHeadBytes + kRegionNodeBytes + 4) return false;
+  if (std::memcmp(record, kRegionMagic, 4) != 0 || record[4] != kRegionVersion) return false;
+  if (record[5] != leaf_level_ - region_level_) return false;
+  const std::uint32_t count = record[6] | (static_cast<std::uint32_t>(record[7]) << 8);
+  if (count == 0 || count > kRegionMaxNodes) return false;
+  if (size != kRegionHeadBytes + kRegionNodeBytes * count + 4) return false;
+  if (crc32(record, size - 4) != get_u32(record + size - 4)) return false;
+  // The masks must describe exactly `count` nodes in preorder, none below the leaves.
+  std::uint32_t pending[4 * 8 + 1];  // children still to come per open level
+  int open = 0;
+  const std::uint8_t* p = record + kRegionHeadBytes;
+  const int max_depth = leaf_level_ - region_level_;
+  for (std::uint32_t i = 0; i < count; ++i, p += kRegionNodeBytes) {
+    while (open > 0 && pending[open - 1] == 0) --open;
+    if (i > 0 && open == 0) return false;  // nodes after the tree ended
+    const int depth = open;
+    if (open > 0) --pending[open - 1];
+    RegionNode& r = out.nodes[i];
+    r.child_mask = p[0];
+    r.free_count = p[1];
+    r.sub_free = p[2];
+    r.free_frame = get_u32(p + 3);
+    if (r.child_mask != 0) {
+      if (depth >= max_depth) return false;
+      pending[open++] = static_cast<std::uint32_t>(popcount8(r.child_mask));
+    }
+    if (r.sub_free != 0 && depth != max_depth) return false;
+    if (r.free_count > config_.max_free_count) return false;
+  }
+  while (open > 0 && pending[open - 1] == 0) --open;
+  if (open != 0) return false;  // children announced, not given
+  out.count = count;
+  return true;
+}
+
+std::uint32_t FreeOctree::skip_subtree(const RegionTree& tree, std::uint32_t at) {
+  std::uint32_t pending = 1;
+  while (pending > 0) {
+    pending += static_cast<std::uint32_t>(popcount8(tree.nodes[at++].child_mask));
+    --pending;
+  }
+  return at;
+}
+
+void FreeOctree::merge_at(const RegionTree& a, std::uint32_t& ia, const RegionTree* b,
+                          std::uint32_t& ib, RegionTree& out) {
+  // a's node wins; below a node of a's that is not free, b's children a lacks are added.
+  const RegionNode& na = a.nodes[ia++];
+  const RegionNode* nb = b != nullptr ? &b->nodes[ib++] : nullptr;
+  const bool with_b = nb != nullptr && na.free_count == 0;
+  const std::uint8_t mask_b = nb != nullptr ? nb->child_mask : 0;
+  const std::uint32_t at = out.count++;
+  out.nodes[at] = na;
+  if (with_b) out.nodes[at].child_mask = static_cast<std::uint8_t>(na.child_mask | mask_b);
+  std::uint32_t none = 0;
+  for (int c = 0; c < 8; ++c) {
+    const bool in_a = (na.child_mask & (1u << c)) != 0;
+    const bool in_b = (mask_b & (1u << c)) != 0;
+    if (in_a && in_b && with_b) {
+      merge_at(a, ia, b, ib, out);
+    } else if (in_a) {
+      merge_at(a, ia, nullptr, none, out);
+      if (in_b) ib = skip_subtree(*b, ib);
+    } else if (in_b && with_b) {
+      merge_at(*b, ib, nullptr, none, out);
+    } else if (in_b) {
+      ib = skip_subtree(*b, ib);
+    }
+  }
+}
+
+void FreeOctree::merge_regions(const RegionTree& a, const RegionTree& b, RegionTree& out) {
+  out.count = 0;
+  std::uint32_t ia = 0;
+  std::uint32_t ib = 0;
+  merge_at(a, ia, &b, ib, out);
+}
+
+std::uint32_t FreeOctree::graft(std::uint32_t node, const RegionTree& tree, std::uint32_t at,
+                                bool fresh) {
+  // `node` is the tree's node where the record's node `at` lies. A node the tree had wins (and,
+  // free, covers the record's subtree); children it lacks come from the record, whole.
+  const RegionNode& r = tree.nodes[at++];
+  const bool own_free = !fresh && nodes_[node].free_count > 0;
+  for (int c = 0; c < 8; ++c) {
+    if ((r.child_mask & (1u << c)) == 0) continue;
+    if (own_free) {
+      at = skip_subtree(tree, at);
+      continue;
+    }
+    std::uint32_t child = nodes_[node].children[c];
+    bool child_fresh = fresh;
+    if (child == kNoNode) {
+      child_fresh = true;
+      const Result<std::uint32_t> made = nodes_.allocate();
+      OCTOFUSE_CHECK(made.ok());  // room was checked for the whole record
+      child = made.value();
+      nodes_[child] = FreeNode{};
+      const RegionNode& k = tree.nodes[at];
+      nodes_[child].free_count = k.free_count;
+      nodes_[child].sub_free = k.sub_free;
+      nodes_[child].free_frame = k.free_frame;
+      nodes_[node].children[c] = child;
+    }
+    at = graft(child, tree, at, child_fresh);
+  }
+  return at;
+}
+
+Status FreeOctree::graft_region_record(std::uint64_t key, const std::uint8_t* record,
+                                       std::size_t size) {
+  if (!reserved_) return StatusCode::failed_precondition;
+  if (!decode_region(record, size, region_stored_)) return StatusCode::data_loss;
+  const Eigen::Vector3i min_voxel = morton_decode(key) * 8;
+  const int depth = map_.voxel_depth;
+  const int side = region_voxels();
+  const int n = 1 << depth;
+  if ((min_voxel.array() < 0).any() || (min_voxel.array() + side > n).any() ||
+      !is_region_corner(min_voxel, side)) {
+    return StatusCode::data_loss;
+  }
+  if (nodes_.used() + region_stored_.count + static_cast<std::uint32_t>(region_level_) >
+      nodes_.capacity()) {
+    return StatusCode::resource_exhausted;
+  }
+  // Down to the region's node, making the path; a free octant above it is newer and wins.
+  std::uint32_t index = 0;
+  bool fresh = false;
+  for (int level = 0; level < region_level_; ++level) {
+    if (nodes_[index].free_count > 0) return ok_status();
+    const int bit = depth - level - 1;
+    const int child = ((min_voxel.x() >> bit) & 1) | (((min_voxel.y() >> bit) & 1) << 1) |
+                      (((min_voxel.z() >> bit) & 1) << 2);
+    std::uint32_t next = nodes_[index].children[child];
+    if (next == kNoNode) {
+      const Result<std::uint32_t> made = nodes_.allocate();
+      OCTOFUSE_CHECK(made.ok());
+      next = made.value();
+      nodes_[next] = FreeNode{};
+      if (level + 1 == region_level_) {
+        const RegionNode& root = region_stored_.nodes[0];
+        nodes_[next].free_count = root.free_count;
+        nodes_[next].sub_free = root.sub_free;
+        nodes_[next].free_frame = root.free_frame;
+        fresh = true;
+      }
+      nodes_[index].children[child] = next;
+    }
+    index = next;
+  }
+  graft(index, region_stored_, 0, fresh);
+  nodes_[index].region_loaded = 1;
+  return ok_status();
+}
+
+void FreeOctree::spill_region(std::uint32_t node, const Eigen::Vector3i& min_voxel,
+                              const FreeNode* inherited, BlockStore& store,
+                              FreeStoreReport& report) {
+  // The tree's view of the region: its subtree, or the forgotten free octant above it.
+  region_tree_.count = 0;
+  if (inherited != nullptr) {
+    RegionNode& r = region_tree_.nodes[region_tree_.count++];
+    r = RegionNode{};
+    r.free_count = inherited->free_count;
+    r.free_frame = inherited->free_frame;
+  } else {
+    region_from_tree(node, region_level_, region_tree_);
+  }
+  const std::uint64_t key = region_key(min_voxel);
+  const RegionTree* out = &region_tree_;
+  const bool loaded = inherited == nullptr && nodes_[node].region_loaded != 0;
+  if (!loaded) {
+    // A stored record the tree never read back (the region was carved again from afar): merge,
+    // the tree's nodes winning, so the stored air is not lost.
+    const Result<std::size_t> size = store.take(key, region_record_, kRegionRecordMaxBytes);
+    if (size.ok()) {
+      report.bytes_read += size.value();
+      if (decode_region(region_record_, size.value(), region_stored_)) {
+        merge_regions(region_tree_, region_stored_, region_merged_);
+        out = &region_merged_;
+        ++report.merged;
+      } else {
+        ++report.read_failed;
+      }
+    }
+  }
+  const std::size_t bytes = encode_region(*out, region_record_);
+  if (store.put(key, region_record_, bytes).ok()) {
+    ++report.written;
+    report.bytes_written += bytes;
+  } else {
+    ++report.write_failed;
+  }
+}
+
+void FreeOctree::spill_below(std::uint32_t node, int level, const Eigen::Vector3i& min_voxel,
+                             const FreeNode* inherited, BlockStore& store,
+                             FreeStoreReport& report) {
+  // `node` (kNoNode: absent, under a forgotten free octant `inherited`) lies above the regions.
+  const int half = 1 << (map_.voxel_depth - level - 1);
+  for (int c = 0; c < 8; ++c) {
+    const std::uint32_t child = node != kNoNode ? nodes_[node].children[c] : kNoNode;
+    const Eigen::Vector3i child_min = child_min_voxel(min_voxel, c, half);
+    if (child == kNoNode && inherited == nullptr) continue;
+    // A kept node and all it covers stay (a kept free octant covers what is below it).
+    if (child != kNoNode && remap_[child] != 0) {
+      if (level + 1 < region_level_ && nodes_[child].free_count == 0) {
+        spill_below(child, level + 1, child_min, nullptr, store, report);
+      }
+      continue;
+    }
+    const FreeNode* free_above = inherited != nullptr ? inherited
+                                 : (child != kNoNode && nodes_[child].free_count > 0)
+                                     ? &nodes_[child]
+                                     : nullptr;
+    if (level + 1 == region_level_) {
+      spill_region(child, child_min, free_above, store, report);
+    } else {
+      spill_below(child, level + 1, child_min, free_above, store, report);
+    }
+  }
+}
+
+void FreeOctree::reload_regions(const Eigen::Vector3f& centre_W, float radius_m, BlockStore& store,
+                                std::uint32_t max_reads, std::uint32_t max_nodes,
+                                FreeStoreReport* report) {
+  if (!reserved_ || !(radius_m >= 0.0f)) return;
+  const float voxel = map_.voxel_size_m;
+  const int side = region_voxels();
+  const int n = 1 << map_.voxel_depth;
+  const Eigen::Vector3f c = (centre_W - map_.origin_W) / voxel;
+  const float r = radius_m / voxel;
+  auto clamp_voxel = [n](float f) {
+    if (!(f > 0.0f)) return 0;
+    if (!(f < static_cast<float>(n - 1))) return n - 1;
+    return static_cast<int>(f);
+  };
+  Eigen::Vector3i lo;
+  Eigen::Vector3i hi;
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = clamp_voxel(c[a] - r) & ~(side - 1);
+    hi[a] = clamp_voxel(c[a] + r);
+  }
+  std::uint64_t keys[kReloadKeyCapacity];
+  const std::size_t found = store.find_in_box(lo / 8, hi / 8, keys, kReloadKeyCapacity);
+  for (std::size_t i = 0; i < found; ++i) {
+    const Eigen::Vector3i min_voxel = morton_decode(keys[i]) * 8;
+    if (!is_region_corner(min_voxel, side)) continue;
+    const Eigen::Vector3f box_lo = min_voxel.cast<float>();
+    const Eigen::Vector3f box_hi = box_lo + Eigen::Vector3f::Constant(static_cast<float>(side));
+    const Eigen::Vector3f nearest = c.cwiseMax(box_lo).cwiseMin(box_hi);
+    if (!((nearest - c).squaredNorm() <= r * r)) continue;
+    if (report->read >= max_reads ||
+        nodes_.used() + kRegionMaxNodes + static_cast<std::uint32_t>(region_level_) > max_nodes) {
+      ++report->waiting;
+      continue;
+    }
+    const Result<std::size_t> size = store.take(keys[i], region_record_, kRegionRecordMaxBytes);
+    if (!size.ok()) {
+      ++report->read_failed;
+      continue;
+    }
+    report->bytes_read += size.value();
+    const Status grafted = graft_region_record(keys[i], region_record_, size.value());
+    if (grafted.ok()) {
+      ++report->read;
+    } else if (grafted.code() == StatusCode::resource_exhausted) {
+      store.release(keys[i]);
+      ++report->waiting;
+    } else {
+      // Damaged: dropped (the tree's own air, carved again, replaces it when spilled).
+      ++report->read_failed;
+    }
+  }
 }
 
 FreeOctant FreeOctree::find(const Eigen::Vector3i& voxel) const {

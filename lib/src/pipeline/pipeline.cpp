@@ -510,6 +510,11 @@ Status Pipeline<VoxelT>::reset() {
       }
     }
     map_.clear();
+    if (free_store_ != nullptr) {
+      // Every region goes to the store (merged with what it held): a later frame reads it back.
+      FreeStoreReport spilled;
+      free_space_.spill_and_prune(T_W_C_.translation().cast<float>(), -1.0f, free_store_, &spilled);
+    }
     if (free_space_.reserved()) free_space_.clear();
     if (esdf_.reserved()) esdf_.clear();
     ++map_version_;
@@ -1218,10 +1223,20 @@ void Pipeline<VoxelT>::carve_free_space() {
     downsample_beyond_far();
     beyond = working_beyond_far_;
   }
+  const std::uint32_t capacity = free_space_.node_capacity();
+  const float min_radius_m = config_.free_space.prune_radius_m > 0.0f
+                                 ? config_.free_space.prune_radius_m
+                                 : 0.25f * config_.fusion.far_m;
+  if (free_store_ != nullptr) {
+    // Stored air within the distance pruning keeps comes back before this frame carves, while
+    // the pool stays under 7/8 full (pruning starts at 15/16).
+    free_space_.reload_regions(T_W_C_.translation().cast<float>(), min_radius_m, *free_store_,
+                               config_.budget.max_store_reads, capacity - capacity / 8,
+                               &stats.free_store);
+  }
   stats.free_space = free_space_.carve(preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
                                        static_cast<std::uint32_t>(stats.frame_index), beyond,
                                        config_.validator.far_m);
-  const std::uint32_t capacity = free_space_.node_capacity();
   const FreeSpaceReport& carved = stats.free_space;
   // The next frame is likely to ask for about what this one did (twice what was refused: a
   // refused node hides the refinement below it). When that does not fit, or the pool is more than
@@ -1234,12 +1249,9 @@ void Pipeline<VoxelT>::carve_free_space() {
       capacity / 2, std::max<std::uint64_t>(capacity / 4, demand + demand / 4));
   const std::uint64_t used = free_space_.node_count();
   if (used > capacity - capacity / 16 || used + demand > capacity) {
-    const float min_radius_m = config_.free_space.prune_radius_m > 0.0f
-                                   ? config_.free_space.prune_radius_m
-                                   : 0.25f * config_.fusion.far_m;
     const std::uint32_t keep = static_cast<std::uint32_t>(capacity - room);
-    stats.free_space.pruned =
-        free_space_.prune_to(T_W_C_.translation().cast<float>(), keep, min_radius_m);
+    stats.free_space.pruned = free_space_.spill_and_prune_to(
+        T_W_C_.translation().cast<float>(), keep, min_radius_m, free_store_, &stats.free_store);
     stats.free_space.nodes_used = free_space_.node_count();
     stats.free_space.bytes_used = free_space_.bytes_used();
   }

@@ -524,10 +524,100 @@ Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry
 template <typename VoxelT>
 Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
                                 const FreeSpace* free_space, BlockStoreFile& store,
-                                const MapSaveInfo& info, ErrorText* error) {
+                                const MapSaveInfo& info, ErrorText* error,
+                                BlockStoreFile* free_store) {
   std::unique_ptr<HeapMap<VoxelT>> merged;
   OCTOFUSE_TRY(merge_map_with_store(&map, map.config(), store, path, &merged, error));
-  return save_map_file(path, merged->map, free_space, info, error);
+  if (free_space == nullptr || free_store == nullptr) {
+    return save_map_file(path, merged->map, free_space, info, error);
+  }
+  std::unique_ptr<HeapFreeSpace> merged_free;
+  OCTOFUSE_TRY(merge_free_space_with_store(*free_space, *free_store, path, &merged_free, error));
+  return save_map_file(path, merged->map, &merged_free->space, info, error);
+}
+
+void encode_free_store_geometry(const StoreGeometry& geometry, std::uint8_t* out) {
+  encode_store_geometry(geometry, out);
+  out[kStoreGeometryBytes] = kFreeStoreGeometryTag;
+}
+
+Status merge_free_space_with_store(const FreeSpace& free_space, BlockStoreFile& free_store,
+                                   const char* path, std::unique_ptr<HeapFreeSpace>* out,
+                                   ErrorText* error) {
+  // Room for the tree and, per stored region, its nodes and a path down to it.
+  std::size_t key_count = 0;
+  free_store.for_each_key([&](std::uint64_t key) {
+    if (!free_store.in_memory(key)) ++key_count;
+  });
+  auto* keys = static_cast<std::uint64_t*>(std::malloc(sizeof(std::uint64_t) * (key_count + 1)));
+  const std::unique_ptr<void, void (*)(void*)> keys_owner(keys, std::free);
+  if (keys == nullptr) {
+    if (error != nullptr) error->set("%s: no memory to merge the free space with its store", path);
+    return StatusCode::resource_exhausted;
+  }
+  std::size_t listed = 0;
+  std::uint64_t nodes = free_space.node_count();
+  const int region_level = free_space.region_level();
+  std::uint8_t head[8];
+  Status failed;
+  free_store.for_each_key([&](std::uint64_t key) {
+    if (free_store.in_memory(key) || !failed.ok()) return;
+    keys[listed++] = key;
+    nodes += static_cast<std::uint64_t>(region_level);
+    // The node count is in the record's head; a damaged head is caught by the graft below.
+    std::uint8_t record[FreeOctree::kRegionRecordMaxBytes];
+    const Result<std::size_t> size = free_store.read(key, record, sizeof(record));
+    if (!size.ok()) {
+      failed = size.status();
+      return;
+    }
+    std::memcpy(head, record, sizeof(head));
+    nodes += size.value() >= sizeof(head) ? (head[6] | (std::uint64_t{head[7]} << 8)) : 0;
+  });
+  if (!failed.ok()) {
+    if (error != nullptr) error->set("%s: cannot read a stored free-space region", path);
+    return failed.code() == StatusCode::unavailable ? failed : Status(StatusCode::data_loss);
+  }
+  if (nodes > 0xFFFFFFF0u) {
+    if (error != nullptr) error->set("%s: the stored free space is too large to merge", path);
+    return StatusCode::resource_exhausted;
+  }
+  FreeSpaceConfig config = free_space.config();
+  config.node_capacity = static_cast<std::uint32_t>(nodes);
+  const std::size_t bytes = FreeSpace::bytes_required(config, free_space.map_config(), 1, 1);
+  const std::size_t rounded = (bytes + kArenaAlignment - 1) / kArenaAlignment * kArenaAlignment;
+  auto merged = std::make_unique<HeapFreeSpace>();
+  merged->memory.reset(bytes > 0 ? std::aligned_alloc(kArenaAlignment, rounded) : nullptr);
+  if (merged->memory == nullptr) {
+    if (error != nullptr) error->set("%s: no memory to merge the free space with its store", path);
+    return StatusCode::resource_exhausted;
+  }
+  LinearArena arena(merged->memory.get(), bytes);
+  FreeSpace& space = merged->space;
+  if (!space.reserve(arena, config, free_space.map_config(), 1, 1).ok() ||
+      !space.begin_restore(free_space.node_count()).ok()) {
+    if (error != nullptr) error->set("%s: cannot reserve the merged free space", path);
+    return StatusCode::resource_exhausted;
+  }
+  for (std::uint32_t i = 0; i < free_space.node_count(); ++i) {
+    space.restore_node(i) = free_space.node(i);
+  }
+  std::uint8_t record[FreeOctree::kRegionRecordMaxBytes];
+  for (std::size_t k = 0; k < listed; ++k) {
+    const std::uint64_t key = keys[k];
+    const Result<std::size_t> size = free_store.read(key, record, sizeof(record));
+    const Status grafted =
+        size.ok() ? space.graft_region_record(key, record, size.value()) : size.status();
+    if (!grafted.ok()) {
+      if (error != nullptr) {
+        error->set("%s: cannot merge a stored free-space region (%s)", path, grafted.name());
+      }
+      return grafted.code() == StatusCode::resource_exhausted ? grafted
+                                                              : Status(StatusCode::data_loss);
+    }
+  }
+  *out = std::move(merged);
+  return ok_status();
 }
 
 #define OCTOFUSE_MERGE_WITH_STORE(VoxelT)                                                        \
@@ -540,12 +630,13 @@ OCTOFUSE_MERGE_WITH_STORE(Multires16Voxel)
 #undef OCTOFUSE_MERGE_WITH_STORE
 
 template Status save_map_file_with_store(const char*, const Octree<TsdfVoxel>&, const FreeSpace*,
-                                         BlockStoreFile&, const MapSaveInfo&, ErrorText*);
+                                         BlockStoreFile&, const MapSaveInfo&, ErrorText*,
+                                         BlockStoreFile*);
 template Status save_map_file_with_store(const char*, const Octree<MultiresVoxel>&,
                                          const FreeSpace*, BlockStoreFile&, const MapSaveInfo&,
-                                         ErrorText*);
+                                         ErrorText*, BlockStoreFile*);
 template Status save_map_file_with_store(const char*, const Octree<Multires16Voxel>&,
                                          const FreeSpace*, BlockStoreFile&, const MapSaveInfo&,
-                                         ErrorText*);
+                                         ErrorText*, BlockStoreFile*);
 
 }  // namespace octofuse::host

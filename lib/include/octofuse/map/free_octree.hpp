@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <initializer_list>
 #include <type_traits>
 
 #include <Eigen/Core>
@@ -16,6 +17,8 @@
 #include "octofuse/map/map_config.hpp"
 
 namespace octofuse {
+
+class BlockStore;
 
 // The smallest octant the automatic choice of FreeSpaceConfig::finest_octant_voxels takes.
 inline constexpr float kAutoFreeOctant_m = 0.05f;
@@ -100,7 +103,22 @@ struct FreeNode {
   // Leaves with free_count 0 only: bit x + 2 y + 4 z says the leaf's half-size sub-cell (x, y, z)
   // is wholly free, as of free_frame.
   std::uint8_t sub_free = 0;
-  std::uint8_t padding_[2] = {};
+  // On a region's node (FreeOctree::region_level()): its stored record is merged in (reload or
+  // spill), so spilling it again needs no read of the store. Not part of a saved map.
+  std::uint8_t region_loaded = 0;
+  std::uint8_t padding_ = 0;
+};
+
+// What the free space's store did in one frame (FreeOctree::spill_and_prune(), reload_regions()).
+struct FreeStoreReport {
+  std::uint32_t written = 0;       // regions handed to the store
+  std::uint32_t write_failed = 0;  // regions whose put() failed (their free space is forgotten)
+  std::uint32_t read = 0;          // stored regions grafted back
+  std::uint32_t read_failed = 0;   // stored regions damaged or unreadable (dropped)
+  std::uint32_t waiting = 0;       // stored regions in reach left for a later frame (room, budget)
+  std::uint32_t merged = 0;        // of those written, merged with a stored record first
+  std::uint64_t bytes_written = 0;
+  std::uint64_t bytes_read = 0;
 };
 
 // The free octant containing a point, as found by FreeOctree::find().
@@ -136,6 +154,34 @@ class FreeOctree {
   // `max_nodes` are used. Up to 26 walks over the pool.
   std::uint32_t prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
                          float min_radius_m);
+
+  // --- Free space beyond memory. With a store, the tree is cut into regions, octants 3 levels
+  // above the leaves (8 x 8 x 8 leaves; at least the root's children): pruning keeps or forgets
+  // whole regions, and hands each forgotten one to the store as one record (its subtree; a region
+  // under a forgotten free octant as that octant's state), keyed by the Morton code of its
+  // corner's block coordinates (block_store.hpp's interface, on its own store). reload_regions()
+  // grafts stored regions back when the camera returns. Merging keeps the tree's own node
+  // wherever both have one (memory is newer), so nothing the tree cleared comes back free; stored
+  // air the tree has no node for is added as it was.
+  int region_level() const { return region_level_; }
+  int region_voxels() const { return 1 << (map_.voxel_depth - region_level_); }
+  // Most bytes one region record takes.
+  static constexpr std::size_t kRegionMaxNodes = 1 + 8 + 64 + 512;
+  static constexpr std::size_t kRegionRecordMaxBytes = 8 + 7 * kRegionMaxNodes + 4;
+  // prune() / prune_to() that first writes every forgotten region to `store` (null: prune()).
+  // A negative radius forgets every region (Pipeline::reset()).
+  std::uint32_t spill_and_prune(const Eigen::Vector3f& centre_W, float keep_radius_m,
+                                BlockStore* store, FreeStoreReport* report);
+  std::uint32_t spill_and_prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
+                                   float min_radius_m, BlockStore* store, FreeStoreReport* report);
+  // Grafts back stored regions that come within `radius_m` of `centre_W`, at most `max_reads`,
+  // while the pool stays below `max_nodes` (the rest wait: FreeStoreReport::waiting).
+  void reload_regions(const Eigen::Vector3f& centre_W, float radius_m, BlockStore& store,
+                      std::uint32_t max_reads, std::uint32_t max_nodes, FreeStoreReport* report);
+  // Grafts one region record into the tree (as reload_regions() does): ok, data_loss (not a
+  // valid record of this tree; the tree unchanged), resource_exhausted (no room; unchanged).
+  Status graft_region_record(std::uint64_t region_key, const std::uint8_t* record,
+                             std::size_t size);
 
   // The free octant containing finest voxel `voxel` (inside the cube), or free = false.
   FreeOctant find(const Eigen::Vector3i& voxel) const;
@@ -177,14 +223,50 @@ class FreeOctree {
   IndexPool<FreeNode> nodes_;
   float margin_m_ = 0.0f;
   int leaf_level_ = 0;
+  int region_level_ = 1;
   int sub_cell_voxels_ = 4;
 
  private:
+  // A region's subtree in preorder (children by increasing child index).
+  struct RegionNode {
+    std::uint8_t child_mask = 0;
+    std::uint8_t free_count = 0;
+    std::uint8_t sub_free = 0;
+    std::uint32_t free_frame = 0;
+  };
+  struct RegionTree {
+    RegionNode* nodes = nullptr;  // kRegionMaxNodes
+    std::uint32_t count = 0;
+  };
+  void region_from_tree(std::uint32_t node, int level, RegionTree& out) const;
+  std::size_t encode_region(const RegionTree& tree, std::uint8_t* out) const;
+  bool decode_region(const std::uint8_t* record, std::size_t size, RegionTree& out) const;
+  void spill_region(std::uint32_t node, const Eigen::Vector3i& min_voxel, const FreeNode* inherited,
+                    BlockStore& store, FreeStoreReport& report);
+  void spill_below(std::uint32_t node, int level, const Eigen::Vector3i& min_voxel,
+                   const FreeNode* inherited, BlockStore& store, FreeStoreReport& report);
+  std::uint32_t graft(std::uint32_t node, const RegionTree& tree, std::uint32_t at, bool fresh);
+  static std::uint32_t skip_subtree(const RegionTree& tree, std::uint32_t at);
+  static void merge_at(const RegionTree& a, std::uint32_t& ia, const RegionTree* b,
+                       std::uint32_t& ib, RegionTree& out);
+  // a and b merged, a's nodes winning (memory over store).
+  static void merge_regions(const RegionTree& a, const RegionTree& b, RegionTree& out);
+  static constexpr std::size_t kReloadKeyCapacity = 256;
+  std::uint64_t region_key(const Eigen::Vector3i& min_voxel) const;
+
   // Nodes within keep_radius_m of centre_W (the root and every node whose octant comes that close
-  // and whose parent stays); with `mark`, remap_[i] = 1 for those, 0 for the others.
-  std::uint32_t walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m, bool mark);
+  // and whose parent stays); with `mark`, remap_[i] = 1 for those, 0 for the others. With
+  // `whole_regions`, a node below a region that stays stays too; a negative radius keeps the root.
+  std::uint32_t walk_within(const Eigen::Vector3f& centre_W, float keep_radius_m, bool mark,
+                            bool whole_regions);
+  std::uint32_t compact();
 
   std::uint32_t* remap_ = nullptr;  // prune(): old node index -> new one
+  // Region scratch: the tree's region, the stored one, their merge; one record.
+  RegionTree region_tree_;
+  RegionTree region_stored_;
+  RegionTree region_merged_;
+  std::uint8_t* region_record_ = nullptr;
   std::size_t bytes_reserved_ = 0;
   bool reserved_ = false;
 };
@@ -202,6 +284,14 @@ Status FreeOctree::reserve_prune_scratch(Arena& arena) {
   Result<std::uint32_t*> remap = arena.template allocate_array<std::uint32_t>(nodes_.capacity());
   OCTOFUSE_TRY(remap);
   remap_ = remap.value();
+  for (RegionTree* tree : {&region_tree_, &region_stored_, &region_merged_}) {
+    Result<RegionNode*> nodes = arena.template allocate_array<RegionNode>(kRegionMaxNodes);
+    OCTOFUSE_TRY(nodes);
+    tree->nodes = nodes.value();
+  }
+  Result<std::uint8_t*> record = arena.template allocate_array<std::uint8_t>(kRegionRecordMaxBytes);
+  OCTOFUSE_TRY(record);
+  region_record_ = record.value();
   return ok_status();
 }
 

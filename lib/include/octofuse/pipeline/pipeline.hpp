@@ -264,6 +264,7 @@ struct FrameStats {
   StoreReport store;              // with a block store: reads before eviction, writes in it
   IntegrationReport integration;  // meaningful when integrated
   FreeSpaceReport free_space;     // meaningful when integrated with free space enabled
+  FreeStoreReport free_store;     // with a free-space store: regions read before carving, spilled
   EsdfReport esdf;                // meaningful when integrated with the distance field enabled
   RaycastStats raycast;
   bool budget_icp_hit = false;  // ICP stopped by its iteration budget on some level
@@ -331,6 +332,14 @@ class Pipeline {
   Status set_block_store(BlockStore* store) {
     if (store != nullptr && eviction_candidates_ == nullptr) return StatusCode::failed_precondition;
     store_ = store;
+    return ok_status();
+  }
+  // Free space forgotten to make room goes to `store` by region and comes back from it when the
+  // camera returns (FreeOctree::spill_and_prune()); a store of its own, not the block store's.
+  // null: forgotten air is gone. failed_precondition without free space. Set it between frames.
+  Status set_free_space_store(BlockStore* store) {
+    if (store != nullptr && !free_space_.reserved()) return StatusCode::failed_precondition;
+    free_store_ = store;
     return ok_status();
   }
   const Map& map() const { return map_; }
@@ -482,6 +491,7 @@ class Pipeline {
   std::uint32_t evict_high_finest_ = 0;
   std::uint32_t evict_low_finest_ = 0;
   BlockStore* store_ = nullptr;
+  BlockStore* free_store_ = nullptr;
   std::uint8_t* store_record_ = nullptr;  // one block record (with eviction)
   std::uint64_t* store_keys_ = nullptr;   // kStoreKeyCapacity keys found in view
   // Blocks at this pool index and above were read back by this frame (restored blocks are

@@ -146,12 +146,35 @@ Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry
                             BlockStoreFile& store, const char* path,
                             std::unique_ptr<HeapMap<VoxelT>>* out, ErrorText* error);
 
-// The whole map: `map`'s blocks and every stored block not in memory, merged, written by
-// save_map_file() (loadable as any map file). ok, merge_map_with_store()'s or save_map_file()'s
-// codes.
+// The free space's store (Pipeline::set_free_space_store()) beside a block store at FILE: FILE
+// with ".free" appended, whose geometry is the block store's with kFreeStoreGeometryTag after it
+// (so neither opens as the other).
+inline constexpr std::uint8_t kFreeStoreGeometryTag = 'F';
+constexpr std::size_t kFreeStoreGeometryBytes = kStoreGeometryBytes + 1;
+void encode_free_store_geometry(const StoreGeometry& geometry, std::uint8_t* out);
+
+// A free space reserved on the heap, with its memory.
+struct HeapFreeSpace {
+  std::unique_ptr<void, void (*)(void*)> memory{nullptr, std::free};
+  FreeSpace space;
+};
+
+// `free_space` and every region `free_store` holds that is not in memory, merged as reloading
+// merges them (the tree's own nodes winning), into a free space reserved here on the heap with
+// room for all of it. ok, resource_exhausted (no memory) or data_loss (a damaged stored region),
+// with a one-line `error` naming `path`.
+Status merge_free_space_with_store(const FreeSpace& free_space, BlockStoreFile& free_store,
+                                   const char* path, std::unique_ptr<HeapFreeSpace>* out,
+                                   ErrorText* error);
+
+// The whole map: `map`'s blocks and every stored block not in memory, merged, and the free space
+// with the regions `free_store` holds (when both are given), written by save_map_file() (loadable
+// as any map file). ok, merge_map_with_store()'s, merge_free_space_with_store()'s or
+// save_map_file()'s codes.
 template <typename VoxelT>
 Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
                                 const FreeSpace* free_space, BlockStoreFile& store,
-                                const MapSaveInfo& info, ErrorText* error);
+                                const MapSaveInfo& info, ErrorText* error,
+                                BlockStoreFile* free_store = nullptr);
 
 }  // namespace octofuse::host

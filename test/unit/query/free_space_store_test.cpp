@@ -1,0 +1,187 @@
+// Free space beyond memory: pruning with a store hands forgotten regions to it, reloading grafts
+// them back with the same answers, and merging keeps the tree's own nodes over stored ones.
+
+#include <algorithm>
+#include <catch2/catch.hpp>
+#include <vector>
+
+#include "octofuse/query/free_space.hpp"
+#include "support/memory_store.hpp"
+#include "unit/query/query_support.hpp"
+
+namespace octofuse {
+namespace {
+
+struct Snapshot {
+  std::vector<Eigen::Vector3i> voxels;
+  std::vector<std::uint32_t> free_frames;  // of the voxels read free
+};
+
+// Every 4th voxel of the cube that reads free, with the frame that last saw it free.
+Snapshot free_voxels(const FreeSpace& space) {
+  Snapshot s;
+  const int n = 1 << space.map_config().voxel_depth;
+  for (int z = 0; z < n; z += 4) {
+    for (int y = 0; y < n; y += 4) {
+      for (int x = 0; x < n; x += 4) {
+        const FreeOctant o = space.find(Eigen::Vector3i(x, y, z));
+        if (!o.free) continue;
+        s.voxels.emplace_back(x, y, z);
+        s.free_frames.push_back(o.free_frame);
+      }
+    }
+  }
+  return s;
+}
+
+void require_tree_whole(const FreeSpace& space) {
+  const std::uint32_t count = space.node_count();
+  std::vector<int> parents(count, 0);
+  for (std::uint32_t i = 0; i < count; ++i) {
+    for (std::uint32_t child : space.node(i).children) {
+      if (child == FreeSpace::kNoNode) continue;
+      REQUIRE(child > i);
+      REQUIRE(child < count);
+      ++parents[child];
+    }
+  }
+  for (std::uint32_t i = 1; i < count; ++i) REQUIRE(parents[i] == 1);
+}
+
+void two_views(Mapper& m) {
+  m.fuse(wall_at(kWall_m));
+  Se3d side = Se3d::Identity();
+  side.translation() = Eigen::Vector3d(1.5, 0.0, 0.0);
+  m.fuse(wall_at(kWall_m), side);
+}
+
+void reload_all(Mapper& m, MemoryStore& store, FreeStoreReport* report) {
+  m.free_space.reload_regions(Eigen::Vector3f(0.0f, 0.0f, 1.5f), 100.0f, store, 1u << 20,
+                              m.free_space.node_capacity(), report);
+}
+
+TEST_CASE("pruned free space goes to the store by region and comes back with the same answers") {
+  Mapper m;
+  two_views(m);
+  const Snapshot before = free_voxels(m.free_space);
+  REQUIRE(before.voxels.size() > 1000);
+
+  MemoryStore store;
+  FreeStoreReport spilled;
+  const std::uint32_t dropped =
+      m.free_space.spill_and_prune(Eigen::Vector3f(1.5f, 0.0f, 0.0f), 1.4f, &store, &spilled);
+  REQUIRE(dropped > 0);
+  REQUIRE(spilled.written > 0);
+  REQUIRE(spilled.write_failed == 0);
+  REQUIRE(spilled.merged == 0);
+  REQUIRE(ask(m, -0.3f, 0.0f, 1.2f).state == PointState::unknown);
+  REQUIRE(free_voxels(m.free_space).voxels.size() < before.voxels.size());
+
+  FreeStoreReport read;
+  reload_all(m, store, &read);
+  REQUIRE(read.read == spilled.written);
+  REQUIRE(read.read_failed == 0);
+  REQUIRE(read.waiting == 0);
+  REQUIRE(store.taken() == spilled.written);
+  const Snapshot after = free_voxels(m.free_space);
+  REQUIRE(after.voxels == before.voxels);
+  REQUIRE(after.free_frames == before.free_frames);
+  REQUIRE(ask(m, -0.3f, 0.0f, 1.2f).state == PointState::free);
+  require_tree_whole(m.free_space);
+
+  // Everything out (a negative radius) and back: still the same; regions read back need no
+  // second read when spilled again.
+  FreeStoreReport all_out;
+  m.free_space.spill_and_prune(Eigen::Vector3f::Zero(), -1.0f, &store, &all_out);
+  REQUIRE(m.free_space.node_count() == 1);
+  REQUIRE(all_out.merged == 0);
+  REQUIRE(store.taken() == 0);
+  FreeStoreReport all_in;
+  reload_all(m, store, &all_in);
+  REQUIRE(all_in.read == all_out.written);
+  const Snapshot again = free_voxels(m.free_space);
+  REQUIRE(again.voxels == before.voxels);
+  REQUIRE(again.free_frames == before.free_frames);
+}
+
+TEST_CASE("air carved again before its region is read back is merged, the newer nodes winning") {
+  Mapper m;
+  two_views(m);
+  const Snapshot before = free_voxels(m.free_space);
+  MemoryStore store;
+  FreeStoreReport out;
+  m.free_space.spill_and_prune(Eigen::Vector3f::Zero(), -1.0f, &store, &out);
+  REQUIRE(out.written > 0);
+
+  // The first view again, with nothing read back: the tree holds this frame's air only.
+  m.fuse(wall_at(kWall_m));
+  const Snapshot fresh = free_voxels(m.free_space);
+  REQUIRE(fresh.voxels.size() < before.voxels.size());
+  FreeStoreReport merged;
+  m.free_space.spill_and_prune(Eigen::Vector3f::Zero(), -1.0f, &store, &merged);
+  REQUIRE(merged.merged > 0);
+
+  FreeStoreReport in;
+  reload_all(m, store, &in);
+  REQUIRE(in.read_failed == 0);
+  const Snapshot after = free_voxels(m.free_space);
+  // The stored air comes back where the newer frame made no node; nothing reads free that
+  // neither the stored tree nor the newer frame had free; the newer frame's air keeps its frame.
+  REQUIRE(after.voxels.size() >
+          fresh.voxels.size() + (before.voxels.size() - fresh.voxels.size()) / 2);
+  for (const Eigen::Vector3i& v : after.voxels) {
+    const bool known =
+        std::find(before.voxels.begin(), before.voxels.end(), v) != before.voxels.end() ||
+        std::find(fresh.voxels.begin(), fresh.voxels.end(), v) != fresh.voxels.end();
+    REQUIRE(known);
+  }
+  for (std::size_t i = 0; i < fresh.voxels.size(); ++i) {
+    const FreeOctant o = m.free_space.find(fresh.voxels[i]);
+    REQUIRE(o.free);
+    REQUIRE(o.free_frame == fresh.free_frames[i]);
+  }
+  require_tree_whole(m.free_space);
+}
+
+TEST_CASE("a damaged or foreign region record is refused and leaves the tree as it was") {
+  Mapper m;
+  two_views(m);
+  MemoryStore store;
+  FreeStoreReport out;
+  m.free_space.spill_and_prune(Eigen::Vector3f(1.5f, 0.0f, 0.0f), 1.4f, &store, &out);
+  REQUIRE(out.written > 0);
+  // The largest record: a region with air in it.
+  std::uint64_t keys[256];
+  const std::size_t found =
+      store.find_in_box(Eigen::Vector3i::Zero(), Eigen::Vector3i::Constant(1 << 20), keys, 256);
+  REQUIRE(found > 0);
+  std::uint64_t key = keys[0];
+  for (std::size_t i = 1; i < found; ++i) {
+    if (store.record(keys[i])->size() > store.record(key)->size()) key = keys[i];
+  }
+  std::vector<std::uint8_t> record = *store.record(key);
+  const std::uint32_t count = m.free_space.node_count();
+  const Snapshot before = free_voxels(m.free_space);
+
+  for (std::size_t at = 0; at < record.size(); at += 3) {
+    std::vector<std::uint8_t> bad = record;
+    bad[at] ^= 0x41;
+    REQUIRE(m.free_space.graft_region_record(key, bad.data(), bad.size()).code() ==
+            StatusCode::data_loss);
+  }
+  for (std::size_t size = 0; size < record.size(); ++size) {
+    REQUIRE(m.free_space.graft_region_record(key, record.data(), size).code() ==
+            StatusCode::data_loss);
+  }
+  // A key that is not a region's corner.
+  REQUIRE(m.free_space.graft_region_record(key + 1, record.data(), record.size()).code() ==
+          StatusCode::data_loss);
+  REQUIRE(m.free_space.node_count() == count);
+  REQUIRE(free_voxels(m.free_space).voxels == before.voxels);
+  // The record itself grafts.
+  REQUIRE(m.free_space.graft_region_record(key, record.data(), record.size()).ok());
+  REQUIRE(free_voxels(m.free_space).voxels.size() > before.voxels.size());
+}
+
+}  // namespace
+}  // namespace octofuse

@@ -297,21 +297,30 @@ TEST_CASE("reset() offers the blocks taken from the store again", "[store]") {
   REQUIRE(second_orbit.first >= first_orbit.first);
 }
 
-TEST_CASE("with a free-space store, forgotten air comes back when the camera returns", "[store]") {
-  // One orbit of the room with a free-space pool for 1.5 of the most one frame carves: the air
-  // of the first views is forgotten long before the orbit closes.
-  const sim::SimConfig sim_config = tiny_room_sim(kOrbitFrames);
+// One orbit of the room at 2 cm with ground-truth poses and a free-space pool for 1.5 of the most
+// one frame of an unbounded run (`unbounded`) carves: the air of the first views is forgotten
+// long before the orbit closes.
+PipelineConfig orbit_free_store_config(const sim::SimConfig& sim_config, TinyRun* unbounded) {
   sim::SimSource truth(sim_config);
   REQUIRE(truth.open().ok());
   PipelineConfig config = small_config(truth, 0.02f, 1);
   config.pose_source = PoseSource::ground_truth;
-  const TinyRun unbounded = run_tiny(sim_config, config);
+  *unbounded = run_tiny(sim_config, config);
   std::uint32_t view_free_nodes = 0;
-  for (const FrameStats& s : unbounded.stats) {
+  for (const FrameStats& s : unbounded->stats) {
     view_free_nodes = std::max(view_free_nodes, s.free_space.new_nodes);
   }
   config.free_space.node_capacity = view_free_nodes * 3 / 2;
   config.budget.max_store_reads = 4096;
+  return config;
+}
+
+TEST_CASE("with a free-space store, forgotten air comes back when the camera returns", "[store]") {
+  const sim::SimConfig sim_config = tiny_room_sim(kOrbitFrames);
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  TinyRun unbounded;
+  const PipelineConfig config = orbit_free_store_config(sim_config, &unbounded);
   const TinyRun forgetting = run_tiny(sim_config, config);
   MemoryStore free_store;
   const TinyRun stored = run_tiny(sim_config, config, nullptr, &free_store);
@@ -347,6 +356,38 @@ TEST_CASE("with a free-space store, forgotten air comes back when the camera ret
   }
   INFO("nearest free sample " << nearest_m << " m from a surface");
   REQUIRE(nearest_m > 0.02);
+}
+
+TEST_CASE("reset() hands the free space to its store, and the next frame reads its air back",
+          "[store]") {
+  const sim::SimConfig sim_config = tiny_room_sim(kOrbitFrames);
+  TinyRun unbounded;
+  const PipelineConfig config = orbit_free_store_config(sim_config, &unbounded);
+  MemoryStore free_store;
+  Buffer buffer(bytes_required(config));
+  Pipeline<MultiresVoxel> pipeline;
+  REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+  REQUIRE(pipeline.set_free_space_store(&free_store).ok());
+  sim::SimSource source(sim_config);
+  REQUIRE(source.open().ok());
+  DepthFrame frame;
+  FrameStats stats;
+  for (int i = 0; i < 20; ++i) {
+    REQUIRE(source.next(frame).outcome == FrameOutcome::frame);
+    REQUIRE(pipeline.process(frame, &stats).ok());
+  }
+  const std::size_t keys_before = free_store.puts;
+  REQUIRE(pipeline.reset().ok());
+  REQUIRE(pipeline.free_space().node_count() == 1);
+  REQUIRE(free_store.taken() == 0);
+  REQUIRE(free_store.puts > keys_before);  // the regions in memory went to the store
+  // The same view again: its air comes back before the frame carves.
+  sim::SimSource again(sim_config);
+  REQUIRE(again.open().ok());
+  REQUIRE(again.next(frame).outcome == FrameOutcome::frame);
+  REQUIRE(pipeline.process(frame, &stats).ok());
+  REQUIRE(stats.free_store.read > 0);
+  REQUIRE(stats.free_store.read_failed == 0);
 }
 
 }  // namespace

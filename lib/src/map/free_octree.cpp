@@ -1,5 +1,6 @@
 #include "octofuse/map/free_octree.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 
@@ -263,26 +264,28 @@ std::uint32_t FreeOctree::skip_subtree(const RegionTree& tree, std::uint32_t at)
 }
 
 void FreeOctree::merge_at(const RegionTree& a, std::uint32_t& ia, const RegionTree* b,
-                          std::uint32_t& ib, RegionTree& out) {
-  // a's node wins; below a node of a's that is not free, b's children a lacks are added.
+                          std::uint32_t& ib, RegionTree& out, bool aged) {
+  // a's node wins; below a node of a's that is not free, b's children a lacks are added, aged
+  // (seen free at frame 0: older than any block).
   const RegionNode& na = a.nodes[ia++];
   const RegionNode* nb = b != nullptr ? &b->nodes[ib++] : nullptr;
   const bool with_b = nb != nullptr && na.free_count == 0;
   const std::uint8_t mask_b = nb != nullptr ? nb->child_mask : 0;
   const std::uint32_t at = out.count++;
   out.nodes[at] = na;
+  if (aged) out.nodes[at].free_frame = 0;
   if (with_b) out.nodes[at].child_mask = static_cast<std::uint8_t>(na.child_mask | mask_b);
   std::uint32_t none = 0;
   for (int c = 0; c < 8; ++c) {
     const bool in_a = (na.child_mask & (1u << c)) != 0;
     const bool in_b = (mask_b & (1u << c)) != 0;
     if (in_a && in_b && with_b) {
-      merge_at(a, ia, b, ib, out);
+      merge_at(a, ia, b, ib, out, aged);
     } else if (in_a) {
-      merge_at(a, ia, nullptr, none, out);
+      merge_at(a, ia, nullptr, none, out, aged);
       if (in_b) ib = skip_subtree(*b, ib);
     } else if (in_b && with_b) {
-      merge_at(*b, ib, nullptr, none, out);
+      merge_at(*b, ib, nullptr, none, out, /*aged=*/true);
     } else if (in_b) {
       ib = skip_subtree(*b, ib);
     }
@@ -293,11 +296,11 @@ void FreeOctree::merge_regions(const RegionTree& a, const RegionTree& b, RegionT
   out.count = 0;
   std::uint32_t ia = 0;
   std::uint32_t ib = 0;
-  merge_at(a, ia, &b, ib, out);
+  merge_at(a, ia, &b, ib, out, /*aged=*/false);
 }
 
 std::uint32_t FreeOctree::graft(std::uint32_t node, const RegionTree& tree, std::uint32_t at,
-                                bool fresh) {
+                                bool fresh, bool aged) {
   // `node` is the tree's node where the record's node `at` lies. A node the tree had wins (and,
   // free, covers the record's subtree); children it lacks come from the record, whole.
   const RegionNode& r = tree.nodes[at++];
@@ -310,6 +313,8 @@ std::uint32_t FreeOctree::graft(std::uint32_t node, const RegionTree& tree, std:
     }
     std::uint32_t child = nodes_[node].children[c];
     bool child_fresh = fresh;
+    // Below a node the tree had, the record's air is older than what the tree re-made since.
+    const bool child_aged = aged || !fresh;
     if (child == kNoNode) {
       child_fresh = true;
       const Result<std::uint32_t> made = nodes_.allocate();
@@ -319,10 +324,10 @@ std::uint32_t FreeOctree::graft(std::uint32_t node, const RegionTree& tree, std:
       const RegionNode& k = tree.nodes[at];
       nodes_[child].free_count = k.free_count;
       nodes_[child].sub_free = k.sub_free;
-      nodes_[child].free_frame = k.free_frame;
+      nodes_[child].free_frame = child_aged ? 0 : k.free_frame;
       nodes_[node].children[c] = child;
     }
-    at = graft(child, tree, at, child_fresh);
+    at = graft(child, tree, at, child_fresh, child_fresh && child_aged);
   }
   return at;
 }
@@ -368,7 +373,7 @@ Status FreeOctree::graft_region_record(std::uint64_t key, const std::uint8_t* re
     }
     index = next;
   }
-  graft(index, region_stored_, 0, fresh);
+  graft(index, region_stored_, 0, fresh, /*aged=*/false);
   nodes_[index].region_loaded = 1;
   return ok_status();
 }
@@ -441,15 +446,17 @@ void FreeOctree::spill_below(std::uint32_t node, int level, const Eigen::Vector3
   }
 }
 
-void FreeOctree::reload_regions(const Eigen::Vector3f& centre_W, float radius_m, BlockStore& store,
+void FreeOctree::reload_regions(const RegionReach& reach, BlockStore& store,
                                 std::uint32_t max_reads, std::uint32_t max_nodes,
                                 FreeStoreReport* report) {
-  if (!reserved_ || !(radius_m >= 0.0f)) return;
+  const bool in_view = reach.camera.valid() && reach.far_m > reach.radius_m;
+  const float range_m = in_view ? reach.far_m : reach.radius_m;
+  if (!reserved_ || !(range_m >= 0.0f) || !reach.camera_W.allFinite()) return;
   const float voxel = map_.voxel_size_m;
   const int side = region_voxels();
   const int n = 1 << map_.voxel_depth;
-  const Eigen::Vector3f c = (centre_W - map_.origin_W) / voxel;
-  const float r = radius_m / voxel;
+  const Eigen::Vector3f c = (reach.camera_W - map_.origin_W) / voxel;
+  const float r = range_m / voxel;
   auto clamp_voxel = [n](float f) {
     if (!(f > 0.0f)) return 0;
     if (!(f < static_cast<float>(n - 1))) return n - 1;
@@ -461,31 +468,59 @@ void FreeOctree::reload_regions(const Eigen::Vector3f& centre_W, float radius_m,
     lo[a] = clamp_voxel(c[a] - r) & ~(side - 1);
     hi[a] = clamp_voxel(c[a] + r);
   }
-  std::uint64_t keys[kReloadKeyCapacity];
-  const std::size_t found = store.find_in_box(lo / 8, hi / 8, keys, kReloadKeyCapacity);
+  const std::size_t found = store.find_in_box(lo / 8, hi / 8, reload_keys_, kReloadKeyCapacity);
+  // Those in reach, nearest first (ties by key: the same order on every machine).
+  const float half_diagonal_m = 0.8660254f * static_cast<float>(side) * voxel;
+  const float margin_px = std::max(reach.camera.fx, reach.camera.fy);
+  std::size_t count = 0;
   for (std::size_t i = 0; i < found; ++i) {
-    const Eigen::Vector3i min_voxel = morton_decode(keys[i]) * 8;
+    const Eigen::Vector3i min_voxel = morton_decode(reload_keys_[i]) * 8;
     if (!is_region_corner(min_voxel, side)) continue;
-    const Eigen::Vector3f box_lo = min_voxel.cast<float>();
-    const Eigen::Vector3f box_hi = box_lo + Eigen::Vector3f::Constant(static_cast<float>(side));
-    const Eigen::Vector3f nearest = c.cwiseMax(box_lo).cwiseMin(box_hi);
-    if (!((nearest - c).squaredNorm() <= r * r)) continue;
+    const Eigen::Vector3f centre_W =
+        map_.origin_W +
+        (min_voxel.cast<float>() + Eigen::Vector3f::Constant(0.5f * static_cast<float>(side))) *
+            voxel;
+    const Eigen::Vector3f to_centre = centre_W - reach.camera_W;
+    const float distance_m = to_centre.norm();
+    bool wanted = distance_m - half_diagonal_m <= reach.radius_m;
+    if (!wanted && in_view && distance_m - half_diagonal_m <= reach.far_m) {
+      // The region's bounding sphere against the view: straddling the camera plane, or its
+      // centre within the image grown by the sphere's projected radius.
+      const Eigen::Vector3f p_C = reach.R_C_W * to_centre;
+      if (p_C.z() <= half_diagonal_m) {
+        wanted = p_C.z() > -half_diagonal_m;
+      } else {
+        const Eigen::Vector2f px = reach.camera.project(p_C);
+        const float grow = margin_px * half_diagonal_m / p_C.z();
+        wanted = px.x() >= -grow && px.y() >= -grow &&
+                 px.x() <= static_cast<float>(reach.camera.width) + grow &&
+                 px.y() <= static_cast<float>(reach.camera.height) + grow;
+      }
+    }
+    if (wanted) reload_candidates_[count++] = RegionCandidate{distance_m, reload_keys_[i]};
+  }
+  std::sort(reload_candidates_, reload_candidates_ + count,
+            [](const RegionCandidate& a, const RegionCandidate& b) {
+              return a.distance_m < b.distance_m || (a.distance_m == b.distance_m && a.key < b.key);
+            });
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::uint64_t key = reload_candidates_[i].key;
     if (report->read >= max_reads ||
         nodes_.used() + kRegionMaxNodes + static_cast<std::uint32_t>(region_level_) > max_nodes) {
-      ++report->waiting;
-      continue;
+      report->waiting += static_cast<std::uint32_t>(count - i);
+      break;
     }
-    const Result<std::size_t> size = store.take(keys[i], region_record_, kRegionRecordMaxBytes);
+    const Result<std::size_t> size = store.take(key, region_record_, kRegionRecordMaxBytes);
     if (!size.ok()) {
       ++report->read_failed;
       continue;
     }
     report->bytes_read += size.value();
-    const Status grafted = graft_region_record(keys[i], region_record_, size.value());
+    const Status grafted = graft_region_record(key, region_record_, size.value());
     if (grafted.ok()) {
       ++report->read;
     } else if (grafted.code() == StatusCode::resource_exhausted) {
-      store.release(keys[i]);
+      store.release(key);
       ++report->waiting;
     } else {
       // Damaged: dropped (the tree's own air, carved again, replaces it when spilled).

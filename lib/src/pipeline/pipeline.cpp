@@ -1228,11 +1228,17 @@ void Pipeline<VoxelT>::carve_free_space() {
                                  ? config_.free_space.prune_radius_m
                                  : 0.25f * config_.fusion.far_m;
   if (free_store_ != nullptr) {
-    // Stored air within the distance pruning keeps comes back before this frame carves, while
-    // the pool stays under 7/8 full (pruning starts at 15/16).
-    free_space_.reload_regions(T_W_C_.translation().cast<float>(), min_radius_m, *free_store_,
-                               config_.budget.max_store_reads, capacity - capacity / 8,
-                               &stats.free_store);
+    // Stored air near the camera or in its view comes back before this frame carves (so the
+    // frame clears what it now sees occupied), nearest first, while the pool stays under 7/8
+    // full (pruning starts at 15/16).
+    RegionReach reach;
+    reach.camera_W = T_W_C_.translation().cast<float>();
+    reach.R_C_W = T_W_C_.linear().transpose().cast<float>();
+    reach.camera = working_camera_;
+    reach.radius_m = min_radius_m;
+    reach.far_m = config_.validator.far_m;
+    free_space_.reload_regions(reach, *free_store_, config_.budget.max_store_reads,
+                               capacity - capacity / 8, &stats.free_store);
   }
   stats.free_space = free_space_.carve(preprocessor_.pyramid().depth_m[0], working_camera_, T_W_C_,
                                        static_cast<std::uint32_t>(stats.frame_index), beyond,

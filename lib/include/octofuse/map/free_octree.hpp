@@ -15,6 +15,7 @@
 #include "octofuse/core/pool.hpp"
 #include "octofuse/core/result.hpp"
 #include "octofuse/map/map_config.hpp"
+#include "octofuse/math/camera.hpp"
 
 namespace octofuse {
 
@@ -121,6 +122,17 @@ struct FreeStoreReport {
   std::uint64_t bytes_read = 0;
 };
 
+// Where FreeOctree::reload_regions() reads stored regions back: every region that comes within
+// `radius_m` of the camera, and every region whose bounding sphere reaches into the camera's view
+// nearer than `far_m` (so the frame carves into the old air and clears what it now sees occupied).
+struct RegionReach {
+  Eigen::Vector3f camera_W = Eigen::Vector3f::Zero();
+  Eigen::Matrix3f R_C_W = Eigen::Matrix3f::Identity();  // world to camera
+  PinholeCamera camera;                                 // not valid(): the sphere of radius_m alone
+  float radius_m = 0.0f;
+  float far_m = 0.0f;
+};
+
 // The free octant containing a point, as found by FreeOctree::find().
 struct FreeOctant {
   bool free = false;
@@ -162,7 +174,7 @@ class FreeOctree {
   // corner's block coordinates (block_store.hpp's interface, on its own store). reload_regions()
   // grafts stored regions back when the camera returns. Merging keeps the tree's own node
   // wherever both have one (memory is newer), so nothing the tree cleared comes back free; stored
-  // air the tree has no node for is added as it was.
+  // air the tree has no node for is added, aged to frame 0 below a node the tree re-made.
   int region_level() const { return region_level_; }
   int region_voxels() const { return 1 << (map_.voxel_depth - region_level_); }
   // Most bytes one region record takes.
@@ -174,12 +186,15 @@ class FreeOctree {
                                 BlockStore* store, FreeStoreReport* report);
   std::uint32_t spill_and_prune_to(const Eigen::Vector3f& centre_W, std::uint32_t max_nodes,
                                    float min_radius_m, BlockStore* store, FreeStoreReport* report);
-  // Grafts back stored regions that come within `radius_m` of `centre_W`, at most `max_reads`,
-  // while the pool stays below `max_nodes` (the rest wait: FreeStoreReport::waiting).
-  void reload_regions(const Eigen::Vector3f& centre_W, float radius_m, BlockStore& store,
-                      std::uint32_t max_reads, std::uint32_t max_nodes, FreeStoreReport* report);
+  // Grafts back stored regions within `reach`, nearest first, at most `max_reads`, while the pool
+  // stays below `max_nodes` (the rest wait: FreeStoreReport::waiting). At most
+  // kReloadKeyCapacity stored regions are looked at per call (those with the lowest keys).
+  void reload_regions(const RegionReach& reach, BlockStore& store, std::uint32_t max_reads,
+                      std::uint32_t max_nodes, FreeStoreReport* report);
   // Grafts one region record into the tree (as reload_regions() does): ok, data_loss (not a
   // valid record of this tree; the tree unchanged), resource_exhausted (no room; unchanged).
+  // Nodes added below a node the tree already had (air it re-made since the record was written)
+  // count as seen free at frame 0, older than any block: they never override a surface.
   Status graft_region_record(std::uint64_t region_key, const std::uint8_t* record,
                              std::size_t size);
 
@@ -245,13 +260,20 @@ class FreeOctree {
                     BlockStore& store, FreeStoreReport& report);
   void spill_below(std::uint32_t node, int level, const Eigen::Vector3i& min_voxel,
                    const FreeNode* inherited, BlockStore& store, FreeStoreReport& report);
-  std::uint32_t graft(std::uint32_t node, const RegionTree& tree, std::uint32_t at, bool fresh);
+  std::uint32_t graft(std::uint32_t node, const RegionTree& tree, std::uint32_t at, bool fresh,
+                      bool aged);
   static std::uint32_t skip_subtree(const RegionTree& tree, std::uint32_t at);
   static void merge_at(const RegionTree& a, std::uint32_t& ia, const RegionTree* b,
-                       std::uint32_t& ib, RegionTree& out);
+                       std::uint32_t& ib, RegionTree& out, bool aged);
   // a and b merged, a's nodes winning (memory over store).
   static void merge_regions(const RegionTree& a, const RegionTree& b, RegionTree& out);
-  static constexpr std::size_t kReloadKeyCapacity = 256;
+  static constexpr std::size_t kReloadKeyCapacity = 1024;
+  struct RegionCandidate {
+    float distance_m;
+    std::uint64_t key;
+  };
+  RegionCandidate* reload_candidates_ = nullptr;  // kReloadKeyCapacity
+  std::uint64_t* reload_keys_ = nullptr;          // kReloadKeyCapacity
   std::uint64_t region_key(const Eigen::Vector3i& min_voxel) const;
 
   // Nodes within keep_radius_m of centre_W (the root and every node whose octant comes that close
@@ -292,6 +314,13 @@ Status FreeOctree::reserve_prune_scratch(Arena& arena) {
   Result<std::uint8_t*> record = arena.template allocate_array<std::uint8_t>(kRegionRecordMaxBytes);
   OCTOFUSE_TRY(record);
   region_record_ = record.value();
+  Result<RegionCandidate*> candidates =
+      arena.template allocate_array<RegionCandidate>(kReloadKeyCapacity);
+  OCTOFUSE_TRY(candidates);
+  reload_candidates_ = candidates.value();
+  Result<std::uint64_t*> keys = arena.template allocate_array<std::uint64_t>(kReloadKeyCapacity);
+  OCTOFUSE_TRY(keys);
+  reload_keys_ = keys.value();
   return ok_status();
 }
 

@@ -259,6 +259,26 @@ struct FrameDisplay {
   EsdfSliceImage slice;
 };
 
+// After a frame, a store (--map-file or its FILE.free): what the frame wrote survives a power cut
+// from here on, and old versions are reclaimed a little per frame (at most twice what the frame
+// wrote plus 256 KiB of copying, so a compaction always catches up with the writes). Each failure
+// is warned about once.
+void keep_store(host::BlockStoreFile& store, bool wrote, std::uint64_t bytes_written,
+                const char* path, const char* what, bool* sync_warned, bool* compact_warned) {
+  if (wrote && !store.sync().ok() && !*sync_warned) {
+    *sync_warned = true;
+    std::fprintf(stderr, "warning: %s: sync failed; the store may lose recent %s\n", path, what);
+  }
+  ErrorText compact_error;
+  const std::size_t compact_budget =
+      static_cast<std::size_t>(2 * bytes_written) + (std::size_t{256} << 10);
+  if (!store.compact_step(compact_budget, &compact_error).ok() && !*compact_warned) {
+    *compact_warned = true;
+    std::fprintf(stderr, "warning: %s (the store keeps growing until one succeeds)\n",
+                 compact_error.c_str());
+  }
+}
+
 // The distance field's slice at the camera's height into the snapshot (with --esdf).
 template <typename VoxelT>
 void fill_slice(const Pipeline<VoxelT>& pipeline, EsdfSliceImage* slice, LiveSnapshot* snapshot) {
@@ -373,6 +393,7 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
   bool store_compact_warned = false;
   bool store_write_warned = false;
   bool free_store_sync_warned = false;
+  bool free_store_compact_warned = false;
   bool free_store_failed_warned = false;
   const PipelineBudget default_budget;
   for (int level = 0; level < kPyramidLevels; ++level) {
@@ -502,22 +523,9 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
       t.remapped += stats.store.remapped;
       t.bytes_written += stats.store.bytes_written;
       t.bytes_read += stats.store.bytes_read;
-      // What this frame handed over survives a power cut from here on.
-      if (stats.store.written > 0 && !run->store->sync().ok() && !store_sync_warned) {
-        store_sync_warned = true;
-        std::fprintf(stderr, "warning: %s: sync failed; the store may lose recent blocks\n",
-                     options.map_file_path.c_str());
-      }
-      // Old versions of blocks are reclaimed a little per frame: at most twice what this frame
-      // wrote plus 256 KiB of copying, so a compaction always catches up with the writes.
-      ErrorText compact_error;
-      const std::size_t compact_budget =
-          static_cast<std::size_t>(2 * stats.store.bytes_written) + (std::size_t{256} << 10);
-      if (!run->store->compact_step(compact_budget, &compact_error).ok() && !store_compact_warned) {
-        store_compact_warned = true;
-        std::fprintf(stderr, "warning: %s (the store keeps growing until one succeeds)\n",
-                     compact_error.c_str());
-      }
+      keep_store(*run->store, stats.store.written > 0, stats.store.bytes_written,
+                 options.map_file_path.c_str(), "blocks", &store_sync_warned,
+                 &store_compact_warned);
       if (stats.store.write_failed > 0 && !store_write_warned) {
         store_write_warned = true;
         std::fprintf(stderr,
@@ -537,20 +545,9 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
       t.merged += f.merged;
       t.bytes_written += f.bytes_written;
       t.bytes_read += f.bytes_read;
-      if (f.written > 0 && !run->free_store->sync().ok() && !free_store_sync_warned) {
-        free_store_sync_warned = true;
-        std::fprintf(stderr, "warning: %s.free: sync failed; the store may lose recent regions\n",
-                     options.map_file_path.c_str());
-      }
-      ErrorText compact_error;
-      const std::size_t compact_budget =
-          static_cast<std::size_t>(2 * f.bytes_written) + (std::size_t{256} << 10);
-      if (!run->free_store->compact_step(compact_budget, &compact_error).ok() &&
-          !store_compact_warned) {
-        store_compact_warned = true;
-        std::fprintf(stderr, "warning: %s (the store keeps growing until one succeeds)\n",
-                     compact_error.c_str());
-      }
+      keep_store(*run->free_store, f.written > 0, f.bytes_written,
+                 (options.map_file_path + ".free").c_str(), "regions", &free_store_sync_warned,
+                 &free_store_compact_warned);
       if ((f.write_failed > 0 || f.read_failed > 0) && !free_store_failed_warned) {
         free_store_failed_warned = true;
         std::fprintf(stderr,

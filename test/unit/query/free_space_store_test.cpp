@@ -197,5 +197,66 @@ TEST_CASE("a damaged or foreign region record is refused and leaves the tree as 
   REQUIRE(free_voxels(m.free_space).voxels.size() > before.voxels.size());
 }
 
+// A store whose writes or reads fail on demand (a full or failing medium), over a MemoryStore.
+class FailingStore final : public BlockStore {
+ public:
+  Status put(std::uint64_t key, const std::uint8_t* record, std::size_t size) override {
+    if (fail_put) return StatusCode::unavailable;
+    return inner.put(key, record, size);
+  }
+  std::size_t find_in_box(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi, std::uint64_t* keys,
+                          std::size_t capacity) override {
+    return inner.find_in_box(lo, hi, keys, capacity);
+  }
+  Result<std::size_t> take(std::uint64_t key, std::uint8_t* record, std::size_t capacity) override {
+    if (fail_take) return StatusCode::data_loss;
+    return inner.take(key, record, capacity);
+  }
+  void release(std::uint64_t key) override { inner.release(key); }
+  MemoryStore inner;
+  bool fail_put = false;
+  bool fail_take = false;
+};
+
+TEST_CASE("a store that fails writes or reads costs that air, counted, and nothing else") {
+  Mapper m;
+  two_views(m);
+  FailingStore store;
+  store.fail_put = true;
+  FreeStoreReport out;
+  const std::uint32_t dropped =
+      m.free_space.spill_and_prune(Eigen::Vector3f(1.5f, 0.0f, 0.0f), 1.4f, &store, &out);
+  REQUIRE(dropped > 0);
+  REQUIRE(out.written == 0);
+  REQUIRE(out.write_failed > 0);
+  require_tree_whole(m.free_space);
+  // Nothing was stored: nothing comes back, and nothing fails.
+  FreeStoreReport in;
+  RegionReach reach;
+  reach.camera_W = Eigen::Vector3f(0.0f, 0.0f, 1.5f);
+  reach.radius_m = 100.0f;
+  m.free_space.reload_regions(reach, store, 1u << 20, m.free_space.node_capacity(), &in);
+  REQUIRE(in.read == 0);
+  REQUIRE(in.read_failed == 0);
+  REQUIRE(ask(m, -0.3f, 0.0f, 1.2f).state == PointState::unknown);
+
+  // Stored, then unreadable: each region is counted as failed and the tree stays as it was.
+  Mapper again;
+  two_views(again);
+  FailingStore failing;
+  FreeStoreReport stored;
+  again.free_space.spill_and_prune(Eigen::Vector3f(1.5f, 0.0f, 0.0f), 1.4f, &failing, &stored);
+  REQUIRE(stored.written > 0);
+  const std::uint32_t count = again.free_space.node_count();
+  failing.fail_take = true;
+  FreeStoreReport unreadable;
+  again.free_space.reload_regions(reach, failing, 1u << 20, again.free_space.node_capacity(),
+                                  &unreadable);
+  REQUIRE(unreadable.read == 0);
+  REQUIRE(unreadable.read_failed == stored.written);
+  REQUIRE(again.free_space.node_count() == count);
+  require_tree_whole(again.free_space);
+}
+
 }  // namespace
 }  // namespace octofuse

@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include "octofuse/map/block_store.hpp"
+#include "octofuse/map/detail/little_endian.hpp"
 #include "octofuse/map/keys.hpp"
 #include "octofuse/map/map_io.hpp"
 
@@ -160,14 +161,8 @@ constexpr std::uint8_t kRegionVersion = 1;
 constexpr std::size_t kRegionHeadBytes = 8;  // magic, version, levels below the root, node count
 constexpr std::size_t kRegionNodeBytes = 7;  // child mask, free count, sub-cells, free frame
 
-void put_u32(std::uint8_t* out, std::uint32_t v) {
-  for (int i = 0; i < 4; ++i) out[i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-std::uint32_t get_u32(const std::uint8_t* in) {
-  std::uint32_t v = 0;
-  for (int i = 0; i < 4; ++i) v |= static_cast<std::uint32_t>(in[i]) << (8 * i);
-  return v;
-}
+using detail::get_u32;
+using detail::put_u32;
 bool is_region_corner(const Eigen::Vector3i& min_voxel, int side) {
   return (min_voxel.x() & (side - 1)) == 0 && (min_voxel.y() & (side - 1)) == 0 &&
          (min_voxel.z() & (side - 1)) == 0;

@@ -6,6 +6,7 @@
 #include <cstring>
 
 #include "octofuse/map/block_store.hpp"
+#include "octofuse/map/detail/little_endian.hpp"
 #include "octofuse/map/free_octree.hpp"
 
 namespace octofuse {
@@ -43,13 +44,8 @@ float bits_float(std::uint32_t u) {
   std::memcpy(&f, &u, sizeof(f));
   return f;
 }
-void put_u32(std::uint8_t* p, std::uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-std::uint32_t get_u32(const std::uint8_t* p) {
-  return static_cast<std::uint32_t>(p[0]) | (static_cast<std::uint32_t>(p[1]) << 8) |
-         (static_cast<std::uint32_t>(p[2]) << 16) | (static_cast<std::uint32_t>(p[3]) << 24);
-}
+using detail::get_u32;
+using detail::put_u32;
 
 bool tsdf_ok(float t) {
   return t >= -1.0f && t <= 1.0f;  // false for NaN

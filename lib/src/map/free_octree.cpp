@@ -217,12 +217,12 @@ bool FreeOctree::decode_region(const std::uint8_t* record, std::size_t size,
   if (size < kRegionHeadBytes + kRegionNodeBytes + 4) return false;
   if (std::memcmp(record, kRegionMagic, 4) != 0 || record[4] != kRegionVersion) return false;
   if (record[5] != leaf_level_ - region_level_) return false;
-  const std::uint32_t count = record[6] | (static_cast<std::uint32_t>(record[7]) << 8);
+  const std::uint32_t count = region_record_nodes(record, size);
   if (count == 0 || count > kRegionMaxNodes) return false;
   if (size != kRegionHeadBytes + kRegionNodeBytes * count + 4) return false;
   if (crc32(record, size - 4) != get_u32(record + size - 4)) return false;
   // The masks must describe exactly `count` nodes in preorder, none below the leaves.
-  std::uint32_t pending[4 * 8 + 1];  // children still to come per open level
+  std::uint32_t pending[kRegionLevels];  // children still to come per open level
   int open = 0;
   const std::uint8_t* p = record + kRegionHeadBytes;
   const int max_depth = leaf_level_ - region_level_;

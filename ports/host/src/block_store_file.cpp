@@ -558,7 +558,6 @@ Status merge_free_space_with_store(const FreeSpace& free_space, BlockStoreFile& 
   std::size_t listed = 0;
   std::uint64_t nodes = free_space.node_count();
   const int region_level = free_space.region_level();
-  std::uint8_t head[8];
   Status failed;
   free_store.for_each_key([&](std::uint64_t key) {
     if (free_store.in_memory(key) || !failed.ok()) return;
@@ -571,8 +570,7 @@ Status merge_free_space_with_store(const FreeSpace& free_space, BlockStoreFile& 
       failed = size.status();
       return;
     }
-    std::memcpy(head, record, sizeof(head));
-    nodes += size.value() >= sizeof(head) ? (head[6] | (std::uint64_t{head[7]} << 8)) : 0;
+    nodes += FreeOctree::region_record_nodes(record, size.value());
   });
   if (!failed.ok()) {
     if (error != nullptr) error->set("%s: cannot read a stored free-space region", path);

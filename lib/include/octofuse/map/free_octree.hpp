@@ -177,9 +177,18 @@ class FreeOctree {
   // air the tree has no node for is added, aged to frame 0 below a node the tree re-made.
   int region_level() const { return region_level_; }
   int region_voxels() const { return 1 << (map_.voxel_depth - region_level_); }
-  // Most bytes one region record takes.
-  static constexpr std::size_t kRegionMaxNodes = 1 + 8 + 64 + 512;
+  // Levels of a region below its node (the leaves' level less the region's, where the cube
+  // allows), its most nodes, and the most bytes one region record takes.
+  static constexpr int kRegionLevels = 3;
+  static constexpr std::size_t kRegionMaxNodes =
+      ((std::size_t{1} << (3 * (kRegionLevels + 1))) - 1) / 7;
   static constexpr std::size_t kRegionRecordMaxBytes = 8 + 7 * kRegionMaxNodes + 4;
+  static_assert(kRegionMaxNodes == 1 + 8 + 64 + 512, "the record's u16 node count holds it");
+  // The node count a region record's head states (0 when it is shorter than its head); for
+  // sizing a tree to graft records into. The graft checks the whole record.
+  static std::uint32_t region_record_nodes(const std::uint8_t* record, std::size_t size) {
+    return size < 8 ? 0 : record[6] | (static_cast<std::uint32_t>(record[7]) << 8);
+  }
   // prune() / prune_to() that first writes every forgotten region to `store` (null: prune()).
   // A negative radius forgets every region (Pipeline::reset()).
   std::uint32_t spill_and_prune(const Eigen::Vector3f& centre_W, float keep_radius_m,

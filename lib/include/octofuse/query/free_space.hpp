@@ -7,6 +7,7 @@
 // Threading: carve(), clear() and prune() must not overlap reads (the pipeline's MapGuard orders
 // them).
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 
@@ -176,7 +177,7 @@ Status FreeSpace::reserve(Arena& arena, const FreeSpaceConfig& config, const Map
   occlusion_clear_m_ = config.occlusion_clear_m;
   config_.finest_octant_voxels = resolve_finest_octant_voxels(config.finest_octant_voxels, map);
   leaf_level_ = free_leaf_level(map.block_level(), config_.finest_octant_voxels);
-  region_level_ = leaf_level_ > 4 ? leaf_level_ - 3 : 1;
+  region_level_ = std::max(1, leaf_level_ - kRegionLevels);
   sub_cell_voxels_ = config_.finest_octant_voxels / 2;
   finish_reserve(arena, start);
   return ok_status();

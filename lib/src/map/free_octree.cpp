@@ -167,6 +167,12 @@ bool is_region_corner(const Eigen::Vector3i& min_voxel, int side) {
   return (min_voxel.x() & (side - 1)) == 0 && (min_voxel.y() & (side - 1)) == 0 &&
          (min_voxel.z() & (side - 1)) == 0;
 }
+// The child (bits as FreeNode::children) of the octant at `level` that holds finest voxel `voxel`.
+int child_towards(const Eigen::Vector3i& voxel, int level, int voxel_depth) {
+  const int bit = voxel_depth - level - 1;
+  return ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
+         (((voxel.z() >> bit) & 1) << 2);
+}
 int popcount8(std::uint8_t v) {
   int n = 0;
   for (; v != 0; v = static_cast<std::uint8_t>(v & (v - 1))) ++n;
@@ -294,6 +300,21 @@ void FreeOctree::merge_regions(const RegionTree& a, const RegionTree& b, RegionT
   merge_at(a, ia, &b, ib, out, /*aged=*/false);
 }
 
+std::uint32_t FreeOctree::add_child(std::uint32_t parent, int child, const RegionNode* from,
+                                    bool aged) {
+  const Result<std::uint32_t> made = nodes_.allocate();
+  OCTOFUSE_CHECK(made.ok());  // room was checked for the whole record
+  FreeNode& n = nodes_[made.value()];
+  n = FreeNode{};
+  if (from != nullptr) {
+    n.free_count = from->free_count;
+    n.sub_free = from->sub_free;
+    n.free_frame = aged ? 0 : from->free_frame;
+  }
+  nodes_[parent].children[child] = made.value();
+  return made.value();
+}
+
 std::uint32_t FreeOctree::graft(std::uint32_t node, const RegionTree& tree, std::uint32_t at,
                                 bool fresh, bool aged) {
   // `node` is the tree's node where the record's node `at` lies. A node the tree had wins (and,
@@ -312,15 +333,7 @@ std::uint32_t FreeOctree::graft(std::uint32_t node, const RegionTree& tree, std:
     const bool child_aged = aged || !fresh;
     if (child == kNoNode) {
       child_fresh = true;
-      const Result<std::uint32_t> made = nodes_.allocate();
-      OCTOFUSE_CHECK(made.ok());  // room was checked for the whole record
-      child = made.value();
-      nodes_[child] = FreeNode{};
-      const RegionNode& k = tree.nodes[at];
-      nodes_[child].free_count = k.free_count;
-      nodes_[child].sub_free = k.sub_free;
-      nodes_[child].free_frame = child_aged ? 0 : k.free_frame;
-      nodes_[node].children[c] = child;
+      child = add_child(node, c, &tree.nodes[at], child_aged);
     }
     at = graft(child, tree, at, child_fresh, child_fresh && child_aged);
   }
@@ -348,23 +361,12 @@ Status FreeOctree::graft_region_record(std::uint64_t key, const std::uint8_t* re
   bool fresh = false;
   for (int level = 0; level < region_level_; ++level) {
     if (nodes_[index].free_count > 0) return ok_status();
-    const int bit = depth - level - 1;
-    const int child = ((min_voxel.x() >> bit) & 1) | (((min_voxel.y() >> bit) & 1) << 1) |
-                      (((min_voxel.z() >> bit) & 1) << 2);
+    const int child = child_towards(min_voxel, level, depth);
     std::uint32_t next = nodes_[index].children[child];
     if (next == kNoNode) {
-      const Result<std::uint32_t> made = nodes_.allocate();
-      OCTOFUSE_CHECK(made.ok());
-      next = made.value();
-      nodes_[next] = FreeNode{};
-      if (level + 1 == region_level_) {
-        const RegionNode& root = region_stored_.nodes[0];
-        nodes_[next].free_count = root.free_count;
-        nodes_[next].sub_free = root.sub_free;
-        nodes_[next].free_frame = root.free_frame;
-        fresh = true;
-      }
-      nodes_[index].children[child] = next;
+      // A path node is empty; the region's own node takes the record's root.
+      fresh = level + 1 == region_level_;
+      next = add_child(index, child, fresh ? &region_stored_.nodes[0] : nullptr, false);
     }
     index = next;
   }
@@ -561,10 +563,7 @@ FreeOctant FreeOctree::find(const Eigen::Vector3i& voxel) const {
       out.min_voxel = (voxel - in_leaf) + cell * sub_cell_voxels_;
       return out;
     }
-    const int bit = depth - level - 1;
-    const int child = ((voxel.x() >> bit) & 1) | (((voxel.y() >> bit) & 1) << 1) |
-                      (((voxel.z() >> bit) & 1) << 2);
-    index = node.children[child];
+    index = node.children[child_towards(voxel, level, depth)];
     if (index == kNoNode) return out;
   }
 }

@@ -269,6 +269,9 @@ class FreeOctree {
                     BlockStore& store, FreeStoreReport& report);
   void spill_below(std::uint32_t node, int level, const Eigen::Vector3i& min_voxel,
                    const FreeNode* inherited, BlockStore& store, FreeStoreReport& report);
+  // A new node as child `child` of `parent`: empty, or with `from`'s state (its frame 0 when
+  // `aged`). The pool must have room.
+  std::uint32_t add_child(std::uint32_t parent, int child, const RegionNode* from, bool aged);
   std::uint32_t graft(std::uint32_t node, const RegionTree& tree, std::uint32_t at, bool fresh,
                       bool aged);
   static std::uint32_t skip_subtree(const RegionTree& tree, std::uint32_t at);

@@ -218,6 +218,22 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
   return sizes;
 }
 
+// Opens (or creates) the store at `path` for a map of `geometry`: the store, or null with a
+// one-line `error`; a dropped torn tail is warned about.
+std::unique_ptr<host::BlockStoreFile> open_store(const std::string& path,
+                                                 const std::uint8_t* geometry,
+                                                 std::size_t geometry_size, std::string* error) {
+  auto store = std::make_unique<host::BlockStoreFile>();
+  ErrorText store_error;
+  ErrorText warning;
+  if (!store->open(path.c_str(), geometry, geometry_size, &store_error, &warning).ok()) {
+    *error = store_error.c_str();
+    return nullptr;
+  }
+  if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
+  return store;
+}
+
 }  // namespace
 
 int open_inputs(const RunOptions& options, RunSummary* summary, RunInputs* inputs) {
@@ -394,33 +410,19 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
     store_geometry.origin_W = map.origin_W;
     std::uint8_t geometry[host::kStoreGeometryBytes];
     host::encode_store_geometry(store_geometry, geometry);
-    run->store = std::make_unique<host::BlockStoreFile>();
-    ErrorText store_error;
-    ErrorText warning;
-    if (!run->store
-             ->open(options.map_file_path.c_str(), geometry, sizeof(geometry), &store_error,
-                    &warning)
-             .ok()) {
-      return error_exit(store_error.c_str());
-    }
-    if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
+    std::string store_error;
+    run->store = open_store(options.map_file_path, geometry, sizeof(geometry), &store_error);
+    if (run->store == nullptr) return error_exit(store_error);
     if (!pipeline.set_block_store(run->store.get()).ok()) {
       return error_exit("--map-file needs eviction (--evict HIGH,LOW)");
     }
     if (pipeline.config().free_space.enabled) {
       // Free space the pool forgets goes to FILE.free, by region.
-      const std::string free_path = options.map_file_path + ".free";
       std::uint8_t free_geometry[host::kFreeStoreGeometryBytes];
       host::encode_free_store_geometry(store_geometry, free_geometry);
-      run->free_store = std::make_unique<host::BlockStoreFile>();
-      ErrorText free_warning;
-      if (!run->free_store
-               ->open(free_path.c_str(), free_geometry, sizeof(free_geometry), &store_error,
-                      &free_warning)
-               .ok()) {
-        return error_exit(store_error.c_str());
-      }
-      if (!free_warning.empty()) std::fprintf(stderr, "warning: %s\n", free_warning.c_str());
+      run->free_store = open_store(options.map_file_path + ".free", free_geometry,
+                                   sizeof(free_geometry), &store_error);
+      if (run->free_store == nullptr) return error_exit(store_error);
       if (!pipeline.set_free_space_store(run->free_store.get()).ok()) {
         return error_exit("cannot attach the free-space store");
       }

@@ -40,7 +40,8 @@ std::string supported_sources() {
   out += "                       tum:DIR | 7scenes:DIR | icl:DIR | raw:FILE (recordings)\n";
   out += "                       mcap:FILE[?depth=T&info=T&pose=T&world=F&buffer=MB&reorder=MB\n";
   out += "                         &hold=N&tf_history=N] (ROS 2 bag; poses at image stamps)\n";
-  out += "                       rosbag:FILE[?same options] (ROS 1 bag, format 2.0)\n";
+  out += "                       rosbag:FILE[?same options&readahead=0|1] (ROS 1 bag, format\n";
+  out += "                         2.0; readahead: decompress chunks on a second thread)\n";
 #endif
 #if defined(OCTOFUSE_EXAMPLES_HAVE_OPENNI2)
   out += "                       openni2[:URI] | oni:FILE (OpenNI2 camera or recording)\n";

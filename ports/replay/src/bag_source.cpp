@@ -146,6 +146,16 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
       query = end;
       continue;
     }
+    if (key_size == 9 && std::strncmp(key, "readahead", 9) == 0) {
+      // ROS 1 bags: decompress the next chunk on a second thread (1, the default) or not (0).
+      if (value_size != 1 || (value[0] != '0' && value[0] != '1')) {
+        error->set("%s: readahead= needs 0 or 1", name);
+        return StatusCode::invalid_argument;
+      }
+      config->limits.read_ahead = value[0] == '1';
+      query = end;
+      continue;
+    }
     if (key_size == 6 && std::strncmp(key, "buffer", 6) == 0) {
       // Megabytes for each of the reader's two buffers (record and chunk).
       std::size_t bytes = 0;
@@ -167,7 +177,7 @@ Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error) {
     if (out == nullptr) {
       error->set(
           "%s: unknown option '%.*s' (depth, info, pose, world, tf, buffer, reorder, hold, "
-          "tf_history)",
+          "tf_history, readahead)",
           name, static_cast<int>(key_size), key);
       return StatusCode::invalid_argument;
     }

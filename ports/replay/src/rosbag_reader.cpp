@@ -1,12 +1,16 @@
 #include "octofuse/ports/replay/rosbag_reader.hpp"
 
 #include <fcntl.h>
+#include <pthread.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
+#include <new>
 
 #include "little_endian.hpp"
 #include "octofuse/core/arena.hpp"
@@ -25,12 +29,19 @@ constexpr char kMagic[] = "#ROSBAG V2.0\n";
 constexpr std::size_t kMagicSize = 13;
 constexpr std::uint8_t kOpMessage = 0x02;
 constexpr std::uint8_t kOpBagHeader = 0x03;
+constexpr std::uint8_t kOpIndexData = 0x04;
 constexpr std::uint8_t kOpChunk = 0x05;
+constexpr std::uint8_t kOpChunkInfo = 0x06;
 constexpr std::uint8_t kOpConnection = 0x07;
+// The read-ahead worker looks past at most this many index records for the next chunk (ROS 1
+// writes one per connection after each chunk).
+constexpr int kMaxReadAheadSkips = 256;
+// The worker's nice value (Linux: per thread).
+constexpr int kReadAheadNice = 19;
 // Record headers hold a few short fields (op, conn, time, topic, compression, size).
 constexpr std::size_t kMaxHeaderBytes = 64u << 10;
 // bzip2's decompressor: its state (about 64 KiB) and one block of up to 900 kB as 32-bit entries.
-constexpr std::size_t kBz2ScratchBytes = (4u << 20) + (128u << 10);
+[[maybe_unused]] constexpr std::size_t kBz2ScratchBytes = (4u << 20) + (128u << 10);
 
 using detail::le32;
 using detail::le64;
@@ -140,6 +151,35 @@ struct RosbagReader::Header {
   }
 };
 
+// The worker's state. The fields under `mutex` say what it is doing; its buffers are its own
+// while a job runs, and the caller's to swap only while none does.
+struct RosbagReader::ReadAhead {
+  pthread_t thread{};
+  bool started = false;  // joined by close()
+  pthread_mutex_t mutex = PTHREAD_MUTEX_INITIALIZER;
+  pthread_cond_t wake = PTHREAD_COND_INITIALIZER;  // a job or stop for the worker
+  pthread_cond_t idle = PTHREAD_COND_INITIALIZER;  // the job is done
+  bool stop = false;
+  bool requested = false;
+  bool working = false;
+  std::uint64_t from = 0;  // the record the job starts at
+  bool have = false;       // a decompressed chunk, of the chunk record at `chunk_at`
+  std::uint64_t chunk_at = 0;
+  Inflated result;
+  std::uint8_t* header = nullptr;  // kMaxHeaderBytes
+  std::uint8_t* record = nullptr;  // max_record_bytes
+  Inflater inflater;
+};
+
+namespace {
+
+void* read_ahead_main(void* reader) {
+  static_cast<RosbagReader*>(reader)->read_ahead_job();
+  return nullptr;
+}
+
+}  // namespace
+
 RosbagReader::~RosbagReader() {
   close();
 }
@@ -154,6 +194,15 @@ std::size_t RosbagReader::bytes_required(const McapLimits& limits) {
 #if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
   (void)sizer.allocate_bytes(kBz2ScratchBytes, 16);
 #endif
+  if (limits.read_ahead) {
+    (void)sizer.allocate_array<ReadAhead>(1);
+    (void)sizer.allocate_bytes(kMaxHeaderBytes, 16);
+    (void)sizer.allocate_bytes(limits.max_record_bytes, 16);
+    (void)sizer.allocate_bytes(limits.max_chunk_bytes, 16);
+#if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
+    (void)sizer.allocate_bytes(kBz2ScratchBytes, 16);
+#endif
+  }
   return sizer.bytes_used();
 }
 
@@ -202,18 +251,34 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
   LinearArena arena(memory_, memory_bytes_);
   header_ = static_cast<std::uint8_t*>(arena.allocate_bytes(kMaxHeaderBytes, 16).value());
   record_ = static_cast<std::uint8_t*>(arena.allocate_bytes(limits.max_record_bytes, 16).value());
-  chunk_ = static_cast<std::uint8_t*>(arena.allocate_bytes(limits.max_chunk_bytes, 16).value());
+  main_.out = static_cast<std::uint8_t*>(arena.allocate_bytes(limits.max_chunk_bytes, 16).value());
   channels_ =
       arena.allocate_array<McapChannel>(static_cast<std::size_t>(limits.max_channels)).value();
   connection_ids_ =
       arena.allocate_array<std::uint32_t>(static_cast<std::size_t>(limits.max_channels)).value();
+  auto make_inflater = [&](Inflater* inflater) {
 #if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
-  bz2_.base = static_cast<std::uint8_t*>(arena.allocate_bytes(kBz2ScratchBytes, 16).value());
-  bz2_.size = kBz2ScratchBytes;
+    inflater->bz2.base =
+        static_cast<std::uint8_t*>(arena.allocate_bytes(kBz2ScratchBytes, 16).value());
+    inflater->bz2.size = kBz2ScratchBytes;
 #endif
 #if defined(OCTOFUSE_REPLAY_HAVE_LZ4)
-  if (LZ4F_isError(LZ4F_createDecompressionContext(&lz4_, LZ4F_VERSION))) lz4_ = nullptr;
+    if (LZ4F_isError(LZ4F_createDecompressionContext(&inflater->lz4, LZ4F_VERSION))) {
+      inflater->lz4 = nullptr;
+    }
 #endif
+    (void)inflater;
+  };
+  make_inflater(&main_);
+  if (limits.read_ahead) {
+    ahead_ = new (arena.allocate_array<ReadAhead>(1).value()) ReadAhead();
+    ahead_->header = static_cast<std::uint8_t*>(arena.allocate_bytes(kMaxHeaderBytes, 16).value());
+    ahead_->record =
+        static_cast<std::uint8_t*>(arena.allocate_bytes(limits.max_record_bytes, 16).value());
+    ahead_->inflater.out =
+        static_cast<std::uint8_t*>(arena.allocate_bytes(limits.max_chunk_bytes, 16).value());
+    make_inflater(&ahead_->inflater);
+  }
 
   // The bag header record: op 0x03 and the index position (0 while recording).
   std::uint8_t head[4];
@@ -246,25 +311,168 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
     close();
     return StatusCode::data_loss;
   }
+  if (ahead_ != nullptr && !start_read_ahead()) {
+    error_.set("rosbag: cannot start the read-ahead thread");
+    close();
+    return StatusCode::resource_exhausted;
+  }
   rewind();
   return ok_status();
 }
 
 void RosbagReader::close() {
+  stop_read_ahead();
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
+  auto free_inflater = [](Inflater* inflater) {
 #if defined(OCTOFUSE_REPLAY_HAVE_LZ4)
-  if (lz4_ != nullptr) LZ4F_freeDecompressionContext(lz4_);
+    if (inflater->lz4 != nullptr) LZ4F_freeDecompressionContext(inflater->lz4);
 #endif
-  lz4_ = nullptr;
+    *inflater = Inflater();
+  };
+  free_inflater(&main_);
+  if (ahead_ != nullptr) {
+    free_inflater(&ahead_->inflater);
+    ahead_->~ReadAhead();
+    ahead_ = nullptr;
+  }
   std::free(memory_);
   memory_ = nullptr;
   memory_bytes_ = 0;
-  bz2_ = Scratch();
   channel_count_ = 0;
 }
 
+bool RosbagReader::start_read_ahead() {
+  // The worker reads fd_, file_size_, index_pos_ and limits_, which stay as they are until
+  // close() has joined it.
+  ahead_->started = pthread_create(&ahead_->thread, nullptr, read_ahead_main, this) == 0;
+  return ahead_->started;
+}
+
+void RosbagReader::stop_read_ahead() {
+  if (ahead_ == nullptr) return;
+  pthread_mutex_lock(&ahead_->mutex);
+  ahead_->stop = true;
+  pthread_cond_signal(&ahead_->wake);
+  pthread_mutex_unlock(&ahead_->mutex);
+  if (ahead_->started) pthread_join(ahead_->thread, nullptr);
+  ahead_->started = false;
+}
+
+void RosbagReader::request_read_ahead(std::uint64_t offset) {
+  if (ahead_ == nullptr) return;
+  pthread_mutex_lock(&ahead_->mutex);
+  // One job at a time: the caller asks after taking (or dropping) the last result.
+  if (!ahead_->stop && !ahead_->requested && !ahead_->working) {
+    ahead_->requested = true;
+    ahead_->from = offset;
+    ahead_->have = false;
+    pthread_cond_signal(&ahead_->wake);
+  }
+  pthread_mutex_unlock(&ahead_->mutex);
+}
+
+bool RosbagReader::take_read_ahead(std::uint64_t offset, Inflated* inflated) {
+  if (ahead_ == nullptr) return false;
+  pthread_mutex_lock(&ahead_->mutex);
+  while (ahead_->requested || ahead_->working) pthread_cond_wait(&ahead_->idle, &ahead_->mutex);
+  const bool hit = ahead_->have && ahead_->chunk_at == offset;
+  if (hit) {
+    std::uint8_t* mine = main_.out;
+    main_.out = ahead_->inflater.out;
+    ahead_->inflater.out = mine;
+    *inflated = ahead_->result;
+    ++chunks_read_ahead_;
+  }
+  ahead_->have = false;
+  pthread_mutex_unlock(&ahead_->mutex);
+  return hit;
+}
+
+void RosbagReader::drop_read_ahead() {
+  if (ahead_ == nullptr) return;
+  pthread_mutex_lock(&ahead_->mutex);
+  while (ahead_->requested || ahead_->working) pthread_cond_wait(&ahead_->idle, &ahead_->mutex);
+  ahead_->have = false;
+  pthread_mutex_unlock(&ahead_->mutex);
+}
+
+void RosbagReader::read_ahead_job() {
+  // Below the pipeline's threads: where they keep every core busy the worker takes what they
+  // leave (and the caller waits for it at the next chunk), instead of slowing their frames.
+  (void)::setpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)), kReadAheadNice);
+  ReadAhead& ahead = *ahead_;
+  for (;;) {
+    pthread_mutex_lock(&ahead.mutex);
+    while (!ahead.stop && !ahead.requested) pthread_cond_wait(&ahead.wake, &ahead.mutex);
+    if (ahead.stop) {
+      pthread_mutex_unlock(&ahead.mutex);
+      return;
+    }
+    ahead.requested = false;
+    ahead.working = true;
+    std::uint64_t at = ahead.from;
+    pthread_mutex_unlock(&ahead.mutex);
+
+    // Past index records to the next chunk; anything else is the caller's to read.
+    bool have = false;
+    std::uint64_t chunk_at = 0;
+    Inflated result;
+    for (int skip = 0; skip < kMaxReadAheadSkips; ++skip) {
+      if ((index_pos_ != 0 && at >= index_pos_) || at > file_size_ || file_size_ - at < 8) break;
+      std::uint8_t word[4];
+      std::size_t got = 0;
+      if (!read_at(at, word, 4, &got)) break;
+      const std::uint32_t header_size = le32(word);
+      if (header_size > kMaxHeaderBytes || header_size > file_size_ - at - 8) break;
+      if (!read_at(at + 4, ahead.header, header_size, &got) ||
+          !read_at(at + 4 + header_size, word, 4, &got)) {
+        break;
+      }
+      Header header;
+      header.parse(ahead.header, header_size);
+      if (!header.ok || !header.has_op) break;
+      const std::uint32_t data_size = le32(word);
+      const std::uint64_t data_offset = at + 8 + header_size;
+      if (data_size > file_size_ - data_offset) break;
+      if (header.op == kOpIndexData || header.op == kOpChunkInfo) {
+        at = data_offset + data_size;
+        continue;
+      }
+      if (header.op != kOpChunk || !header.has_size || data_size == 0 ||
+          data_size > limits_.max_record_bytes || header.size > limits_.max_chunk_bytes) {
+        break;
+      }
+      const bool bz2 =
+          header.compression.size == 3 && std::memcmp(header.compression.data, "bz2", 3) == 0;
+      const bool lz4 =
+          header.compression.size == 3 && std::memcmp(header.compression.data, "lz4", 3) == 0;
+#if !defined(OCTOFUSE_REPLAY_HAVE_BZ2)
+      if (bz2) break;
+#endif
+#if !defined(OCTOFUSE_REPLAY_HAVE_LZ4)
+      if (lz4) break;
+#endif
+      if (!bz2 && !lz4) break;
+      if (!read_at(data_offset, ahead.record, data_size, &got)) break;
+      result = inflate(ahead.inflater, bz2, ahead.record, data_size);
+      have = true;
+      chunk_at = at;
+      break;
+    }
+
+    pthread_mutex_lock(&ahead.mutex);
+    ahead.working = false;
+    ahead.have = have;
+    ahead.chunk_at = chunk_at;
+    ahead.result = result;
+    pthread_cond_broadcast(&ahead.idle);
+    pthread_mutex_unlock(&ahead.mutex);
+  }
+}
+
 void RosbagReader::rewind() {
+  drop_read_ahead();
   offset_ = first_record_;
   done_ = truncated_ = false;
   chunk_records_ = nullptr;
@@ -277,7 +485,7 @@ void RosbagReader::rewind() {
 }
 
 bool RosbagReader::read_at(std::uint64_t offset, std::uint8_t* out, std::size_t size,
-                           std::size_t* got) {
+                           std::size_t* got) const {
   *got = 0;
   while (*got < size) {
     const ssize_t n = ::pread(fd_, out + *got, size - *got, static_cast<off_t>(offset + *got));
@@ -363,8 +571,85 @@ bool RosbagReader::handle_record(const Header& header, const std::uint8_t* data,
   return false;  // index data, chunk info, a second bag header: not needed to replay
 }
 
+RosbagReader::Inflated RosbagReader::inflate(Inflater& inflater, bool bz2, const std::uint8_t* data,
+                                             std::size_t size) const {
+  // Decompressed into the whole buffer, so that data longer than the header says shows, and
+  // to the end of the stream, so that its checksums are checked.
+  const std::size_t capacity = limits_.max_chunk_bytes;
+  Inflated done;
+  (void)capacity;  // a build without either library
+  (void)data;
+  (void)size;
+  if (bz2) {
+#if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
+    bz_stream stream;
+    std::memset(&stream, 0, sizeof(stream));
+    stream.bzalloc = bz2_alloc;
+    stream.bzfree = bz2_free;
+    stream.opaque = &inflater.bz2;
+    inflater.bz2.used = 0;
+    if (BZ2_bzDecompressInit(&stream, 0, 0) == BZ_OK) {
+      done.good = true;
+      std::size_t in_pos = 0;
+      // bzip2 counts in unsigned int: feed and drain in pieces.
+      for (;;) {
+        const std::size_t in_piece = size - in_pos > (1u << 30) ? (1u << 30) : size - in_pos;
+        const std::size_t out_piece =
+            capacity - done.size > (1u << 30) ? (1u << 30) : capacity - done.size;
+        stream.next_in = const_cast<char*>(reinterpret_cast<const char*>(data + in_pos));
+        stream.avail_in = static_cast<unsigned>(in_piece);
+        stream.next_out = reinterpret_cast<char*>(inflater.out + done.size);
+        stream.avail_out = static_cast<unsigned>(out_piece);
+        const int rc = BZ2_bzDecompress(&stream);
+        const std::size_t used_in = in_piece - stream.avail_in;
+        const std::size_t made = out_piece - stream.avail_out;
+        in_pos += used_in;
+        done.size += made;
+        if (rc == BZ_STREAM_END) {
+          done.ended = true;
+          break;
+        }
+        if (rc != BZ_OK) {
+          done.good = false;
+          break;
+        }
+        if (used_in == 0 && made == 0) break;  // the input ran out (a cut chunk)
+      }
+      BZ2_bzDecompressEnd(&stream);
+    }
+#endif
+    return done;
+  }
+#if defined(OCTOFUSE_REPLAY_HAVE_LZ4)
+  if (inflater.lz4 != nullptr) {
+    LZ4F_resetDecompressionContext(inflater.lz4);
+    std::size_t in_pos = 0;
+    done.good = true;
+    while (in_pos < size) {
+      std::size_t dst_size = capacity - done.size;
+      std::size_t src_size = size - in_pos;
+      const std::size_t rc = LZ4F_decompress(inflater.lz4, inflater.out + done.size, &dst_size,
+                                             data + in_pos, &src_size, nullptr);
+      if (LZ4F_isError(rc)) {
+        done.good = false;
+        break;
+      }
+      done.size += dst_size;
+      in_pos += src_size;
+      if (rc == 0) {
+        done.ended = true;
+        break;
+      }
+      if (dst_size == 0 && src_size == 0) break;
+    }
+  }
+#endif
+  (void)inflater;
+  return done;
+}
+
 bool RosbagReader::load_chunk(const Header& header, const std::uint8_t* data, std::size_t size,
-                              bool complete) {
+                              bool complete, const Inflated* ahead) {
   auto named = [&](const char* name) {
     return header.compression.size == std::strlen(name) &&
            std::memcmp(header.compression.data, name, header.compression.size) == 0;
@@ -396,96 +681,35 @@ bool RosbagReader::load_chunk(const Header& header, const std::uint8_t* data, st
         static_cast<unsigned long long>(offset_), header.size, limits_.max_chunk_bytes);
     return false;
   }
-  // Decompressed into the whole buffer, so that data longer than the header says shows, and
-  // to the end of the stream, so that its checksums are checked.
-  const std::size_t capacity = limits_.max_chunk_bytes;
-  std::size_t out = 0;
-  bool good = false;
-  bool ended = false;
-  (void)capacity;  // a build without either library
-  if (named("bz2")) {
-#if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
-    bz_stream stream;
-    std::memset(&stream, 0, sizeof(stream));
-    stream.bzalloc = bz2_alloc;
-    stream.bzfree = bz2_free;
-    stream.opaque = &bz2_;
-    bz2_.used = 0;
-    if (BZ2_bzDecompressInit(&stream, 0, 0) == BZ_OK) {
-      good = true;
-      std::size_t in_pos = 0;
-      // bzip2 counts in unsigned int: feed and drain in pieces.
-      for (;;) {
-        const std::size_t in_piece = size - in_pos > (1u << 30) ? (1u << 30) : size - in_pos;
-        const std::size_t out_piece = capacity - out > (1u << 30) ? (1u << 30) : capacity - out;
-        stream.next_in = const_cast<char*>(reinterpret_cast<const char*>(data + in_pos));
-        stream.avail_in = static_cast<unsigned>(in_piece);
-        stream.next_out = reinterpret_cast<char*>(chunk_ + out);
-        stream.avail_out = static_cast<unsigned>(out_piece);
-        const int rc = BZ2_bzDecompress(&stream);
-        const std::size_t used_in = in_piece - stream.avail_in;
-        const std::size_t made = out_piece - stream.avail_out;
-        in_pos += used_in;
-        out += made;
-        if (rc == BZ_STREAM_END) {
-          ended = true;
-          break;
-        }
-        if (rc != BZ_OK) {
-          good = false;
-          break;
-        }
-        if (used_in == 0 && made == 0) break;  // the input ran out (a cut chunk)
-      }
-      BZ2_bzDecompressEnd(&stream);
-    }
-#else
-    error_.set("rosbag: bz2 chunks are not supported in this build (no libbz2)");
-    return false;
-#endif
-  } else if (named("lz4")) {
-#if defined(OCTOFUSE_REPLAY_HAVE_LZ4)
-    if (lz4_ != nullptr) {
-      LZ4F_resetDecompressionContext(lz4_);
-      std::size_t in_pos = 0;
-      good = true;
-      while (in_pos < size) {
-        std::size_t dst_size = capacity - out;
-        std::size_t src_size = size - in_pos;
-        const std::size_t rc =
-            LZ4F_decompress(lz4_, chunk_ + out, &dst_size, data + in_pos, &src_size, nullptr);
-        if (LZ4F_isError(rc)) {
-          good = false;
-          break;
-        }
-        out += dst_size;
-        in_pos += src_size;
-        if (rc == 0) {
-          ended = true;
-          break;
-        }
-        if (dst_size == 0 && src_size == 0) break;
-      }
-    }
-#else
-    error_.set("rosbag: lz4 chunks are not supported in this build (no liblz4)");
-    return false;
-#endif
-  } else {
+  const bool bz2 = named("bz2");
+  if (!bz2 && !named("lz4")) {
     error_.set("rosbag: chunk at byte %llu: unknown compression '%.*s'",
                static_cast<unsigned long long>(offset_),
                static_cast<int>(header.compression.size < 32 ? header.compression.size : 32),
                reinterpret_cast<const char*>(header.compression.data));
     return false;
   }
-  if (complete && (!good || !ended || out != header.size)) {
+#if !defined(OCTOFUSE_REPLAY_HAVE_BZ2)
+  if (bz2) {
+    error_.set("rosbag: bz2 chunks are not supported in this build (no libbz2)");
+    return false;
+  }
+#endif
+#if !defined(OCTOFUSE_REPLAY_HAVE_LZ4)
+  if (!bz2) {
+    error_.set("rosbag: lz4 chunks are not supported in this build (no liblz4)");
+    return false;
+  }
+#endif
+  const Inflated inflated = ahead != nullptr ? *ahead : inflate(main_, bz2, data, size);
+  if (complete && (!inflated.good || !inflated.ended || inflated.size != header.size)) {
     error_.set("rosbag: chunk at byte %llu: corrupt %s data (%zu of %u bytes)",
-               static_cast<unsigned long long>(offset_), named("bz2") ? "bz2" : "lz4", out,
+               static_cast<unsigned long long>(offset_), bz2 ? "bz2" : "lz4", inflated.size,
                header.size);
     return false;
   }
-  chunk_records_ = chunk_;
-  chunk_size_ = out;
+  chunk_records_ = main_.out;
+  chunk_size_ = inflated.size;
   return true;
 }
 
@@ -632,7 +856,7 @@ McapNext RosbagReader::next(McapMessage* message) {
       std::uint64_t rest = file_size_ - data_offset;
       if (rest > limits_.max_record_bytes) rest = limits_.max_record_bytes;
       (void)read_at(data_offset, record_, static_cast<std::size_t>(rest), &got);
-      if (!load_chunk(open_chunk, record_, got, false)) {
+      if (!load_chunk(open_chunk, record_, got, false, nullptr)) {
         done_ = true;
         return McapNext::error;
       }
@@ -648,6 +872,18 @@ McapNext RosbagReader::next(McapMessage* message) {
       done_ = true;
       return McapNext::error;
     }
+    if (header.op == kOpChunk && complete) {
+      Inflated ahead;
+      if (take_read_ahead(offset_, &ahead)) {
+        if (!load_chunk(header, nullptr, 0, true, &ahead)) {
+          done_ = true;
+          return McapNext::error;
+        }
+        offset_ = data_offset + data_size;
+        request_read_ahead(offset_);
+        continue;
+      }
+    }
     // In 64 bits before the clamp: what is left of the file may exceed a 32-bit size_t.
     std::uint64_t available = complete ? data_size : file_size_ - data_offset;
     if (available > limits_.max_record_bytes) available = limits_.max_record_bytes;
@@ -658,11 +894,13 @@ McapNext RosbagReader::next(McapMessage* message) {
       return McapNext::error;
     }
     if (header.op == kOpChunk) {
-      if (!load_chunk(header, record_, got, complete)) {
+      if (!load_chunk(header, record_, got, complete, nullptr)) {
         done_ = true;
         return McapNext::error;
       }
       offset_ = complete ? data_offset + data_size : file_size_;
+      // Worth a worker's look only after a compressed chunk: the next is likely one too.
+      if (complete && chunk_records_ == main_.out) request_read_ahead(offset_);
       continue;
     }
     if (!complete) {

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "bag_fixtures.hpp"
 #include "octofuse/pipeline/mapper.hpp"
@@ -710,6 +711,96 @@ TEST_CASE("rosbag: next() after open() does not allocate", "[replay][bag][rosbag
     CHECK(scope.allocations() == 0);
     CHECK(frames == kSimFrames);
   }
+}
+
+namespace {
+
+// Everything a RosbagReader gives out, and how it ends.
+struct ReadOut {
+  std::vector<std::string> messages;  // topic, log time and bytes of each
+  octofuse::replay::McapNext last = octofuse::replay::McapNext::message;
+  std::string error;
+  std::string warning;
+  std::uint64_t read_ahead = 0;
+};
+
+ReadOut read_all(const std::string& path, bool read_ahead, int rewind_after = -1) {
+  octofuse::replay::RosbagReader reader;
+  octofuse::replay::McapLimits limits;
+  limits.read_ahead = read_ahead;
+  ReadOut out;
+  if (!reader.open(path.c_str(), limits).ok()) {
+    out.last = octofuse::replay::McapNext::error;
+    out.error = reader.error();
+    return out;
+  }
+  octofuse::replay::McapMessage message;
+  int count = 0;
+  for (;;) {
+    out.last = reader.next(&message);
+    if (out.last != octofuse::replay::McapNext::message) break;
+    if (count++ == rewind_after) {  // part of the way, then from the start again
+      reader.rewind();
+      out.messages.clear();
+      continue;
+    }
+    out.messages.push_back(std::string(message.channel->topic) + " " +
+                           std::to_string(message.log_time_ns) + " " +
+                           std::string(reinterpret_cast<const char*>(message.data), message.size));
+  }
+  out.error = reader.error();
+  out.warning = reader.warning();
+  out.read_ahead = reader.chunks_read_ahead();
+  return out;
+}
+
+}  // namespace
+
+TEST_CASE("rosbag: read-ahead gives the same messages, errors and warnings as reading alone",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  const std::vector<std::string> bags =
+      fixture.rosbags({{"r0.bag", "--compression bz2 --chunk-threshold 1"},
+                       {"r1.bag", "--compression lz4 --chunk-threshold 1"},
+                       {"r2.bag", "--compression bz2 --tum --chunk-threshold 1"},
+                       {"r3.bag", "--compression none --chunk-threshold 1"}});
+  if (bags.empty()) return;
+  std::vector<std::string> cases = bags;
+  // Damaged copies of the chunk-per-message bz2 bag: a chunk's data corrupt in the middle of the
+  // file, the file cut inside a later chunk, a chunk record's length past the end.
+  const std::string bytes = read_bytes(bags[0]);
+  std::string corrupt = bytes;
+  for (std::size_t i = bytes.size() / 2; i < bytes.size() / 2 + 64; ++i) corrupt[i] = 'x';
+  cases.push_back(fixture.dir + "/r-corrupt.bag");
+  write_text(cases.back(), corrupt);
+  cases.push_back(fixture.dir + "/r-cut.bag");
+  write_text(cases.back(), bytes.substr(0, bytes.size() * 2 / 3));
+  cases.push_back(fixture.dir + "/r-cut-late.bag");
+  write_text(cases.back(), bytes.substr(0, bytes.size() - 100));
+  for (std::size_t n = 0; n < cases.size(); ++n) {
+    INFO(cases[n]);
+    const ReadOut alone = read_all(cases[n], false);
+    const ReadOut ahead = read_all(cases[n], true);
+    CHECK(alone.read_ahead == 0);
+    CHECK(ahead.messages.size() == alone.messages.size());
+    CHECK(ahead.messages == alone.messages);
+    CHECK(ahead.last == alone.last);
+    CHECK(ahead.error == alone.error);
+    CHECK(ahead.warning == alone.warning);
+    if (n < 3) {
+      // Compressed and whole: every chunk after the first comes from the worker.
+      CHECK(alone.last == octofuse::replay::McapNext::end);
+      CHECK(alone.messages.size() >= 15);
+      CHECK(ahead.read_ahead > 0);
+    }
+    if (n == 3) CHECK(ahead.read_ahead == 0);  // uncompressed: nothing for the worker
+    // A rewind part of the way drops what the worker holds: the same messages again.
+    const ReadOut rewound = read_all(cases[n], true, 7);
+    CHECK(rewound.messages == alone.messages);
+    CHECK(rewound.last == alone.last);
+  }
+  CHECK(read_all(cases[4], true).last == octofuse::replay::McapNext::error);
+  CHECK(read_all(cases[5], true).last == octofuse::replay::McapNext::truncated);
 }
 
 TEST_CASE("rosbag: a bag's odometry poses for the prior", "[replay][bag][rosbag]") {

@@ -72,7 +72,7 @@ struct BagConfig {
 };
 
 // Fills `config` from "mcap:FILE?key=value&..." or "rosbag:FILE?..." (keys depth, info, pose,
-// world, tf, buffer, reorder, hold, tf_history).
+// world, tf, buffer, reorder, hold, tf_history, readahead).
 // invalid_argument for another prefix, an empty path, an unknown key or a value too long.
 Status parse_bag_spec(const char* spec, BagConfig* config, ErrorText* error);
 

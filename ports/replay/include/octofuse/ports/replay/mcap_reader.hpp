@@ -33,6 +33,10 @@ struct McapLimits {
   // this many bytes and messages held back; 0 bytes reads in file order.
   std::size_t reorder_bytes = 8u << 20;
   int reorder_messages = 4096;
+  // ROS 1 bags: a second thread decompresses the next chunk while this one is read
+  // (rosbag_reader.hpp), with buffers of its own (a record and a chunk buffer, bzip2's memory).
+  // MCAP's zstd and lz4 chunks decode fast enough on the reading thread.
+  bool read_ahead = true;
 };
 
 struct McapChannel {

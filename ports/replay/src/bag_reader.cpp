@@ -142,15 +142,17 @@ int BagReader::heap_pop() {
 
 // Copies the message into the window's ring after the newest held one, when it fits.
 bool BagReader::hold(const McapMessage& message) {
-  // An empty message takes a byte, so that held messages never share an offset.
-  const std::size_t size = message.size > 0 ? message.size : 1;
+  // An empty message takes a byte, so that held messages never share an offset; a skimmed one
+  // its size in the file, so that the window fills as when it is read.
+  const bool skimmed = message.data == nullptr && message.skimmed_size > 0;
+  const std::size_t size = skimmed ? message.skimmed_size : message.size > 0 ? message.size : 1;
   if (held_count_ == slots_ || size > window_bytes_) return false;
   std::size_t offset = 0;
   if (held_count_ > 0) {
     const Held& front = held_[first_slot_];
     const Held& back = held_[(first_slot_ + held_count_ - 1) % slots_];
     const std::size_t head = front.offset;
-    const std::size_t tail = back.offset + (back.size > 0 ? back.size : 1);
+    const std::size_t tail = back.offset + back.bytes;
     if (tail > head) {  // held bytes in [head, tail): free at the end, then at the start
       if (window_bytes_ - tail >= size) {
         offset = tail;
@@ -165,7 +167,7 @@ bool BagReader::hold(const McapMessage& message) {
       return false;
     }
   }
-  if (message.size > 0) std::memcpy(window_ + offset, message.data, message.size);
+  if (!skimmed && message.size > 0) std::memcpy(window_ + offset, message.data, message.size);
   const int slot = (first_slot_ + held_count_) % slots_;
   Held& h = held_[slot];
   h.channel = message.channel;
@@ -173,7 +175,9 @@ bool BagReader::hold(const McapMessage& message) {
   h.publish_time_ns = message.publish_time_ns;
   h.arrival = arrivals_++;
   h.offset = offset;
-  h.size = message.size;
+  h.size = skimmed ? 0 : message.size;
+  h.bytes = size;
+  h.skimmed = skimmed;
   h.sequence = message.sequence;
   h.given = false;
   ++held_count_;
@@ -218,8 +222,9 @@ McapNext BagReader::next(McapMessage* message) {
     message->sequence = h.sequence;
     message->log_time_ns = h.log_time_ns;
     message->publish_time_ns = h.publish_time_ns;
-    message->data = window_ + h.offset;
+    message->data = h.skimmed ? nullptr : window_ + h.offset;
     message->size = h.size;
+    message->skimmed_size = h.skimmed ? h.bytes : 0;
     given_slot_ = slot;
     log_time_ns = h.log_time_ns;
   } else {

@@ -245,6 +245,9 @@ Status BagSource::scan() {
     have_info_[i] = false;
   }
   McapMessage message;
+  // Only the counts, times and a few messages' bytes are needed: a ROS 1 bag's other chunks are
+  // skimmed from their index records, not decompressed.
+  reader_.set_skim(&BagSource::scan_wants_bytes, this);
   for (;;) {
     const McapNext got = reader_.next(&message);
     if (got == McapNext::end) break;
@@ -254,6 +257,7 @@ Status BagSource::scan() {
     }
     if (got == McapNext::error) {
       error_.set("%s: %s", config_.path, reader_.error());
+      reader_.set_skim(nullptr, nullptr);
       reader_.close();
       return StatusCode::data_loss;
     }
@@ -284,9 +288,23 @@ Status BagSource::scan() {
       }
     }
   }
+  reader_.set_skim(nullptr, nullptr);
   scanned_ = true;
   if (reader_.out_of_order() > 0) note_disorder(&scan_warning_);
   return ok_status();
+}
+
+bool BagSource::scan_wants_bytes(void* self, const McapChannel& channel) {
+  const BagSource& source = *static_cast<const BagSource*>(self);
+  const int c = static_cast<int>(&channel - &source.reader_.channel_at(0));
+  switch (kind_of(channel)) {
+    case Kind::image:
+      return source.first_width_[c] == 0;
+    case Kind::camera_info:
+      return !source.have_info_[c];
+    default:
+      return false;
+  }
 }
 
 // What the log-time order could not fix, appended to `text` (empty or a cut's warning).

@@ -7,6 +7,7 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
@@ -36,6 +37,12 @@ constexpr std::uint8_t kOpConnection = 0x07;
 // The read-ahead worker looks past at most this many index records for the next chunk (ROS 1
 // writes one per connection after each chunk).
 constexpr int kMaxReadAheadSkips = 256;
+// Skimming: messages of one chunk given from its index records at most (a 768 kB chunk of 48-byte
+// IMU messages holds 16 000), and the largest index record header read.
+constexpr std::size_t kMaxSkimEntries = 16384;
+constexpr std::size_t kMaxSkimHeaderBytes = 256;
+// A message record's lengths and header as ROS 1 writes them (op, conn, time): 4 + 38 + 4 bytes.
+constexpr std::uint32_t kMessageRecordOverhead = 46;
 // The worker's nice value (Linux: per thread).
 constexpr int kReadAheadNice = 19;
 // Record headers hold a few short fields (op, conn, time, topic, compression, size).
@@ -80,6 +87,10 @@ struct RosbagReader::Header {
   std::uint32_t size = 0;
   bool has_index_pos = false;
   std::uint64_t index_pos = 0;
+  bool has_ver = false;
+  std::uint32_t ver = 0;
+  bool has_count = false;
+  std::uint32_t count = 0;
   View topic;
   View compression;
   View type;  // connection headers (a connection record's data)
@@ -140,6 +151,16 @@ struct RosbagReader::Header {
           index_pos = le64(value);
           has_index_pos = true;
         }
+      } else if (is("ver")) {
+        if (fixed(4)) {
+          ver = le32(value);
+          has_ver = true;
+        }
+      } else if (is("count")) {
+        if (fixed(4)) {
+          count = le32(value);
+          has_count = true;
+        }
       } else if (is("topic")) {
         topic = View{value, value_size};
       } else if (is("compression")) {
@@ -191,6 +212,8 @@ std::size_t RosbagReader::bytes_required(const McapLimits& limits) {
   (void)sizer.allocate_bytes(limits.max_chunk_bytes, 16);
   (void)sizer.allocate_array<McapChannel>(static_cast<std::size_t>(limits.max_channels));
   (void)sizer.allocate_array<std::uint32_t>(static_cast<std::size_t>(limits.max_channels));
+  (void)sizer.allocate_bytes(kMaxSkimHeaderBytes, 16);
+  (void)sizer.allocate_array<SkimEntry>(kMaxSkimEntries);
 #if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
   (void)sizer.allocate_bytes(kBz2ScratchBytes, 16);
 #endif
@@ -256,6 +279,8 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
       arena.allocate_array<McapChannel>(static_cast<std::size_t>(limits.max_channels)).value();
   connection_ids_ =
       arena.allocate_array<std::uint32_t>(static_cast<std::size_t>(limits.max_channels)).value();
+  skim_header_ = static_cast<std::uint8_t*>(arena.allocate_bytes(kMaxSkimHeaderBytes, 16).value());
+  skim_entries_ = arena.allocate_array<SkimEntry>(kMaxSkimEntries).value();
   auto make_inflater = [&](Inflater* inflater) {
 #if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
     inflater->bz2.base =
@@ -471,8 +496,81 @@ void RosbagReader::read_ahead_job() {
   }
 }
 
+void RosbagReader::set_skim(WantsData wants, void* context) {
+  skim_wants_ = wants;
+  skim_context_ = context;
+}
+
+bool RosbagReader::try_skim(std::uint64_t data_offset, std::uint32_t data_size,
+                            std::uint32_t chunk_size) {
+  std::uint64_t at = data_offset + data_size;
+  std::size_t entries = 0;
+  int records = 0;
+  // The index records must end at a whole record or the index section: a file that ends among
+  // them (cut, or never closed) may have lost some, and the chunk is read instead.
+  for (;;) {
+    if (index_pos_ != 0 && at == index_pos_) break;
+    if ((index_pos_ != 0 && at > index_pos_) || at > file_size_ || file_size_ - at < 8) {
+      return false;
+    }
+    std::uint8_t word[4];
+    std::size_t got = 0;
+    if (!read_at(at, word, 4, &got)) return false;
+    const std::uint32_t header_size = le32(word);
+    if (header_size > file_size_ - at - 8) return false;
+    if (header_size > kMaxSkimHeaderBytes) break;  // not an index record: those are short
+    if (!read_at(at + 4, skim_header_, header_size, &got) ||
+        !read_at(at + 4 + header_size, word, 4, &got)) {
+      return false;
+    }
+    Header header;
+    header.parse(skim_header_, header_size);
+    if (!header.ok || !header.has_op) return false;
+    if (header.op != kOpIndexData) break;
+    const std::uint32_t size = le32(word);
+    const std::uint64_t entries_at = at + 8 + header_size;
+    // An index record this reader cannot vouch for: the chunk is read instead.
+    if (!header.has_ver || header.ver != 1 || !header.has_conn || !header.has_count ||
+        std::uint64_t{header.count} * 12u != size || size > file_size_ - entries_at ||
+        header.count > kMaxSkimEntries - entries || size > limits_.max_record_bytes) {
+      return false;
+    }
+    int channel = -1;
+    for (int i = 0; i < channel_count_; ++i) {
+      if (connection_ids_[i] == header.conn) channel = i;
+    }
+    // A connection first seen here has its record in the chunk; a wanted one, its bytes.
+    if (channel < 0 || skim_wants_(skim_context_, channels_[channel])) return false;
+    if (!read_at(entries_at, record_, size, &got)) return false;
+    for (std::uint32_t e = 0; e < header.count; ++e) {
+      const std::uint8_t* p = record_ + 12u * e;
+      SkimEntry& entry = skim_entries_[entries++];
+      entry.time_ns = std::uint64_t{le32(p)} * 1000000000u + std::uint64_t{le32(p + 4)};
+      entry.offset = le32(p + 8);
+      entry.channel = static_cast<std::uint32_t>(channel);
+      if (entry.offset >= chunk_size) return false;
+    }
+    ++records;
+    at = entries_at + size;
+  }
+  if (records == 0) return false;  // cut or never closed: nothing to go by
+  // The chunk's order: by place in the chunk (each message has its own).
+  std::sort(skim_entries_, skim_entries_ + entries,
+            [](const SkimEntry& a, const SkimEntry& b) { return a.offset < b.offset; });
+  for (std::size_t e = 0; e < entries; ++e) {
+    const std::uint32_t end = e + 1 < entries ? skim_entries_[e + 1].offset : chunk_size;
+    if (end <= skim_entries_[e].offset) return false;  // two messages in one place
+    const std::uint32_t record = end - skim_entries_[e].offset;
+    skim_entries_[e].size = record > kMessageRecordOverhead ? record - kMessageRecordOverhead : 1;
+  }
+  skim_count_ = entries;
+  skim_pos_ = 0;
+  return true;
+}
+
 void RosbagReader::rewind() {
   drop_read_ahead();
+  skim_count_ = skim_pos_ = 0;
   offset_ = first_record_;
   done_ = truncated_ = false;
   chunk_records_ = nullptr;
@@ -563,6 +661,7 @@ bool RosbagReader::handle_record(const Header& header, const std::uint8_t* data,
     message->publish_time_ns = header.time_ns;
     message->data = data;
     message->size = data_size;
+    message->skimmed_size = 0;
     if (messages_ > 0 && header.time_ns < last_time_ns_) ++out_of_order_;
     last_time_ns_ = header.time_ns;
     ++messages_;
@@ -719,6 +818,20 @@ McapNext RosbagReader::next(McapMessage* message) {
     return McapNext::error;
   }
   for (;;) {
+    if (skim_pos_ < skim_count_) {
+      const SkimEntry& entry = skim_entries_[skim_pos_++];
+      message->channel = &channels_[entry.channel];
+      message->sequence = static_cast<std::uint32_t>(messages_);
+      message->log_time_ns = entry.time_ns;
+      message->publish_time_ns = entry.time_ns;
+      message->data = nullptr;
+      message->size = 0;
+      message->skimmed_size = entry.size;
+      if (messages_ > 0 && entry.time_ns < last_time_ns_) ++out_of_order_;
+      last_time_ns_ = entry.time_ns;
+      ++messages_;
+      return McapNext::message;
+    }
     while (chunk_records_ != nullptr) {
       const std::size_t left = chunk_size_ - chunk_pos_;
       if (left == 0) {
@@ -872,6 +985,12 @@ McapNext RosbagReader::next(McapMessage* message) {
       done_ = true;
       return McapNext::error;
     }
+    if (header.op == kOpChunk && complete && skim_wants_ != nullptr && data_size > 0 &&
+        header.has_size && try_skim(data_offset, data_size, header.size)) {
+      ++chunks_skimmed_;
+      offset_ = data_offset + data_size;
+      continue;
+    }
     if (header.op == kOpChunk && complete) {
       Inflated ahead;
       if (take_read_ahead(offset_, &ahead)) {
@@ -880,7 +999,7 @@ McapNext RosbagReader::next(McapMessage* message) {
           return McapNext::error;
         }
         offset_ = data_offset + data_size;
-        request_read_ahead(offset_);
+        if (skim_wants_ == nullptr) request_read_ahead(offset_);
         continue;
       }
     }
@@ -900,7 +1019,9 @@ McapNext RosbagReader::next(McapMessage* message) {
       }
       offset_ = complete ? data_offset + data_size : file_size_;
       // Worth a worker's look only after a compressed chunk: the next is likely one too.
-      if (complete && chunk_records_ == main_.out) request_read_ahead(offset_);
+      if (complete && chunk_records_ == main_.out && skim_wants_ == nullptr) {
+        request_read_ahead(offset_);
+      }
       continue;
     }
     if (!complete) {

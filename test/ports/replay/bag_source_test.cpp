@@ -803,6 +803,92 @@ TEST_CASE("rosbag: read-ahead gives the same messages, errors and warnings as re
   CHECK(read_all(cases[5], true).last == octofuse::replay::McapNext::truncated);
 }
 
+namespace {
+
+// What a BagReader gives out, each message as topic, log time and data size (its size in the
+// file when skimmed); with `skim_topic` non-null, skimming every chunk that holds no message on
+// that topic ("" : none wanted).
+struct SkimOut {
+  std::vector<std::string> messages;
+  octofuse::replay::McapNext last = octofuse::replay::McapNext::message;
+  std::string warning;
+  std::uint64_t out_of_order = 0;
+  std::uint64_t skimmed = 0;
+  int with_data = 0;  // messages given with their bytes
+  bool wanted_data_given = true;
+};
+
+bool wants_topic(void* topic, const octofuse::replay::McapChannel& channel) {
+  return std::strcmp(channel.topic, static_cast<const char*>(topic)) == 0;
+}
+
+SkimOut read_skimming(const std::string& path, const char* skim_topic, std::size_t window_bytes) {
+  octofuse::replay::McapLimits limits;
+  limits.reorder_bytes = window_bytes;
+  octofuse::replay::BagReader reader;
+  SkimOut out;
+  REQUIRE(reader.open(path.c_str(), octofuse::replay::BagFormat::rosbag, limits).ok());
+  if (skim_topic != nullptr) reader.set_skim(wants_topic, const_cast<char*>(skim_topic));
+  octofuse::replay::McapMessage message;
+  while ((out.last = reader.next(&message)) == octofuse::replay::McapNext::message) {
+    const std::size_t size = message.data != nullptr ? message.size : message.skimmed_size;
+    out.messages.push_back(std::string(message.channel->topic) + " " +
+                           std::to_string(message.log_time_ns) + " " + std::to_string(size));
+    if (message.data != nullptr) ++out.with_data;
+    if (skim_topic != nullptr && std::strcmp(message.channel->topic, skim_topic) == 0 &&
+        message.data == nullptr) {
+      out.wanted_data_given = false;
+    }
+  }
+  out.warning = reader.warning();
+  out.out_of_order = reader.out_of_order();
+  out.skimmed = reader.chunks_skimmed();
+  return out;
+}
+
+}  // namespace
+
+TEST_CASE("rosbag: skimming chunks by their index gives the same messages, order and warnings",
+          "[replay][bag][rosbag]") {
+  Fixture fixture(sim_frames());
+  const std::vector<std::string> bags =
+      fixture.rosbags({{"s0.bag", "--compression bz2 --tum --chunk-threshold 1"},
+                       {"s1.bag", "--compression none --overlap --chunk-threshold 1"},
+                       {"s2.bag", "--compression lz4 --chunk-threshold 1"},
+                       {"s3.bag", "--compression bz2"}});
+  if (bags.empty()) return;
+  std::vector<std::string> cases = bags;
+  // Cut copies: inside the last chunk's index records, and inside a chunk half-way.
+  const std::string bytes = read_bytes(bags[0]);
+  for (const std::size_t cut : {bytes.size() - 40, bytes.size() / 2}) {
+    cases.push_back(fixture.dir + "/s-cut" + std::to_string(cut) + ".bag");
+    write_text(cases.back(), bytes.substr(0, cut));
+  }
+  for (std::size_t n = 0; n < cases.size(); ++n) {
+    for (const std::size_t window : {std::size_t{8} << 20, std::size_t{0}, std::size_t{64}}) {
+      INFO(cases[n] << " window " << window);
+      const SkimOut read = read_skimming(cases[n], nullptr, window);
+      const SkimOut skim = read_skimming(cases[n], "", window);
+      CHECK(read.skimmed == 0);
+      CHECK(skim.messages == read.messages);  // same topics, times, sizes and order
+      CHECK(skim.last == read.last);
+      CHECK(skim.warning == read.warning);
+      CHECK(skim.out_of_order == read.out_of_order);
+      CHECK(read.with_data == static_cast<int>(read.messages.size()));
+      if (n == 0 || n == 1 || n == 2) {
+        // Closed, a chunk per message: all but the chunks declaring a connection are skimmed.
+        CHECK(skim.skimmed > 0);
+        CHECK(skim.with_data < static_cast<int>(skim.messages.size()) / 2);
+      }
+      if (n == 3) CHECK(skim.skimmed == 0);  // one chunk, declaring every connection
+      // Wanting one topic: its messages all come with their bytes.
+      const SkimOut depth = read_skimming(cases[n], "/camera/depth/image", window);
+      CHECK(depth.messages == read.messages);
+      CHECK(depth.wanted_data_given);
+    }
+  }
+}
+
 TEST_CASE("rosbag: a bag's odometry poses for the prior", "[replay][bag][rosbag]") {
   Fixture fixture(sim_frames());
   std::vector<Eigen::Matrix4d> poses;

@@ -39,6 +39,12 @@ class BagReader {
   void close();
   void rewind();
   McapNext next(McapMessage* message);
+  // ROS 1 bags: skim the chunks whose connections `wants` answers false for, giving their
+  // messages without data (rosbag_reader.hpp); MCAP: every message is read. Null: off.
+  void set_skim(RosbagReader::WantsData wants, void* context) { rosbag_.set_skim(wants, context); }
+  std::uint64_t chunks_skimmed() const {
+    return format_ == BagFormat::rosbag ? rosbag_.chunks_skimmed() : 0;
+  }
 
   BagFormat format() const { return format_; }
   // How the messages are serialised: CDR in MCAP, ROS 1 in a ROS 1 bag.
@@ -66,7 +72,9 @@ class BagReader {
     std::uint64_t publish_time_ns = 0;
     std::uint64_t arrival = 0;  // file order, for ties
     std::size_t offset = 0;     // in the window
-    std::size_t size = 0;
+    std::size_t size = 0;       // of the message's data (0 when skimmed)
+    std::size_t bytes = 0;      // taken in the window: at least 1, the file's size when skimmed
+    bool skimmed = false;
     std::uint32_t sequence = 0;
     bool given = false;  // given out: its bytes are free once the messages before it are
   };

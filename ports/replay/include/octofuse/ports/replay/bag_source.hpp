@@ -143,6 +143,9 @@ class BagSource final : public DepthSource {
  private:
   Status choose_topics();
   Status choose_depth_topic();
+  // scan()'s answer to the reader: the bytes of a channel's messages are needed while its first
+  // image's size or first camera info is not known yet.
+  static bool scan_wants_bytes(void* self, const McapChannel& channel);
   int find_topic(const char* name) const;
   void note_disorder(ErrorText* text) const;
   Status read_tf_poses(void (*on_pose)(void* context, std::int64_t stamp_ns, const Se3d& T),

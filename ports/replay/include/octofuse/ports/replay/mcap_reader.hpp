@@ -55,6 +55,9 @@ struct McapMessage {
   std::uint64_t publish_time_ns = 0;
   const std::uint8_t* data = nullptr;  // valid until the next call to next()
   std::size_t size = 0;
+  // A ROS 1 message given from a chunk's index while skimming (rosbag_reader.hpp): data null,
+  // size 0, and this many bytes in the file (for the reorder window's accounting); 0 otherwise.
+  std::size_t skimmed_size = 0;
 };
 
 enum class McapNext : std::uint8_t { message, end, truncated, error };

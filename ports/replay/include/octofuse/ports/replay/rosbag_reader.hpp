@@ -12,6 +12,16 @@
 // Memory is fixed at open(): a record header buffer, one record buffer and one chunk buffer
 // (McapLimits), and bzip2's working memory.
 //
+// Skimming (set_skim(), for a first pass that needs the bytes of a few messages only): ROS 1
+// writes after each chunk an index record per connection, with each message's time and place in
+// the chunk. A chunk whose index records name only connections already declared, none of which
+// the caller wants the bytes of, is not decompressed: its messages are given from those records,
+// in the chunk's order, with their connection and time and no data (size 0; skimmed_size: the
+// space to the next message less a message record's header as ROS 1 writes it). Any other chunk
+// (no index records after it: a bag cut there or never closed; an unknown connection; one that is
+// wanted) is read as without skimming, so counts, times, order, disorder and cuts come out the
+// same, and only a corrupt chunk that was skimmed goes unnoticed until it is read.
+//
 // Read-ahead (McapLimits::read_ahead, on by default): decompressing a bz2 chunk costs about as
 // much as a 1 cm frame's integration, so a worker thread started at open() decompresses the next
 // chunk, with its own copy of those buffers, while the caller reads this one's messages. The
@@ -71,6 +81,12 @@ class RosbagReader {
   // Chunks read ahead by the worker and taken by next() (0 without read-ahead).
   std::uint64_t chunks_read_ahead() const { return chunks_read_ahead_; }
 
+  // Skims chunks whose connections `wants` answers false for (asked again at each chunk: the
+  // answer may change as the caller learns); null: every chunk read. No read-ahead meanwhile.
+  using WantsData = bool (*)(void* context, const McapChannel& channel);
+  void set_skim(WantsData wants, void* context);
+  std::uint64_t chunks_skimmed() const { return chunks_skimmed_; }
+
   // A record header's fields, bzip2's allocator, a decompressor and the read-ahead worker:
   // public for the implementation file only.
   struct Header;
@@ -103,6 +119,9 @@ class RosbagReader {
                   const Inflated* ahead);
   Inflated inflate(Inflater& inflater, bool bz2, const std::uint8_t* data, std::size_t size) const;
   void note_truncation(const char* what);
+  // The index records after the chunk whose data spans [data_offset, data_offset + data_size)
+  // into skim_entries_ when the chunk can be skimmed.
+  bool try_skim(std::uint64_t data_offset, std::uint32_t data_size, std::uint32_t chunk_size);
   // Read-ahead: start, hand the worker the record at `offset`, take its chunk if it is the one at
   // `offset` (waits for the worker's current job), forget its result, stop.
   bool start_read_ahead();
@@ -132,6 +151,20 @@ class RosbagReader {
   Inflater main_;  // the caller's; main_.out is the chunk buffer messages point into
   ReadAhead* ahead_ = nullptr;
   std::uint64_t chunks_read_ahead_ = 0;
+
+  struct SkimEntry {
+    std::uint32_t offset = 0;  // in the decompressed chunk
+    std::uint32_t channel = 0;
+    std::uint64_t time_ns = 0;
+    std::size_t size = 0;  // its data's size, from its place and the next message's
+  };
+  WantsData skim_wants_ = nullptr;
+  void* skim_context_ = nullptr;
+  std::uint8_t* skim_header_ = nullptr;
+  SkimEntry* skim_entries_ = nullptr;
+  std::size_t skim_count_ = 0;
+  std::size_t skim_pos_ = 0;
+  std::uint64_t chunks_skimmed_ = 0;
 
   const std::uint8_t* chunk_records_ = nullptr;
   std::size_t chunk_size_ = 0;

@@ -72,6 +72,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("store_unchanged").value(static_cast<std::uint64_t>(s.store.unchanged));
   json.key("store_write_failed").value(static_cast<std::uint64_t>(s.store.write_failed));
   json.key("store_read").value(static_cast<std::uint64_t>(s.store.read));
+  json.key("store_read_in_place").value(static_cast<std::uint64_t>(s.store.read_in_place));
   json.key("store_read_failed").value(static_cast<std::uint64_t>(s.store.read_failed));
   json.key("store_remapped").value(static_cast<std::uint64_t>(s.store.remapped));
   json.key("store_waiting").value(static_cast<std::uint64_t>(s.store.waiting));
@@ -265,6 +266,8 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   json.key("store_write_failed")
       .value(static_cast<std::uint64_t>(summary->store_total.write_failed));
   json.key("store_read").value(static_cast<std::uint64_t>(summary->store_total.read));
+  json.key("store_read_in_place")
+      .value(static_cast<std::uint64_t>(summary->store_total.read_in_place));
   json.key("store_read_failed").value(static_cast<std::uint64_t>(summary->store_total.read_failed));
   json.key("store_remapped").value(static_cast<std::uint64_t>(summary->store_total.remapped));
   json.key("store_bytes_written").value(summary->store_total.bytes_written);

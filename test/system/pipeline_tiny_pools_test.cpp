@@ -178,8 +178,10 @@ TEST_CASE("with a block store, evicted blocks come back when the camera returns"
   MemoryStore store;
   const TinyRun stored = run_tiny(sim_config, config, &store);  // (the test's store allocates)
   std::uint64_t written = 0, unchanged = 0, read = 0, remapped = 0, read_late = 0, refused = 0;
+  std::uint64_t read_in_place = 0;
   for (std::size_t i = 0; i < stored.stats.size(); ++i) {
     const StoreReport& r = stored.stats[i].store;
+    read_in_place += r.read_in_place;
     REQUIRE(r.write_failed == 0);
     REQUIRE(r.read_failed == 0);
     written += r.written;
@@ -203,7 +205,11 @@ TEST_CASE("with a block store, evicted blocks come back when the camera returns"
   REQUIRE(refused == 0);
   REQUIRE(unchanged > 0);  // walls read back at the end of the orbit and evicted again unseen
   REQUIRE(read_late > 0);  // the first walls came back at the end of the orbit
-  REQUIRE(read >= 2 * remapped);  // most came back before integration mapped them afresh
+  // Nearly all came back before integration mapped them afresh: those that waited for room are
+  // read in the place of the new blocks the frame would have made (the build before that read
+  // back 3 280 and re-mapped 728; this one 7 287, 3 446 of them in place, and 409).
+  REQUIRE(read_in_place > 0);
+  REQUIRE(read >= 10 * remapped);
 }
 
 TEST_CASE("eviction makes room for every block a frame allocates", "[store][refusals]") {

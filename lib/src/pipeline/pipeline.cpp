@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <type_traits>
 
 namespace octofuse {
@@ -287,8 +288,12 @@ Status Pipeline<VoxelT>::reserve(Arena& arena, const PipelineConfig& config) {
     OCTOFUSE_TRY(candidates);
     Result<std::uint32_t*> indices = arena.template allocate_array<std::uint32_t>(blocks);
     OCTOFUSE_TRY(indices);
+    Result<std::uint8_t*> in_frame = arena.template allocate_array<std::uint8_t>(blocks);
+    OCTOFUSE_TRY(in_frame);
     eviction_candidates_ = candidates.value();
     eviction_indices_ = indices.value();
+    in_frame_ = in_frame.value();
+    if (in_frame_ != nullptr) std::memset(in_frame_, 0, blocks);
     Result<std::uint8_t*> record =
         arena.template allocate_array<std::uint8_t>(block_record_max_bytes<VoxelT>());
     OCTOFUSE_TRY(record);
@@ -619,14 +624,21 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   }
   if (over_blocks == 0 && over_finest == 0) return report;
   report.triggered = true;
-  // Rank every block: not updated by the previous frame nor read back by this one first, then
-  // read back by this one (in view), then the previous frame's; within each, farthest first
-  // (squared distance in voxels from the camera's voxel to the block's centre, exact in
-  // integers), then by Morton code, a total order.
+  // Rank every block: not updated by the previous frame, not read back by this one and not in
+  // this frame's list first, then read back by this one (in view), then the previous frame's
+  // and, with a store, this frame's (evicting one would write it and map it afresh at once, its
+  // record dropped when next read); within
+  // each, farthest first (squared distance in voxels from the camera's voxel to the block's
+  // centre, exact in integers), then by Morton code, a total order.
   const Eigen::Vector3i camera_voxel =
       map_.point_to_voxel(T_W_C_.translation().template cast<float>());
   const std::uint32_t count = map_.block_count();
   const std::uint32_t recent_frame = frame_index > 0 ? frame_index - 1 : 0;
+  // With a store only: without one, the node pool's tight cases (pipeline_tiny_pools_test) refuse
+  // nodes when the listed blocks are kept, which needs a closer look.
+  if (store_ != nullptr) {
+    integrator_.for_each_listed_block([this](std::uint32_t index) { in_frame_[index] = 1; });
+  }
   for (std::uint32_t i = 0; i < count; ++i) {
     const typename Map::Block& block = map_.block(i);
     const Eigen::Vector3i centre =
@@ -635,7 +647,9 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
         static_cast<std::uint64_t>(static_cast<std::int64_t>(centre.x()) * centre.x() +
                                    static_cast<std::int64_t>(centre.y()) * centre.y() +
                                    static_cast<std::int64_t>(centre.z()) * centre.z());
-    const bool recent = block.last_updated_frame >= recent_frame && block.integrated();
+    const bool recent =
+        (block.last_updated_frame >= recent_frame && block.integrated()) || in_frame_[i] != 0;
+    in_frame_[i] = 0;
     const std::uint64_t tier = recent ? 0 : i >= read_back_from_ ? 1 : 2;
     EvictionCandidate& c = eviction_candidates_[i];
     c.rank = (tier << 61) | d2;
@@ -735,6 +749,7 @@ void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
   const Eigen::Vector3i lo_block = voxel_to_block(map_.point_to_voxel(lo));
   const Eigen::Vector3i hi_block = voxel_to_block(map_.point_to_voxel(hi));
   const std::size_t found = store_->find_in_box(lo_block, hi_block, store_keys_, kStoreKeyCapacity);
+  store_keys_found_ = found;
   // In view: rank by squared distance (voxels), nearest first, ties by key.
   const Eigen::Vector3i camera_voxel = map_.point_to_voxel(T_W_C.translation());
   std::uint32_t candidates = 0;
@@ -799,6 +814,73 @@ void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
       ++report.read_failed;
     }
   }
+  if (restored > 0) map_.propagate_summaries(eviction_indices_, restored);
+}
+
+// Stored blocks that this frame's integration is about to allocate (in its list, not in memory:
+// they waited after reload_stored(), for room or for their turn, or lay beyond the keys it was
+// given) are read back instead, nearest first, within what is left of the frame's read budget. Room
+// is no reason to wait here: each takes the slot the new block would have taken, which eviction has
+// made. Without this the block would be mapped afresh and its record dropped when its turn came
+// (remapped).
+template <typename VoxelT>
+void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
+  const std::uint32_t spent = report.read + report.read_failed + report.remapped;
+  if (store_keys_found_ == 0 || spent >= config_.budget.max_store_reads) return;
+  const std::uint32_t budget = config_.budget.max_store_reads - spent;
+  const Eigen::Vector3i camera_voxel =
+      map_.point_to_voxel(T_W_C_.translation().template cast<float>());
+  const std::uint32_t capacity = map_.memory().block_capacity;
+  // Every missing block is asked for (a miss costs the store a look-up, not a read): the keys
+  // found in view are capped at kStoreKeyCapacity, which a large view's box can exceed.
+  std::uint32_t candidates = 0;
+  integrator_.for_each_missing_block([&](std::uint64_t morton, const Eigen::Vector3i& coords) {
+    if (candidates == capacity) return;
+    const Eigen::Vector3i d =
+        coords * kBlockSide + Eigen::Vector3i::Constant(kBlockSide / 2) - camera_voxel;
+    EvictionCandidate& c = eviction_candidates_[candidates++];
+    c.rank = static_cast<std::uint64_t>(static_cast<std::int64_t>(d.x()) * d.x() +
+                                        static_cast<std::int64_t>(d.y()) * d.y() +
+                                        static_cast<std::int64_t>(d.z()) * d.z());
+    c.morton = morton;
+  });
+  // Nearest first, ties by key: the same order for any list order (and thread count).
+  std::sort(eviction_candidates_, eviction_candidates_ + candidates,
+            [](const EvictionCandidate& a, const EvictionCandidate& b) {
+              if (a.rank != b.rank) return a.rank < b.rank;
+              return a.morton < b.morton;
+            });
+  std::uint32_t restored = 0;
+  std::uint32_t reads = 0;
+  std::uint32_t tried = 0;
+  for (; tried < candidates && reads < budget; ++tried) {
+    const std::uint64_t key = eviction_candidates_[tried].morton;
+    const Result<std::size_t> size =
+        store_->take(key, store_record_, block_record_max_bytes<VoxelT>());
+    if (!size.ok()) {
+      // Not stored (a new block indeed), or the store failed: mapped afresh.
+      if (size.status().code() != StatusCode::out_of_range) {
+        ++report.read_failed;
+        ++reads;
+      }
+      continue;
+    }
+    ++reads;
+    report.bytes_read += size.value();
+    const Result<std::uint32_t> index = restore_block_record(map_, store_record_, size.value());
+    if (index.ok()) {
+      ++report.read;
+      ++report.read_in_place;
+      eviction_indices_[restored++] = index.value();
+    } else if (index.status().code() == StatusCode::resource_exhausted) {
+      store_->release(key);  // a pool is full: the block is mapped afresh, as before
+      break;
+    } else {
+      ++report.read_failed;
+    }
+  }
+  if (tried < candidates && reads == budget) report.budget_hit = true;
+  report.waiting = report.waiting > restored ? report.waiting - restored : 0;
   if (restored > 0) map_.propagate_summaries(eviction_indices_, restored);
 }
 
@@ -1151,26 +1233,30 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
     // Stored blocks in view first (they are then not new), then room for exactly the blocks this
     // frame will allocate, then integration.
     read_back_from_ = map_.memory().blocks_used;
+    store_keys_found_ = 0;
     if (store_ != nullptr) reload_stored(stats.store);
-    // When the room is short, the integration is done in two parts: the frame's blocks are
-    // collected and counted once, and the blocks not allocated yet (after the reads) are what
-    // eviction makes room for.
+    // When the room is short, or a store may hold blocks the frame would otherwise map afresh,
+    // the integration is done in two parts: the frame's blocks are collected and counted once,
+    // and the blocks not allocated yet (after the reads) are what eviction makes room for and
+    // what the store is asked for again.
     const ImageView<const float> depth_m = preprocessor_.pyramid().depth_m[0];
     const bool short_room = room_short(budget);
+    const bool two_parts = short_room || store_keys_found_ > stats.store.read;
     std::uint32_t new_blocks = 0;
-    if (short_room) {
+    if (two_parts) {
       const IntegrationReport begun =
           integrator_.begin_frame(map_, depth_m, working_camera_, T_W_C_, team_);
-      new_blocks = std::min(begun.blocks_requested, budget.max_new_blocks);
+      if (short_room) new_blocks = std::min(begun.blocks_requested, budget.max_new_blocks);
     }
     stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index), new_blocks);
+    if (two_parts && store_keys_found_ > stats.store.read) read_back_missing(stats.store);
     read_back_from_ = 0xFFFFFFFFu;
     const std::uint64_t node_refusals_before = map_.memory().node_refusals;
     const auto frame_index = static_cast<std::uint32_t>(stats.frame_index);
-    stats.integration = short_room ? integrator_.finish_frame(map_, depth_m, working_camera_,
-                                                              T_W_C_, frame_index, budget, team_)
-                                   : integrator_.integrate(map_, depth_m, working_camera_, T_W_C_,
-                                                           frame_index, budget, team_);
+    stats.integration = two_parts ? integrator_.finish_frame(map_, depth_m, working_camera_, T_W_C_,
+                                                             frame_index, budget, team_)
+                                  : integrator_.integrate(map_, depth_m, working_camera_, T_W_C_,
+                                                          frame_index, budget, team_);
     stats.integration.node_refusals =
         static_cast<std::uint32_t>(map_.memory().node_refusals - node_refusals_before);
     progress.integrated = true;

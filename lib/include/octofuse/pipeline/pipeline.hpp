@@ -108,13 +108,14 @@ struct EvictionReport {
 
 // What the block store did in one frame (Pipeline::set_block_store()).
 struct StoreReport {
-  std::uint32_t written = 0;       // evicted blocks handed to the store
-  std::uint32_t unchanged = 0;     // evicted blocks unchanged since read back: no write needed
-  std::uint32_t write_failed = 0;  // ... that it refused (their state is lost)
-  std::uint32_t read = 0;          // stored blocks in view read back before integration
-  std::uint32_t read_failed = 0;   // damaged records (those blocks are mapped afresh)
-  std::uint32_t remapped = 0;      // stored blocks in view already mapped afresh (record dropped)
-  std::uint32_t waiting = 0;       // stored blocks in view left for a later frame (budget, room)
+  std::uint32_t written = 0;        // evicted blocks handed to the store
+  std::uint32_t unchanged = 0;      // evicted blocks unchanged since read back: no write needed
+  std::uint32_t write_failed = 0;   // ... that it refused (their state is lost)
+  std::uint32_t read = 0;           // stored blocks in view read back before integration
+  std::uint32_t read_in_place = 0;  // of those, ones the frame would have mapped afresh
+  std::uint32_t read_failed = 0;    // damaged records (those blocks are mapped afresh)
+  std::uint32_t remapped = 0;       // stored blocks in view already mapped afresh (record dropped)
+  std::uint32_t waiting = 0;        // stored blocks in view left for a later frame (budget, room)
   std::uint64_t bytes_written = 0;
   std::uint64_t bytes_read = 0;
   bool budget_hit = false;  // max_store_reads or max_store_writes bound
@@ -427,6 +428,9 @@ class Pipeline {
   bool room_short(const FusionBudget& budget) const;
   // Before step (2): reads back stored blocks in the camera's view (set_block_store()).
   void reload_stored(StoreReport& report);
+  // Between Integrator::begin_frame() and finish_frame(): reads back, in their place, the stored
+  // blocks the frame would map afresh.
+  void read_back_missing(StoreReport& report);
   // In step (2): hands the first `count` blocks of eviction_indices_ to the store.
   void spill(std::uint32_t count);
   // Sets the tracker's, ray-caster's and free space's budgets from a deadline plan.
@@ -486,6 +490,7 @@ class Pipeline {
   };
   EvictionCandidate* eviction_candidates_ = nullptr;
   std::uint32_t* eviction_indices_ = nullptr;
+  std::uint8_t* in_frame_ = nullptr;  // per pool index: 1 while evict() ranks a listed block
   std::uint32_t evict_high_blocks_ = 0;  // marks as block / finest-level counts
   std::uint32_t evict_low_blocks_ = 0;
   std::uint32_t evict_high_finest_ = 0;
@@ -494,6 +499,7 @@ class Pipeline {
   BlockStore* free_store_ = nullptr;
   std::uint8_t* store_record_ = nullptr;  // one block record (with eviction)
   std::uint64_t* store_keys_ = nullptr;   // kStoreKeyCapacity keys found in view
+  std::size_t store_keys_found_ = 0;      // by this frame's reload_stored(), in key order
   // Blocks at this pool index and above were read back by this frame (restored blocks are
   // appended): they are in view, so eviction takes them only after the older ones.
   std::uint32_t read_back_from_ = 0xFFFFFFFFu;

@@ -205,6 +205,18 @@ RosbagReader::~RosbagReader() {
   close();
 }
 
+std::size_t RosbagReader::read_ahead_bytes(const McapLimits& limits) {
+  ArenaSizer sizer;
+  (void)sizer.allocate_array<ReadAhead>(1);
+  (void)sizer.allocate_bytes(kMaxHeaderBytes, 16);
+  (void)sizer.allocate_bytes(limits.max_record_bytes, 16);
+  (void)sizer.allocate_bytes(limits.max_chunk_bytes, 16);
+#if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
+  (void)sizer.allocate_bytes(kBz2ScratchBytes, 16);
+#endif
+  return sizer.bytes_used();
+}
+
 std::size_t RosbagReader::bytes_required(const McapLimits& limits) {
   ArenaSizer sizer;
   (void)sizer.allocate_bytes(kMaxHeaderBytes, 16);
@@ -217,15 +229,6 @@ std::size_t RosbagReader::bytes_required(const McapLimits& limits) {
 #if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
   (void)sizer.allocate_bytes(kBz2ScratchBytes, 16);
 #endif
-  if (limits.read_ahead) {
-    (void)sizer.allocate_array<ReadAhead>(1);
-    (void)sizer.allocate_bytes(kMaxHeaderBytes, 16);
-    (void)sizer.allocate_bytes(limits.max_record_bytes, 16);
-    (void)sizer.allocate_bytes(limits.max_chunk_bytes, 16);
-#if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
-    (void)sizer.allocate_bytes(kBz2ScratchBytes, 16);
-#endif
-  }
   return sizer.bytes_used();
 }
 
@@ -266,6 +269,7 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
   }
   memory_bytes_ = bytes_required(limits);
   memory_ = std::aligned_alloc(kArenaAlignment, align_up(memory_bytes_, kArenaAlignment));
+  ahead_memory_ = nullptr;
   if (memory_ == nullptr) {
     error_.set("rosbag: cannot reserve %zu bytes", memory_bytes_);
     close();
@@ -281,10 +285,10 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
       arena.allocate_array<std::uint32_t>(static_cast<std::size_t>(limits.max_channels)).value();
   skim_header_ = static_cast<std::uint8_t*>(arena.allocate_bytes(kMaxSkimHeaderBytes, 16).value());
   skim_entries_ = arena.allocate_array<SkimEntry>(kMaxSkimEntries).value();
-  auto make_inflater = [&](Inflater* inflater) {
+  auto make_inflater = [](LinearArena& from, Inflater* inflater) {
 #if defined(OCTOFUSE_REPLAY_HAVE_BZ2)
     inflater->bz2.base =
-        static_cast<std::uint8_t*>(arena.allocate_bytes(kBz2ScratchBytes, 16).value());
+        static_cast<std::uint8_t*>(from.allocate_bytes(kBz2ScratchBytes, 16).value());
     inflater->bz2.size = kBz2ScratchBytes;
 #endif
 #if defined(OCTOFUSE_REPLAY_HAVE_LZ4)
@@ -292,18 +296,10 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
       inflater->lz4 = nullptr;
     }
 #endif
+    (void)from;
     (void)inflater;
   };
-  make_inflater(&main_);
-  if (limits.read_ahead) {
-    ahead_ = new (arena.allocate_array<ReadAhead>(1).value()) ReadAhead();
-    ahead_->header = static_cast<std::uint8_t*>(arena.allocate_bytes(kMaxHeaderBytes, 16).value());
-    ahead_->record =
-        static_cast<std::uint8_t*>(arena.allocate_bytes(limits.max_record_bytes, 16).value());
-    ahead_->inflater.out =
-        static_cast<std::uint8_t*>(arena.allocate_bytes(limits.max_chunk_bytes, 16).value());
-    make_inflater(&ahead_->inflater);
-  }
+  make_inflater(arena, &main_);
 
   // The bag header record: op 0x03 and the index position (0 while recording).
   std::uint8_t head[4];
@@ -336,13 +332,54 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
     close();
     return StatusCode::data_loss;
   }
-  if (ahead_ != nullptr && !start_read_ahead()) {
-    error_.set("rosbag: cannot start the read-ahead thread");
-    close();
-    return StatusCode::resource_exhausted;
+  // Read-ahead where it pays: a bag whose first chunk is compressed (rosbag compresses every
+  // chunk of a bag alike); an uncompressed bag keeps the memory.
+  if (limits.read_ahead && first_chunk_compressed()) {
+    const std::size_t bytes = read_ahead_bytes(limits);
+    ahead_memory_ = std::aligned_alloc(kArenaAlignment, align_up(bytes, kArenaAlignment));
+    if (ahead_memory_ == nullptr) {
+      error_.set("rosbag: cannot reserve %zu bytes for read-ahead", bytes);
+      close();
+      return StatusCode::resource_exhausted;
+    }
+    memory_bytes_ += bytes;
+    LinearArena ahead_arena(ahead_memory_, bytes);
+    ahead_ = new (ahead_arena.allocate_array<ReadAhead>(1).value()) ReadAhead();
+    ahead_->header =
+        static_cast<std::uint8_t*>(ahead_arena.allocate_bytes(kMaxHeaderBytes, 16).value());
+    ahead_->record =
+        static_cast<std::uint8_t*>(ahead_arena.allocate_bytes(limits.max_record_bytes, 16).value());
+    ahead_->inflater.out =
+        static_cast<std::uint8_t*>(ahead_arena.allocate_bytes(limits.max_chunk_bytes, 16).value());
+    make_inflater(ahead_arena, &ahead_->inflater);
+    if (!start_read_ahead()) {
+      error_.set("rosbag: cannot start the read-ahead thread");
+      close();
+      return StatusCode::resource_exhausted;
+    }
   }
   rewind();
   return ok_status();
+}
+
+bool RosbagReader::first_chunk_compressed() const {
+  // The first record after the bag header, as next() would read it (a cut or odd bag: false).
+  std::uint8_t word[4];
+  std::size_t got = 0;
+  if (file_size_ - first_record_ < 8 || !read_at(first_record_, word, 4, &got)) return false;
+  const std::uint32_t header_size = le32(word);
+  if (header_size > kMaxHeaderBytes || header_size > file_size_ - first_record_ - 8 ||
+      !read_at(first_record_ + 4, header_, header_size, &got)) {
+    return false;
+  }
+  Header header;
+  header.parse(header_, header_size);
+  if (!header.ok || !header.has_op || header.op != kOpChunk) return false;
+  auto named = [&](const char* name) {
+    return header.compression.size == std::strlen(name) &&
+           std::memcmp(header.compression.data, name, header.compression.size) == 0;
+  };
+  return named("bz2") || named("lz4");
 }
 
 void RosbagReader::close() {
@@ -361,6 +398,8 @@ void RosbagReader::close() {
     ahead_->~ReadAhead();
     ahead_ = nullptr;
   }
+  std::free(ahead_memory_);
+  ahead_memory_ = nullptr;
   std::free(memory_);
   memory_ = nullptr;
   memory_bytes_ = 0;

@@ -722,6 +722,7 @@ struct ReadOut {
   std::string error;
   std::string warning;
   std::uint64_t read_ahead = 0;
+  std::size_t reserved = 0;
 };
 
 ReadOut read_all(const std::string& path, bool read_ahead, int rewind_after = -1) {
@@ -751,6 +752,7 @@ ReadOut read_all(const std::string& path, bool read_ahead, int rewind_after = -1
   out.error = reader.error();
   out.warning = reader.warning();
   out.read_ahead = reader.chunks_read_ahead();
+  out.reserved = reader.bytes_reserved();
   return out;
 }
 
@@ -793,6 +795,12 @@ TEST_CASE("rosbag: read-ahead gives the same messages, errors and warnings as re
       CHECK(alone.messages.size() >= 15);
       CHECK(ahead.read_ahead > 0);
     }
+    // Read-ahead's memory only for a compressed bag: none for the uncompressed one.
+    const octofuse::replay::McapLimits limits;
+    const std::size_t base = octofuse::replay::RosbagReader::bytes_required(limits);
+    CHECK(alone.reserved == base);
+    CHECK(ahead.reserved ==
+          base + (n == 3 ? 0 : octofuse::replay::RosbagReader::read_ahead_bytes(limits)));
     if (n == 3) CHECK(ahead.read_ahead == 0);  // uncompressed: nothing for the worker
     // A rewind part of the way drops what the worker holds: the same messages again.
     const ReadOut rewound = read_all(cases[n], true, 7);

@@ -22,8 +22,9 @@
 // wanted) is read as without skimming, so counts, times, order, disorder and cuts come out the
 // same, and only a corrupt chunk that was skimmed goes unnoticed until it is read.
 //
-// Read-ahead (McapLimits::read_ahead, on by default): decompressing a bz2 chunk costs about as
-// much as a 1 cm frame's integration, so a worker thread started at open() decompresses the next
+// Read-ahead (McapLimits::read_ahead, on by default, for a bag whose first chunk is compressed):
+// decompressing a bz2 chunk costs about as much as a 1 cm frame's integration, so a worker thread
+// started at open() decompresses the next
 // chunk, with its own copy of those buffers, while the caller reads this one's messages. The
 // caller's next() then takes the worker's chunk buffer in exchange for its own (a message's data
 // stays valid until the next call, as without it). The worker goes past index records only: a
@@ -55,8 +56,9 @@ class RosbagReader {
   RosbagReader& operator=(const RosbagReader&) = delete;
 
   // Bytes open() reserves for `limits` (max_schemas is not used: ROS 1 names the type in the
-  // connection).
+  // connection), and besides them for read-ahead when it starts it.
   static std::size_t bytes_required(const McapLimits& limits);
+  static std::size_t read_ahead_bytes(const McapLimits& limits);
 
   // Opens `path`, checks the magic and reads the bag header. unavailable (no such file),
   // data_loss (not a ROS 1 bag, another format version, a malformed bag header),
@@ -119,6 +121,7 @@ class RosbagReader {
                   const Inflated* ahead);
   Inflated inflate(Inflater& inflater, bool bz2, const std::uint8_t* data, std::size_t size) const;
   void note_truncation(const char* what);
+  bool first_chunk_compressed() const;
   // The index records after the chunk whose data spans [data_offset, data_offset + data_size)
   // into skim_entries_ when the chunk can be skimmed.
   bool try_skim(std::uint64_t data_offset, std::uint32_t data_size, std::uint32_t chunk_size);
@@ -150,6 +153,7 @@ class RosbagReader {
   int channel_count_ = 0;
   Inflater main_;  // the caller's; main_.out is the chunk buffer messages point into
   ReadAhead* ahead_ = nullptr;
+  void* ahead_memory_ = nullptr;
   std::uint64_t chunks_read_ahead_ = 0;
 
   struct SkimEntry {

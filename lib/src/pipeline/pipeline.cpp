@@ -206,6 +206,16 @@ bool prior_motion_implausible(const Se3d& from, const Se3d& to, double dt_s,
 }
 
 namespace {
+// Squared distance in voxels from `camera_voxel` to the centre of the block at `coords`: exact in
+// integers, so the rankings built on it are the same on every architecture.
+std::uint64_t block_distance2(const Eigen::Vector3i& coords, const Eigen::Vector3i& camera_voxel) {
+  const Eigen::Vector3i d =
+      coords * kBlockSide + Eigen::Vector3i::Constant(kBlockSide / 2) - camera_voxel;
+  return static_cast<std::uint64_t>(static_cast<std::int64_t>(d.x()) * d.x() +
+                                    static_cast<std::int64_t>(d.y()) * d.y() +
+                                    static_cast<std::int64_t>(d.z()) * d.z());
+}
+
 double elapsed_ms(std::int64_t from_us, std::int64_t to_us) {
   return static_cast<double>(to_us - from_us) * 1e-3;
 }
@@ -641,12 +651,7 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   }
   for (std::uint32_t i = 0; i < count; ++i) {
     const typename Map::Block& block = map_.block(i);
-    const Eigen::Vector3i centre =
-        block.coords * kBlockSide + Eigen::Vector3i::Constant(kBlockSide / 2) - camera_voxel;
-    const std::uint64_t d2 =
-        static_cast<std::uint64_t>(static_cast<std::int64_t>(centre.x()) * centre.x() +
-                                   static_cast<std::int64_t>(centre.y()) * centre.y() +
-                                   static_cast<std::int64_t>(centre.z()) * centre.z());
+    const std::uint64_t d2 = block_distance2(block.coords, camera_voxel);
     const bool recent =
         (block.last_updated_frame >= recent_frame && block.integrated()) || in_frame_[i] != 0;
     in_frame_[i] = 0;
@@ -765,20 +770,12 @@ void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
         px.y() > static_cast<float>(cam.height) + m) {
       continue;
     }
-    const Eigen::Vector3i d =
-        coords * kBlockSide + Eigen::Vector3i::Constant(kBlockSide / 2) - camera_voxel;
     EvictionCandidate& c = eviction_candidates_[candidates++];
-    c.rank = static_cast<std::uint64_t>(static_cast<std::int64_t>(d.x()) * d.x() +
-                                        static_cast<std::int64_t>(d.y()) * d.y() +
-                                        static_cast<std::int64_t>(d.z()) * d.z());
+    c.rank = block_distance2(coords, camera_voxel);
     c.morton = store_keys_[i];
     if (candidates == memory_capacity) break;
   }
-  std::sort(eviction_candidates_, eviction_candidates_ + candidates,
-            [](const EvictionCandidate& a, const EvictionCandidate& b) {
-              if (a.rank != b.rank) return a.rank < b.rank;
-              return a.morton < b.morton;
-            });
+  sort_nearest_first(candidates);
   // Up to the pool's high-water mark only: filling it further would make this frame's eviction
   // send blocks just read back (in view, but not yet updated) out again, frame after frame.
   const std::uint32_t used = map_.memory().blocks_used;
@@ -817,6 +814,16 @@ void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
   if (restored > 0) map_.propagate_summaries(eviction_indices_, restored);
 }
 
+// The first `count` eviction candidates by rank, lowest (nearest) first, ties by key.
+template <typename VoxelT>
+void Pipeline<VoxelT>::sort_nearest_first(std::uint32_t count) {
+  std::sort(eviction_candidates_, eviction_candidates_ + count,
+            [](const EvictionCandidate& a, const EvictionCandidate& b) {
+              if (a.rank != b.rank) return a.rank < b.rank;
+              return a.morton < b.morton;
+            });
+}
+
 // Stored blocks that this frame's integration is about to allocate (in its list, not in memory:
 // they waited after reload_stored(), for room or for their turn, or lay beyond the keys it was
 // given) are read back instead, nearest first, within what is left of the frame's read budget. Room
@@ -836,20 +843,12 @@ void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
   std::uint32_t candidates = 0;
   integrator_.for_each_missing_block([&](std::uint64_t morton, const Eigen::Vector3i& coords) {
     if (candidates == capacity) return;
-    const Eigen::Vector3i d =
-        coords * kBlockSide + Eigen::Vector3i::Constant(kBlockSide / 2) - camera_voxel;
     EvictionCandidate& c = eviction_candidates_[candidates++];
-    c.rank = static_cast<std::uint64_t>(static_cast<std::int64_t>(d.x()) * d.x() +
-                                        static_cast<std::int64_t>(d.y()) * d.y() +
-                                        static_cast<std::int64_t>(d.z()) * d.z());
+    c.rank = block_distance2(coords, camera_voxel);
     c.morton = morton;
   });
-  // Nearest first, ties by key: the same order for any list order (and thread count).
-  std::sort(eviction_candidates_, eviction_candidates_ + candidates,
-            [](const EvictionCandidate& a, const EvictionCandidate& b) {
-              if (a.rank != b.rank) return a.rank < b.rank;
-              return a.morton < b.morton;
-            });
+  // The same order for any list order (and thread count).
+  sort_nearest_first(candidates);
   std::uint32_t restored = 0;
   std::uint32_t reads = 0;
   std::uint32_t tried = 0;

@@ -431,6 +431,7 @@ class Pipeline {
   // Between Integrator::begin_frame() and finish_frame(): reads back, in their place, the stored
   // blocks the frame would map afresh.
   void read_back_missing(StoreReport& report);
+  void sort_nearest_first(std::uint32_t count);
   // In step (2): hands the first `count` blocks of eviction_indices_ to the store.
   void spill(std::uint32_t count);
   // Sets the tracker's, ray-caster's and free space's budgets from a deadline plan.
@@ -490,7 +491,7 @@ class Pipeline {
   };
   EvictionCandidate* eviction_candidates_ = nullptr;
   std::uint32_t* eviction_indices_ = nullptr;
-  std::uint8_t* in_frame_ = nullptr;  // per pool index: 1 while evict() ranks a listed block
+  std::uint8_t* in_frame_ = nullptr;     // per pool index: 1 while evict() ranks a listed block
   std::uint32_t evict_high_blocks_ = 0;  // marks as block / finest-level counts
   std::uint32_t evict_low_blocks_ = 0;
   std::uint32_t evict_high_finest_ = 0;

@@ -366,7 +366,10 @@ bool RosbagReader::first_chunk_compressed() const {
   // The first record after the bag header, as next() would read it (a cut or odd bag: false).
   std::uint8_t word[4];
   std::size_t got = 0;
-  if (file_size_ - first_record_ < 8 || !read_at(first_record_, word, 4, &got)) return false;
+  if (first_record_ > file_size_ || file_size_ - first_record_ < 8 ||
+      !read_at(first_record_, word, 4, &got)) {
+    return false;
+  }
   const std::uint32_t header_size = le32(word);
   if (header_size > kMaxHeaderBytes || header_size > file_size_ - first_record_ - 8 ||
       !read_at(first_record_ + 4, header_, header_size, &got)) {

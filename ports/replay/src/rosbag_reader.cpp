@@ -95,6 +95,12 @@ struct RosbagReader::Header {
   View compression;
   View type;  // connection headers (a connection record's data)
 
+  // A chunk's compression field is `name` ("none", "bz2", "lz4").
+  bool compressed_with(const char* name) const {
+    return compression.size == std::strlen(name) &&
+           std::memcmp(compression.data, name, compression.size) == 0;
+  }
+
   // Parses `size` bytes of "u32 length, name=value" fields.
   void parse(const std::uint8_t* p, std::size_t n) {
     std::size_t pos = 0;
@@ -362,27 +368,39 @@ Status RosbagReader::open(const char* path, const McapLimits& limits) {
   return ok_status();
 }
 
-bool RosbagReader::first_chunk_compressed() const {
-  // The first record after the bag header, as next() would read it (a cut or odd bag: false).
+RosbagReader::RecordHead RosbagReader::read_record_head(std::uint64_t at, std::uint8_t* buffer,
+                                                        std::size_t capacity, Header* header,
+                                                        std::uint64_t* data_offset,
+                                                        std::uint32_t* data_size) const {
   std::uint8_t word[4];
   std::size_t got = 0;
-  if (first_record_ > file_size_ || file_size_ - first_record_ < 8 ||
-      !read_at(first_record_, word, 4, &got)) {
-    return false;
+  if (at > file_size_ || file_size_ - at < 8 || !read_at(at, word, 4, &got)) {
+    return RecordHead::cut;
   }
   const std::uint32_t header_size = le32(word);
-  if (header_size > kMaxHeaderBytes || header_size > file_size_ - first_record_ - 8 ||
-      !read_at(first_record_ + 4, header_, header_size, &got)) {
+  if (header_size > file_size_ - at - 8) return RecordHead::cut;
+  if (header_size > capacity) return RecordHead::too_large;
+  if (!read_at(at + 4, buffer, header_size, &got) ||
+      !read_at(at + 4 + header_size, word, 4, &got)) {
+    return RecordHead::cut;
+  }
+  header->parse(buffer, header_size);
+  if (!header->ok || !header->has_op) return RecordHead::malformed;
+  *data_offset = at + 8 + header_size;
+  *data_size = le32(word);
+  return RecordHead::whole;
+}
+
+bool RosbagReader::first_chunk_compressed() const {
+  // The first record after the bag header, as next() would read it (a cut or odd bag: false).
+  Header header;
+  std::uint64_t data_offset = 0;
+  std::uint32_t data_size = 0;
+  if (read_record_head(first_record_, header_, kMaxHeaderBytes, &header, &data_offset,
+                       &data_size) != RecordHead::whole) {
     return false;
   }
-  Header header;
-  header.parse(header_, header_size);
-  if (!header.ok || !header.has_op || header.op != kOpChunk) return false;
-  auto named = [&](const char* name) {
-    return header.compression.size == std::strlen(name) &&
-           std::memcmp(header.compression.data, name, header.compression.size) == 0;
-  };
-  return named("bz2") || named("lz4");
+  return header.op == kOpChunk && (header.compressed_with("bz2") || header.compressed_with("lz4"));
 }
 
 void RosbagReader::close() {
@@ -486,22 +504,15 @@ void RosbagReader::read_ahead_job() {
     std::uint64_t chunk_at = 0;
     Inflated result;
     for (int skip = 0; skip < kMaxReadAheadSkips; ++skip) {
-      if ((index_pos_ != 0 && at >= index_pos_) || at > file_size_ || file_size_ - at < 8) break;
-      std::uint8_t word[4];
-      std::size_t got = 0;
-      if (!read_at(at, word, 4, &got)) break;
-      const std::uint32_t header_size = le32(word);
-      if (header_size > kMaxHeaderBytes || header_size > file_size_ - at - 8) break;
-      if (!read_at(at + 4, ahead.header, header_size, &got) ||
-          !read_at(at + 4 + header_size, word, 4, &got)) {
+      if (index_pos_ != 0 && at >= index_pos_) break;
+      Header header;
+      std::uint64_t data_offset = 0;
+      std::uint32_t data_size = 0;
+      if (read_record_head(at, ahead.header, kMaxHeaderBytes, &header, &data_offset, &data_size) !=
+              RecordHead::whole ||
+          data_size > file_size_ - data_offset) {
         break;
       }
-      Header header;
-      header.parse(ahead.header, header_size);
-      if (!header.ok || !header.has_op) break;
-      const std::uint32_t data_size = le32(word);
-      const std::uint64_t data_offset = at + 8 + header_size;
-      if (data_size > file_size_ - data_offset) break;
       if (header.op == kOpIndexData || header.op == kOpChunkInfo) {
         at = data_offset + data_size;
         continue;
@@ -510,10 +521,8 @@ void RosbagReader::read_ahead_job() {
           data_size > limits_.max_record_bytes || header.size > limits_.max_chunk_bytes) {
         break;
       }
-      const bool bz2 =
-          header.compression.size == 3 && std::memcmp(header.compression.data, "bz2", 3) == 0;
-      const bool lz4 =
-          header.compression.size == 3 && std::memcmp(header.compression.data, "lz4", 3) == 0;
+      const bool bz2 = header.compressed_with("bz2");
+      const bool lz4 = header.compressed_with("lz4");
 #if !defined(OCTOFUSE_REPLAY_HAVE_BZ2)
       if (bz2) break;
 #endif
@@ -521,6 +530,7 @@ void RosbagReader::read_ahead_job() {
       if (lz4) break;
 #endif
       if (!bz2 && !lz4) break;
+      std::size_t got = 0;
       if (!read_at(data_offset, ahead.record, data_size, &got)) break;
       result = inflate(ahead.inflater, bz2, ahead.record, data_size);
       have = true;
@@ -552,25 +562,15 @@ bool RosbagReader::try_skim(std::uint64_t data_offset, std::uint32_t data_size,
   // them (cut, or never closed) may have lost some, and the chunk is read instead.
   for (;;) {
     if (index_pos_ != 0 && at == index_pos_) break;
-    if ((index_pos_ != 0 && at > index_pos_) || at > file_size_ || file_size_ - at < 8) {
-      return false;
-    }
-    std::uint8_t word[4];
-    std::size_t got = 0;
-    if (!read_at(at, word, 4, &got)) return false;
-    const std::uint32_t header_size = le32(word);
-    if (header_size > file_size_ - at - 8) return false;
-    if (header_size > kMaxSkimHeaderBytes) break;  // not an index record: those are short
-    if (!read_at(at + 4, skim_header_, header_size, &got) ||
-        !read_at(at + 4 + header_size, word, 4, &got)) {
-      return false;
-    }
+    if (index_pos_ != 0 && at > index_pos_) return false;
     Header header;
-    header.parse(skim_header_, header_size);
-    if (!header.ok || !header.has_op) return false;
+    std::uint64_t entries_at = 0;
+    std::uint32_t size = 0;
+    const RecordHead head =
+        read_record_head(at, skim_header_, kMaxSkimHeaderBytes, &header, &entries_at, &size);
+    if (head == RecordHead::too_large) break;  // not an index record: those are short
+    if (head != RecordHead::whole) return false;
     if (header.op != kOpIndexData) break;
-    const std::uint32_t size = le32(word);
-    const std::uint64_t entries_at = at + 8 + header_size;
     // An index record this reader cannot vouch for: the chunk is read instead.
     if (!header.has_ver || header.ver != 1 || !header.has_conn || !header.has_count ||
         std::uint64_t{header.count} * 12u != size || size > file_size_ - entries_at ||
@@ -583,6 +583,7 @@ bool RosbagReader::try_skim(std::uint64_t data_offset, std::uint32_t data_size,
     }
     // A connection first seen here has its record in the chunk; a wanted one, its bytes.
     if (channel < 0 || skim_wants_(skim_context_, channels_[channel])) return false;
+    std::size_t got = 0;
     if (!read_at(entries_at, record_, size, &got)) return false;
     for (std::uint32_t e = 0; e < header.count; ++e) {
       const std::uint8_t* p = record_ + 12u * e;
@@ -791,10 +792,6 @@ RosbagReader::Inflated RosbagReader::inflate(Inflater& inflater, bool bz2, const
 
 bool RosbagReader::load_chunk(const Header& header, const std::uint8_t* data, std::size_t size,
                               bool complete, const Inflated* ahead) {
-  auto named = [&](const char* name) {
-    return header.compression.size == std::strlen(name) &&
-           std::memcmp(header.compression.data, name, header.compression.size) == 0;
-  };
   if (!header.has_size || header.compression.data == nullptr) {
     error_.set("rosbag: chunk at byte %llu without compression or size",
                static_cast<unsigned long long>(offset_));
@@ -804,7 +801,7 @@ bool RosbagReader::load_chunk(const Header& header, const std::uint8_t* data, st
   chunk_pos_ = 0;
   chunk_cut_ = !complete;
   chunk_unfinished_ = false;
-  if (named("none")) {
+  if (header.compressed_with("none")) {
     chunk_records_ = data;
     chunk_size_ = size;
     if (complete && size != header.size) {
@@ -822,8 +819,8 @@ bool RosbagReader::load_chunk(const Header& header, const std::uint8_t* data, st
         static_cast<unsigned long long>(offset_), header.size, limits_.max_chunk_bytes);
     return false;
   }
-  const bool bz2 = named("bz2");
-  if (!bz2 && !named("lz4")) {
+  const bool bz2 = header.compressed_with("bz2");
+  if (!bz2 && !header.compressed_with("lz4")) {
     error_.set("rosbag: chunk at byte %llu: unknown compression '%.*s'",
                static_cast<unsigned long long>(offset_),
                static_cast<int>(header.compression.size < 32 ? header.compression.size : 32),
@@ -1000,7 +997,7 @@ McapNext RosbagReader::next(McapMessage* message) {
       // A chunk whose recorder never came back to write its sizes: an uncompressed one's
       // records follow as they are; a compressed one's stream runs to the end of the file, of
       // a length unknown: decoded as far as it goes, as a cut chunk.
-      if (header.compression.size == 4 && std::memcmp(header.compression.data, "none", 4) == 0) {
+      if (header.compressed_with("none")) {
         offset_ = data_offset;
         continue;
       }

@@ -121,6 +121,12 @@ class RosbagReader {
                   const Inflated* ahead);
   Inflated inflate(Inflater& inflater, bool bz2, const std::uint8_t* data, std::size_t size) const;
   void note_truncation(const char* what);
+  // The lengths and header of the record at `at` (the header read into `buffer`, at most
+  // `capacity` bytes), parsed; its data is not read and may run past the file's end.
+  enum class RecordHead : std::uint8_t { whole, cut, too_large, malformed };
+  RecordHead read_record_head(std::uint64_t at, std::uint8_t* buffer, std::size_t capacity,
+                              Header* header, std::uint64_t* data_offset,
+                              std::uint32_t* data_size) const;
   bool first_chunk_compressed() const;
   // The index records after the chunk whose data spans [data_offset, data_offset + data_size)
   // into skim_entries_ when the chunk can be skimmed.

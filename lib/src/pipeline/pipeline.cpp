@@ -649,7 +649,10 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   // than the pool had left below its high mark, which eviction does not anticipate: a gap that
   // keeping them only exposes).
   if (store_ != nullptr) {
-    integrator_.for_each_listed_block([this](std::uint32_t index) { in_frame_[index] = 1; });
+    integrator_.for_each_listed_block(
+        [this](std::uint64_t, const Eigen::Vector3i&, std::uint32_t index) {
+          if (index != kNoIndex) in_frame_[index] = 1;
+        });
   }
   for (std::uint32_t i = 0; i < count; ++i) {
     const typename Map::Block& block = map_.block(i);
@@ -835,7 +838,7 @@ void Pipeline<VoxelT>::sort_nearest_first(std::uint32_t count) {
 template <typename VoxelT>
 void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
   const std::uint32_t spent = report.read + report.read_failed + report.remapped;
-  if (store_keys_found_ == 0 || spent >= config_.budget.max_store_reads) return;
+  if (spent >= config_.budget.max_store_reads) return;
   const std::uint32_t budget = config_.budget.max_store_reads - spent;
   const Eigen::Vector3i camera_voxel =
       map_.point_to_voxel(T_W_C_.translation().template cast<float>());
@@ -843,12 +846,13 @@ void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
   // Every missing block is asked for (a miss costs the store a look-up, not a read): the keys
   // found in view are capped at kStoreKeyCapacity, which a large view's box can exceed.
   std::uint32_t candidates = 0;
-  integrator_.for_each_missing_block([&](std::uint64_t morton, const Eigen::Vector3i& coords) {
-    if (candidates == capacity) return;
-    EvictionCandidate& c = eviction_candidates_[candidates++];
-    c.rank = block_distance2(coords, camera_voxel);
-    c.morton = morton;
-  });
+  integrator_.for_each_listed_block(
+      [&](std::uint64_t morton, const Eigen::Vector3i& coords, std::uint32_t index) {
+        if (index != kNoIndex || candidates == capacity) return;
+        EvictionCandidate& c = eviction_candidates_[candidates++];
+        c.rank = block_distance2(coords, camera_voxel);
+        c.morton = morton;
+      });
   // The same order for any list order (and thread count).
   sort_nearest_first(candidates);
   std::uint32_t restored = 0;
@@ -1242,7 +1246,9 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
     // what the store is asked for again.
     const ImageView<const float> depth_m = preprocessor_.pyramid().depth_m[0];
     const bool short_room = room_short(budget);
-    const bool two_parts = short_room || store_keys_found_ > stats.store.read;
+    // Stored blocks in view that reload_stored() left unread (room, budget, its key cap).
+    const bool stored_left = store_keys_found_ > stats.store.read;
+    const bool two_parts = short_room || stored_left;
     std::uint32_t new_blocks = 0;
     if (two_parts) {
       const IntegrationReport begun =
@@ -1250,7 +1256,7 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
       if (short_room) new_blocks = std::min(begun.blocks_requested, budget.max_new_blocks);
     }
     stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index), new_blocks);
-    if (two_parts && store_keys_found_ > stats.store.read) read_back_missing(stats.store);
+    if (stored_left) read_back_missing(stats.store);
     read_back_from_ = 0xFFFFFFFFu;
     const std::uint64_t node_refusals_before = map_.memory().node_refusals;
     const auto frame_index = static_cast<std::uint32_t>(stats.frame_index);

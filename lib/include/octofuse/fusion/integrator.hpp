@@ -192,25 +192,16 @@ class Integrator {
                                  std::uint32_t frame_index, const FusionBudget& budget,
                                  const WorkerTeam& team);
 
-  // Between begin_frame() and finish_frame(): the blocks the frame touches that were not
-  // allocated at begin_frame(), as visit(morton, block coordinates), in the list's order (the
-  // pipeline reads back stored ones in their place).
-  template <typename Visit>
-  void for_each_missing_block(Visit&& visit) const {
-    if (begun_.map == nullptr) return;
-    for (std::uint32_t i = 0; i < frame_block_count_; ++i) {
-      const fusion_internal::FrameBlock& b = frame_blocks_[i];
-      if (b.block == kNoIndex) visit(b.morton, b.coords);
-    }
-  }
-
-  // Between begin_frame() and finish_frame(): the pool indices of the blocks the frame touches
-  // that were allocated at begin_frame(), as visit(index) (eviction keeps them to the last).
+  // Between begin_frame() and finish_frame(): each block the frame touches, as visit(morton,
+  // block coordinates, pool index as looked up at begin_frame(): kNoIndex where not allocated),
+  // in the list's order (the pipeline reads back stored ones in the place of the missing, and
+  // eviction keeps the allocated ones to the last).
   template <typename Visit>
   void for_each_listed_block(Visit&& visit) const {
     if (begun_.map == nullptr) return;
     for (std::uint32_t i = 0; i < frame_block_count_; ++i) {
-      if (frame_blocks_[i].block != kNoIndex) visit(frame_blocks_[i].block);
+      const fusion_internal::FrameBlock& b = frame_blocks_[i];
+      visit(b.morton, b.coords, b.block);
     }
   }
 

@@ -595,7 +595,50 @@ bool Pipeline<VoxelT>::room_short(const FusionBudget& budget) const {
 }
 
 template <typename VoxelT>
-EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t new_blocks) {
+bool Pipeline<VoxelT>::node_room_short(const FusionBudget& budget) const {
+  if (!config_.eviction.enabled) return false;
+  const MapMemory memory = map_.memory();
+  const std::uint64_t most =
+      std::uint64_t{std::min(budget.max_new_blocks, integrator_.config().max_blocks_per_frame)} *
+      static_cast<std::uint64_t>(map_.block_level() - 1);
+  return memory.node_capacity - memory.nodes_used < most;
+}
+
+template <typename VoxelT>
+std::uint32_t Pipeline<VoxelT>::count_new_nodes() {
+  const std::uint32_t capacity = map_.memory().block_capacity;
+  std::uint32_t missing = 0;
+  integrator_.for_each_listed_block([this, capacity, &missing](std::uint64_t morton,
+                                                               const Eigen::Vector3i&,
+                                                               std::uint32_t index) {
+    if (index == kNoIndex && missing < capacity) eviction_candidates_[missing++].morton = morton;
+  });
+  // In Morton order the blocks under one octant are consecutive: an ancestor is new once, for the
+  // first of them (and then so are the ones above it that are missing too).
+  std::sort(
+      eviction_candidates_, eviction_candidates_ + missing,
+      [](const EvictionCandidate& a, const EvictionCandidate& b) { return a.morton < b.morton; });
+  const int block_level = map_.block_level();
+  const int depth = map_.voxel_depth();
+  std::uint32_t nodes = 0;
+  Key previous;
+  for (std::uint32_t i = 0; i < missing; ++i) {
+    // A block's Morton code is its minimum voxel's with the 3 x 3 bits below the block dropped.
+    const Key key{eviction_candidates_[i].morton << 9, static_cast<std::uint8_t>(block_level)};
+    for (int level = block_level - 1; level > 0; --level) {
+      const Key ancestor = parent_key_at(key, level, depth);
+      if (i > 0 && ancestor == parent_key_at(previous, level, depth)) break;
+      if (map_.find_node_index(ancestor) != kNoIndex) break;
+      ++nodes;
+    }
+    previous = key;
+  }
+  return nodes;
+}
+
+template <typename VoxelT>
+EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t new_blocks,
+                                       std::uint32_t new_nodes) {
   EvictionReport report;
   if (!config_.eviction.enabled) return report;
   const MapMemory memory = map_.memory();
@@ -608,10 +651,10 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   // What must go for the frame's new blocks to fit at all (within max_evictions, whatever the
   // write budget).
   const std::uint64_t after = std::uint64_t{memory.blocks_used} + new_blocks;
-  const std::uint32_t must_go = after > memory.block_capacity
-                                    ? static_cast<std::uint32_t>(std::min<std::uint64_t>(
-                                          after - memory.block_capacity, memory.blocks_used))
-                                    : 0;
+  std::uint32_t must_go = after > memory.block_capacity
+                              ? static_cast<std::uint32_t>(std::min<std::uint64_t>(
+                                    after - memory.block_capacity, memory.blocks_used))
+                              : 0;
   // Then down to the low-water mark after the allocation, as when the pool passes its high mark:
   // the blocks evicted may include some this frame touches, which then count as new too.
   if (must_go > 0) {
@@ -621,39 +664,41 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   if (finest_pool && memory.finest_used > evict_high_finest_) {
     over_finest = memory.finest_used - evict_low_finest_;
   }
-  if (memory.nodes_used > evict_high_nodes_ && memory.blocks_used > 0) {
+  // The node pool: over its high mark, or short of the nodes the frame's new blocks need.
+  const std::uint64_t nodes_after = std::uint64_t{memory.nodes_used} + new_nodes;
+  std::uint32_t must_go_nodes = 0;
+  if ((memory.nodes_used > evict_high_nodes_ || nodes_after > memory.node_capacity) &&
+      memory.blocks_used > 0) {
     // Inner nodes go with their last block: evict the share of the blocks that the nodes are over
     // their low mark (the farthest blocks take whole octants with them; a next frame evicts more
     // if that was not enough).
-    const std::uint64_t over = memory.nodes_used - evict_low_nodes_;
-    const std::uint64_t blocks =
-        (over * memory.blocks_used + memory.nodes_used - 1) / memory.nodes_used;
-    over_blocks =
-        std::max(over_blocks,
-                 static_cast<std::uint32_t>(std::min<std::uint64_t>(blocks, memory.blocks_used)));
+    const auto share = [&memory](std::uint64_t nodes) {
+      const std::uint64_t blocks =
+          (nodes * memory.blocks_used + memory.nodes_used - 1) / memory.nodes_used;
+      return static_cast<std::uint32_t>(std::min<std::uint64_t>(blocks, memory.blocks_used));
+    };
+    over_blocks = std::max(over_blocks, share(nodes_after - evict_low_nodes_));
+    if (nodes_after > memory.node_capacity) {
+      must_go_nodes = share(nodes_after - memory.node_capacity);
+    }
   }
+  must_go = std::max(must_go, must_go_nodes);
   if (over_blocks == 0 && over_finest == 0) return report;
   report.triggered = true;
   // Rank every block: not updated by the previous frame, not read back by this one and not in
   // this frame's list first, then read back by this one (in view), then the previous frame's
-  // and, with a store, this frame's (evicting one would write it and map it afresh at once, its
-  // record dropped when next read); within
-  // each, farthest first (squared distance in voxels from the camera's voxel to the block's
-  // centre, exact in integers), then by Morton code, a total order.
+  // and this frame's (evicting one would lose what it holds, or with a store write it and map it
+  // afresh at once, its record dropped when next read); within each, farthest first (squared
+  // distance in voxels from the camera's voxel to the block's centre, exact in integers), then by
+  // Morton code, a total order.
   const Eigen::Vector3i camera_voxel =
       map_.point_to_voxel(T_W_C_.translation().template cast<float>());
   const std::uint32_t count = map_.block_count();
   const std::uint32_t recent_frame = frame_index > 0 ? frame_index - 1 : 0;
-  // With a store only, for now: without one, keeping them makes pipeline_tiny_pools_test's node
-  // pool refuse 3 nodes in a frame that evicted nothing (its new blocks needed more inner nodes
-  // than the pool had left below its high mark, which eviction does not anticipate: a gap that
-  // keeping them only exposes).
-  if (store_ != nullptr) {
-    integrator_.for_each_listed_block(
-        [this](std::uint64_t, const Eigen::Vector3i&, std::uint32_t index) {
-          if (index != kNoIndex) in_frame_[index] = 1;
-        });
-  }
+  integrator_.for_each_listed_block(
+      [this](std::uint64_t, const Eigen::Vector3i&, std::uint32_t index) {
+        if (index != kNoIndex) in_frame_[index] = 1;
+      });
   for (std::uint32_t i = 0; i < count; ++i) {
     const typename Map::Block& block = map_.block(i);
     const std::uint64_t d2 = block_distance2(block.coords, camera_voxel);
@@ -1248,14 +1293,17 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
     const bool short_room = room_short(budget);
     // Stored blocks in view that reload_stored() left unread (room, budget, its key cap).
     const bool stored_left = store_keys_found_ > stats.store.read;
-    const bool two_parts = short_room || stored_left;
+    const bool short_nodes = node_room_short(budget);
+    const bool two_parts = short_room || short_nodes || stored_left;
     std::uint32_t new_blocks = 0;
+    std::uint32_t new_nodes = 0;
     if (two_parts) {
       const IntegrationReport begun =
           integrator_.begin_frame(map_, depth_m, working_camera_, T_W_C_, team_);
       if (short_room) new_blocks = std::min(begun.blocks_requested, budget.max_new_blocks);
+      if (short_nodes) new_nodes = count_new_nodes();
     }
-    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index), new_blocks);
+    stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index), new_blocks, new_nodes);
     if (stored_left) read_back_missing(stats.store);
     read_back_from_ = 0xFFFFFFFFu;
     const std::uint64_t node_refusals_before = map_.memory().node_refusals;

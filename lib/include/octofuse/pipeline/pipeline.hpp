@@ -421,11 +421,19 @@ class Pipeline {
   template <typename Arena>
   Status reserve(Arena& arena, const PipelineConfig& config);
   // Step (2): evicts blocks when a pool is above its high-water mark (see EvictionConfig), or
-  // when the frame's `new_blocks` (not yet allocated) would not fit below the block pool's mark.
-  EvictionReport evict(std::uint32_t frame_index, std::uint32_t new_blocks);
+  // when the frame's `new_blocks` (not yet allocated) or the inner nodes they need (`new_nodes`)
+  // would not fit in their pools.
+  EvictionReport evict(std::uint32_t frame_index, std::uint32_t new_blocks,
+                       std::uint32_t new_nodes);
   // Whether the block pool's room could be short of what this frame allocates: then the frame's
   // blocks are collected and counted before eviction (Integrator::begin_frame()).
   bool room_short(const FusionBudget& budget) const;
+  // The same for the node pool: each new block can need at most block_level - 1 new inner nodes.
+  bool node_room_short(const FusionBudget& budget) const;
+  // Between Integrator::begin_frame() and finish_frame(): the inner nodes the listed blocks not
+  // allocated yet would create, each once (an upper bound when the frame's new-block budget
+  // allocates only some of them). Uses eviction_candidates_ as scratch.
+  std::uint32_t count_new_nodes();
   // Before step (2): reads back stored blocks in the camera's view (set_block_store()).
   void reload_stored(StoreReport& report);
   // Between Integrator::begin_frame() and finish_frame(): reads back, in their place, the stored

@@ -16,6 +16,7 @@
 
 #include "cli.hpp"
 #include "host_memory.hpp"
+#include "octofuse/map/coarse_estimate.hpp"
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/block_store_file.hpp"
 #include "octofuse/ports/host/map_file.hpp"
@@ -100,6 +101,19 @@ void print_blocks(const Octree<VoxelT>& map) {
   if (Octree<VoxelT>::kSplitFinest) {
     std::printf("finest levels   %u\n", memory.finest_used);
   }
+  // What allocating blocks at coarser octree levels would keep (coarse_estimate.hpp).
+  std::vector<std::uint64_t> scratch(map.block_count());
+  const Result<CoarseEstimate> coarse = estimate_coarse_blocks(map, scratch.data(), scratch.size());
+  if (!coarse.ok()) return;
+  const CoarseEstimate& c = coarse.value();
+  for (int up = kMaxBlockScale; up >= 1; --up) {
+    std::printf("coarse %d up     %llu blocks never fused finer than scale %d, in %llu octants\n",
+                up, static_cast<unsigned long long>(c.replaced[up - 1]), up,
+                static_cast<unsigned long long>(c.octants[up - 1]));
+  }
+  std::printf("coarse blocks   %llu would hold the %llu fused blocks\n",
+              static_cast<unsigned long long>(c.blocks_after()),
+              static_cast<unsigned long long>(c.fused_blocks));
 }
 
 template <typename VoxelT>

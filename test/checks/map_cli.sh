@@ -43,6 +43,7 @@ grep -q "^format version  2$" "${work}/info.out" || fail "info: no format versio
 grep -q "^voxel size      0.04 m$" "${work}/info.out" || fail "info: no voxel size"
 grep -q "^frames          4$" "${work}/info.out" || fail "info: no frame count"
 grep -q "^free space      [1-9][0-9]* nodes, " "${work}/info.out" || fail "info: no free-space nodes"
+grep -q "^coarse blocks   [1-9][0-9]* would hold the [1-9][0-9]* fused blocks$" "${work}/info.out" || fail "info: no coarse estimate"
 "${map}" mesh "${work}/a.ofmap" "${work}/a_mesh.ply" >/dev/null 2>&1 || fail "mesh failed"
 cmp -s "${work}/a_mesh.ply" "${work}/a/mesh.ply" || fail "octofuse-map mesh differs from the run's mesh.ply"
 

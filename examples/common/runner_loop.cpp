@@ -522,6 +522,7 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
       t.read_failed += stats.store.read_failed;
       t.remapped += stats.store.remapped;
       t.read_in_place += stats.store.read_in_place;
+      t.deferred += stats.store.deferred;
       t.bytes_written += stats.store.bytes_written;
       t.bytes_read += stats.store.bytes_read;
       keep_store(*run->store, stats.store.written > 0, stats.store.bytes_written,

@@ -76,6 +76,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("store_read_failed").value(static_cast<std::uint64_t>(s.store.read_failed));
   json.key("store_remapped").value(static_cast<std::uint64_t>(s.store.remapped));
   json.key("store_waiting").value(static_cast<std::uint64_t>(s.store.waiting));
+  json.key("store_deferred").value(static_cast<std::uint64_t>(s.store.deferred));
   json.key("store_bytes_written").value(s.store.bytes_written);
   json.key("store_bytes_read").value(s.store.bytes_read);
   json.key("free_store_written").value(static_cast<std::uint64_t>(s.free_store.written));
@@ -270,6 +271,7 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
       .value(static_cast<std::uint64_t>(summary->store_total.read_in_place));
   json.key("store_read_failed").value(static_cast<std::uint64_t>(summary->store_total.read_failed));
   json.key("store_remapped").value(static_cast<std::uint64_t>(summary->store_total.remapped));
+  json.key("store_deferred").value(static_cast<std::uint64_t>(summary->store_total.deferred));
   json.key("store_bytes_written").value(summary->store_total.bytes_written);
   json.key("store_bytes_read").value(summary->store_total.bytes_read);
   json.key("store_file_bytes").value(summary->store_file_bytes);

@@ -101,6 +101,7 @@ struct PassRow {
   std::uint64_t free_space_refusals = 0;
   std::uint64_t store_read = 0;
   std::uint64_t store_remapped = 0;
+  std::uint64_t store_deferred = 0;
   std::uint64_t store_written = 0;
   std::uint64_t store_unchanged = 0;  // evicted unchanged since read back: not written
   std::uint64_t store_bytes_read = 0;
@@ -154,7 +155,8 @@ void print_row(const SoakRun& run, const PassRow& row) {
                row.rss_mb, row.peak_rss_mb, row.median_ms, row.p99_ms);
   std::fprintf(stderr,
                "[soak %s %g MB] pass %d: refusals %llu (free space %llu); store: read %llu, "
-               "re-mapped %llu, written %llu, unchanged %llu, %.1f / %.1f KB per frame read / "
+               "re-mapped %llu, deferred %llu, written %llu, unchanged %llu, %.1f / %.1f KB per "
+               "frame read / "
                "written, frames "
                "waiting %llu\n",
                run.name, static_cast<double>(run.map_memory_mb), row.pass,
@@ -162,6 +164,7 @@ void print_row(const SoakRun& run, const PassRow& row) {
                static_cast<unsigned long long>(row.free_space_refusals),
                static_cast<unsigned long long>(row.store_read),
                static_cast<unsigned long long>(row.store_remapped),
+               static_cast<unsigned long long>(row.store_deferred),
                static_cast<unsigned long long>(row.store_written),
                static_cast<unsigned long long>(row.store_unchanged),
                row.frames > 0 ? static_cast<double>(row.store_bytes_read) / 1024.0 /
@@ -221,6 +224,7 @@ void on_frame(SoakRun& run, const FrameStats& stats) {
     row.free_space_refusals += stats.free_space.pool_refused;
     row.store_read += stats.store.read;
     row.store_remapped += stats.store.remapped;
+    row.store_deferred += stats.store.deferred;
     row.store_written += stats.store.written;
     row.store_unchanged += stats.store.unchanged;
     row.store_bytes_read += stats.store.bytes_read;
@@ -351,6 +355,7 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
     json.key("free_space_refusals").value(row.free_space_refusals);
     json.key("store_read").value(row.store_read);
     json.key("store_remapped").value(row.store_remapped);
+    json.key("store_deferred").value(row.store_deferred);
     json.key("store_written").value(row.store_written);
     json.key("store_unchanged").value(row.store_unchanged);
     json.key("store_bytes_read").value(row.store_bytes_read);

@@ -32,6 +32,10 @@ class MemoryStore final : public BlockStore {
     }
     return n;
   }
+  bool holds(std::uint64_t key) override {
+    const auto it = entries_.find(key);
+    return it != entries_.end() && !it->second.in_memory;
+  }
   Result<std::size_t> take(std::uint64_t key, std::uint8_t* record, std::size_t capacity) override {
     const auto it = entries_.find(key);
     if (it == entries_.end()) return StatusCode::out_of_range;

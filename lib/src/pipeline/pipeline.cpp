@@ -882,9 +882,10 @@ void Pipeline<VoxelT>::sort_nearest_first(std::uint32_t count) {
 // (remapped).
 template <typename VoxelT>
 void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
+  // The budget may be spent already: then the stored blocks among them are only left out.
   const std::uint32_t spent = report.read + report.read_failed + report.remapped;
-  if (spent >= config_.budget.max_store_reads) return;
-  const std::uint32_t budget = config_.budget.max_store_reads - spent;
+  const std::uint32_t budget =
+      config_.budget.max_store_reads > spent ? config_.budget.max_store_reads - spent : 0;
   const Eigen::Vector3i camera_voxel =
       map_.point_to_voxel(T_W_C_.translation().template cast<float>());
   const std::uint32_t capacity = map_.memory().block_capacity;
@@ -929,9 +930,28 @@ void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
       ++report.read_failed;
     }
   }
-  if (tried < candidates && reads == budget) report.budget_hit = true;
-  report.waiting = report.waiting > restored ? report.waiting - restored : 0;
   if (restored > 0) map_.propagate_summaries(eviction_indices_, restored);
+  report.waiting = report.waiting > restored ? report.waiting - restored : 0;
+  if (tried == candidates || reads < budget) return;
+  report.budget_hit = true;
+  // The stored ones among the rest are left out of this frame: mapped afresh now, their records
+  // would be dropped when next read (remapped); left out, they come back in a later frame.
+  EvictionCandidate* rest = eviction_candidates_ + tried;
+  std::uint32_t held = 0;
+  for (std::uint32_t i = tried; i < candidates; ++i) {
+    if (store_->holds(eviction_candidates_[i].morton)) rest[held++] = eviction_candidates_[i];
+  }
+  if (held == 0) return;
+  const auto by_key = [](const EvictionCandidate& a, const EvictionCandidate& b) {
+    return a.morton < b.morton;
+  };
+  std::sort(rest, rest + held, by_key);
+  report.deferred = integrator_.leave_out_listed_blocks(
+      [rest, held, &by_key](std::uint64_t morton, std::uint32_t index) {
+        EvictionCandidate probe;
+        probe.morton = morton;
+        return index == kNoIndex && std::binary_search(rest, rest + held, probe, by_key);
+      });
 }
 
 template <typename VoxelT>

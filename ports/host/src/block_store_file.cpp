@@ -270,6 +270,11 @@ std::size_t BlockStoreFile::find_in_box(const Eigen::Vector3i& lo, const Eigen::
   return n;
 }
 
+bool BlockStoreFile::holds(std::uint64_t block_morton) {
+  const auto it = index_.find(block_morton);
+  return it != index_.end() && !it->second.in_memory;
+}
+
 Result<std::size_t> BlockStoreFile::read(std::uint64_t block_morton, std::uint8_t* record,
                                          std::size_t capacity) {
   const auto it = index_.find(block_morton);

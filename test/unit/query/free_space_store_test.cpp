@@ -208,6 +208,7 @@ class FailingStore final : public BlockStore {
                           std::size_t capacity) override {
     return inner.find_in_box(lo, hi, keys, capacity);
   }
+  bool holds(std::uint64_t key) override { return inner.holds(key); }
   Result<std::size_t> take(std::uint64_t key, std::uint8_t* record, std::size_t capacity) override {
     if (fail_take) return StatusCode::data_loss;
     return inner.take(key, record, capacity);

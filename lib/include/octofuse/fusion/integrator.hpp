@@ -205,6 +205,24 @@ class Integrator {
     }
   }
 
+  // Between begin_frame() and finish_frame(): drops from the list each block for which
+  // leave_out(morton, pool index as looked up at begin_frame()) is true (the pipeline leaves out
+  // stored blocks it could not read back this frame rather than have them mapped afresh); the rest
+  // keep their order, and finish_frame() fuses them as usual. Returns how many were dropped.
+  template <typename LeaveOut>
+  std::uint32_t leave_out_listed_blocks(LeaveOut&& leave_out) {
+    if (begun_.map == nullptr) return 0;
+    std::uint32_t kept = 0;
+    for (std::uint32_t i = 0; i < frame_block_count_; ++i) {
+      const fusion_internal::FrameBlock& b = frame_blocks_[i];
+      if (!leave_out(b.morton, b.block)) frame_blocks_[kept++] = b;
+    }
+    const std::uint32_t dropped = frame_block_count_ - kept;
+    frame_block_count_ = kept;
+    begun_.report.blocks_touched = kept;
+    return dropped;
+  }
+
   const FusionConfig& config() const { return config_; }
   // Between frames (a frame deadline's step): allocation marches every step-th pixel's ray in x
   // and y; below 1 is 1. Blocks only the skipped rays cross are not integrated that frame.

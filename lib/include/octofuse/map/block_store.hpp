@@ -28,6 +28,9 @@ class BlockStore {
   // coordinates lie in [lo, hi] (inclusive), in increasing key order; returns how many.
   virtual std::size_t find_in_box(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi,
                                   std::uint64_t* keys, std::size_t capacity) = 0;
+  // Whether the block is stored and not in memory (what find_in_box() would list): a look-up, no
+  // read.
+  virtual bool holds(std::uint64_t block_morton) = 0;
   // Copies the block's newest record into `record` (capacity bytes): its size, or out_of_range (not
   // stored), data_loss (damaged on the medium) or the store's error. The block then counts as in
   // memory (find_in_box() skips it) until it is put again; its record stays, so a map file written

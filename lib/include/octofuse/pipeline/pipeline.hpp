@@ -116,6 +116,9 @@ struct StoreReport {
   std::uint32_t read_failed = 0;    // damaged records (those blocks are mapped afresh)
   std::uint32_t remapped = 0;       // stored blocks in view already mapped afresh (record dropped)
   std::uint32_t waiting = 0;        // stored blocks in view left for a later frame (budget, room)
+  // Stored blocks the frame would have fused, left out of it because the read budget was spent:
+  // they are read back and fused from a later frame on instead of mapped afresh (remapped).
+  std::uint32_t deferred = 0;
   std::uint64_t bytes_written = 0;
   std::uint64_t bytes_read = 0;
   bool budget_hit = false;  // max_store_reads or max_store_writes bound

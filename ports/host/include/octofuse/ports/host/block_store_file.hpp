@@ -60,6 +60,7 @@ class BlockStoreFile final : public BlockStore {
   Status put(std::uint64_t block_morton, const std::uint8_t* record, std::size_t size) override;
   std::size_t find_in_box(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi, std::uint64_t* keys,
                           std::size_t capacity) override;
+  bool holds(std::uint64_t block_morton) override;
   Result<std::size_t> take(std::uint64_t block_morton, std::uint8_t* record,
                            std::size_t capacity) override;
   void release(std::uint64_t block_morton) override;

@@ -585,23 +585,18 @@ Status Pipeline<VoxelT>::set_pose(const Se3d& T_W_C) {
 }
 
 template <typename VoxelT>
-bool Pipeline<VoxelT>::room_short(const FusionBudget& budget) const {
-  if (!config_.eviction.enabled) return false;
+typename Pipeline<VoxelT>::RoomShort Pipeline<VoxelT>::room_short(
+    const FusionBudget& budget) const {
+  RoomShort short_of;
+  if (!config_.eviction.enabled) return short_of;
   const MapMemory memory = map_.memory();
   // A frame allocates at most its list of touched blocks: with that much room, nothing to do.
   const std::uint32_t most =
       std::min(budget.max_new_blocks, integrator_.config().max_blocks_per_frame);
-  return memory.block_capacity - memory.blocks_used < most;
-}
-
-template <typename VoxelT>
-bool Pipeline<VoxelT>::node_room_short(const FusionBudget& budget) const {
-  if (!config_.eviction.enabled) return false;
-  const MapMemory memory = map_.memory();
-  const std::uint64_t most =
-      std::uint64_t{std::min(budget.max_new_blocks, integrator_.config().max_blocks_per_frame)} *
-      static_cast<std::uint64_t>(map_.block_level() - 1);
-  return memory.node_capacity - memory.nodes_used < most;
+  short_of.blocks = memory.block_capacity - memory.blocks_used < most;
+  short_of.nodes = memory.node_capacity - memory.nodes_used <
+                   std::uint64_t{most} * static_cast<std::uint64_t>(map_.block_level() - 1);
+  return short_of;
 }
 
 template <typename VoxelT>
@@ -614,24 +609,23 @@ std::uint32_t Pipeline<VoxelT>::count_new_nodes() {
     if (index == kNoIndex && missing < capacity) eviction_candidates_[missing++].morton = morton;
   });
   // In Morton order the blocks under one octant are consecutive: an ancestor is new once, for the
-  // first of them (and then so are the ones above it that are missing too).
-  std::sort(
-      eviction_candidates_, eviction_candidates_ + missing,
-      [](const EvictionCandidate& a, const EvictionCandidate& b) { return a.morton < b.morton; });
+  // first of them.
+  std::sort(eviction_candidates_, eviction_candidates_ + missing, EvictionCandidate::key_less);
   const int block_level = map_.block_level();
-  const int depth = map_.voxel_depth();
   std::uint32_t nodes = 0;
-  Key previous;
   for (std::uint32_t i = 0; i < missing; ++i) {
-    // A block's Morton code is its minimum voxel's with the 3 x 3 bits below the block dropped.
-    const Key key{eviction_candidates_[i].morton << 9, static_cast<std::uint8_t>(block_level)};
-    for (int level = block_level - 1; level > 0; --level) {
-      const Key ancestor = parent_key_at(key, level, depth);
-      if (i > 0 && ancestor == parent_key_at(previous, level, depth)) break;
-      if (map_.find_node_index(ancestor) != kNoIndex) break;
-      ++nodes;
+    const std::uint64_t morton = eviction_candidates_[i].morton;
+    // The nodes below the deepest one that exists above the block are new...
+    int first_new = map_.lookup(block_to_voxel(morton_decode(morton))).level + 1;
+    // ... but those above the previous block too were counted with it (ancestors `up` levels above
+    // the blocks share their Morton code without its low 3 * up bits).
+    if (i > 0) {
+      const std::uint64_t previous = eviction_candidates_[i - 1].morton;
+      int up = 1;
+      while (up < block_level && (morton >> (3 * up)) != (previous >> (3 * up))) ++up;
+      first_new = std::max(first_new, block_level - up + 1);
     }
-    previous = key;
+    if (first_new < block_level) nodes += static_cast<std::uint32_t>(block_level - first_new);
   }
   return nodes;
 }
@@ -942,15 +936,13 @@ void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
     if (store_->holds(eviction_candidates_[i].morton)) rest[held++] = eviction_candidates_[i];
   }
   if (held == 0) return;
-  const auto by_key = [](const EvictionCandidate& a, const EvictionCandidate& b) {
-    return a.morton < b.morton;
-  };
-  std::sort(rest, rest + held, by_key);
-  report.deferred = integrator_.leave_out_listed_blocks(
-      [rest, held, &by_key](std::uint64_t morton, std::uint32_t index) {
+  std::sort(rest, rest + held, EvictionCandidate::key_less);
+  report.deferred =
+      integrator_.leave_out_listed_blocks([rest, held](std::uint64_t morton, std::uint32_t index) {
         EvictionCandidate probe;
         probe.morton = morton;
-        return index == kNoIndex && std::binary_search(rest, rest + held, probe, by_key);
+        return index == kNoIndex &&
+               std::binary_search(rest, rest + held, probe, EvictionCandidate::key_less);
       });
 }
 
@@ -1310,18 +1302,17 @@ Status Pipeline<VoxelT>::fuse_frame(FrameProgress& progress) {
     // and the blocks not allocated yet (after the reads) are what eviction makes room for and
     // what the store is asked for again.
     const ImageView<const float> depth_m = preprocessor_.pyramid().depth_m[0];
-    const bool short_room = room_short(budget);
+    const RoomShort short_of = room_short(budget);
     // Stored blocks in view that reload_stored() left unread (room, budget, its key cap).
     const bool stored_left = store_keys_found_ > stats.store.read;
-    const bool short_nodes = node_room_short(budget);
-    const bool two_parts = short_room || short_nodes || stored_left;
+    const bool two_parts = short_of.blocks || short_of.nodes || stored_left;
     std::uint32_t new_blocks = 0;
     std::uint32_t new_nodes = 0;
     if (two_parts) {
       const IntegrationReport begun =
           integrator_.begin_frame(map_, depth_m, working_camera_, T_W_C_, team_);
-      if (short_room) new_blocks = std::min(begun.blocks_requested, budget.max_new_blocks);
-      if (short_nodes) new_nodes = count_new_nodes();
+      if (short_of.blocks) new_blocks = std::min(begun.blocks_requested, budget.max_new_blocks);
+      if (short_of.nodes) new_nodes = count_new_nodes();
     }
     stats.eviction = evict(static_cast<std::uint32_t>(stats.frame_index), new_blocks, new_nodes);
     if (stored_left) read_back_missing(stats.store);

@@ -428,11 +428,14 @@ class Pipeline {
   // would not fit in their pools.
   EvictionReport evict(std::uint32_t frame_index, std::uint32_t new_blocks,
                        std::uint32_t new_nodes);
-  // Whether the block pool's room could be short of what this frame allocates: then the frame's
-  // blocks are collected and counted before eviction (Integrator::begin_frame()).
-  bool room_short(const FusionBudget& budget) const;
-  // The same for the node pool: each new block can need at most block_level - 1 new inner nodes.
-  bool node_room_short(const FusionBudget& budget) const;
+  // Whether the block pool's room, or the node pool's (each new block can need block_level - 1
+  // new inner nodes), could be short of what this frame allocates: then the frame's blocks are
+  // collected and counted before eviction (Integrator::begin_frame()).
+  struct RoomShort {
+    bool blocks = false;
+    bool nodes = false;
+  };
+  RoomShort room_short(const FusionBudget& budget) const;
   // Between Integrator::begin_frame() and finish_frame(): the inner nodes the listed blocks not
   // allocated yet would create, each once (an upper bound when the frame's new-block budget
   // allocates only some of them). Uses eviction_candidates_ as scratch.
@@ -499,6 +502,9 @@ class Pipeline {
     std::uint32_t index = 0;
     bool has_finest = false;
     bool clean = false;  // read back and unchanged: evicting it writes nothing
+    static bool key_less(const EvictionCandidate& a, const EvictionCandidate& b) {
+      return a.morton < b.morton;
+    }
   };
   EvictionCandidate* eviction_candidates_ = nullptr;
   std::uint32_t* eviction_indices_ = nullptr;

@@ -32,18 +32,25 @@ struct FrameWarnings {
   bool evict_budget = false;
   bool unfused = false;
   bool nodes_full = false;
+  bool mid_full = false;
   bool free_space_full = false;
   bool icp_budget_set = false;  // --budget-icp given: the default iterations are no budget
 
   void after(const FrameStats& s) {
     const unsigned long index = static_cast<unsigned long>(s.frame_index);
-    const bool finest_only = s.integration.pool_refusals == s.integration.finest_refusals;
-    if (s.integration.pool_refusals > 0 && finest_only && !finest_full) {
+    if (s.integration.finest_refusals > 0 && !finest_full) {
       finest_full = true;
       std::fprintf(stderr,
                    "warning: frame %lu: the finest-level pool is full (%u levels): blocks beyond "
                    "it integrate at scale 1 (raise --map-memory for finer detail)\n",
                    index, s.memory.finest_capacity);
+    }
+    if (s.integration.mid_refusals > 0 && !mid_full) {
+      mid_full = true;
+      std::fprintf(stderr,
+                   "warning: frame %lu: the mid-level pool is full (%u levels): blocks beyond it "
+                   "integrate at scale 2 (raise --map-memory for finer detail)\n",
+                   index, s.memory.mid_capacity);
     }
     if (s.memory.node_refusals > 0 && !nodes_full) {
       nodes_full = true;
@@ -59,8 +66,9 @@ struct FrameWarnings {
                    "pool: air beyond it is not recorded (free_space_refused in stats.json)\n",
                    index);
     }
-    const bool blocks_refused =
-        s.integration.pool_refusals > s.integration.finest_refusals + s.integration.node_refusals;
+    const bool blocks_refused = s.integration.pool_refusals > s.integration.finest_refusals +
+                                                                  s.integration.mid_refusals +
+                                                                  s.integration.node_refusals;
     if (blocks_refused && !pool_full) {
       pool_full = true;
       std::fprintf(stderr,

@@ -185,8 +185,8 @@ struct PoolSizes {
 // Pool capacities from --max-blocks, or from --map-memory. A multires block takes its finest level
 // (8^3 voxels) only when it integrates at scale 0, i.e. closer than kScale0MaxRatio * fx * voxel:
 // when that covers most of the depth range (1 cm at QVGA: 3.9 m of 4) any block may need one;
-// otherwise (2 mm: 0.8 m) half the memory goes to blocks and half to finest levels, so far, coarse
-// blocks do not pay for a finest level they never use.
+// otherwise (2 mm: 0.8 m) half the memory goes to blocks (with their mid levels) and half to
+// finest levels, so far, coarse blocks do not pay for a finest level they never use.
 template <typename VoxelT>
 PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camera) {
   PoolSizes sizes;
@@ -210,8 +210,11 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
         std::min(kMaxBlocks, bytes / static_cast<double>(Map::kBytesPerBlockWorstCase)));
     return sizes;
   }
-  sizes.blocks = static_cast<std::uint32_t>(
-      std::min(kMaxBlocks, 0.5 * bytes / static_cast<double>(sizeof(typename Map::Block))));
+  // Each block with room for its mid level (scale 1): blocks at scale 1 are most of a view's
+  // blocks at 1 cm.
+  sizes.blocks = static_cast<std::uint32_t>(std::min(
+      kMaxBlocks,
+      0.5 * bytes / static_cast<double>(sizeof(typename Map::Block) + sizeof(typename Map::Mid))));
   sizes.finest = static_cast<std::uint32_t>(
       std::min(static_cast<double>(sizes.blocks),
                0.5 * bytes / static_cast<double>(sizeof(typename Map::Finest))));

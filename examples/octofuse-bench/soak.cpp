@@ -220,7 +220,8 @@ void on_frame(SoakRun& run, const FrameStats& stats) {
       }
     }
     row.evicted += stats.eviction.evicted;
-    row.refusals += stats.integration.pool_refusals - stats.integration.finest_refusals;
+    row.refusals += stats.integration.pool_refusals - stats.integration.finest_refusals -
+                    stats.integration.mid_refusals;
     row.free_space_refusals += stats.free_space.pool_refused;
     row.store_read += stats.store.read;
     row.store_remapped += stats.store.remapped;

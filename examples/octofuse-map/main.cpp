@@ -100,6 +100,7 @@ void print_blocks(const Octree<VoxelT>& map) {
   std::printf("  never fused   %u\n", never);
   if (Octree<VoxelT>::kSplitFinest) {
     std::printf("finest levels   %u\n", memory.finest_used);
+    std::printf("mid levels      %u\n", memory.mid_used);
   }
   // What allocating blocks at coarser octree levels would keep (coarse_estimate.hpp).
   std::vector<std::uint64_t> scratch(map.block_count());
@@ -218,7 +219,7 @@ int run_store(const std::string& command, const char* path, host::BlockStoreFile
         merged_free->space.node_count(), merged_free->space.bytes_used(),
         static_cast<unsigned long long>(free_store.stats().keys), free_path.c_str());
   }
-  std::printf("memory          %.2f MB (blocks, finest levels and nodes)\n",
+  std::printf("memory          %.2f MB (blocks, finest and mid levels, nodes)\n",
               static_cast<double>(map.memory().bytes_used) / 1048576.0);
   return 0;
 }
@@ -284,7 +285,7 @@ int run(const std::string& command, const char* path, const MapFileHeader& heade
     } else {
       std::printf("free space      not saved\n");
     }
-    std::printf("memory          %.2f MB (blocks, finest levels and nodes)\n",
+    std::printf("memory          %.2f MB (blocks, finest and mid levels, nodes)\n",
                 static_cast<double>(memory.bytes_used) / 1048576.0);
     return 0;
   }

@@ -43,9 +43,10 @@ struct OwnedMap {
 template <typename VoxelT, typename Sdf>
 void fill_block(Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale, float mu_m,
                 const Sdf& sdf) {
-  // Multires blocks hold a finest level only once written at scale 0.
+  // Multires blocks hold a finest (mid) level only once written at scale 0 (1).
   if (scale == 0 && !map.acquire_finest(block).ok()) std::abort();
-  for (int i = block.has_finest() ? 0 : kBlockFinestVoxelCount; i < kBlockVoxelCount; ++i) {
+  if (scale == 1 && !map.acquire_mid(block).ok()) std::abort();
+  for (int i = block.first_stored_voxel(); i < kBlockVoxelCount; ++i) {
     block.voxel(i) = VoxelT();
   }
   const int side = block_scale_side(scale);

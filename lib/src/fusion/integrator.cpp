@@ -773,9 +773,9 @@ struct BlockDepthModel {
 // Step 2's list once the blocks that do not exist are dropped: what the budgets and step 4 need.
 struct BlockList {
   std::uint32_t count = 0;
-  std::uint64_t cost = 0;  // voxel updates
-  int coarsest = 0;        // coarsest scale listed
-  bool any_finest = false;
+  std::uint64_t cost = 0;             // voxel updates
+  int coarsest = 0;                   // coarsest scale listed
+  int finest_scale = kMaxBlockScale;  // finest scale listed
 };
 
 // 2a. Each block's pool index and depth; the scale where it does not depend on the current one
@@ -883,22 +883,31 @@ BlockList keep_existing_blocks(FrameBlock* blocks, std::uint32_t touched) {
     if (b.block == kNoIndex) continue;
     list.cost += static_cast<std::uint64_t>(block_scale_count(b.scale));
     list.coarsest = std::max<int>(list.coarsest, b.scale);
-    list.any_finest = list.any_finest || b.scale == 0;
+    list.finest_scale = std::min<int>(list.finest_scale, b.scale);
     blocks[list.count++] = b;
   }
   return list;
 }
 
-// Finest levels for blocks about to integrate at scale 0 for the first time, serially and in
-// list order so the pool's indices do not depend on the worker count. Refused: stay at scale 1.
+// Fine levels for blocks about to integrate at scale 0 (1) for the first time, serially and in
+// list order so the pools' indices do not depend on the worker count. Refused: one scale coarser
+// (a block refused its finest level integrates at scale 1, one refused its mid level at 2).
 template <typename VoxelT>
-void acquire_finest_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& list,
-                           IntegrationReport& report) {
-  for (std::uint32_t i = 0; i < list.count && list.any_finest; ++i) {
+void acquire_fine_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& list,
+                         IntegrationReport& report) {
+  for (std::uint32_t i = 0; i < list.count && list.finest_scale <= 1; ++i) {
     FrameBlock& b = blocks[i];
-    if (b.skip != 0 || b.scale != 0) continue;
+    if (b.skip != 0 || b.scale > 1) continue;
     VoxelBlock<VoxelT>& block = map.block(b.block);
-    if (block.has_finest()) continue;
+    if (!block.has_mid() && !map.acquire_mid(block).ok()) {
+      b.scale = 2;
+      list.coarsest = std::max(list.coarsest, 2);
+      ++report.mid_refusals;
+      ++report.pool_refusals;
+      report.status = StatusCode::resource_exhausted;
+      continue;
+    }
+    if (b.scale != 0 || block.has_finest()) continue;
     if (!map.acquire_finest(block).ok()) {
       b.scale = 1;
       list.coarsest = std::max(list.coarsest, 1);
@@ -1117,7 +1126,7 @@ IntegrationReport Integrator<VoxelT>::integrate_looked_up(Octree<VoxelT>& map, F
 
   // 3. Budgets (the scales were picked in step 2), then finest levels for the blocks at scale 0.
   const bool budget_bound = apply_budgets(list.count, list.cost, budget, report);
-  if constexpr (kMultires) acquire_finest_levels(map, frame_blocks_, list, report);
+  if constexpr (kMultires) acquire_fine_levels(map, frame_blocks_, list, report);
   f.mip_target = mip_target(frame_blocks_, list, budget_bound);
 
   // 4. Integrate in pool order, in a fixed number of tasks. Blocks are independent, so the order

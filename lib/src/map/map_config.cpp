@@ -38,6 +38,7 @@ Status validate(const MapConfig& config) {
     return StatusCode::invalid_argument;
   }
   if (config.finest_capacity > (1u << 30)) return StatusCode::invalid_argument;
+  if (config.mid_capacity > (1u << 30)) return StatusCode::invalid_argument;
   if (config.node_capacity == 0 || config.node_capacity > (1u << 31)) {
     return StatusCode::invalid_argument;
   }

@@ -423,7 +423,9 @@ void write_block_record(RecordWriter& w, const VoxelBlock<VoxelT>& b) {
   if (!VoxelBlock<VoxelT>::kSplitFinest || has_finest) {
     w.voxels(b.scale_begin(0), kBlockFinestVoxelCount);
   }
-  w.voxels(b.scale_begin(1), kBlockVoxelCount - kBlockFinestVoxelCount);
+  // Scale 1 reads unobserved without a mid level: the record is the same either way.
+  w.voxels(b.scale_begin(1), kBlockMidVoxelCount);
+  w.voxels(b.scale_begin(2), kBlockVoxelCount - kBlockFinestVoxelCount - kBlockMidVoxelCount);
   w.end_record();
 }
 
@@ -712,6 +714,17 @@ bool read_block_fields(RecordReader& r, int depth, BlockFields& out) {
   return true;
 }
 
+// Whether a split block read from a record needs a mid level: it integrated at scale 1 or 0, or
+// its scale-1 voxels (the record's, `mid`) are not all unobserved. A block that never went finer
+// than scale 2 has nothing there, and reads the same without one.
+template <typename VoxelT>
+bool needs_mid_level(const BlockFields& fields, const VoxelT* mid) {
+  if (fields.has_finest) return true;
+  if (fields.min_scale != kNeverIntegrated && fields.min_scale <= 1) return true;
+  return std::memcmp(mid, kUnobservedMidLevel<VoxelT>.voxels,
+                     sizeof(VoxelT) * kBlockMidVoxelCount) != 0;
+}
+
 template <typename VoxelT>
 bool read_block_record(RecordReader& r, Octree<VoxelT>& map, std::uint32_t index,
                        std::uint32_t& finest_loaded, std::uint32_t finest_expected) {
@@ -745,7 +758,16 @@ bool read_block_record(RecordReader& r, Octree<VoxelT>& map, std::uint32_t index
     ++finest_loaded;
   }
   if (fields.has_finest && !r.voxels(block.scale_begin(0), kBlockFinestVoxelCount)) return false;
-  if (!r.voxels(block.scale_begin(1), kBlockVoxelCount - kBlockFinestVoxelCount)) return false;
+  VoxelT mid[kBlockMidVoxelCount];
+  if (!r.voxels(mid, kBlockMidVoxelCount)) return false;
+  if (Block::kSplitFinest && needs_mid_level(fields, mid) && !map.acquire_mid(block).ok()) {
+    return r.fail(StatusCode::resource_exhausted, "the mid-level pool is too small");
+  }
+  if (block.has_mid()) std::copy(mid, mid + kBlockMidVoxelCount, block.scale_begin(1));
+  if (!r.voxels(block.scale_begin(2),
+                kBlockVoxelCount - kBlockFinestVoxelCount - kBlockMidVoxelCount)) {
+    return false;
+  }
   return r.end_record();
 }
 
@@ -1112,11 +1134,14 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   const Key key{fields.morton, static_cast<std::uint8_t>(map.block_level())};
   const Eigen::Vector3i coords = voxel_to_block(key_corner_voxel(key));
   if (map.find_block_index(coords) != kNoIndex) return StatusCode::failed_precondition;
-  // With the finest-level pool full the block comes back demoted, as release_finest() leaves it.
+  // With the finest-level pool full the block comes back demoted, as release_finest() leaves it;
+  // with the mid-level pool full it stays stored.
   bool demote = false;
-  if (Block::kSplitFinest && fields.has_finest) {
+  const bool mid = Block::kSplitFinest && needs_mid_level(fields, scratch + kBlockFinestVoxelCount);
+  if (Block::kSplitFinest && (fields.has_finest || mid)) {
     const MapMemory memory = map.memory();
-    demote = memory.finest_used >= memory.finest_capacity;
+    demote = fields.has_finest && memory.finest_used >= memory.finest_capacity;
+    if (mid && memory.mid_used >= memory.mid_capacity) return StatusCode::resource_exhausted;
   }
   AllocationCounts counts;
   const Status allocated = map.allocate(&key, 1, &counts);
@@ -1124,6 +1149,10 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   if (!allocated.ok() || counts.new_blocks != 1) return StatusCode::out_of_range;
   const std::uint32_t index = map.find_block_index(coords);
   Block& block = map.block(index);
+  if (mid) {
+    const Status acquired = map.acquire_mid(block);
+    OCTOFUSE_CHECK(acquired.ok());  // room checked above
+  }
   if (Block::kSplitFinest && fields.has_finest && !demote) {
     const Status finest = map.acquire_finest(block);
     OCTOFUSE_CHECK(finest.ok());  // room checked above
@@ -1140,7 +1169,11 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   if (fields.has_finest && !demote) {
     std::copy(scratch, scratch + kBlockFinestVoxelCount, block.scale_begin(0));
   }
-  std::copy(scratch + kBlockFinestVoxelCount, scratch + kBlockVoxelCount, block.scale_begin(1));
+  const int inline_first = kBlockFinestVoxelCount + kBlockMidVoxelCount;
+  if (block.has_mid()) {
+    std::copy(scratch + kBlockFinestVoxelCount, scratch + inline_first, block.scale_begin(1));
+  }
+  std::copy(scratch + inline_first, scratch + kBlockVoxelCount, block.scale_begin(2));
   if constexpr (Block::kSplitFinest) {
     if (demote) {
       if (block.integrated() && block.current_scale == 0) {

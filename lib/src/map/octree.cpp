@@ -107,6 +107,7 @@ void Octree<VoxelT>::evict_blocks(std::uint32_t* indices, std::size_t count) {
     Block& block = blocks_[index];
     if constexpr (kSplitFinest) {
       if (block.finest != nullptr) finest_.release(finest_.index_of(block.finest));
+      if (block.mid != nullptr) mid_.release(mid_.index_of(block.mid));
     }
     const bool erased = hash_.erase(morton_encode(block.coords));
     OCTOFUSE_CHECK(erased);
@@ -223,9 +224,14 @@ MapMemory Octree<VoxelT>::memory() const {
     m.finest_used = finest_.used();
     m.finest_capacity = finest_.capacity();
     m.bytes_used += sizeof(Finest) * m.finest_used;
+    m.bytes_per_mid = sizeof(Mid);
+    m.mid_used = mid_.used();
+    m.mid_capacity = mid_.capacity();
+    m.bytes_used += sizeof(Mid) * m.mid_used;
   }
   m.refusals = refusals_;
   m.finest_refusals = finest_refusals_;
+  m.mid_refusals = mid_refusals_;
   m.evicted = evicted_;
   m.node_refusals = node_refusals_;
   m.nodes_evicted = nodes_evicted_;
@@ -237,9 +243,11 @@ void Octree<VoxelT>::reset_contents(bool clear_hash) {
   nodes_.reset();
   blocks_.reset();
   finest_.reset();
+  mid_.reset();
   if (clear_hash) hash_.clear();
   refusals_ = 0;
   finest_refusals_ = 0;
+  mid_refusals_ = 0;
   node_refusals_ = 0;
   evicted_ = 0;
   nodes_evicted_ = 0;

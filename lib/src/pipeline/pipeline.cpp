@@ -106,6 +106,7 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
     return bad("map.block_capacity must be in [1, 2^30]");
   }
   if (m.finest_capacity > (1u << 30)) return bad("map.finest_capacity must be <= 2^30");
+  if (m.mid_capacity > (1u << 30)) return bad("map.mid_capacity must be <= 2^30");
   if (m.node_capacity == 0 || m.node_capacity > (1u << 31)) {
     return bad("map.node_capacity must be in [1, 2^31]");
   }

@@ -468,6 +468,7 @@ Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry
   const std::size_t in_memory = map != nullptr ? map->block_count() : 0;
   config.block_capacity = static_cast<std::uint32_t>(in_memory + extra + 1);
   config.finest_capacity = config.block_capacity;
+  config.mid_capacity = config.block_capacity;
   config.node_capacity =
       config.block_capacity * static_cast<std::uint32_t>(config.block_level()) + 1;
   const std::size_t bytes = Octree<VoxelT>::bytes_required(config);

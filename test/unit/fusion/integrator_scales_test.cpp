@@ -307,21 +307,89 @@ TEST_CASE("blocks never integrated at scale 0 hold no finest level",
     CHECK(r.finest_refusals == 0);
   }
   std::uint32_t with_finest = 0;
+  std::uint32_t with_mid = 0;
   std::uint32_t coarse_only = 0;
   for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
     const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
     CAPTURE(i, static_cast<int>(b.min_scale));
     REQUIRE(b.has_finest() == (b.min_scale == 0));
+    // Scale 1's level likewise only where the block went that fine.
+    REQUIRE(b.has_mid() == (b.integrated() && b.min_scale <= 1));
     with_finest += b.has_finest() ? 1u : 0u;
+    with_mid += b.has_mid() ? 1u : 0u;
     coarse_only += b.integrated() && b.min_scale > 0 ? 1u : 0u;
   }
   CHECK(with_finest > 10);  // the near sphere
   CHECK(coarse_only > 10);  // the far sphere
   const MapMemory m = fusion.map.memory();
   CHECK(m.finest_used == with_finest);
+  CHECK(m.mid_used == with_mid);
   CHECK(m.bytes_used == m.blocks_used * sizeof(VoxelBlock<MultiresVoxel>) +
                             with_finest * sizeof(FinestLevel<MultiresVoxel>) +
+                            with_mid * sizeof(MidLevel<MultiresVoxel>) +
                             m.nodes_used * sizeof(OctreeNode));
+}
+
+TEST_CASE("blocks never integrated finer than scale 2 hold no mid level",
+          "[fusion][integrator][finest]") {
+  // 4 mm voxels: the near sphere integrates at scale 1, the far one at scale 2.
+  const AnalyticScene scene = near_and_far_spheres();
+  Fusion<MultiresVoxel> fusion(map_config(0.004f, 10, 20000), fusion_config(0.032f),
+                               test::centred_camera(160, 120, 131.0f));
+  for (int i = 0; i < 3; ++i) {
+    const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0.01 * i, 0, -0.25}));
+    REQUIRE(r.status.ok());
+    CHECK(r.mid_refusals == 0);
+  }
+  std::uint32_t with_mid = 0;
+  std::uint32_t at_scale_2 = 0;
+  for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    CAPTURE(i, static_cast<int>(b.min_scale));
+    REQUIRE(b.has_mid() == (b.integrated() && b.min_scale <= 1));
+    REQUIRE_FALSE(b.has_finest());
+    with_mid += b.has_mid() ? 1u : 0u;
+    at_scale_2 += b.integrated() && b.min_scale == 2 ? 1u : 0u;
+    // Without a mid level, scale 1 reads unobserved.
+    if (!b.has_mid()) {
+      for (int k = 0; k < block_scale_count(1); ++k) {
+        REQUIRE_FALSE(voxel_observed(b.scale_begin(1)[k]));
+      }
+    }
+  }
+  CHECK(with_mid > 10);    // the near sphere
+  CHECK(at_scale_2 > 10);  // the far sphere
+  const MapMemory m = fusion.map.memory();
+  CHECK(m.mid_used == with_mid);
+  CHECK(m.finest_used == 0);
+  CHECK(m.bytes_used == m.blocks_used * sizeof(VoxelBlock<MultiresVoxel>) +
+                            with_mid * sizeof(MidLevel<MultiresVoxel>) +
+                            m.nodes_used * sizeof(OctreeNode));
+}
+
+TEST_CASE("a block refused a mid level integrates at scale 2, and the map stays valid",
+          "[fusion][integrator][finest]") {
+  const AnalyticScene scene = near_and_far_spheres();
+  MapConfig config = map_config(0.004f, 10, 20000);
+  config.mid_capacity = 40;
+  Fusion<MultiresVoxel> fusion(config, fusion_config(0.032f),
+                               test::centred_camera(160, 120, 131.0f));
+  const IntegrationReport r = fusion.fuse(scene, test::looking_along_z({0, 0, -0.25}));
+  CHECK(r.status.code() == StatusCode::resource_exhausted);
+  CHECK(r.mid_refusals > 0);
+  CHECK(r.pool_refusals == r.mid_refusals);
+  CHECK(fusion.map.memory().mid_used == 40);
+  std::uint32_t near_at_2 = 0;
+  for (std::uint32_t i = 0; i < fusion.map.block_count(); ++i) {
+    const VoxelBlock<MultiresVoxel>& b = fusion.map.block(i);
+    REQUIRE(b.has_mid() == (b.integrated() && b.min_scale <= 1));
+    // The near sphere's blocks past the pool are fused, at scale 2.
+    if (b.integrated() && !b.has_mid() && b.min_voxel().z() * 0.004f + config.origin_W.z() < 1.1f) {
+      ++near_at_2;
+      REQUIRE(b.current_scale == 2);
+    }
+  }
+  CHECK(near_at_2 > 0);
 }
 
 TEST_CASE("refining from scale 3 to 0 takes a finest level and down-propagates into it",

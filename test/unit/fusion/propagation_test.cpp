@@ -14,6 +14,8 @@ constexpr float kYMax = 100.0f;
 
 TEST_CASE("down-propagation applies the parent's delta to observed children", "[fusion][down]") {
   VoxelBlock<MultiresVoxel> block;
+  MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
+  block.mid = &mid;
   // Parent (scale 3) was 0.2 at its last propagation and is now 0.5, with 3 new samples.
   block.at(0, 0, 0, 3) = MultiresVoxel{0.5f, 0.2f, 10.0f, 3.0f};
   for (int i = 0; i < 8; ++i) {
@@ -40,6 +42,8 @@ TEST_CASE("down-propagation applies the parent's delta to observed children", "[
 TEST_CASE("down-propagation interpolates unobserved children, extrapolating at the border",
           "[fusion][down]") {
   VoxelBlock<MultiresVoxel> block;
+  MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
+  block.mid = &mid;
   // Scale-2 parents (2x2x2) with a field linear in x: x = 0.2 + 0.4 * px.
   for (int z = 0; z < 2; ++z)
     for (int y = 0; y < 2; ++y)
@@ -63,6 +67,8 @@ TEST_CASE("down-propagation interpolates unobserved children, extrapolating at t
 
 TEST_CASE("hand-computed trilinear value for a non-linear parent field", "[fusion][down]") {
   VoxelBlock<MultiresVoxel> block;
+  MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
+  block.mid = &mid;
   // Scale-2 parents: all 0 except parent (1,1,1) = 0.8.
   for (int i = 0; i < 8; ++i) block.voxel(block_scale_offset(2) + i) = {0.0f, 0.0f, 2.0f, 0.0f};
   block.at(1, 1, 1, 2).x = 0.8f;
@@ -82,6 +88,8 @@ TEST_CASE(
     "neighbourhood falls back to the parent value",
     "[fusion][down]") {
   VoxelBlock<MultiresVoxel> block;
+  MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
+  block.mid = &mid;
   block.at(0, 0, 0, 2) = MultiresVoxel{-0.4f, -0.4f, 3.0f, 0.0f};
   propagate_block_down(block, 2, kYMax);
   CHECK(block.at(0, 0, 0, 1).x == -0.4f);  // neighbours unobserved: nearest parent
@@ -91,6 +99,8 @@ TEST_CASE(
 
 TEST_CASE("down then up: parents are the mean of the updated children", "[fusion][down]") {
   VoxelBlock<MultiresVoxel> block;
+  MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
+  block.mid = &mid;
   for (int i = 0; i < 8; ++i) {
     block.voxel(block_scale_offset(2) + i) =
         MultiresVoxel{0.0625f * static_cast<float>(i), 0.0f, 4.0f, 0.0f};
@@ -114,8 +124,12 @@ TEST_CASE("16-bit down-propagation is the float one rounded to the nearest step"
   VoxelBlock<Multires16Voxel> q16;
   FinestLevel<MultiresVoxel> ref_finest;
   FinestLevel<Multires16Voxel> q16_finest;
+  MidLevel<MultiresVoxel> ref_mid;
+  MidLevel<Multires16Voxel> q16_mid;
   ref.finest = &ref_finest;
   q16.finest = &q16_finest;
+  ref.mid = &ref_mid;
+  q16.mid = &q16_mid;
   // A curved parent field at scale 1 with steps of fresh samples; every other child observed.
   for (int z = 0; z < 4; ++z)
     for (int y = 0; y < 4; ++y)

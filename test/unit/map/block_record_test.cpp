@@ -16,7 +16,8 @@ namespace {
 template <typename VoxelT>
 void fill_block(Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale) {
   if (scale == 0) REQUIRE(map.acquire_finest(block).ok());
-  for (int i = scale == 0 ? 0 : kBlockFinestVoxelCount; i < kBlockVoxelCount; ++i) {
+  if (scale == 1) REQUIRE(map.acquire_mid(block).ok());
+  for (int i = block.first_stored_voxel(); i < kBlockVoxelCount; ++i) {
     set_voxel_tsdf(block.voxel(i), static_cast<float>(i % 41) / 20.0f - 1.0f);
     set_voxel_weight(block.voxel(i), 1.0f + static_cast<float>(i % 5));
   }
@@ -33,9 +34,9 @@ TEMPLATE_TEST_CASE("a block record restores the block's whole state in another m
   MapFixture<VoxelT> a(small_config(8, 64));
   MapFixture<VoxelT> b(small_config(8, 64));
   const bool split = VoxelBlock<VoxelT>::kSplitFinest;
-  for (int scale : {0, 1}) {
+  for (int scale : {0, 1, 2}) {
     CAPTURE(scale);
-    const Eigen::Vector3i coords(3 + scale, 17, 30);
+    const Eigen::Vector3i coords(3 + 4 * scale, 17, 30);
     Result<std::uint32_t> index = a.map.allocate_block(coords);
     REQUIRE(index.ok());
     VoxelBlock<VoxelT>& block = a.map.block(index.value());
@@ -69,10 +70,13 @@ TEMPLATE_TEST_CASE("a block record restores the block's whole state in another m
     REQUIRE(got.last_updated_frame == 77u);
     REQUIRE(got.tsdf_mean == block.tsdf_mean);
     REQUIRE(got.has_finest() == block.has_finest());
-    for (int i = got.has_finest() || !split ? 0 : kBlockFinestVoxelCount; i < kBlockVoxelCount;
-         ++i) {
-      REQUIRE(voxel_tsdf(got.voxel(i)) == voxel_tsdf(block.voxel(i)));
-      REQUIRE(voxel_weight(got.voxel(i)) == voxel_weight(block.voxel(i)));
+    // A block never fused finer than scale 2 comes back without a mid level, as it left.
+    REQUIRE(got.has_mid() == block.has_mid());
+    REQUIRE(got.has_mid() == (!split || scale <= 1));
+    const VoxelBlock<VoxelT>& source = block;
+    for (int i = 0; i < kBlockVoxelCount; ++i) {
+      REQUIRE(voxel_tsdf(got.voxel(i)) == voxel_tsdf(source.voxel(i)));
+      REQUIRE(voxel_weight(got.voxel(i)) == voxel_weight(source.voxel(i)));
     }
     // Already in memory: refused, untouched.
     REQUIRE(restore_block_record(b.map, record.data(), size.value()).status().code() ==
@@ -111,6 +115,29 @@ TEST_CASE("with the finest-level pool full a block comes back at scale 1, brough
     REQUIRE(got.voxel(i).y == a.map.block(index.value()).voxel(i).y);
   }
   REQUIRE(got.tsdf_mean == a.map.block(index.value()).tsdf_mean);
+}
+
+TEST_CASE("a record's scale-1 voxels come back whenever they hold anything", "[map][store]") {
+  // A block at scale 2 whose scale 1 is not unobserved (what no integration writes, but a record
+  // may hold): the restored block takes a mid level and keeps them.
+  MapFixture<MultiresVoxel> a(small_config(8, 64));
+  MapFixture<MultiresVoxel> b(small_config(8, 64));
+  const Result<std::uint32_t> index = a.map.allocate_block({2, 2, 2});
+  REQUIRE(index.ok());
+  VoxelBlock<MultiresVoxel>& block = a.map.block(index.value());
+  fill_block(a.map, block, 2);
+  REQUIRE(a.map.acquire_mid(block).ok());
+  block.at(1, 2, 3, 1) = MultiresVoxel{0.25f, 0.25f, 3.0f, 0.0f};
+  std::vector<std::uint8_t> record(block_record_max_bytes<MultiresVoxel>());
+  const Result<std::size_t> size = encode_block_record(block, record.data(), record.size());
+  REQUIRE(size.ok());
+  const Result<std::uint32_t> restored = restore_block_record(b.map, record.data(), size.value());
+  REQUIRE(restored.ok());
+  const VoxelBlock<MultiresVoxel>& got = b.map.block(restored.value());
+  REQUIRE(got.has_mid());
+  CHECK(got.at(1, 2, 3, 1).x == 0.25f);
+  CHECK(got.at(1, 2, 3, 1).y == 3.0f);
+  CHECK(b.map.memory().mid_used == 1);
 }
 
 }  // namespace

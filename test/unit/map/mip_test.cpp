@@ -9,6 +9,8 @@ namespace {
 
 TEST_CASE("reads at scale s of a block filled at scale 0 follow the mean rule", "[map][mip]") {
   VoxelBlock<MultiresVoxel> block;
+  MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
+  block.mid = &mid;
   FinestLevel<MultiresVoxel> finest;  // what the map would lend
   block.finest = &finest;
   // Integer-valued fields keep the float means exact: x = (x + 2y + 4z) / 64.

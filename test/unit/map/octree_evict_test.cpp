@@ -38,7 +38,8 @@ void fill_evict_grid(Octree<MultiresVoxel>& map, const Keep& keep) {
         VoxelBlock<MultiresVoxel>& block = map.block(index.value());
         const int scale = evict_test_has_finest(c) ? 0 : 1;
         if (scale == 0) REQUIRE(map.acquire_finest(block).ok());
-        for (int i = scale == 0 ? 0 : kBlockFinestVoxelCount; i < kBlockVoxelCount; ++i) {
+        if (scale == 1) REQUIRE(map.acquire_mid(block).ok());
+        for (int i = block.first_stored_voxel(); i < kBlockVoxelCount; ++i) {
           block.voxel(i).x = evict_test_tsdf(c, i);
           block.voxel(i).y = 1.0f + static_cast<float>(i % 3);
         }

@@ -75,26 +75,37 @@ TEST_CASE("finest levels are lent on demand, refused when the pool is full, retu
   CHECK(m.finest_capacity == 2);
   CHECK(m.bytes_per_finest == sizeof(FinestLevel<MultiresVoxel>));
   CHECK(m.bytes_used == 3 * sizeof(VoxelBlock<MultiresVoxel>) + m.nodes_used * sizeof(OctreeNode));
-  // Coarse writes need no finest level.
-  map.block(blocks[0]).at(0, 0, 0, 1).y = 2.0f;
+  // Writes at scales 2 and 3 need no level; at scale 1 the accessor takes a mid level.
+  map.block(blocks[0]).at(0, 0, 0, 2).y = 2.0f;
   CHECK_FALSE(map.block(blocks[0]).has_finest());
+  CHECK_FALSE(map.block(blocks[0]).has_mid());
+  MultiresVoxel* mid_voxel = map.voxel({0, 0, 0}, 1);
+  REQUIRE(mid_voxel != nullptr);
+  mid_voxel->y = 4.0f;
+  CHECK(map.block(blocks[0]).has_mid());
+  CHECK_FALSE(map.block(blocks[0]).has_finest());
+  CHECK(map.memory().mid_used == 1);
 
   REQUIRE(map.acquire_finest(map.block(blocks[0])).ok());
   FinestLevel<MultiresVoxel>* first = map.block(blocks[0]).finest;
   REQUIRE(first != nullptr);
   CHECK(map.acquire_finest(map.block(blocks[0])).ok());  // already has one: same level
   CHECK(map.block(blocks[0]).finest == first);
+  CHECK(map.memory().mid_used == 1);  // the block's mid level kept
   for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
     REQUIRE_FALSE(voxel_observed(first->voxels[i]));  // lent unobserved
   }
-  // The non-const voxel accessor takes a level for writes at scale 0.
+  // The non-const voxel accessor takes both levels for writes at scale 0.
   MultiresVoxel* v = map.voxel({8 + 3, 2, 1}, 0);
   REQUIRE(v != nullptr);
   v->y = 1.0f;
   CHECK(map.block(blocks[1]).has_finest());
+  CHECK(map.block(blocks[1]).has_mid());
   CHECK(map.memory().finest_used == 2);
+  CHECK(map.memory().mid_used == 2);
 
-  // Pool full: refused, counted, block unchanged and still readable.
+  // Pool full: refused, counted, block's data unchanged and still readable (it took the mid
+  // level that scale 1, where it integrates instead, needs).
   CHECK(map.acquire_finest(map.block(blocks[2])) == StatusCode::resource_exhausted);
   CHECK_FALSE(map.block(blocks[2]).has_finest());
   CHECK(map.voxel({16, 0, 0}, 0) == nullptr);
@@ -103,17 +114,21 @@ TEST_CASE("finest levels are lent on demand, refused when the pool is full, retu
   CHECK_FALSE(voxel_observed(*read.voxel({16, 0, 0}, 0)));
   m = map.memory();
   CHECK(m.finest_refusals == 2);
+  CHECK(m.mid_refusals == 0);
   CHECK(m.refusals == 2);
-  CHECK(m.bytes_used == 3 * sizeof(VoxelBlock<MultiresVoxel>) +
-                            2 * sizeof(FinestLevel<MultiresVoxel>) +
-                            m.nodes_used * sizeof(OctreeNode));
+  CHECK(m.mid_used == 3);
+  CHECK(m.bytes_used ==
+        3 * sizeof(VoxelBlock<MultiresVoxel>) + 2 * sizeof(FinestLevel<MultiresVoxel>) +
+            3 * sizeof(MidLevel<MultiresVoxel>) + m.nodes_used * sizeof(OctreeNode));
   // The other blocks' data is intact.
-  CHECK(map.block(blocks[0]).at(0, 0, 0, 1).y == 2.0f);
+  CHECK(map.block(blocks[0]).at(0, 0, 0, 2).y == 2.0f);
+  CHECK(map.block(blocks[0]).at(0, 0, 0, 1).y == 4.0f);
   CHECK(read.voxel({8 + 3, 2, 1}, 0)->y == 1.0f);
 
   map.clear();
   m = map.memory();
   CHECK(m.finest_used == 0);
+  CHECK(m.mid_used == 0);
   CHECK(m.finest_refusals == 0);
   const std::uint32_t again = map.allocate_block({5, 5, 5}).value();
   CHECK_FALSE(map.block(again).has_finest());  // a new block starts without one
@@ -183,6 +198,40 @@ TEST_CASE("no heap allocation after reserve across 10000 allocations and lookups
   }
   CHECK(scope.allocations() == 0);
   CHECK(found == 20000);
+}
+
+TEST_CASE("mid levels are lent on demand, refused when the pool is full, returned on eviction",
+          "[map][octree]") {
+  MapConfig config = small_config(8, 64);
+  config.mid_capacity = 1;
+  MapFixture<MultiresVoxel> f(config);
+  Octree<MultiresVoxel>& map = f.map;
+  std::uint32_t blocks[2];
+  for (int i = 0; i < 2; ++i) blocks[i] = map.allocate_block({i, 0, 0}).value();
+  CHECK(map.memory().mid_capacity == 1);
+  CHECK(map.memory().bytes_per_mid == sizeof(MidLevel<MultiresVoxel>));
+  REQUIRE(map.voxel({1, 1, 1}, 1) != nullptr);
+  CHECK(map.block(blocks[0]).has_mid());
+  // Pool full: no mid level, and no finest level either (it needs one).
+  CHECK(map.voxel({8, 0, 0}, 1) == nullptr);
+  CHECK(map.acquire_finest(map.block(blocks[1])) == StatusCode::resource_exhausted);
+  CHECK_FALSE(map.block(blocks[1]).has_mid());
+  CHECK_FALSE(map.block(blocks[1]).has_finest());
+  MapMemory m = map.memory();
+  CHECK(m.mid_refusals == 2);
+  CHECK(m.finest_refusals == 0);
+  CHECK(m.refusals == 2);
+  CHECK(m.finest_used == 0);
+  // Evicting the block gives its level back: the other block can take it.
+  std::uint32_t evict = blocks[0];
+  map.evict_blocks(&evict, 1);
+  CHECK(map.memory().mid_used == 0);
+  const std::uint32_t moved = map.find_block_index({1, 0, 0});
+  REQUIRE(moved != kNoIndex);
+  REQUIRE(map.acquire_finest(map.block(moved)).ok());
+  CHECK(map.block(moved).has_mid());
+  CHECK(map.memory().mid_used == 1);
+  CHECK(map.memory().finest_used == 1);
 }
 
 }  // namespace

@@ -46,20 +46,22 @@ TEST_CASE("mip levels cost 14% over single-resolution blocks", "[map][block]") {
 
 TEST_CASE("single-res blocks hold all levels inline, multires blocks only the coarse ones",
           "[map][block]") {
-  // The header is 64 bytes with 64-bit pointers (56 on 32-bit targets).
-  constexpr std::size_t kMaxHeaderBytes = 64;
+  // The header is 72 bytes with 64-bit pointers (60 on 32-bit targets).
+  constexpr std::size_t kMaxHeaderBytes = 72;
   VoxelBlock<MultiresVoxel> probe;
   const std::size_t header = static_cast<std::size_t>(
       reinterpret_cast<const char*>(probe.inline_voxels) - reinterpret_cast<const char*>(&probe));
   CHECK(header <= kMaxHeaderBytes);
   CHECK(sizeof(VoxelBlock<TsdfVoxel>) == header + kBlockVoxelCount * sizeof(TsdfVoxel));
-  CHECK(sizeof(VoxelBlock<MultiresVoxel>) ==
-        header + (kBlockVoxelCount - kBlockFinestVoxelCount) * sizeof(MultiresVoxel));
+  // Scales 2 and 3 inline: 9 voxels.
+  CHECK(sizeof(VoxelBlock<MultiresVoxel>) == header + 9 * sizeof(MultiresVoxel));
   CHECK(sizeof(FinestLevel<MultiresVoxel>) == kBlockFinestVoxelCount * sizeof(MultiresVoxel));
+  CHECK(sizeof(MidLevel<MultiresVoxel>) == 64 * sizeof(MultiresVoxel));
   CHECK_FALSE(VoxelBlock<TsdfVoxel>::kSplitFinest);
   CHECK(VoxelBlock<MultiresVoxel>::kSplitFinest);
   VoxelBlock<TsdfVoxel> single;
   CHECK(single.has_finest());
+  CHECK(single.has_mid());
   CHECK(single.scale_begin(0) == single.inline_voxels);
   CHECK(single.scale_begin(1) == single.inline_voxels + 512);
 }
@@ -68,6 +70,7 @@ TEST_CASE("a fresh block is unobserved and never integrated", "[map][block]") {
   VoxelBlock<MultiresVoxel> block;
   CHECK_FALSE(block.integrated());
   CHECK_FALSE(block.has_finest());
+  CHECK_FALSE(block.has_mid());
   CHECK(block.min_scale == kNeverIntegrated);
   CHECK(block.mip_scale == kNeverIntegrated);
   CHECK(block.weight_mean == 0.0f);
@@ -79,9 +82,12 @@ TEST_CASE("a fresh block is unobserved and never integrated", "[map][block]") {
   }
   block.coords = Eigen::Vector3i(2, 3, 4);
   CHECK(block.min_voxel() == Eigen::Vector3i(16, 24, 32));
+  MidLevel<MultiresVoxel> mid;
+  block.mid = &mid;
   block.at_voxel(Eigen::Vector3i(16 + 5, 24 + 6, 32 + 7), 1).y = 3.0f;
   CHECK(block.at(2, 3, 3, 1).y == 3.0f);
   CHECK(&block.at(2, 3, 3, 1) == block.scale_begin(1) + 2 + 3 * 4 + 3 * 16);
+  CHECK(&block.at(2, 3, 3, 1) == &mid.voxels[2 + 3 * 4 + 3 * 16]);
 }
 
 TEST_CASE("without a finest level, scale 0 reads as unobserved; with one it is that level",
@@ -99,9 +105,19 @@ TEST_CASE("without a finest level, scale 0 reads as unobserved; with one it is t
   CHECK(level.voxels[1 + 2 * 8 + 3 * 64].y == 5.0f);
   CHECK(read.scale_begin(0) == level.voxels);
   CHECK(&read.voxel(block_voxel_index(1, 2, 3, 0)) == &level.voxels[1 + 2 * 8 + 3 * 64]);
-  // Coarse levels stay inline.
-  CHECK(block.scale_begin(1) == block.inline_voxels);
-  CHECK(block.scale_begin(3) == block.inline_voxels + 72);
+  // Scale 1 likewise: shared and unobserved until the block has a mid level, then that level.
+  CHECK(read.scale_begin(1) == kUnobservedMidLevel<MultiresVoxel>.voxels);
+  CHECK_FALSE(voxel_observed(read.at(3, 3, 3, 1)));
+  MidLevel<MultiresVoxel> mid;
+  block.mid = &mid;
+  CHECK(block.has_mid());
+  block.at(3, 0, 1, 1).y = 2.0f;
+  CHECK(mid.voxels[3 + 0 * 4 + 1 * 16].y == 2.0f);
+  CHECK(&read.voxel(block_voxel_index(3, 0, 1, 1)) == &mid.voxels[3 + 16]);
+  // The two coarsest levels stay inline.
+  CHECK(block.scale_begin(2) == block.inline_voxels);
+  CHECK(block.scale_begin(3) == block.inline_voxels + 8);
+  CHECK(&read.voxel(block_voxel_index(1, 1, 1, 2)) == block.inline_voxels + 7);
 }
 
 }  // namespace

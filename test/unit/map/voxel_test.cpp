@@ -120,7 +120,9 @@ TEST_CASE("16-bit accessors store rounded and read back as float", "[map][voxel]
 TEST_CASE("a 16-bit parent is the rounded mean of its children and restarts its interval",
           "[map][voxel][multires16]") {
   VoxelBlock<Multires16Voxel> block;
-  // Scale 1 -> 2 only (inline levels: no finest level needed). Children TSDF c/10, weights 1..8.
+  MidLevel<Multires16Voxel> mid;  // scale 1, as the map would lend it
+  block.mid = &mid;
+  // Scale 1 -> 2 only (no finest level needed). Children TSDF c/10, weights 1..8.
   for (int c = 0; c < 8; ++c) {
     Multires16Voxel& child = block.at(c & 1, (c >> 1) & 1, (c >> 2) & 1, 1);
     set_voxel_tsdf(child, static_cast<float>(c) / 10.0f);

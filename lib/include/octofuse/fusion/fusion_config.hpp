@@ -73,6 +73,7 @@ struct IntegrationReport {
   std::uint32_t blocks_coarsened = 0;                // multires: integrated coarser than last time
   std::uint32_t pool_refusals = 0;      // new blocks and finest levels the map's pools refused
   std::uint32_t finest_refusals = 0;    // of those, finest levels (the block stayed at scale 1)
+  std::uint32_t mid_refusals = 0;       // and mid levels (the block stayed at scale 2)
   std::uint32_t node_refusals = 0;      // inner nodes refused (set by the pipeline)
   std::uint32_t keys_dropped = 0;       // blocks beyond max_blocks_per_frame
   std::uint32_t rays_outside_cube = 0;  // band samples that left the map's cube

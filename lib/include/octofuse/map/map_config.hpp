@@ -36,6 +36,10 @@ struct MapConfig {
   // a block refused one stays at scale 1. 0 = block_capacity (never refuses, reserves the worst
   // case, which stays untouched until used). Single-resolution maps ignore it.
   std::uint32_t finest_capacity = 0;
+  // Multires maps: mid levels (scale 1: 4^3 voxels, 1 KiB each) lent to blocks integrated at
+  // scale 1 or finer (a finest level comes with one); a block refused one stays at scale 2.
+  // 0 = block_capacity (never refuses). Single-resolution maps ignore it.
+  std::uint32_t mid_capacity = 0;
 
   int voxels_per_side() const { return 1 << voxel_depth; }
   float size_m() const { return voxel_size_m * static_cast<float>(voxels_per_side()); }
@@ -44,6 +48,9 @@ struct MapConfig {
   float block_size_m() const { return voxel_size_m * static_cast<float>(kBlockSide); }
   std::uint32_t effective_finest_capacity() const {
     return finest_capacity == 0 ? block_capacity : finest_capacity;
+  }
+  std::uint32_t effective_mid_capacity() const {
+    return mid_capacity == 0 ? block_capacity : mid_capacity;
   }
 
   // A cube centred on `centre_W` (the usual choice: the first camera position).
@@ -54,7 +61,7 @@ struct MapConfig {
 // ok, or invalid_argument when the voxel size is outside [kMinVoxelSize_m, kMaxVoxelSize_m], the
 // depth is outside [kMinVoxelDepth, kMaxVoxelDepth], the origin is not finite or a coordinate's
 // magnitude is above kMaxOrigin_m, or a capacity is zero (or the node capacity is above 2^31, the
-// block or finest capacity above 2^30).
+// block, finest or mid capacity above 2^30).
 Status validate(const MapConfig& config);
 
 // The least voxel depth d (kMinVoxelDepth..kMaxVoxelDepth) whose cube of 2^d voxels of

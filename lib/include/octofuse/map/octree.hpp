@@ -1,8 +1,9 @@
 #pragma once
 // The map: an octree over a cube of 2^d finest voxels per side. Inner nodes come from a node pool,
 // leaves are mip-mapped 8^3 voxel blocks from a block pool, and a hash of block coordinates finds
-// a block without walking the tree. Multires blocks take their finest level (8^3 voxels) from a
-// third pool only when first written at scale 0 (see voxel_block.hpp). All are carved from an
+// a block without walking the tree. Multires blocks take their finest level (8^3 voxels) and their
+// mid level (4^3) from pools of their own only when first written at scale 0 or 1 (see
+// voxel_block.hpp). All are carved from an
 // arena at reserve() and never grow: when a pool is full, allocation is refused, counted and
 // reported, and the map stays valid. evict_blocks() and release_finest() give memory back for
 // bounded maps over unbounded areas (the pipeline decides which blocks).
@@ -84,15 +85,19 @@ struct MapMemory {
   std::size_t bytes_used = 0;        // the part holding allocated nodes and blocks
   std::size_t bytes_per_block = 0;   // sizeof(VoxelBlock<VoxelT>)
   std::size_t bytes_per_finest = 0;  // sizeof(FinestLevel<VoxelT>); 0 for single-res maps
+  std::size_t bytes_per_mid = 0;     // sizeof(MidLevel<VoxelT>); 0 for single-res maps
   std::uint32_t blocks_used = 0;
   std::uint32_t block_capacity = 0;
   std::uint32_t nodes_used = 0;
   std::uint32_t node_capacity = 0;
   std::uint32_t finest_used = 0;  // multires blocks holding a finest level
   std::uint32_t finest_capacity = 0;
-  // Allocation requests (blocks, nodes, finest levels) refused since reserve()/clear().
+  std::uint32_t mid_used = 0;  // multires blocks holding a mid level (scale 1)
+  std::uint32_t mid_capacity = 0;
+  // Allocation requests (blocks, nodes, finest and mid levels) refused since reserve()/clear().
   std::uint64_t refusals = 0;
   std::uint64_t finest_refusals = 0;  // of those, finest levels
+  std::uint64_t mid_refusals = 0;     // of those, mid levels
   std::uint64_t evicted = 0;          // blocks evicted since reserve()/clear()
   std::uint64_t node_refusals = 0;    // of the refusals, inner nodes (a new block's ancestors)
   std::uint64_t nodes_evicted = 0;    // inner nodes removed with their last block
@@ -119,11 +124,12 @@ class Octree {
   using Voxel = VoxelT;
   using Block = VoxelBlock<VoxelT>;
   using Finest = FinestLevel<VoxelT>;
+  using Mid = MidLevel<VoxelT>;
   static constexpr bool kSplitFinest = Block::kSplitFinest;
-  // Worst-case bytes per block (block plus its finest level), for sizing a pool from a memory
-  // budget with the default finest capacity.
+  // Worst-case bytes per block (block plus its finest and mid levels), for sizing a pool from a
+  // memory budget with the default finest and mid capacities.
   static constexpr std::size_t kBytesPerBlockWorstCase =
-      sizeof(Block) + (kSplitFinest ? sizeof(Finest) : 0);
+      sizeof(Block) + (kSplitFinest ? sizeof(Finest) + sizeof(Mid) : 0);
 
   // Exactly what reserve() takes from a LinearArena whose current offset is
   // kArenaAlignment-aligned.
@@ -146,6 +152,7 @@ class Octree {
     OCTOFUSE_TRY(blocks_.reserve(arena, config.block_capacity));
     if constexpr (kSplitFinest) {
       OCTOFUSE_TRY(finest_.reserve(arena, config.effective_finest_capacity()));
+      OCTOFUSE_TRY(mid_.reserve(arena, config.effective_mid_capacity()));
     }
     OCTOFUSE_TRY(hash_.reserve(arena, config.block_capacity));
     Result<std::uint32_t*> a = arena.template allocate_array<std::uint32_t>(config.node_capacity);
@@ -244,13 +251,15 @@ class Octree {
   // cube) / resource_exhausted (pool full).
   Result<std::uint32_t> allocate_block(const Eigen::Vector3i& block_coords);
 
-  // --- Finest levels (multires). Gives `block` its finest level if it has none, initialised
-  // unobserved: ok (also when it had one, and always for single-res maps), or resource_exhausted
-  // when the finest pool is full (counted in refusals; the block is unchanged). Not thread-safe,
-  // like allocate(); levels return to the pool on clear().
+  // --- Finest and mid levels (multires). Gives `block` its finest level if it has none (and its
+  // mid level first: scale 0's mean lives at scale 1), initialised unobserved: ok (also when it
+  // had one, and always for single-res maps), or resource_exhausted when a pool is full (counted
+  // in refusals; the block keeps what it had). Not thread-safe, like allocate(); levels return to
+  // their pools when the block is evicted and on clear().
   Status acquire_finest(Block& block) {
     if constexpr (kSplitFinest) {
       if (block.finest != nullptr) return ok_status();
+      OCTOFUSE_TRY(acquire_mid(block));
       Result<std::uint32_t> f = finest_.allocate();
       if (!f.ok()) {
         ++refusals_;
@@ -258,6 +267,20 @@ class Octree {
         return StatusCode::resource_exhausted;
       }
       block.finest = &finest_[f.value()];
+    }
+    return ok_status();
+  }
+  // The same for the mid level (scale 1) alone.
+  Status acquire_mid(Block& block) {
+    if constexpr (kSplitFinest) {
+      if (block.mid != nullptr) return ok_status();
+      Result<std::uint32_t> m = mid_.allocate();
+      if (!m.ok()) {
+        ++refusals_;
+        ++mid_refusals_;
+        return StatusCode::resource_exhausted;
+      }
+      block.mid = &mid_[m.value()];
     }
     return ok_status();
   }
@@ -307,7 +330,7 @@ class Octree {
   // or in an unallocated block. Reads whatever that scale holds (see the block's current_scale;
   // scale 0 of a block without a finest level reads as unobserved). The non-const overload gives
   // the block its finest level for scale 0 (null when the finest pool is full), so it must not
-  // overlap other calls, like allocate().
+  // overlap other calls, like allocate(); likewise its mid level for scale 1.
   const VoxelT* voxel(const Eigen::Vector3i& voxel, int scale = 0) const {
     OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
     const Block* b = find_block_at_voxel(voxel);
@@ -317,8 +340,10 @@ class Octree {
     OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
     Block* b = find_block_at_voxel(voxel);
     if (b == nullptr) return nullptr;
-    // A write at scale 0 needs the finest level: take it now (null when that pool is full).
+    // A write at scale 0 (1) needs the finest (mid) level: take it now (null when that pool is
+    // full).
     if (scale == 0 && !acquire_finest(*b).ok()) return nullptr;
+    if (scale == 1 && !acquire_mid(*b).ok()) return nullptr;
     return &b->at_voxel(voxel, scale);
   }
   // The neighbour `step` voxels of scale `scale` away (crosses block borders), or null.
@@ -476,6 +501,7 @@ class Octree {
   IndexPool<OctreeNode> nodes_;
   IndexPool<Block> blocks_;
   IndexPool<Finest> finest_;  // multires only (capacity 0 otherwise)
+  IndexPool<Mid> mid_;        // multires only (capacity 0 otherwise)
   BlockHash hash_;
   std::uint32_t* scratch_a_ = nullptr;
   std::uint32_t* scratch_b_ = nullptr;
@@ -483,6 +509,7 @@ class Octree {
   std::size_t bytes_reserved_ = 0;
   std::uint64_t refusals_ = 0;
   std::uint64_t finest_refusals_ = 0;
+  std::uint64_t mid_refusals_ = 0;
   std::uint64_t node_refusals_ = 0;
   std::uint64_t evicted_ = 0;
   std::uint64_t nodes_evicted_ = 0;

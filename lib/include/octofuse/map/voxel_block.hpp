@@ -5,10 +5,12 @@
 // n = 8 >> s the index is x + y*n + z*n^2, (x, y, z) local to the block in voxels of that scale.
 //
 // Storage: single-resolution blocks hold all 585 voxels inline. Multi-resolution blocks hold the
-// coarse levels (64 + 8 + 1) inline and point to their finest level (512 voxels, 8 KiB), which the
-// map lends from a second pool only once the block integrates at scale 0: at 2 mm most blocks
-// never do, and their finest level would be 87% of the block. A block without a finest level
-// reads as unobserved at scale 0 (const access); writing there is a programmer error.
+// two coarsest levels (8 + 1 voxels) inline and point to their two fine levels, which the map
+// lends from pools of their own only once the block needs them: scale 1 (64 voxels, 1 KiB) when
+// it first integrates at scale 1 or finer, scale 0 (512 voxels, 8 KiB) at scale 0. At 2 mm four
+// in five blocks only ever integrate at scale 2 or 3: inline, such a block is a sixth of one that
+// held every coarse level, and the fine levels would be 98 % of it. A block without a level reads
+// as unobserved there (const access); writing there is a programmer error.
 
 #include <cstdint>
 
@@ -55,17 +57,27 @@ struct alignas(64) FinestLevel {
   VoxelT voxels[kBlockFinestVoxelCount] = {};
 };
 
-// What a block without a finest level reads at scale 0 (never written).
+// Scale 1 of a split block: one slot of the map's mid-level pool.
+inline constexpr int kBlockMidVoxelCount = 64;
+template <typename VoxelT>
+struct alignas(64) MidLevel {
+  VoxelT voxels[kBlockMidVoxelCount] = {};
+};
+
+// What a block without a finest (mid) level reads at scale 0 (1); never written.
 template <typename VoxelT>
 inline constexpr FinestLevel<VoxelT> kUnobservedFinestLevel{};
+template <typename VoxelT>
+inline constexpr MidLevel<VoxelT> kUnobservedMidLevel{};
 
 template <typename VoxelT>
 struct VoxelBlock {
   using Voxel = VoxelT;
-  // Multires blocks keep their finest level out of line (see above).
+  // Multires blocks keep their finest and mid levels (scales 0 and 1) out of line (see above).
   static constexpr bool kSplitFinest = IsMultiresVoxel<VoxelT>::value;
   // Block voxel index of the first inline voxel, and how many are inline.
-  static constexpr int kInlineBegin = kSplitFinest ? kBlockFinestVoxelCount : 0;
+  static constexpr int kInlineBegin =
+      kSplitFinest ? kBlockFinestVoxelCount + kBlockMidVoxelCount : 0;
   static constexpr int kInlineCount = kBlockVoxelCount - kInlineBegin;
 
   Eigen::Vector3i coords = Eigen::Vector3i::Zero();  // block coordinates (finest voxel / 8)
@@ -90,6 +102,9 @@ struct VoxelBlock {
   float weight_mean = 0.0f;
   // Split blocks: the finest level, lent by the map (Octree::acquire_finest), null until then.
   FinestLevel<VoxelT>* finest = nullptr;
+  // Split blocks: scale 1, lent by the map (Octree::acquire_mid; a block with a finest level
+  // always has one), null until then.
+  MidLevel<VoxelT>* mid = nullptr;
   // Block voxel indices kInlineBegin .. 584.
   VoxelT inline_voxels[kInlineCount] = {};
 
@@ -102,19 +117,38 @@ struct VoxelBlock {
       return true;
     }
   }
+  // Whether scale 1 has storage (always for single-resolution blocks).
+  bool has_mid() const {
+    if constexpr (kSplitFinest) {
+      return mid != nullptr;
+    } else {
+      return true;
+    }
+  }
+  // Block voxel index of the first voxel with storage (0, 512 or 576): voxels from there on may
+  // be written.
+  int first_stored_voxel() const {
+    return has_finest() ? 0 : has_mid() ? kBlockFinestVoxelCount : block_scale_offset(2);
+  }
   // Minimum finest voxel of the block, cube coordinates.
   Eigen::Vector3i min_voxel() const { return coords * kBlockSide; }
 
   // Voxel by block voxel index (0..584, see block_voxel_index).
   VoxelT& voxel(int index) {
     if constexpr (kSplitFinest) {
-      if (index < kBlockFinestVoxelCount) return writable_finest()[index];
+      if (index < kInlineBegin) {
+        if (index < kBlockFinestVoxelCount) return writable_finest()[index];
+        return writable_mid()[index - kBlockFinestVoxelCount];
+      }
     }
     return inline_voxels[index - kInlineBegin];
   }
   const VoxelT& voxel(int index) const {
     if constexpr (kSplitFinest) {
-      if (index < kBlockFinestVoxelCount) return readable_finest()[index];
+      if (index < kInlineBegin) {
+        if (index < kBlockFinestVoxelCount) return readable_finest()[index];
+        return readable_mid()[index - kBlockFinestVoxelCount];
+      }
     }
     return inline_voxels[index - kInlineBegin];
   }
@@ -133,13 +167,13 @@ struct VoxelBlock {
   // The block_scale_count(scale) voxels of one level, contiguous.
   VoxelT* scale_begin(int scale) {
     if constexpr (kSplitFinest) {
-      if (scale == 0) return writable_finest();
+      if (scale < 2) return scale == 0 ? writable_finest() : writable_mid();
     }
     return inline_voxels + (block_scale_offset(scale) - kInlineBegin);
   }
   const VoxelT* scale_begin(int scale) const {
     if constexpr (kSplitFinest) {
-      if (scale == 0) return readable_finest();
+      if (scale < 2) return scale == 0 ? readable_finest() : readable_mid();
     }
     return inline_voxels + (block_scale_offset(scale) - kInlineBegin);
   }
@@ -151,6 +185,13 @@ struct VoxelBlock {
   }
   const VoxelT* readable_finest() const {
     return finest != nullptr ? finest->voxels : kUnobservedFinestLevel<VoxelT>.voxels;
+  }
+  VoxelT* writable_mid() {
+    OCTOFUSE_CHECK(mid != nullptr);  // writes at scale 1 need acquire_mid() first
+    return mid->voxels;
+  }
+  const VoxelT* readable_mid() const {
+    return mid != nullptr ? mid->voxels : kUnobservedMidLevel<VoxelT>.voxels;
   }
 };
 

@@ -65,8 +65,10 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("voxels_updated").value(s.integration.voxels_updated);
   json.key("blocks_evicted").value(static_cast<std::uint64_t>(s.eviction.evicted));
   json.key("blocks_demoted").value(static_cast<std::uint64_t>(s.eviction.demoted));
+  json.key("blocks_demoted_mid").value(static_cast<std::uint64_t>(s.eviction.demoted_mid));
   json.key("pool_refusals").value(static_cast<std::uint64_t>(s.integration.pool_refusals));
   json.key("node_refusals").value(static_cast<std::uint64_t>(s.integration.node_refusals));
+  json.key("mid_refusals").value(static_cast<std::uint64_t>(s.integration.mid_refusals));
   json.key("free_space_refused").value(static_cast<std::uint64_t>(s.free_space.pool_refused));
   json.key("store_written").value(static_cast<std::uint64_t>(s.store.written));
   json.key("store_unchanged").value(static_cast<std::uint64_t>(s.store.unchanged));

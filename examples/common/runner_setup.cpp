@@ -180,6 +180,7 @@ bool plausible_intrinsics(const PinholeCamera& camera, std::string* why) {
 struct PoolSizes {
   std::uint32_t blocks = 0;
   std::uint32_t finest = 0;  // 0: one per block
+  std::uint32_t mid = 0;     // 0: one per block
 };
 
 // Pool capacities from --max-blocks, or from --map-memory. A multires block takes its finest level
@@ -210,11 +211,22 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
         std::min(kMaxBlocks, bytes / static_cast<double>(Map::kBytesPerBlockWorstCase)));
     return sizes;
   }
-  // Each block with room for its mid level (scale 1): blocks at scale 1 are most of a view's
-  // blocks at 1 cm.
-  sizes.blocks = static_cast<std::uint32_t>(std::min(
-      kMaxBlocks,
-      0.5 * bytes / static_cast<double>(sizeof(typename Map::Block) + sizeof(typename Map::Mid))));
+  // Mid levels (scale 1) for the share of blocks that may integrate that fine: with eviction,
+  // the share of the depth range where scale 1 reaches (twice scale 0's depth, scale_for_ratio();
+  // 2 mm at QVGA: 1.75 m of 4, where 7-Scenes has a quarter of its blocks), since blocks past the
+  // pool integrate at scale 2 until eviction gives the farthest blocks' mid levels back. Without
+  // eviction nothing would give them back: one per block.
+  const double mid_share =
+      options.eviction.enabled
+          ? std::min(1.0, 2.0 * scale0_max_depth_m / static_cast<double>(defaults.fusion.far_m))
+          : 1.0;
+  sizes.blocks = static_cast<std::uint32_t>(
+      std::min(kMaxBlocks, 0.5 * bytes /
+                               (static_cast<double>(sizeof(typename Map::Block)) +
+                                mid_share * static_cast<double>(sizeof(typename Map::Mid)))));
+  sizes.mid = mid_share >= 1.0 ? 0
+                               : std::max<std::uint32_t>(
+                                     1, static_cast<std::uint32_t>(mid_share * sizes.blocks));
   sizes.finest = static_cast<std::uint32_t>(
       std::min(static_cast<double>(sizes.blocks),
                0.5 * bytes / static_cast<double>(sizeof(typename Map::Finest))));
@@ -325,6 +337,11 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
   PipelineConfig config =
       default_pipeline_config(input_camera, options.voxel_size_m, depth, pools.blocks, centre_W);
   config.map.finest_capacity = pools.finest;
+  config.map.mid_capacity = pools.mid;
+  // A loaded map's blocks may each hold a mid level (the header does not count them).
+  if (load_map && pools.mid != 0) {
+    config.map.mid_capacity = std::min(pools.blocks, std::max(pools.mid, loaded.block_count));
+  }
   if (load_map) {
     config.map.origin_W = loaded.origin_W;
     config.map.voxel_size_m = loaded.voxel_size_m;

@@ -95,6 +95,7 @@ struct EvictionRun {
   std::vector<FrameStats> stats;
   std::vector<Eigen::Vector3i> final_blocks;  // the pool's block coordinates, in pool order
   std::uint64_t allocations = 0;              // heap allocations while processing frames
+  std::uint32_t final_mid_less_fine = 0;      // blocks at scale 0 or 1 without a mid level
 };
 
 EvictionRun run_evicting(const sim::SimConfig& sim_config, const PipelineConfig& config) {
@@ -120,7 +121,11 @@ EvictionRun run_evicting(const sim::SimConfig& sim_config, const PipelineConfig&
     out.allocations = scope.allocations();
   }
   for (std::uint32_t i = 0; i < pipeline.map().block_count(); ++i) {
-    out.final_blocks.push_back(pipeline.map().block(i).coords);
+    const VoxelBlock<MultiresVoxel>& block = pipeline.map().block(i);
+    out.final_blocks.push_back(block.coords);
+    if (!block.has_mid() && block.integrated() && block.current_scale < 2) {
+      ++out.final_mid_less_fine;
+    }
   }
   return out;
 }
@@ -203,6 +208,56 @@ TEST_CASE("a pool far smaller than the scene evicts instead of losing tracking, 
   REQUIRE(one.final_blocks == two.final_blocks);
   for (std::size_t i = 0; i < one.stats.size(); ++i) {
     REQUIRE(one.stats[i].eviction.evicted == two.stats[i].eviction.evicted);
+  }
+}
+
+TEST_CASE("a mid-level pool short of the scene gives the farthest blocks' mid levels back") {
+  const sim::SimConfig sim_config = room_sim(200);
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  std::vector<FrameStats> unbounded;
+  const std::vector<Se3d> unbounded_poses =
+      run<MultiresVoxel>(sim_config, small_config(truth, kRoomVoxel_m, 1), &unbounded);
+  std::uint32_t view_mid = 0;  // most blocks one frame integrated at scale 1 or 0
+  for (const FrameStats& s : unbounded) {
+    view_mid =
+        std::max(view_mid, s.integration.blocks_per_scale[0] + s.integration.blocks_per_scale[1]);
+  }
+  const std::uint32_t scene_mid = unbounded.back().memory.mid_used;
+  const std::uint32_t capacity = view_mid * 8 / 5;
+  INFO("scene " << scene_mid << " mid levels, largest view " << view_mid);
+  REQUIRE(capacity < scene_mid * 2 / 3);
+
+  PipelineConfig config = small_config(truth, kRoomVoxel_m, 1);
+  config.map.mid_capacity = capacity;
+  config.eviction.enabled = true;
+  const EvictionRun one = run_evicting(sim_config, config);
+  REQUIRE(one.allocations == 0);
+  std::uint64_t demoted_mid = 0;
+  for (std::size_t i = 0; i < one.stats.size(); ++i) {
+    const FrameStats& s = one.stats[i];
+    CAPTURE(i);
+    REQUIRE((s.result != FrameResult::lost || unbounded[i].result == FrameResult::lost));
+    REQUIRE(s.memory.mid_used <= capacity);
+    REQUIRE(s.eviction.evicted == 0);  // the block pool holds the scene
+    REQUIRE(s.eviction.demoted_mid <= s.eviction.demoted);
+    REQUIRE(s.integration.pool_refusals ==
+            s.integration.mid_refusals + s.integration.finest_refusals);
+    demoted_mid += s.eviction.demoted_mid;
+  }
+  REQUIRE(demoted_mid >= scene_mid - capacity);
+  REQUIRE(one.final_mid_less_fine == 0u);  // every block without a mid level is at scale 2 or 3
+  const double error_m = rms_error_m(one.poses, truth);
+  const double unbounded_error_m = rms_error_m(unbounded_poses, truth);
+  INFO("RMS error " << error_m << " m, unbounded " << unbounded_error_m << " m");
+  REQUIRE(error_m <= 1.15 * unbounded_error_m + 0.001);
+
+  config.workers = 2;
+  const EvictionRun two = run_evicting(sim_config, config);
+  REQUIRE(bit_identical(one.poses, two.poses));
+  for (std::size_t i = 0; i < one.stats.size(); ++i) {
+    REQUIRE(one.stats[i].eviction.demoted_mid == two.stats[i].eviction.demoted_mid);
+    REQUIRE(one.stats[i].memory.mid_used == two.stats[i].memory.mid_used);
   }
 }
 

@@ -714,13 +714,14 @@ bool read_block_fields(RecordReader& r, int depth, BlockFields& out) {
   return true;
 }
 
-// Whether a split block read from a record needs a mid level: it integrated at scale 1 or 0, or
-// its scale-1 voxels (the record's, `mid`) are not all unobserved. A block that never went finer
-// than scale 2 has nothing there, and reads the same without one.
+// Whether a split block read from a record needs a mid level: it holds a finest level, is at
+// scale 1, or its scale-1 voxels (the record's, `mid`) are not all unobserved. A block that never
+// went finer than scale 2, or gave its mid level back, has nothing there and reads the same
+// without one.
 template <typename VoxelT>
 bool needs_mid_level(const BlockFields& fields, const VoxelT* mid) {
   if (fields.has_finest) return true;
-  if (fields.min_scale != kNeverIntegrated && fields.min_scale <= 1) return true;
+  if (fields.min_scale != kNeverIntegrated && fields.current <= 1) return true;
   return std::memcmp(mid, kUnobservedMidLevel<VoxelT>.voxels,
                      sizeof(VoxelT) * kBlockMidVoxelCount) != 0;
 }

@@ -183,29 +183,51 @@ void Octree<VoxelT>::remove_empty_nodes(std::size_t empty_count) {
 
 template <typename VoxelT>
 void Octree<VoxelT>::release_finest(const std::uint32_t* indices, std::size_t count) {
+  release_levels(indices, count, 1);
+}
+
+template <typename VoxelT>
+void Octree<VoxelT>::release_mid(const std::uint32_t* indices, std::size_t count) {
+  release_levels(indices, count, 2);
+}
+
+template <typename VoxelT>
+void Octree<VoxelT>::release_levels(const std::uint32_t* indices, std::size_t count,
+                                    int keep_scale) {
   OCTOFUSE_CHECK(reserved_);
   if constexpr (kSplitFinest) {
     ++stamp_;
     std::size_t parents = 0;
     for (std::size_t i = 0; i < count; ++i) {
       Block& block = blocks_[indices[i]];
-      if (block.finest == nullptr) continue;
-      if (block.integrated() && block.current_scale == 0) {
-        if (block.mip_scale < 1) {
-          propagate_block_up(block, 0, 1);
-          block.mip_scale = 1;
+      const bool finest = block.finest != nullptr;
+      const bool mid = keep_scale == 2 && block.mid != nullptr;
+      if (!finest && !mid) continue;
+      if (block.integrated() && block.current_scale < keep_scale) {
+        // The scale kept is brought up to date from the coarsest level that is (mip_scale).
+        if (block.mip_scale < keep_scale) {
+          propagate_block_up(block, std::max<int>(block.mip_scale, block.current_scale),
+                             keep_scale);
+          block.mip_scale = static_cast<std::int8_t>(keep_scale);
         }
-        block.current_scale = 1;
+        block.current_scale = static_cast<std::int8_t>(keep_scale);
         update_block_summary(block);
         add_summary_node(block.parent_node, parents);
       }
-      finest_.release(finest_.index_of(block.finest));
-      block.finest = nullptr;
+      if (finest) {
+        finest_.release(finest_.index_of(block.finest));
+        block.finest = nullptr;
+      }
+      if (mid) {
+        mid_.release(mid_.index_of(block.mid));
+        block.mid = nullptr;
+      }
     }
     propagate_node_summaries(parents, nullptr, /*reset_unobserved=*/true);
   } else {
     (void)indices;
     (void)count;
+    (void)keep_scale;
   }
 }
 

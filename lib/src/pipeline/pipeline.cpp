@@ -376,6 +376,8 @@ Status Pipeline<VoxelT>::init(void* buffer, std::size_t bytes, const PipelineCon
     evict_low_blocks_ = mark(memory.block_capacity, config.eviction.low_water);
     evict_high_finest_ = mark(memory.finest_capacity, config.eviction.high_water);
     evict_low_finest_ = mark(memory.finest_capacity, config.eviction.low_water);
+    evict_high_mid_ = mark(memory.mid_capacity, config.eviction.high_water);
+    evict_low_mid_ = mark(memory.mid_capacity, config.eviction.low_water);
     evict_high_nodes_ = mark(memory.node_capacity, config.eviction.high_water);
     evict_low_nodes_ = mark(memory.node_capacity, config.eviction.low_water);
   }
@@ -640,6 +642,7 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   const bool finest_pool = Map::kSplitFinest && memory.finest_capacity > 0;
   std::uint32_t over_blocks = 0;
   std::uint32_t over_finest = 0;
+  std::uint32_t over_mid = 0;
   if (memory.blocks_used > evict_high_blocks_) {
     over_blocks = memory.blocks_used - evict_low_blocks_;
   }
@@ -658,6 +661,9 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   }
   if (finest_pool && memory.finest_used > evict_high_finest_) {
     over_finest = memory.finest_used - evict_low_finest_;
+  }
+  if (finest_pool && memory.mid_used > evict_high_mid_) {
+    over_mid = memory.mid_used - evict_low_mid_;
   }
   // The node pool: over its high mark, or short of the nodes the frame's new blocks need.
   const std::uint64_t nodes_after = std::uint64_t{memory.nodes_used} + new_nodes;
@@ -678,7 +684,7 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
     }
   }
   must_go = std::max(must_go, must_go_nodes);
-  if (over_blocks == 0 && over_finest == 0) return report;
+  if (over_blocks == 0 && over_finest == 0 && over_mid == 0) return report;
   report.triggered = true;
   // Rank every block: not updated by the previous frame, not read back by this one and not in
   // this frame's list first, then read back by this one (in view), then the previous frame's
@@ -706,6 +712,7 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
     c.morton = block.morton;
     c.index = i;
     c.has_finest = block.has_finest() && Map::kSplitFinest;
+    c.has_mid = block.has_mid() && Map::kSplitFinest;
     c.clean = block.stored_clean != 0;
   }
   std::sort(eviction_candidates_, eviction_candidates_ + count,
@@ -713,16 +720,21 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
               if (a.rank != b.rank) return a.rank > b.rank;
               return a.morton < b.morton;
             });
-  // Evicted blocks fill eviction_indices_ from the front, demoted ones from the back. The budget
-  // bounds evictions and demotions together, and, with a store, the records written (a block read
-  // back and unchanged writes none). Room for the frame's new blocks (must_go) is made whatever
-  // the write budget: a refused block is a hole in the map, a write more is a little disk time.
+  // Evicted blocks fill eviction_indices_ from the front, demoted ones from the back (those that
+  // give their mid level back too marked by kDemoteMid). The budget bounds evictions and
+  // demotions together, and, with a store, the records written (a block read back and unchanged
+  // writes none). Room for the frame's new blocks (must_go) is made whatever the write budget: a
+  // refused block is a hole in the map, a write more is a little disk time.
+  constexpr std::uint32_t kDemoteMid = 0x80000000u;  // pool indices are below 2^30
   std::uint32_t evicted = 0;
   std::uint32_t demoted = 0;
+  std::uint32_t demoted_mid = 0;
   std::uint32_t writes = 0;
-  for (std::uint32_t i = 0; i < count && (over_blocks > 0 || over_finest > 0); ++i) {
+  for (std::uint32_t i = 0; i < count && (over_blocks > 0 || over_finest > 0 || over_mid > 0);
+       ++i) {
     const EvictionCandidate& c = eviction_candidates_[i];
-    if (over_blocks == 0 && !c.has_finest) continue;
+    const bool demote_mid = c.has_mid && over_mid > 0;
+    if (over_blocks == 0 && !(c.has_finest && over_finest > 0) && !demote_mid) continue;
     const bool write = over_blocks > 0 && store_ != nullptr && !c.clean;
     const bool writes_spent = write && writes == config_.budget.max_store_writes;
     if (evicted + demoted == config_.budget.max_evictions || (writes_spent && evicted >= must_go)) {
@@ -734,17 +746,29 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
       eviction_indices_[evicted++] = c.index;
       writes += write ? 1 : 0;
       --over_blocks;
+    } else if (demote_mid) {
+      eviction_indices_[count - 1 - demoted++] = c.index | kDemoteMid;
+      ++demoted_mid;
     } else {
       eviction_indices_[count - 1 - demoted++] = c.index;
     }
     if (c.has_finest && over_finest > 0) --over_finest;
+    if (c.has_mid && over_mid > 0) --over_mid;
   }
   if (store_ != nullptr) spill(evicted);
-  // Demote first: eviction moves blocks to other pool indices.
-  map_.release_finest(eviction_indices_ + (count - demoted), demoted);
+  // Demote first (eviction moves blocks to other pool indices): the blocks that keep scale 2,
+  // gathered at the front of the demoted range, then those that keep scale 1.
+  std::uint32_t* demoted_begin = eviction_indices_ + (count - demoted);
+  std::uint32_t* demoted_end = eviction_indices_ + count;
+  std::uint32_t* keep_1 = std::partition(demoted_begin, demoted_end,
+                                         [](std::uint32_t v) { return (v & kDemoteMid) != 0; });
+  for (std::uint32_t* v = demoted_begin; v != keep_1; ++v) *v &= ~kDemoteMid;
+  map_.release_mid(demoted_begin, static_cast<std::size_t>(keep_1 - demoted_begin));
+  map_.release_finest(keep_1, static_cast<std::size_t>(demoted_end - keep_1));
   map_.evict_blocks(eviction_indices_, evicted);
   report.evicted = evicted;
   report.demoted = demoted;
+  report.demoted_mid = demoted_mid;
   return report;
 }
 

@@ -308,5 +308,57 @@ TEST_CASE("release_finest keeps a block at scale 1 with the means of its finest 
   REQUIRE(a.map.memory().finest_used == 1u);
 }
 
+TEST_CASE("release_mid keeps a block at scale 2 with the means of its finer voxels",
+          "[map][octree][evict]") {
+  MapFixture<MultiresVoxel> a(small_config(256, 256));
+  fill_evict_grid(a.map, [](const Eigen::Vector3i&) { return true; });
+  // What scale 2 must become: the grid's scale-0 blocks through release_finest's scale 1 first.
+  MapFixture<MultiresVoxel> ref(small_config(256, 256));
+  fill_evict_grid(ref.map, [](const Eigen::Vector3i&) { return true; });
+  std::vector<std::uint32_t> all;
+  for (std::uint32_t i = 0; i < a.map.block_count(); ++i) all.push_back(i);
+  ref.map.release_finest(all.data(), all.size());
+  const std::uint32_t blocks = a.map.block_count();
+  {
+    test::AllocationScope scope;
+    a.map.release_mid(all.data(), all.size());
+    REQUIRE(scope.allocations() == 0);
+  }
+  REQUIRE(a.map.memory().finest_used == 0u);
+  REQUIRE(a.map.memory().mid_used == 0u);
+  REQUIRE(a.map.block_count() == blocks);  // every block stays
+  for (std::uint32_t i = 0; i < blocks; ++i) {
+    const VoxelBlock<MultiresVoxel>& block = a.map.block(i);
+    const VoxelBlock<MultiresVoxel>& scale_1 = ref.map.block(i);
+    REQUIRE(block.coords == scale_1.coords);
+    CAPTURE(block.coords.x(), block.coords.y(), block.coords.z());
+    REQUIRE_FALSE(block.has_finest());
+    REQUIRE_FALSE(block.has_mid());
+    REQUIRE(block.current_scale == 2);
+    REQUIRE(block.mip_scale == 2);
+    // Scale 2 is the mean of the 8 scale-1 voxels it covers (all observed).
+    for (int z = 0; z < 2; ++z) {
+      for (int y = 0; y < 2; ++y) {
+        for (int x = 0; x < 2; ++x) {
+          float sum = 0.0f;
+          for (int k = 0; k < 8; ++k) {
+            sum += scale_1.at(2 * x + (k & 1), 2 * y + ((k >> 1) & 1), 2 * z + ((k >> 2) & 1), 1).x;
+          }
+          REQUIRE(block.at(x, y, z, 2).x == sum / 8.0f);
+        }
+      }
+    }
+    // Scale 1 reads unobserved now; the summary describes scale 2.
+    REQUIRE_FALSE(voxel_observed(block.at(1, 1, 1, 1)));
+    float lo = 1.0f;
+    for (int k = 0; k < block_scale_count(2); ++k) lo = std::min(lo, block.scale_begin(2)[k].x);
+    REQUIRE(block.tsdf_min == lo);
+  }
+  // Both pools lend their levels again.
+  REQUIRE(a.map.acquire_finest(a.map.block(0)).ok());
+  REQUIRE(a.map.memory().finest_used == 1u);
+  REQUIRE(a.map.memory().mid_used == 1u);
+}
+
 }  // namespace
 }  // namespace octofuse

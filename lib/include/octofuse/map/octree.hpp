@@ -455,6 +455,9 @@ class Octree {
   // down-propagation, when it next integrates at scale 0 and the pool lends it a level. Blocks
   // without a finest level are left alone; single-res maps: nothing happens. Not thread-safe.
   void release_finest(const std::uint32_t* indices, std::size_t count);
+  // The same one level further: the blocks give back their finest and mid levels and keep scale 2
+  // (brought up to date from the finest scale they hold first).
+  void release_mid(const std::uint32_t* indices, std::size_t count);
 
   // Blocks removed by evict_blocks() since reserve()/clear().
   std::uint64_t evicted() const { return evicted_; }
@@ -467,6 +470,8 @@ class Octree {
 
  private:
   void reset_contents(bool clear_hash);
+  // release_finest() (keep_scale 1) and release_mid() (2).
+  void release_levels(const std::uint32_t* indices, std::size_t count, int keep_scale);
 
   // The inner nodes on the way to the last key allocate_one() walked to: node[l] is the node of
   // level l containing `morton`, for l < levels. Sorted keys share most of their way, so the next

@@ -101,8 +101,9 @@ struct EvictionConfig {
 // What eviction did in one frame.
 struct EvictionReport {
   std::uint32_t evicted = 0;  // blocks removed before this frame's integration
-  std::uint32_t demoted = 0;  // blocks kept at scale 1 that gave their finest level back
-  bool triggered = false;     // a pool (blocks, finest levels, inner nodes) was above its mark
+  std::uint32_t demoted = 0;  // blocks that gave their finest (and mid) level back
+  std::uint32_t demoted_mid = 0;  // of those, blocks kept at scale 2 that gave their mid level back
+  bool triggered = false;  // a pool (blocks, finest or mid levels, inner nodes) was above its mark
   bool budget_hit = false;    // max_evictions stopped it above the low-water mark
 };
 
@@ -501,6 +502,7 @@ class Pipeline {
     std::uint64_t morton = 0;
     std::uint32_t index = 0;
     bool has_finest = false;
+    bool has_mid = false;
     bool clean = false;  // read back and unchanged: evicting it writes nothing
     static bool key_less(const EvictionCandidate& a, const EvictionCandidate& b) {
       return a.morton < b.morton;
@@ -513,6 +515,8 @@ class Pipeline {
   std::uint32_t evict_low_blocks_ = 0;
   std::uint32_t evict_high_finest_ = 0;
   std::uint32_t evict_low_finest_ = 0;
+  std::uint32_t evict_high_mid_ = 0;
+  std::uint32_t evict_low_mid_ = 0;
   BlockStore* store_ = nullptr;
   BlockStore* free_store_ = nullptr;
   std::uint8_t* store_record_ = nullptr;  // one block record (with eviction)

@@ -41,6 +41,7 @@ Fixture& fixture() {
     made->config = octofuse::default_pipeline_config(camera, 0.05f, 7, 2048,
                                                      Eigen::Vector3f(0.0f, 0.0f, 1.0f));
     made->config.map.finest_capacity = 256;  // a small finest pool: refusals get exercised too
+    made->config.map.mid_capacity = 512;     // and a small mid pool
     // A small per-frame block list: init takes 0.05 ms instead of 18 (its table is cleared at
     // init), and frames that overflow it are exercised.
     made->config.fusion.max_blocks_per_frame = 4096;

@@ -52,9 +52,16 @@ TEST_CASE("single-res blocks hold all levels inline, multires blocks only the co
   const std::size_t header = static_cast<std::size_t>(
       reinterpret_cast<const char*>(probe.inline_voxels) - reinterpret_cast<const char*>(&probe));
   CHECK(header <= kMaxHeaderBytes);
-  CHECK(sizeof(VoxelBlock<TsdfVoxel>) == header + kBlockVoxelCount * sizeof(TsdfVoxel));
+  // The header, the inline voxels and the tail padding to the block's alignment (32-bit targets
+  // pad a 60-byte header's blocks to 8 bytes).
+  const auto padded = [](std::size_t bytes, std::size_t align) {
+    return (bytes + align - 1) / align * align;
+  };
+  CHECK(sizeof(VoxelBlock<TsdfVoxel>) ==
+        padded(header + kBlockVoxelCount * sizeof(TsdfVoxel), alignof(VoxelBlock<TsdfVoxel>)));
   // Scales 2 and 3 inline: 9 voxels.
-  CHECK(sizeof(VoxelBlock<MultiresVoxel>) == header + 9 * sizeof(MultiresVoxel));
+  CHECK(sizeof(VoxelBlock<MultiresVoxel>) ==
+        padded(header + 9 * sizeof(MultiresVoxel), alignof(VoxelBlock<MultiresVoxel>)));
   CHECK(sizeof(FinestLevel<MultiresVoxel>) == kBlockFinestVoxelCount * sizeof(MultiresVoxel));
   CHECK(sizeof(MidLevel<MultiresVoxel>) == 64 * sizeof(MultiresVoxel));
   CHECK_FALSE(VoxelBlock<TsdfVoxel>::kSplitFinest);

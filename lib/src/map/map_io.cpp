@@ -1,5 +1,6 @@
 #include "octofuse/map/map_io.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
@@ -1136,13 +1137,15 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   const Eigen::Vector3i coords = voxel_to_block(key_corner_voxel(key));
   if (map.find_block_index(coords) != kNoIndex) return StatusCode::failed_precondition;
   // With the finest-level pool full the block comes back demoted, as release_finest() leaves it;
-  // with the mid-level pool full it stays stored.
-  bool demote = false;
+  // with the mid-level pool full, as release_mid() does.
+  bool demote_finest = false;
+  bool demote_mid = false;
   const bool mid = Block::kSplitFinest && needs_mid_level(fields, scratch + kBlockFinestVoxelCount);
   if (Block::kSplitFinest && (fields.has_finest || mid)) {
     const MapMemory memory = map.memory();
-    demote = fields.has_finest && memory.finest_used >= memory.finest_capacity;
-    if (mid && memory.mid_used >= memory.mid_capacity) return StatusCode::resource_exhausted;
+    demote_mid = mid && memory.mid_used >= memory.mid_capacity;
+    demote_finest =
+        fields.has_finest && (demote_mid || memory.finest_used >= memory.finest_capacity);
   }
   AllocationCounts counts;
   const Status allocated = map.allocate(&key, 1, &counts);
@@ -1150,11 +1153,11 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   if (!allocated.ok() || counts.new_blocks != 1) return StatusCode::out_of_range;
   const std::uint32_t index = map.find_block_index(coords);
   Block& block = map.block(index);
-  if (mid) {
+  if (mid && !demote_mid) {
     const Status acquired = map.acquire_mid(block);
     OCTOFUSE_CHECK(acquired.ok());  // room checked above
   }
-  if (Block::kSplitFinest && fields.has_finest && !demote) {
+  if (Block::kSplitFinest && fields.has_finest && !demote_finest) {
     const Status finest = map.acquire_finest(block);
     OCTOFUSE_CHECK(finest.ok());  // room checked above
   }
@@ -1167,7 +1170,7 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   block.tsdf_mean = fields.summary[2];
   block.weight_mean = fields.summary[3];
   block.stored_clean = 1;
-  if (fields.has_finest && !demote) {
+  if (fields.has_finest && !demote_finest) {
     std::copy(scratch, scratch + kBlockFinestVoxelCount, block.scale_begin(0));
   }
   const int inline_first = kBlockFinestVoxelCount + kBlockMidVoxelCount;
@@ -1176,20 +1179,29 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   }
   std::copy(scratch + inline_first, scratch + kBlockVoxelCount, block.scale_begin(2));
   if constexpr (Block::kSplitFinest) {
-    if (demote) {
-      if (block.integrated() && block.current_scale == 0) {
-        if (block.mip_scale < 1) {
-          // Scale 1 from the record's finest voxels, through a level lent for the moment.
-          FinestLevel<VoxelT> lent;
-          std::copy(scratch, scratch + kBlockFinestVoxelCount, lent.voxels);
-          block.finest = &lent;
-          propagate_block_up(block, 0, 1);
-          block.finest = nullptr;
-          block.mip_scale = 1;
+    if (demote_finest || demote_mid) {
+      // The scale kept from the record's finer voxels, through levels lent for the moment.
+      const int keep = demote_mid ? 2 : 1;
+      FinestLevel<VoxelT> lent_finest;
+      MidLevel<VoxelT> lent_mid;
+      if (demote_finest) {
+        std::copy(scratch, scratch + kBlockFinestVoxelCount, lent_finest.voxels);
+        block.finest = &lent_finest;
+      }
+      if (demote_mid) {
+        std::copy(scratch + kBlockFinestVoxelCount, scratch + inline_first, lent_mid.voxels);
+        block.mid = &lent_mid;
+      }
+      if (block.integrated() && block.current_scale < keep) {
+        if (block.mip_scale < keep) {
+          propagate_block_up(block, std::max<int>(block.mip_scale, block.current_scale), keep);
+          block.mip_scale = static_cast<std::int8_t>(keep);
         }
-        block.current_scale = 1;
+        block.current_scale = static_cast<std::int8_t>(keep);
         Octree<VoxelT>::update_block_summary(block);
       }
+      if (demote_finest) block.finest = nullptr;
+      if (demote_mid) block.mid = nullptr;
     }
   }
   return index;

@@ -117,6 +117,47 @@ TEST_CASE("with the finest-level pool full a block comes back at scale 1, brough
   REQUIRE(got.tsdf_mean == a.map.block(index.value()).tsdf_mean);
 }
 
+TEST_CASE(
+    "with the mid-level pool full a stored block comes back at scale 2, as release_mid leaves it",
+    "[map][store]") {
+  MapFixture<MultiresVoxel> a(small_config(8, 64));
+  MapConfig full_config = small_config(8, 64);
+  full_config.mid_capacity = 1;
+  MapFixture<MultiresVoxel> b(full_config);
+  // Fill b's one mid level.
+  Result<std::uint32_t> other = b.map.allocate_block(Eigen::Vector3i(5, 5, 5));
+  REQUIRE(other.ok());
+  REQUIRE(b.map.acquire_mid(b.map.block(other.value())).ok());
+  for (int scale : {0, 1}) {
+    CAPTURE(scale);
+    Result<std::uint32_t> index = a.map.allocate_block(Eigen::Vector3i(1 + 4 * scale, 2, 3));
+    REQUIRE(index.ok());
+    VoxelBlock<MultiresVoxel>& block = a.map.block(index.value());
+    fill_block(a.map, block, scale);
+    block.mip_scale = static_cast<std::int8_t>(scale);  // coarser levels not yet brought up
+    std::vector<std::uint8_t> record(block_record_max_bytes<MultiresVoxel>());
+    const Result<std::size_t> size = encode_block_record(block, record.data(), record.size());
+    REQUIRE(size.ok());
+    const Result<std::uint32_t> restored = restore_block_record(b.map, record.data(), size.value());
+    REQUIRE(restored.ok());
+    const VoxelBlock<MultiresVoxel>& got = b.map.block(restored.value());
+    REQUIRE_FALSE(got.has_finest());
+    REQUIRE_FALSE(got.has_mid());
+    REQUIRE(got.current_scale == 2);
+    REQUIRE(got.mip_scale == 2);
+    REQUIRE(b.map.memory().mid_used == 1u);
+    REQUIRE(b.map.memory().finest_used == 0u);
+    // Scales 2 and 3 as release_mid() makes them from the same block.
+    a.map.release_mid(&index.value(), 1);
+    const VoxelBlock<MultiresVoxel>& reference = a.map.block(index.value());
+    for (int i = block_scale_offset(2); i < kBlockVoxelCount; ++i) {
+      REQUIRE(got.voxel(i).x == reference.voxel(i).x);
+      REQUIRE(got.voxel(i).y == reference.voxel(i).y);
+    }
+    REQUIRE(got.tsdf_mean == reference.tsdf_mean);
+  }
+}
+
 TEST_CASE("a record's scale-1 voxels come back whenever they hold anything", "[map][store]") {
   // A block at scale 2 whose scale 1 is not unobserved (what no integration writes, but a record
   // may hold): the restored block takes a mid level and keeps them.

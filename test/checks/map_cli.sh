@@ -44,6 +44,9 @@ grep -q "^voxel size      0.04 m$" "${work}/info.out" || fail "info: no voxel si
 grep -q "^frames          4$" "${work}/info.out" || fail "info: no frame count"
 grep -q "^free space      [1-9][0-9]* nodes, " "${work}/info.out" || fail "info: no free-space nodes"
 grep -q "^coarse blocks   [1-9][0-9]* would hold the [1-9][0-9]* fused blocks$" "${work}/info.out" || fail "info: no coarse estimate"
+# A fused block holds a mid level exactly when it fused at scale 1 or 0 (nothing was demoted).
+awk '/^  at scale [01] /{fine += $4} /^mid levels /{mid = $3; seen = 1}
+     END{exit !(seen && mid == fine)}' "${work}/info.out" || fail "info: mid levels not the blocks at scales 0-1"
 "${map}" mesh "${work}/a.ofmap" "${work}/a_mesh.ply" >/dev/null 2>&1 || fail "mesh failed"
 cmp -s "${work}/a_mesh.ply" "${work}/a/mesh.ply" || fail "octofuse-map mesh differs from the run's mesh.ply"
 

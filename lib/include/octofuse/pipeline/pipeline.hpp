@@ -100,11 +100,11 @@ struct EvictionConfig {
 
 // What eviction did in one frame.
 struct EvictionReport {
-  std::uint32_t evicted = 0;  // blocks removed before this frame's integration
-  std::uint32_t demoted = 0;  // blocks that gave their finest (and mid) level back
+  std::uint32_t evicted = 0;      // blocks removed before this frame's integration
+  std::uint32_t demoted = 0;      // blocks that gave their finest (and mid) level back
   std::uint32_t demoted_mid = 0;  // of those, blocks kept at scale 2 that gave their mid level back
-  bool triggered = false;  // a pool (blocks, finest or mid levels, inner nodes) was above its mark
-  bool budget_hit = false;    // max_evictions stopped it above the low-water mark
+  bool triggered = false;   // a pool (blocks, finest or mid levels, inner nodes) was above its mark
+  bool budget_hit = false;  // max_evictions stopped it above the low-water mark
 };
 
 // What the block store did in one frame (Pipeline::set_block_store()).

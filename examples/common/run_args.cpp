@@ -184,8 +184,8 @@ const RunOption kRunOptions[] = {
        return true;
      }},
     {"map-memory", "MB",
-     "memory for blocks and finest levels, when --max-blocks is not given\n"
-     "(default 1024)",
+     "memory for blocks and their finest and mid levels, when --max-blocks\n"
+     "is not given (default 1024)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 1.0, 1e6, &o.map_memory_mb, " needs megabytes in [1, 1e6]");
      },

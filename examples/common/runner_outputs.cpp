@@ -259,9 +259,15 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   json.key("pool_blocks_used").value(static_cast<std::uint64_t>(summary->map_memory.blocks_used));
   json.key("pool_block_capacity")
       .value(static_cast<std::uint64_t>(summary->map_memory.block_capacity));
+  json.key("pool_finest_used").value(static_cast<std::uint64_t>(summary->map_memory.finest_used));
+  json.key("pool_finest_capacity")
+      .value(static_cast<std::uint64_t>(summary->map_memory.finest_capacity));
+  json.key("pool_mid_used").value(static_cast<std::uint64_t>(summary->map_memory.mid_used));
+  json.key("pool_mid_capacity").value(static_cast<std::uint64_t>(summary->map_memory.mid_capacity));
   json.key("blocks_evicted").value(summary->map_memory.evicted);
   json.key("pool_refusals").value(summary->map_memory.refusals);
   json.key("node_refusals").value(summary->map_memory.node_refusals);
+  json.key("mid_refusals").value(summary->map_memory.mid_refusals);
   json.key("nodes_evicted").value(summary->map_memory.nodes_evicted);
   json.key("free_space_refusals").value(summary->free_space_refusals);
   json.key("store_written").value(static_cast<std::uint64_t>(summary->store_total.written));

@@ -1192,14 +1192,7 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
         std::copy(scratch + kBlockFinestVoxelCount, scratch + inline_first, lent_mid.voxels);
         block.mid = &lent_mid;
       }
-      if (block.integrated() && block.current_scale < keep) {
-        if (block.mip_scale < keep) {
-          propagate_block_up(block, std::max<int>(block.mip_scale, block.current_scale), keep);
-          block.mip_scale = static_cast<std::int8_t>(keep);
-        }
-        block.current_scale = static_cast<std::int8_t>(keep);
-        Octree<VoxelT>::update_block_summary(block);
-      }
+      Octree<VoxelT>::coarsen_block(block, keep);
       if (demote_finest) block.finest = nullptr;
       if (demote_mid) block.mid = nullptr;
     }

@@ -182,6 +182,24 @@ void Octree<VoxelT>::remove_empty_nodes(std::size_t empty_count) {
 }
 
 template <typename VoxelT>
+bool Octree<VoxelT>::coarsen_block(Block& block, int scale) {
+  if constexpr (kSplitFinest) {
+    if (!block.integrated() || block.current_scale >= scale) return false;
+    if (block.mip_scale < scale) {
+      propagate_block_up(block, std::max<int>(block.mip_scale, block.current_scale), scale);
+      block.mip_scale = static_cast<std::int8_t>(scale);
+    }
+    block.current_scale = static_cast<std::int8_t>(scale);
+    update_block_summary(block);
+    return true;
+  } else {
+    (void)block;
+    (void)scale;
+    return false;  // single-res blocks have no coarser levels to move to
+  }
+}
+
+template <typename VoxelT>
 void Octree<VoxelT>::release_finest(const std::uint32_t* indices, std::size_t count) {
   release_levels(indices, count, 1);
 }
@@ -203,17 +221,7 @@ void Octree<VoxelT>::release_levels(const std::uint32_t* indices, std::size_t co
       const bool finest = block.finest != nullptr;
       const bool mid = keep_scale == 2 && block.mid != nullptr;
       if (!finest && !mid) continue;
-      if (block.integrated() && block.current_scale < keep_scale) {
-        // The scale kept is brought up to date from the coarsest level that is (mip_scale).
-        if (block.mip_scale < keep_scale) {
-          propagate_block_up(block, std::max<int>(block.mip_scale, block.current_scale),
-                             keep_scale);
-          block.mip_scale = static_cast<std::int8_t>(keep_scale);
-        }
-        block.current_scale = static_cast<std::int8_t>(keep_scale);
-        update_block_summary(block);
-        add_summary_node(block.parent_node, parents);
-      }
+      if (coarsen_block(block, keep_scale)) add_summary_node(block.parent_node, parents);
       if (finest) {
         finest_.release(finest_.index_of(block.finest));
         block.finest = nullptr;

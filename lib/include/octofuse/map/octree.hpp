@@ -426,6 +426,11 @@ class Octree {
   // Recomputes a block's header summary (tsdf_min/max/mean, weight_mean) over the observed
   // voxels at its current scale.
   static void update_block_summary(Block& block);
+  // Moves an integrated block that is finer than `scale` to `scale`: that level is first brought
+  // up to date from the coarsest one that is (mip_scale), then the header summary describes it.
+  // Needs the levels it reads (release_finest/release_mid and restore_block_record() call it
+  // before giving them back). Multires only. Returns whether the block changed.
+  static bool coarsen_block(Block& block, int scale);
   // Refreshes the summaries of every inner node above the given blocks, bottom-up to the root
   // (each node once). A block contributes its header summary (tsdf_mean, weight_mean,
   // tsdf_min/max); a node contributes its summary. Means are over observed children only; a node

@@ -205,6 +205,20 @@ const RunOption kRunOptions[] = {
        *v = std::to_string(o.max_blocks);
        return o.max_blocks > 0;
      }},
+    {"prefault-blocks", "N",
+     "write the pages of the first N blocks (their levels and nodes) before\n"
+     "the first frame, so it pays no first-touch page faults (default 8192; 0: none)",
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 0, 1 << 30, integer))
+         return std::string(" needs a count in [0, 2^30]");
+       o.prefault_blocks = static_cast<std::uint32_t>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.prefault_blocks);
+       return true;
+     }},
     {"frames", "N", "stop after N frames (sim: also the sequence length)",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;

@@ -46,6 +46,9 @@ struct RunOptions {
   double odometry_noise[2] = {-1.0, -1.0};        // --odometry-noise M,R; <= 0: the defaults
   std::uint32_t max_blocks = 0;   // block pool capacity; 0 = from voxel size and map memory
   float map_memory_mb = 1024.0f;  // used when max_blocks is 0
+  // Blocks whose pool pages are written before the first frame (Pipeline::prefault): a view's
+  // worth at 1 cm, so the first frame pays no first-touch page faults. 0: none.
+  std::uint32_t prefault_blocks = 8192;
   PipelineBudget budget;
   // --deadline-ms: a per-frame time limit the budgets are derived from (0 = off); the cost model
   // starts from --deadline-calibration FILE when it exists and is written back to it after the

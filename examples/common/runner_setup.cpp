@@ -420,6 +420,7 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
                       "): " + pipeline.last_error());
   }
   summary->arena_bytes = bytes;
+  (void)pipeline.prefault(options.prefault_blocks);  // ok after a successful init()
   if (!options.map_file_path.empty()) {
     // The store belongs to one map geometry: voxel type, size, depth and origin.
     const MapConfig& map = pipeline.map().config();

@@ -99,17 +99,23 @@ std::string hex(std::uint64_t bits) {
   return text;
 }
 
-// Runs 6 frames of the small noisy sim (the first, then five tracked) at 2 cm with 1 and 3 workers
-// and checks the final pose's 12 doubles and a hash of every block's voxels against the pinned
-// bits; prints what it got, for re-pinning after a deliberate change.
+// Runs 6 frames of the small noisy sim (the first, then five tracked) at 2 cm with 1 and 3 workers,
+// and with 1 worker after Pipeline::prefault() of every pool page (which must change nothing), and
+// checks the final pose's 12 doubles and a hash of every block's voxels against the pinned bits;
+// prints what it got, for re-pinning after a deliberate change.
 template <typename VoxelT>
 void check_pinned_bits(MapKind map_kind, bool raycast_half,
                        const std::uint64_t (&expected_pose_bits)[12],
                        std::uint64_t expected_map_hash) {
   constexpr int kFrames = 6;
   const sim::SimConfig sim_config = small_sim(40);
-  for (const int workers : {1, 3}) {
-    CAPTURE(workers);
+  struct Run {
+    int workers;
+    bool prefault;
+  };
+  for (const Run run : {Run{1, false}, Run{3, false}, Run{1, true}}) {
+    const int workers = run.workers;
+    CAPTURE(workers, run.prefault);
     sim::SimSource source(sim_config);
     REQUIRE(source.open().ok());
     PipelineConfig config = small_config(source, 0.02f, workers);
@@ -117,7 +123,10 @@ void check_pinned_bits(MapKind map_kind, bool raycast_half,
     config.budget.raycast_half = raycast_half;
     Buffer buffer(bytes_required(config));
     Pipeline<VoxelT> pipeline;
+    REQUIRE(pipeline.prefault(64).code() == StatusCode::failed_precondition);
     REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+    // More than the pools hold: every slot's pages.
+    if (run.prefault) REQUIRE(pipeline.prefault(0xFFFFFFFFu).ok());
     DepthFrame frame;
     for (int i = 0; i < kFrames; ++i) {
       CAPTURE(i);

@@ -516,6 +516,14 @@ Status Pipeline<VoxelT>::resume_frame_count(std::uint64_t frames) {
 }
 
 template <typename VoxelT>
+Status Pipeline<VoxelT>::prefault(std::uint32_t blocks) {
+  if (!initialised_) return StatusCode::failed_precondition;
+  map_.prefault(blocks);
+  if (free_space_.reserved()) free_space_.prefault(blocks);
+  return ok_status();
+}
+
+template <typename VoxelT>
 Status Pipeline<VoxelT>::reset() {
   if (!initialised_) return StatusCode::failed_precondition;
   {

@@ -2,6 +2,7 @@
 
 #include <catch2/catch.hpp>
 #include <cstdint>
+#include <cstring>
 
 #include "death.hpp"
 #include "octofuse/core/arena.hpp"
@@ -69,6 +70,52 @@ TEST_CASE("IndexPool reuses released slots last-in first-out, value-initialised"
   REQUIRE(pool[0].id == 7);
   REQUIRE(pool[2].id == 7);
   REQUIRE(pool.allocate().status().code() == StatusCode::resource_exhausted);
+}
+
+TEST_CASE("IndexPool::prefault writes the pages of exactly the next slots, and changes nothing") {
+  // Slots larger than a page's stride and not dividing it, over a buffer filled with a pattern.
+  struct Big {
+    std::uint32_t id = 0;
+    std::uint8_t bytes[2996] = {};
+  };
+  constexpr std::uint32_t kCapacity = 20;
+  alignas(kArenaAlignment) static std::uint8_t buffer[kCapacity * sizeof(Big) + 4096];
+  std::memset(buffer, 0xAB, sizeof(buffer));
+  LinearArena arena(buffer, sizeof(buffer));
+  IndexPool<Big> pool;
+  REQUIRE(pool.reserve(arena, kCapacity).ok());
+  auto slot_bytes = [&](std::uint32_t slot) {
+    return reinterpret_cast<const std::uint8_t*>(&pool[0]) + slot * sizeof(Big);
+  };
+  REQUIRE(pool.allocate().value() == 0);
+  REQUIRE(pool.allocate().value() == 1);
+  pool[0].id = 5;
+  pool[1].id = 6;
+  pool.prefault(5);  // slots 2..6
+  // Written: every 4096th byte from slot 2 on and the last byte of slot 6; nothing else.
+  const std::uint8_t* const from = slot_bytes(2);
+  const std::size_t span = 5 * sizeof(Big);
+  std::size_t zeros = 0;
+  for (std::size_t i = 0; i < span; ++i) {
+    if (from[i] == 0) ++zeros;
+    if (i % 4096 == 0 || i == span - 1) REQUIRE(from[i] == 0);
+  }
+  REQUIRE(zeros == (span + 4095) / 4096 + 1);
+  for (std::size_t i = 0; i < 3 * sizeof(Big); ++i) REQUIRE(slot_bytes(7)[i] == 0xAB);
+  // The pool is as it was: the same slots in use, the same next index, value-initialised.
+  REQUIRE(pool.used() == 2);
+  REQUIRE(pool[0].id == 5);
+  REQUIRE(pool[1].id == 6);
+  const std::uint32_t next = pool.allocate().value();
+  REQUIRE(next == 2);
+  REQUIRE(pool[next].id == 0);
+  REQUIRE(pool[next].bytes[100] == 0);
+  // More than the pool holds stops at its last slot; a full pool is left alone.
+  pool.prefault(1000);
+  REQUIRE(slot_bytes(kCapacity - 1)[sizeof(Big) - 1] == 0);
+  while (!pool.full()) REQUIRE(pool.allocate().ok());
+  pool.prefault(3);
+  REQUIRE(pool.used() == kCapacity);
 }
 
 TEST_CASE("IndexPool reset forgets every allocation; the sequence repeats") {

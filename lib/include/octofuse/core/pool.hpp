@@ -59,6 +59,20 @@ class IndexPool {
     return index;
   }
 
+  // Writes the pages of the next `count` slots allocate() will hand out (zeros: allocate()
+  // constructs each slot anyway), so the frames that take them pay no first-touch page faults.
+  // Those pages become resident; the rest of the pool stays untouched. Allocates nothing.
+  void prefault(std::uint32_t count) {
+    if (fresh_ >= capacity_ || count == 0) return;
+    const std::uint32_t end = capacity_ - fresh_ < count ? capacity_ : fresh_ + count;
+    volatile unsigned char* const first = reinterpret_cast<unsigned char*>(slots_ + fresh_);
+    const std::size_t bytes = sizeof(T) * static_cast<std::size_t>(end - fresh_);
+    // 4 KiB, the smallest page in use: a larger page is only written more than once.
+    constexpr std::size_t kStride = 4096;
+    for (std::size_t i = 0; i < bytes; i += kStride) first[i] = 0;
+    first[bytes - 1] = 0;
+  }
+
   void release(std::uint32_t index) {
     OCTOFUSE_CHECK(index < fresh_ && used_ > 0);
     free_next_[index] = free_head_;

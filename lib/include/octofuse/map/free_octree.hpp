@@ -154,6 +154,8 @@ class FreeOctree {
   bool reserved() const { return reserved_; }
   // Nothing known free: the root alone.
   void clear();
+  // Writes the pages of the next `nodes` nodes the pool will hand out (IndexPool::prefault).
+  void prefault(std::uint32_t nodes) { nodes_.prefault(nodes); }
 
   // Forgets every octant lying wholly farther than `keep_radius_m` from `centre_W` (its subtree
   // with it: what was free there reads unknown again) and compacts the pool in place, keeping

@@ -178,6 +178,14 @@ class Octree {
   bool reserved() const { return reserved_; }
   // Forgets every block and node (keeps the root); memory stays reserved.
   void clear();
+  // Writes the pages of the next `blocks` blocks, finest and mid levels and nodes the pools will
+  // hand out (IndexPool::prefault), so the first frames pay no first-touch page faults for them.
+  void prefault(std::uint32_t blocks) {
+    nodes_.prefault(blocks);
+    blocks_.prefault(blocks);
+    finest_.prefault(blocks);
+    mid_.prefault(blocks);
+  }
 
   const MapConfig& config() const { return config_; }
   int voxel_depth() const { return config_.voxel_depth; }

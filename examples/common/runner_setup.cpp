@@ -470,6 +470,9 @@ int load_saved_map(const RunOptions& options, const RunInputs& inputs, PipelineR
   if (!pipeline.resume_frame_count(header.frames).ok()) {
     return error_exit("cannot continue the map's frame count");
   }
+  // The loaded blocks took the first slots (init_pipeline() wrote the pages of some of them): the
+  // first frame's new blocks take the ones after them.
+  (void)pipeline.prefault(options.prefault_blocks);
   summary->map_loaded = true;
   summary->map_loaded_blocks = header.block_count;
   summary->map_loaded_free_nodes = free_space != nullptr ? header.free_node_count : 0;

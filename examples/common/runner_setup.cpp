@@ -420,7 +420,8 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
                       "): " + pipeline.last_error());
   }
   summary->arena_bytes = bytes;
-  (void)pipeline.prefault(options.prefault_blocks);  // ok after a successful init()
+  // A map to be loaded takes the first slots itself: load_saved_map() prefaults after it.
+  if (!inputs.load_map) (void)pipeline.prefault(options.prefault_blocks);  // ok after init()
   if (!options.map_file_path.empty()) {
     // The store belongs to one map geometry: voxel type, size, depth and origin.
     const MapConfig& map = pipeline.map().config();
@@ -470,8 +471,7 @@ int load_saved_map(const RunOptions& options, const RunInputs& inputs, PipelineR
   if (!pipeline.resume_frame_count(header.frames).ok()) {
     return error_exit("cannot continue the map's frame count");
   }
-  // The loaded blocks took the first slots (init_pipeline() wrote the pages of some of them): the
-  // first frame's new blocks take the ones after them.
+  // The loaded blocks took the first slots: the first frame's new blocks take the ones after them.
   (void)pipeline.prefault(options.prefault_blocks);
   summary->map_loaded = true;
   summary->map_loaded_blocks = header.block_count;

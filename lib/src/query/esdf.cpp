@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "octofuse/map/interpolation.hpp"
 
@@ -50,8 +51,10 @@ Status validate(const EsdfConfig& config, const MapConfig& map) {
 
 std::size_t EsdfField::bytes_required(const EsdfConfig& config) {
   const std::size_t cells = cell_count(config.cells_per_side);
+  const std::size_t slice_cells =
+      static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side;
   return 2 * cells * sizeof(Cell) + 2 * alignof(Cell) + 3 * kNormalCodes * sizeof(float) +
-         alignof(float);
+         alignof(float) + slice_cells * sizeof(float) + alignof(float);
 }
 
 // Octahedral code of a direction (sign ignored by the disc distance, kept anyway).
@@ -74,7 +77,8 @@ int EsdfField::encode_normal(const Eigen::Vector3f& n) {
 }
 
 void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b,
-                      float* normals) {
+                      float* normals, float* slice_distance) {
+  slice_distance_ = slice_distance;
   config_ = config;
   buffers_[0] = a;
   buffers_[1] = b;
@@ -189,7 +193,7 @@ float EsdfField::site_distance(const Cell& cell, const Eigen::Vector3f& q,
 
 // Propagation keeps each cell's nearest site by the plain distance (boxes less their half
 // diagonal); queries take the disc distance over the 27 cells around a point.
-float EsdfField::propagation_distance(const Cell& cell, const Eigen::Vector3f& q) const {
+inline float EsdfField::propagation_distance(const Cell& cell, const Eigen::Vector3f& q) const {
   const Eigen::Vector3f s(static_cast<float>(cell.sx), static_cast<float>(cell.sy),
                           static_cast<float>(cell.sz));
   const float d = (q - s * (1.0f / kSiteUnits)).norm();
@@ -340,6 +344,9 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
   const float cv = static_cast<float>(cell_voxels_);
   FreeOctant octant;
   bool any_from_map = from_map;
+  // Cells along a row share blocks: look each up once.
+  Eigen::Vector3i cached_block_coords = Eigen::Vector3i::Constant(-1);
+  const VoxelBlock<VoxelT>* cached_block = nullptr;
   for (int z = cz * kChunkCells; z < (cz + 1) * kChunkCells; ++z) {
     for (int y = cy * kChunkCells; y < (cy + 1) * kChunkCells; ++y) {
       for (int x = cx * kChunkCells; x < (cx + 1) * kChunkCells; ++x) {
@@ -361,7 +368,20 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         const Eigen::Vector3i voxel(static_cast<int>(std::floor(q.x())),
                                     static_cast<int>(std::floor(q.y())),
                                     static_cast<int>(std::floor(q.z())));
-        const VoxelBlock<VoxelT>* block = map.find_block_at_voxel(voxel);
+        // The window lies inside the cube, and so does every cell's voxel.
+        const Eigen::Vector3i block_coords = voxel_to_block(voxel);
+        if (block_coords != cached_block_coords) {
+          cached_block_coords = block_coords;
+          cached_block = map.find_block(block_coords);
+        }
+        const VoxelBlock<VoxelT>* block = cached_block;
+        // A cell lies in one block (cells sit on the map's cell grid, blocks are whole cells or
+        // whole blocks of cells), and so do the corner points below: without a block nothing
+        // samples, and only unknown-as-obstacle makes a site.
+        if (block == nullptr && !config_.unknown_is_obstacle) {
+          back[index] = out;
+          continue;
+        }
         bool observed = false;
         bool box = false;
         bool site = false;
@@ -478,11 +498,8 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
 inline void EsdfField::consider(Cell& cell, float* d, const Eigen::Vector3f& q,
                                 const Cell& other) const {
   if ((other.flags & kHasSite) == 0) return;
-  if (other.sx == cell.sx && other.sy == cell.sy && other.sz == cell.sz &&
-      (cell.flags & kHasSite) != 0 && ((other.flags ^ cell.flags) & ~kSeed) == 0 &&
-      other.normal_hi == cell.normal_hi) {
-    return;
-  }
+  // The same site already (all bits but the seed flag equal; both then have a site).
+  if (((cell_bits(other) ^ cell_bits(cell)) & ~seed_bit()) == 0) return;
   const float candidate = propagation_distance(other, q);
   if (candidate >= *d) return;
   *d = candidate;
@@ -503,11 +520,21 @@ void EsdfField::sweep_slice(int z, int dz) {
   const int n = n_;
   const std::size_t slice = static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   Cell* here = cells + static_cast<std::size_t>(z) * slice;
+  float* distance = slice_distance_;
   const float zc = static_cast<float>(z) + 0.5f;
-  auto distance_of = [&](const Cell& cell, const Eigen::Vector3f& q) {
-    if ((cell.flags & kSeed) != 0) return -1e30f;  // never replaced
-    return (cell.flags & kHasSite) != 0 ? propagation_distance(cell, q) : 1e30f;
-  };
+  // Seeds are never replaced (and never asked); a cell without a site takes any.
+  for (int y = 0; y < n; ++y) {
+    for (int x = 0; x < n; ++x) {
+      const std::size_t i = static_cast<std::size_t>(y) * n + x;
+      const Cell& cell = here[i];
+      const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
+      if ((cell.flags & kSeed) != 0) {
+        distance[i] = -1e30f;
+      } else {
+        distance[i] = (cell.flags & kHasSite) != 0 ? propagation_distance(cell, q) : 1e30f;
+      }
+    }
+  }
   const int zp = z - dz;
   if (zp >= 0 && zp < n) {
     const Cell* prev = cells + static_cast<std::size_t>(zp) * slice;
@@ -516,8 +543,7 @@ void EsdfField::sweep_slice(int z, int dz) {
         const std::size_t i = static_cast<std::size_t>(y) * n + x;
         if ((prev[i].flags & kHasSite) == 0 || (here[i].flags & kSeed) != 0) continue;
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
-        float d = distance_of(here[i], q);
-        consider(here[i], &d, q, prev[i]);
+        consider(here[i], &distance[i], q, prev[i]);
       }
     }
   }
@@ -526,6 +552,7 @@ void EsdfField::sweep_slice(int z, int dz) {
     for (int step = 0; step < n; ++step) {
       const int y = dy > 0 ? step : n - 1 - step;
       Cell* row = here + static_cast<std::size_t>(y) * n;
+      float* row_distance = distance + static_cast<std::size_t>(y) * n;
       const int yp = y - dy;
       const Cell* prev_row = yp >= 0 && yp < n ? here + static_cast<std::size_t>(yp) * n : nullptr;
       const float yc = static_cast<float>(y) + 0.5f;
@@ -535,16 +562,14 @@ void EsdfField::sweep_slice(int z, int dz) {
         const bool from_left = x > 0 && (row[x - 1].flags & kHasSite) != 0;
         if ((!from_row && !from_left) || (cell.flags & kSeed) != 0) continue;
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
-        float d = distance_of(cell, q);
-        if (from_row) consider(cell, &d, q, prev_row[x]);
-        if (from_left) consider(cell, &d, q, row[x - 1]);
+        if (from_row) consider(cell, &row_distance[x], q, prev_row[x]);
+        if (from_left) consider(cell, &row_distance[x], q, row[x - 1]);
       }
       for (int x = n - 2; x >= 0; --x) {
         Cell& cell = row[x];
         if ((row[x + 1].flags & kHasSite) == 0 || (cell.flags & kSeed) != 0) continue;
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
-        float d = distance_of(cell, q);
-        consider(cell, &d, q, row[x + 1]);
+        consider(cell, &row_distance[x], q, row[x + 1]);
       }
     }
   }

@@ -3,8 +3,12 @@
 #include "octofuse/query/esdf.hpp"
 
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
 #include <limits>
 #include <random>
+#include <string>
 #include <vector>
 
 #include <catch2/catch.hpp>
@@ -521,6 +525,72 @@ TEST_CASE("unknown as obstacle: distances to the nearest unobserved cell too") {
   const EsdfAnswer a = f.field.distance(Eigen::Vector3f(-1.0f, -1.0f, -0.75f)).value();
   REQUIRE(a.has_distance);
   CHECK(a.distance_m <= 0.05f + kVoxel_m);
+}
+
+// FNV-1a over the bits of every answer (has_distance, distance, bound, gradient) on a 41^3 grid
+// through the window and a little beyond it.
+std::uint64_t answers_digest(const EsdfField& field) {
+  std::uint64_t hash = 0xcbf29ce484222325ull;
+  auto mix = [&hash](const void* data, std::size_t bytes) {
+    const unsigned char* p = static_cast<const unsigned char*>(data);
+    for (std::size_t i = 0; i < bytes; ++i) hash = (hash ^ p[i]) * 0x100000001b3ull;
+  };
+  for (int z = 0; z <= 40; ++z) {
+    for (int y = 0; y <= 40; ++y) {
+      for (int x = 0; x <= 40; ++x) {
+        const Eigen::Vector3f p =
+            Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) *
+                0.0657f -
+            Eigen::Vector3f::Constant(1.31f);
+        const EsdfAnswer a = field.distance(p).value();
+        const unsigned char has = a.has_distance ? 1 : 0;
+        mix(&has, 1);
+        mix(&a.distance_m, sizeof(float));
+        mix(&a.lower_bound_m, sizeof(float));
+        mix(a.gradient.data(), 3 * sizeof(float));
+      }
+    }
+  }
+  return hash;
+}
+
+std::string hex(std::uint64_t bits) {
+  char text[24];
+  std::snprintf(text, sizeof text, "0x%016llx", static_cast<unsigned long long>(bits));
+  return text;
+}
+
+// The answers over a map of blocks at scales 0-2 (and unallocated space), for each cell size and
+// both unknown modes, pinned: the seeding's and the sweeps' shortcuts (a block looked up once a
+// row, cells of absent blocks skipped, each cell's distance computed once a slice) must give the
+// bits of the plain computation. Same bits on every architecture, as the map's. Prints what it
+// got, for re-pinning after a deliberate change.
+TEST_CASE("the field's answers are pinned bits, whatever the cell size and unknown mode") {
+  struct Case {
+    int cell_voxels;
+    bool unknown_is_obstacle;
+    std::uint64_t expected;
+  };
+  test::OwnedMap<MultiresVoxel> owned(map_config());
+  Scene scene;
+  scene.with_box = true;
+  test::fill_band(owned.map, kMu_m, scene,
+                  [](const Eigen::Vector3i& b) { return (b.x() + 2 * b.y() + b.z()) % 3; });
+  for (const Case c :
+       {Case{1, false, 0x2d3236bca9e00050ull}, Case{2, false, 0xdc8535cbc3a0dc4full},
+        Case{4, false, 0x6b5e874c402fe9eaull}, Case{2, true, 0xb2911ceb760e4663ull}}) {
+    CAPTURE(c.cell_voxels, c.unknown_is_obstacle);
+    EsdfConfig config = field_config();
+    config.cell_voxels = c.cell_voxels;
+    config.cells_per_side = c.cell_voxels == 4 ? 32 : 64;
+    config.unknown_is_obstacle = c.unknown_is_obstacle;
+    Field f(config);
+    REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 0, 1).published);
+    const std::uint64_t digest = answers_digest(f.field);
+    std::printf("field answers, cell_voxels %d, unknown_is_obstacle %d: %s\n", c.cell_voxels,
+                c.unknown_is_obstacle ? 1 : 0, hex(digest).c_str());
+    CHECK(hex(digest) == hex(c.expected));
+  }
 }
 
 TEST_CASE("bad configurations and points are refused") {

@@ -12,6 +12,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <type_traits>
 
@@ -89,9 +90,12 @@ class EsdfField {
     OCTOFUSE_TRY(b);
     Result<float*> normals = arena.template allocate_array<float>(3 * kNormalCodes);
     OCTOFUSE_TRY(normals);
+    Result<float*> slice_distance = arena.template allocate_array<float>(
+        static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side);
+    OCTOFUSE_TRY(slice_distance);
     // The sizing pass hands out no memory to clear.
     if constexpr (!std::is_same<Arena, ArenaSizer>::value) {
-      setup(config, map, a.value(), b.value(), normals.value());
+      setup(config, map, a.value(), b.value(), normals.value(), slice_distance.value());
     }
     return ok_status();
   }
@@ -149,11 +153,23 @@ class EsdfField {
     std::uint8_t flags = 0;
     std::uint8_t normal_hi = 0;
   };
+  static std::uint64_t cell_bits(const Cell& c) {
+    static_assert(sizeof(Cell) == sizeof(std::uint64_t), "a cell is 8 bytes");
+    std::uint64_t bits;
+    std::memcpy(&bits, &c, sizeof bits);
+    return bits;
+  }
   static constexpr std::uint8_t kHasSite = 1;
   static constexpr std::uint8_t kBoxSite = 2;  // the site is an obstacle cell's centre
   static constexpr std::uint8_t kSeed = 4;     // seeded from this cell's own map data
-  static constexpr int kNormalSteps = 90;      // octahedral grid per axis
-  static constexpr int kNormalCodes = 8192;    // 13 bits; kNoNormal: none
+  // kSeed's bit in cell_bits(), wherever the byte order puts it.
+  static std::uint64_t seed_bit() {
+    Cell c;
+    c.flags = kSeed;
+    return cell_bits(c);
+  }
+  static constexpr int kNormalSteps = 90;    // octahedral grid per axis
+  static constexpr int kNormalCodes = 8192;  // 13 bits; kNoNormal: none
   static constexpr int kNoNormal = kNormalCodes - 1;
   static int normal_code(const Cell& c) { return (c.flags >> 3) | (c.normal_hi << 5); }
   static void set_normal_code(Cell& c, int code) {
@@ -176,7 +192,8 @@ class EsdfField {
   static std::size_t cell_count(int n) {
     return static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   }
-  void setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b, float* normals);
+  void setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b, float* normals,
+             float* slice_distance);
   template <typename VoxelT>
   EsdfReport advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                      std::uint32_t frame, std::uint64_t map_version, std::uint64_t budget);
@@ -205,7 +222,10 @@ class EsdfField {
   EsdfConfig config_;
   Cell* buffers_[2] = {nullptr, nullptr};
   const float* normals_ = nullptr;  // unit vector of each normal code (3 floats)
-  int front_ = 0;                   // the published buffer
+  // A swept slice's cells' distances to their sites (what propagation compares), kept as cells
+  // take nearer sites so that each is computed once a slice.
+  float* slice_distance_ = nullptr;
+  int front_ = 0;  // the published buffer
   int n_ = 0;
   int chunks_per_side_ = 0;
   int cell_voxels_ = 1;

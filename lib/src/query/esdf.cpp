@@ -9,7 +9,6 @@
 namespace octofuse {
 
 namespace {
-constexpr float kSiteUnits = 64.0f;          // site coordinates per cell
 constexpr int kCopyMarginCells = 2;          // see copy_seed()
 constexpr float kHalfDiagonal = 0.8660254f;  // sqrt(3) / 2, in cells
 // Surface sites lie about a cell apart on the surface, so every surface point lies within half a
@@ -25,10 +24,17 @@ bool finite(const Eigen::Vector3f& v) {
   return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
 }
 
-std::uint16_t to_site_units(float cells, int n) {
-  const float units = std::floor(cells * kSiteUnits + 0.5f);
-  const float top = static_cast<float>(n) * kSiteUnits - 1.0f;
-  return static_cast<std::uint16_t>(units < 0.0f ? 0.0f : units > top ? top : units);
+// A site coordinate in whole units (`units` a cell), inside the window.
+int to_site_units(float cells, int n, int units) {
+  const float unit = static_cast<float>(units);
+  const float at = std::floor(cells * unit + 0.5f);
+  const float top = static_cast<float>(n) * unit - 1.0f;
+  return static_cast<int>(at < 0.0f ? 0.0f : at > top ? top : at);
+}
+
+// A seed's offset from its cell's corner (`corner` in units), biased into a byte.
+std::uint32_t offset_byte(int units, int corner, int bias) {
+  return static_cast<std::uint32_t>(std::min(std::max(units - corner + bias, 0), 255));
 }
 }  // namespace
 
@@ -52,9 +58,9 @@ Status validate(const EsdfConfig& config, const MapConfig& map) {
 std::size_t EsdfField::bytes_required(const EsdfConfig& config) {
   const std::size_t cells = cell_count(config.cells_per_side);
   const std::size_t slice_cells =
-      static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side;
-  return 2 * cells * sizeof(Cell) + 2 * alignof(Cell) + 3 * kNormalCodes * sizeof(float) +
-         alignof(float) + slice_cells * sizeof(float) + alignof(float);
+      kSliceFloats * static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side;
+  return 2 * cells * kCellBytes + 3 * kNormalCodes * sizeof(float) + alignof(float) +
+         slice_cells * sizeof(float) + alignof(float);
 }
 
 // Octahedral code of a direction (sign ignored by the disc distance, kept anyway).
@@ -76,12 +82,12 @@ int EsdfField::encode_normal(const Eigen::Vector3f& n) {
          std::min(std::max(j, 0), kNormalSteps - 1);
 }
 
-void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b,
+void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, const Buffer (&buffers)[2],
                       float* normals, float* slice_distance) {
   slice_distance_ = slice_distance;
   config_ = config;
-  buffers_[0] = a;
-  buffers_[1] = b;
+  buffers_[0] = buffers[0];
+  buffers_[1] = buffers[1];
   const float top = static_cast<float>(kNormalSteps - 1);
   for (int code = 0; code < kNormalCodes; ++code) {
     Eigen::Vector3f n(0.0f, 0.0f, 1.0f);
@@ -101,6 +107,7 @@ void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, Cell* a, C
   n_ = config.cells_per_side;
   chunks_per_side_ = n_ / kChunkCells;
   cell_voxels_ = config.cell_voxels;
+  site_units_ = cell_voxels_ == 1 ? 32 : 64;
   voxel_m_ = map.voxel_size_m;
   cell_m_ = voxel_m_ * static_cast<float>(cell_voxels_);
   // A site lies within a cell diagonal of the nearest surface point (both in one cell), and the
@@ -146,7 +153,10 @@ Eigen::Vector3f EsdfField::target_centre_W() const {
 void EsdfField::clear() {
   const std::size_t cells = cell_count(n_);
   for (int b = 0; b < 2; ++b) {
-    for (std::size_t i = 0; i < cells; ++i) buffers_[b][i] = Cell();
+    for (std::size_t i = 0; i < cells; ++i) {
+      buffers_[b].set_word(i, kNoSite);
+      buffers_[b].set_site_z(i, 0);
+    }
   }
   phase_ = Phase::idle;
   cursor_ = 0;
@@ -160,16 +170,31 @@ void EsdfField::clear() {
   published_version_ = 0;
 }
 
-float EsdfField::site_distance(const Cell& cell, const Eigen::Vector3f& q,
+EsdfField::Site EsdfField::site_of(const Buffer& buffer, std::uint32_t seed) const {
+  const int x = static_cast<int>(seed & 1023u);
+  const int y = static_cast<int>((seed >> 10) & 1023u);
+  const int z = static_cast<int>((seed >> 20) & 1023u);
+  const std::size_t i = cell_index(seed);
+  const std::uint32_t word = buffer.word(i);
+  const int ux = x * site_units_ + static_cast<int>((word >> 9) & 255u) - kOffsetBias;
+  const int uy = y * site_units_ + static_cast<int>((word >> 1) & 255u) - kOffsetBias;
+  const int uz = z * site_units_ + static_cast<int>(buffer.site_z(i)) - kOffsetBias;
+  Site site;
+  site.s = Eigen::Vector3f(static_cast<float>(ux), static_cast<float>(uy), static_cast<float>(uz)) *
+           (1.0f / static_cast<float>(site_units_));
+  site.normal = static_cast<int>((word >> 17) & 8191u);
+  site.box = (word & kBoxBit) != 0;
+  return site;
+}
+
+float EsdfField::site_distance(const Site& site, const Eigen::Vector3f& q,
                                Eigen::Vector3f* away) const {
-  const Eigen::Vector3f s(static_cast<float>(cell.sx), static_cast<float>(cell.sy),
-                          static_cast<float>(cell.sz));
-  const Eigen::Vector3f v = q - s * (1.0f / kSiteUnits);
-  const int code = normal_code(cell);
-  if ((cell.flags & kBoxSite) != 0 || code >= kNormalSteps * kNormalSteps) {
+  const Eigen::Vector3f v = q - site.s;
+  const int code = site.normal;
+  if (site.box || code >= kNormalSteps * kNormalSteps) {
     const float d = v.norm();
     if (away != nullptr) *away = d > 0.0f ? (v / d).eval() : Eigen::Vector3f::Zero();
-    if ((cell.flags & kBoxSite) != 0) return d - kHalfDiagonal;
+    if (site.box) return d - kHalfDiagonal;
     // No normal: the nearest surface point may lie up to the disc's radius beside the site.
     return std::sqrt(std::max(d * d - kDiscRadius * kDiscRadius, 0.0f));
   }
@@ -193,11 +218,9 @@ float EsdfField::site_distance(const Cell& cell, const Eigen::Vector3f& q,
 
 // Propagation keeps each cell's nearest site by the plain distance (boxes less their half
 // diagonal); queries take the disc distance over the 27 cells around a point.
-inline float EsdfField::propagation_distance(const Cell& cell, const Eigen::Vector3f& q) const {
-  const Eigen::Vector3f s(static_cast<float>(cell.sx), static_cast<float>(cell.sy),
-                          static_cast<float>(cell.sz));
-  const float d = (q - s * (1.0f / kSiteUnits)).norm();
-  return (cell.flags & kBoxSite) != 0 ? d - kHalfDiagonal : d;
+inline float EsdfField::propagation_distance(const Site& site, const Eigen::Vector3f& q) {
+  const float d = (q - site.s).norm();
+  return site.box ? d - kHalfDiagonal : d;
 }
 
 template <typename VoxelT>
@@ -304,35 +327,44 @@ Valley find_valley(const Octree<VoxelT>& map, const Eigen::Vector3f& at_W, float
 }
 }  // namespace
 
-bool EsdfField::copy_seed(const Cell* front, const Eigen::Vector3i& shift_cells, int x, int y,
-                          int z, Cell* out) const {
+bool EsdfField::copy_seed(const Eigen::Vector3i& shift_cells, int x, int y, int z,
+                          std::uint32_t* word, std::uint8_t* site_z) const {
   const Eigen::Vector3i source = Eigen::Vector3i(x, y, z) + shift_cells;
   // Sites near the published window's faces may have been clamped into it: a moved window
   // takes only cells a margin inside (a seed's site lies within its cell's reach).
   const int margin = shift_cells == Eigen::Vector3i::Zero() ? 0 : kCopyMarginCells;
   if ((source.array() < margin).any() || (source.array() >= n_ - margin).any()) return false;
-  const Cell& seed =
-      front[(static_cast<std::size_t>(source.z()) * n_ + static_cast<std::size_t>(source.y())) *
-                n_ +
-            static_cast<std::size_t>(source.x())];
-  *out = Cell();
-  if ((seed.flags & kSeed) == 0) return true;
-  // Sites are kept from the window's corner: from the moved window's corner, shift cells less.
-  const int units = static_cast<int>(kSiteUnits);
-  const Eigen::Vector3i site = Eigen::Vector3i(seed.sx, seed.sy, seed.sz) - shift_cells * units;
-  if ((site.array() < 0).any() || (site.array() >= n_ * units).any()) return false;
-  *out = seed;
-  out->sx = static_cast<std::uint16_t>(site.x());
-  out->sy = static_cast<std::uint16_t>(site.y());
-  out->sz = static_cast<std::uint16_t>(site.z());
+  const Buffer& front = buffers_[front_];
+  const std::size_t i =
+      (static_cast<std::size_t>(source.z()) * n_ + static_cast<std::size_t>(source.y())) * n_ +
+      static_cast<std::size_t>(source.x());
+  *word = kNoSite;
+  *site_z = 0;
+  if ((front.word(i) & kSeedBit) == 0) return true;
+  if (margin == 0) {
+    // The same window: the site stays where it was.
+    *word = front.word(i);
+    *site_z = front.site_z(i);
+    return true;
+  }
+  // The site lies as far from the cell as before; from the moved window's corner it lies shift
+  // cells less far, and must stay in the window.
+  const Site seed = site_of(front, pack_cell(source.x(), source.y(), source.z()));
+  const int units = site_units_;
+  for (int a = 0; a < 3; ++a) {
+    const int unit =
+        static_cast<int>(seed.s[a] * static_cast<float>(units)) - shift_cells[a] * units;
+    if (unit < 0 || unit >= n_ * units) return false;
+  }
+  *word = front.word(i);
+  *site_z = front.site_z(i);
   return true;
 }
 
 template <typename VoxelT>
 bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                            int chunk, bool from_map) {
-  Cell* back = buffers_[1 - front_];
-  const Cell* front = buffers_[front_];
+  const Buffer& back = buffers_[1 - front_];
   const Window& window = windows_[1 - front_];
   // A moved window's cells lie this many cells on from the published window's same cells.
   const Eigen::Vector3i shift_cells =
@@ -352,11 +384,12 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
       for (int x = cx * kChunkCells; x < (cx + 1) * kChunkCells; ++x) {
         const std::size_t index =
             (static_cast<std::size_t>(z) * n_ + static_cast<std::size_t>(y)) * n_ + x;
-        Cell out;
-        if (!from_map && copy_seed(front, shift_cells, x, y, z, &out)) {
-          back[index] = out;
-          continue;
-        }
+        std::uint32_t copied_word = kNoSite;
+        std::uint8_t copied_z = 0;
+        const bool copied = !from_map && copy_seed(shift_cells, x, y, z, &copied_word, &copied_z);
+        back.set_word(index, copied_word);
+        back.set_site_z(index, copied_z);
+        if (copied) continue;
         any_from_map = true;
         // Cell centre in continuous finest-voxel coordinates, and in the world.
         const Eigen::Vector3f q =
@@ -378,10 +411,7 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         // A cell lies in one block (cells sit on the map's cell grid, blocks are whole cells or
         // whole blocks of cells), and so do the corner points below: without a block nothing
         // samples, and only unknown-as-obstacle makes a site.
-        if (block == nullptr && !config_.unknown_is_obstacle) {
-          back[index] = out;
-          continue;
-        }
+        if (block == nullptr && !config_.unknown_is_obstacle) continue;
         bool observed = false;
         bool box = false;
         bool site = false;
@@ -479,35 +509,23 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
                   ? Eigen::Vector3f(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f,
                                     static_cast<float>(z) + 0.5f)
                   : (site_W - window.min_W) / cell_m_;
-          out.sx = to_site_units(s_cells.x(), n_);
-          out.sy = to_site_units(s_cells.y(), n_);
-          out.sz = to_site_units(s_cells.z(), n_);
+          const int u = site_units_;
+          const std::uint32_t ox =
+              offset_byte(to_site_units(s_cells.x(), n_, u), x * u, kOffsetBias);
+          const std::uint32_t oy =
+              offset_byte(to_site_units(s_cells.y(), n_, u), y * u, kOffsetBias);
+          const std::uint32_t oz =
+              offset_byte(to_site_units(s_cells.z(), n_, u), z * u, kOffsetBias);
           box = box || valley_site;
-          out.flags = static_cast<std::uint8_t>(kHasSite | kSeed | (box ? kBoxSite : 0));
-          set_normal_code(out, box ? kNoNormal : normal);
+          const std::uint32_t code = static_cast<std::uint32_t>(box ? kNoNormal : normal);
+          back.set_word(index,
+                        kSeedBit | (box ? kBoxBit : 0u) | (code << 17) | (ox << 9) | (oy << 1));
+          back.set_site_z(index, static_cast<std::uint8_t>(oz));
         }
-        back[index] = out;
       }
     }
   }
   return any_from_map;
-}
-
-// Takes `other`'s site into `cell` (centre q, in cells, at distance *d from its site) where it
-// is nearer.
-inline void EsdfField::consider(Cell& cell, float* d, const Eigen::Vector3f& q,
-                                const Cell& other) const {
-  if ((other.flags & kHasSite) == 0) return;
-  // The same site already (all bits but the seed flag equal; both then have a site).
-  if (((cell_bits(other) ^ cell_bits(cell)) & ~seed_bit()) == 0) return;
-  const float candidate = propagation_distance(other, q);
-  if (candidate >= *d) return;
-  *d = candidate;
-  cell.sx = other.sx;
-  cell.sy = other.sy;
-  cell.sz = other.sz;
-  cell.flags = static_cast<std::uint8_t>(other.flags & ~kSeed);
-  cell.normal_hi = other.normal_hi;
 }
 
 // One slice of a sweep along z (dz = +1 forward, -1 backward): the site of the cell before it
@@ -516,60 +534,102 @@ inline void EsdfField::consider(Cell& cell, float* d, const Eigen::Vector3f& q,
 // Seeds keep their own surface point: a later rebuild copies them where the map did not change,
 // and the 27 cells a query reads hold the neighbours' sites anyway.
 void EsdfField::sweep_slice(int z, int dz) {
-  Cell* cells = buffers_[1 - front_];
+  const Buffer& back = buffers_[1 - front_];
   const int n = n_;
   const std::size_t slice = static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
-  Cell* here = cells + static_cast<std::size_t>(z) * slice;
-  float* distance = slice_distance_;
+  const std::size_t here = static_cast<std::size_t>(z) * slice;
+  // Per cell of the slice: site x, y, z (cells), less (a box's half diagonal, else 0), distance.
+  float* cache = slice_distance_;
   const float zc = static_cast<float>(z) + 0.5f;
+  auto store = [cache](std::size_t i, const Site& site, float distance) {
+    float* c = cache + kSliceFloats * i;
+    c[0] = site.s.x();
+    c[1] = site.s.y();
+    c[2] = site.s.z();
+    c[3] = site.box ? kHalfDiagonal : 0.0f;
+    c[4] = distance;
+  };
+  // Neighbours along z mostly share seeds: decode the last one once.
+  std::uint32_t decoded_seed = kNoSite;
+  Site decoded;
   // Seeds are never replaced (and never asked); a cell without a site takes any.
   for (int y = 0; y < n; ++y) {
     for (int x = 0; x < n; ++x) {
       const std::size_t i = static_cast<std::size_t>(y) * n + x;
-      const Cell& cell = here[i];
-      const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
-      if ((cell.flags & kSeed) != 0) {
-        distance[i] = -1e30f;
-      } else {
-        distance[i] = (cell.flags & kHasSite) != 0 ? propagation_distance(cell, q) : 1e30f;
+      const std::uint32_t w = back.word(here + i);
+      if (w == kNoSite) {
+        store(i, Site(), 1e30f);
+        continue;
       }
+      const std::uint32_t seed = seed_of(w, x, y, z);
+      if (seed != decoded_seed) {
+        decoded = site_of(back, seed);
+        decoded_seed = seed;
+      }
+      const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
+      store(i, decoded, (w & kSeedBit) != 0 ? -1e30f : propagation_distance(decoded, q));
     }
   }
   const int zp = z - dz;
   if (zp >= 0 && zp < n) {
-    const Cell* prev = cells + static_cast<std::size_t>(zp) * slice;
+    const std::size_t prev = static_cast<std::size_t>(zp) * slice;
     for (int y = 0; y < n; ++y) {
       for (int x = 0; x < n; ++x) {
         const std::size_t i = static_cast<std::size_t>(y) * n + x;
-        if ((prev[i].flags & kHasSite) == 0 || (here[i].flags & kSeed) != 0) continue;
+        const std::uint32_t from = back.word(prev + i);
+        if (from == kNoSite || (back.word(here + i) & kSeedBit) != 0) continue;
+        const std::uint32_t seed = seed_of(from, x, y, zp);
+        if (seed == back.word(here + i)) continue;
+        if (seed != decoded_seed) {
+          decoded = site_of(back, seed);
+          decoded_seed = seed;
+        }
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
-        consider(here[i], &distance[i], q, prev[i]);
+        const float candidate = propagation_distance(decoded, q);
+        if (candidate >= cache[kSliceFloats * i + 4]) continue;
+        back.set_word(here + i, seed);
+        store(i, decoded, candidate);
       }
     }
   }
+  // Cell i takes the site of cell j of the slice (whose seed is `seed`) where it is nearer.
+  auto consider = [&](std::size_t i, std::size_t j, std::uint32_t seed, const Eigen::Vector3f& q) {
+    if (seed == back.word(here + i)) return;
+    const float* from = cache + kSliceFloats * j;
+    const float candidate = (q - Eigen::Vector3f(from[0], from[1], from[2])).norm() - from[3];
+    float* to = cache + kSliceFloats * i;
+    if (candidate >= to[4]) return;
+    back.set_word(here + i, seed);
+    to[0] = from[0];
+    to[1] = from[1];
+    to[2] = from[2];
+    to[3] = from[3];
+    to[4] = candidate;
+  };
   for (int pass = 0; pass < 2; ++pass) {
     const int dy = pass == 0 ? 1 : -1;
     for (int step = 0; step < n; ++step) {
       const int y = dy > 0 ? step : n - 1 - step;
-      Cell* row = here + static_cast<std::size_t>(y) * n;
-      float* row_distance = distance + static_cast<std::size_t>(y) * n;
+      const std::size_t row = static_cast<std::size_t>(y) * n;
       const int yp = y - dy;
-      const Cell* prev_row = yp >= 0 && yp < n ? here + static_cast<std::size_t>(yp) * n : nullptr;
+      const bool has_prev_row = yp >= 0 && yp < n;
+      const std::size_t prev_row = static_cast<std::size_t>(has_prev_row ? yp : y) * n;
       const float yc = static_cast<float>(y) + 0.5f;
       for (int x = 0; x < n; ++x) {
-        Cell& cell = row[x];
-        const bool from_row = prev_row != nullptr && (prev_row[x].flags & kHasSite) != 0;
-        const bool from_left = x > 0 && (row[x - 1].flags & kHasSite) != 0;
-        if ((!from_row && !from_left) || (cell.flags & kSeed) != 0) continue;
+        const std::uint32_t above = has_prev_row ? back.word(here + prev_row + x) : kNoSite;
+        const std::uint32_t left = x > 0 ? back.word(here + row + x - 1) : kNoSite;
+        if ((above == kNoSite && left == kNoSite) || (back.word(here + row + x) & kSeedBit) != 0) {
+          continue;
+        }
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
-        if (from_row) consider(cell, &row_distance[x], q, prev_row[x]);
-        if (from_left) consider(cell, &row_distance[x], q, row[x - 1]);
+        if (above != kNoSite) consider(row + x, prev_row + x, seed_of(above, x, yp, z), q);
+        if (left != kNoSite) consider(row + x, row + x - 1, seed_of(left, x - 1, y, z), q);
       }
       for (int x = n - 2; x >= 0; --x) {
-        Cell& cell = row[x];
-        if ((row[x + 1].flags & kHasSite) == 0 || (cell.flags & kSeed) != 0) continue;
+        const std::uint32_t right = back.word(here + row + x + 1);
+        if (right == kNoSite || (back.word(here + row + x) & kSeedBit) != 0) continue;
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
-        consider(cell, &row_distance[x], q, row[x + 1]);
+        consider(row + x, row + x + 1, seed_of(right, x + 1, y, z), q);
       }
     }
   }
@@ -688,10 +748,11 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
   const int x = static_cast<int>(q.x());
   const int y = static_cast<int>(q.y());
   const int z = static_cast<int>(q.z());
-  const Cell* cells = buffers_[front_];
-  float best = 1e30f;
-  const Cell* best_cell = nullptr;
-  Eigen::Vector3f best_away = Eigen::Vector3f::Zero();
+  const Buffer& cells = buffers_[front_];
+  // First the seeds of the 27 cells (in order, each once), then their sites: the sites' reads
+  // are independent of each other, so their cache misses overlap.
+  std::uint32_t seeds[27];
+  int seed_count = 0;
   for (int dz = -1; dz <= 1; ++dz) {
     for (int dy = -1; dy <= 1; ++dy) {
       for (int dx = -1; dx <= 1; ++dx) {
@@ -699,20 +760,34 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
         const int ny = y + dy;
         const int nz = z + dz;
         if (nx < 0 || ny < 0 || nz < 0 || nx >= n_ || ny >= n_ || nz >= n_) continue;
-        const Cell& c =
-            cells[(static_cast<std::size_t>(nz) * n_ + static_cast<std::size_t>(ny)) * n_ + nx];
-        if ((c.flags & kHasSite) == 0) continue;
-        Eigen::Vector3f away;
-        const float d = site_distance(c, q, &away);
-        if (d < best) {
-          best = d;
-          best_cell = &c;
-          best_away = away;
+        const std::uint32_t w = cells.word(
+            (static_cast<std::size_t>(nz) * n_ + static_cast<std::size_t>(ny)) * n_ + nx);
+        if (w == kNoSite) continue;
+        const std::uint32_t seed = seed_of(w, nx, ny, nz);
+        // A seed's own cell comes once; a cell that took a seed's site may repeat one.
+        if ((w & kSeedBit) == 0 &&
+            std::find(seeds, seeds + seed_count, seed) != seeds + seed_count) {
+          continue;
         }
+        seeds[seed_count++] = seed;
       }
     }
   }
-  if (best_cell == nullptr) {
+  Site sites[27];
+  for (int k = 0; k < seed_count; ++k) sites[k] = site_of(cells, seeds[k]);
+  float best = 1e30f;
+  bool found = false;
+  Eigen::Vector3f best_away = Eigen::Vector3f::Zero();
+  for (int k = 0; k < seed_count; ++k) {
+    Eigen::Vector3f away;
+    const float d = site_distance(sites[k], q, &away);
+    if (d < best) {
+      found = true;
+      best = d;
+      best_away = away;
+    }
+  }
+  if (!found) {
     out.lower_bound_m = window_bound < 1e29f ? window_bound : 0.0f;
     return out;
   }

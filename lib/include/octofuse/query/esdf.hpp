@@ -84,22 +84,24 @@ class EsdfField {
   Status reserve(Arena& arena, const EsdfConfig& config, const MapConfig& map) {
     OCTOFUSE_TRY(validate(config, map));
     const std::size_t cells = cell_count(config.cells_per_side);
-    Result<Cell*> a = arena.template allocate_array<Cell>(cells);
-    OCTOFUSE_TRY(a);
-    Result<Cell*> b = arena.template allocate_array<Cell>(cells);
-    OCTOFUSE_TRY(b);
+    Buffer buffers[2];
+    for (Buffer& buffer : buffers) {
+      Result<std::uint8_t*> bytes = arena.template allocate_array<std::uint8_t>(kCellBytes * cells);
+      OCTOFUSE_TRY(bytes);
+      buffer.bytes = bytes.value();
+    }
     Result<float*> normals = arena.template allocate_array<float>(3 * kNormalCodes);
     OCTOFUSE_TRY(normals);
     Result<float*> slice_distance = arena.template allocate_array<float>(
-        static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side);
+        kSliceFloats * static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side);
     OCTOFUSE_TRY(slice_distance);
     // The sizing pass hands out no memory to clear.
     if constexpr (!std::is_same<Arena, ArenaSizer>::value) {
-      setup(config, map, a.value(), b.value(), normals.value(), slice_distance.value());
+      setup(config, map, buffers, normals.value(), slice_distance.value());
     }
     return ok_status();
   }
-  bool reserved() const { return buffers_[0] != nullptr; }
+  bool reserved() const { return buffers_[0].bytes != nullptr; }
   const EsdfConfig& config() const { return config_; }
 
   // Queries hold `guard` shared; updates hold it exclusively to publish. May be null.
@@ -143,39 +145,53 @@ class EsdfField {
   std::uint64_t published_version() const { return published_version_; }
 
  private:
-  // Site in 1/64 cell units from the window's minimum corner. A surface site stands for the disc
-  // of surface around it (radius kDiscRadius cells) across its normal, kept as an octahedral code
-  // of 13 bits: flags' top 5 bits and normal_hi.
-  struct Cell {
-    std::uint16_t sx = 0;
-    std::uint16_t sy = 0;
-    std::uint16_t sz = 0;
-    std::uint8_t flags = 0;
-    std::uint8_t normal_hi = 0;
+  // A cell is a 32-bit word and a byte (5 bytes). A seed (kSeedBit) holds its own site: its
+  // offset from the cell's minimum corner in 1/site_units_ cells plus kOffsetBias, x in bits 9-16
+  // and y in bits 1-8 of the word, z in the byte; kBoxBit; and its normal's 13-bit octahedral
+  // code in bits 17-29. A surface site stands for the disc of surface around it (radius
+  // kDiscRadius cells) across its normal. Any other cell holds the packed coordinates of the seed
+  // whose site it took (10 bits an axis, pack_cell()), or kNoSite.
+  // Cells packed 5 bytes apart, so that neighbours share cache lines (a query reads 27).
+  static constexpr std::size_t kCellBytes = 5;
+  struct Buffer {
+    std::uint8_t* bytes = nullptr;
+    std::uint32_t word(std::size_t i) const {
+      std::uint32_t w;
+      std::memcpy(&w, bytes + kCellBytes * i, sizeof w);
+      return w;
+    }
+    void set_word(std::size_t i, std::uint32_t w) const {
+      std::memcpy(bytes + kCellBytes * i, &w, sizeof w);
+    }
+    std::uint8_t site_z(std::size_t i) const { return bytes[kCellBytes * i + 4]; }
+    void set_site_z(std::size_t i, std::uint8_t z) const { bytes[kCellBytes * i + 4] = z; }
   };
-  static std::uint64_t cell_bits(const Cell& c) {
-    static_assert(sizeof(Cell) == sizeof(std::uint64_t), "a cell is 8 bytes");
-    std::uint64_t bits;
-    std::memcpy(&bits, &c, sizeof bits);
-    return bits;
+  static constexpr std::uint32_t kSeedBit = 0x80000000u;
+  static constexpr std::uint32_t kBoxBit = 0x40000000u;  // the site is an obstacle cell's centre
+  static constexpr std::uint32_t kNoSite = 0x7FFFFFFFu;  // no seed has these coordinates
+  static constexpr int kOffsetBias = 96;
+  static std::uint32_t pack_cell(int x, int y, int z) {
+    return static_cast<std::uint32_t>(x) | (static_cast<std::uint32_t>(y) << 10) |
+           (static_cast<std::uint32_t>(z) << 20);
   }
-  static constexpr std::uint8_t kHasSite = 1;
-  static constexpr std::uint8_t kBoxSite = 2;  // the site is an obstacle cell's centre
-  static constexpr std::uint8_t kSeed = 4;     // seeded from this cell's own map data
-  // kSeed's bit in cell_bits(), wherever the byte order puts it.
-  static std::uint64_t seed_bit() {
-    Cell c;
-    c.flags = kSeed;
-    return cell_bits(c);
+  // The seed a cell's word refers to: its own coordinates for a seed.
+  static std::uint32_t seed_of(std::uint32_t word, int x, int y, int z) {
+    return (word & kSeedBit) != 0 ? pack_cell(x, y, z) : word;
   }
+  std::size_t cell_index(std::uint32_t packed) const {
+    const std::size_t n = static_cast<std::size_t>(n_);
+    return ((packed >> 20) & 1023u) * n * n + ((packed >> 10) & 1023u) * n + (packed & 1023u);
+  }
+  // A seed's site, decoded: position in cells from the window's minimum corner.
+  struct Site {
+    Eigen::Vector3f s = Eigen::Vector3f::Zero();
+    int normal = 0;
+    bool box = false;
+  };
+  Site site_of(const Buffer& buffer, std::uint32_t seed) const;
   static constexpr int kNormalSteps = 90;    // octahedral grid per axis
   static constexpr int kNormalCodes = 8192;  // 13 bits; kNoNormal: none
   static constexpr int kNoNormal = kNormalCodes - 1;
-  static int normal_code(const Cell& c) { return (c.flags >> 3) | (c.normal_hi << 5); }
-  static void set_normal_code(Cell& c, int code) {
-    c.flags = static_cast<std::uint8_t>((c.flags & 7) | ((code & 31) << 3));
-    c.normal_hi = static_cast<std::uint8_t>(code >> 5);
-  }
   static int encode_normal(const Eigen::Vector3f& n);
   enum class Phase : std::uint8_t { idle, seed, forward, backward };
 
@@ -192,8 +208,8 @@ class EsdfField {
   static std::size_t cell_count(int n) {
     return static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   }
-  void setup(const EsdfConfig& config, const MapConfig& map, Cell* a, Cell* b, float* normals,
-             float* slice_distance);
+  void setup(const EsdfConfig& config, const MapConfig& map, const Buffer (&buffers)[2],
+             float* normals, float* slice_distance);
   template <typename VoxelT>
   EsdfReport advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                      std::uint32_t frame, std::uint64_t map_version, std::uint64_t budget);
@@ -205,30 +221,34 @@ class EsdfField {
   template <typename VoxelT>
   bool chunk_changed(const Octree<VoxelT>& map, int chunk) const;
   // The seed of back-buffer cell (x, y, z) from the published cell at the same place
-  // (`shift_cells` on from it), shifted into the back buffer's window, into `out` (empty where that
-  // cell held no seed); false where the published window does not hold the place or the shifted
-  // site leaves the stored range (the cell is then seeded from the map).
-  bool copy_seed(const Cell* front, const Eigen::Vector3i& shift_cells, int x, int y, int z,
-                 Cell* out) const;
-  void consider(Cell& cell, float* d, const Eigen::Vector3f& q, const Cell& other) const;
+  // (`shift_cells` on from it), into `word` and `site_z` (kNoSite where that cell held no seed);
+  // false where the published window does not hold the place or the shifted site leaves the
+  // stored range (the cell is then seeded from the map).
+  bool copy_seed(const Eigen::Vector3i& shift_cells, int x, int y, int z, std::uint32_t* word,
+                 std::uint8_t* site_z) const;
   void sweep_slice(int z, int dz);
   // Plain distance to the site (a box's less its half diagonal), in cells: what propagation keeps.
-  float propagation_distance(const Cell& cell, const Eigen::Vector3f& q) const;
+  static float propagation_distance(const Site& site, const Eigen::Vector3f& q);
   // The distance to the site's disc (or box), in cells, and the direction away from its nearest
   // point: what queries answer.
-  float site_distance(const Cell& cell, const Eigen::Vector3f& q, Eigen::Vector3f* away) const;
+  float site_distance(const Site& site, const Eigen::Vector3f& q, Eigen::Vector3f* away) const;
   EsdfAnswer answer_unguarded(const Eigen::Vector3f& p_W) const;
 
   EsdfConfig config_;
-  Cell* buffers_[2] = {nullptr, nullptr};
+  Buffer buffers_[2];
   const float* normals_ = nullptr;  // unit vector of each normal code (3 floats)
-  // A swept slice's cells' distances to their sites (what propagation compares), kept as cells
-  // take nearer sites so that each is computed once a slice.
+  // A swept slice's cells' sites, decoded (position in cells, what a box's distance is less), and
+  // their distances (what propagation compares), kept as cells take nearer sites: each seed is
+  // read from where it lies once, not at every comparison.
+  static constexpr std::size_t kSliceFloats = 5;
   float* slice_distance_ = nullptr;
   int front_ = 0;  // the published buffer
   int n_ = 0;
   int chunks_per_side_ = 0;
   int cell_voxels_ = 1;
+  // Site coordinates per cell: 64, or 32 for cells of one voxel, whose sites may lie further out
+  // in cells (the byte of an offset spans 4 cells either way).
+  int site_units_ = 64;
   Window windows_[2];  // each buffer's
   Window target_;      // the next rebuild's
   Eigen::Vector3f map_origin_W_ = Eigen::Vector3f::Zero();

@@ -562,9 +562,11 @@ std::string hex(std::uint64_t bits) {
 
 // The answers over a map of blocks at scales 0-2 (and unallocated space), for each cell size and
 // both unknown modes, pinned: the seeding's and the sweeps' shortcuts (a block looked up once a
-// row, cells of absent blocks skipped, each cell's distance computed once a slice) must give the
-// bits of the plain computation. Same bits on every architecture, as the map's. Prints what it
-// got, for re-pinning after a deliberate change.
+// row, cells of absent blocks skipped, each cell's distance computed once a slice) and the 5-byte
+// cells (a site stored once, at its seed) give the bits of the plain computation with the site in
+// every 8-byte cell (pinned before those changes; cells of one voxel were re-pinned when their
+// sites moved to a 1/32-cell lattice). Same bits on every architecture, as the map's. Prints what
+// it got, for re-pinning after a deliberate change.
 TEST_CASE("the field's answers are pinned bits, whatever the cell size and unknown mode") {
   struct Case {
     int cell_voxels;

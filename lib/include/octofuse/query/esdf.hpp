@@ -31,7 +31,7 @@ namespace octofuse {
 struct EsdfConfig {
   bool enabled = false;
   // Window of cells_per_side^3 cells (a multiple of 8, 8..1016), each cell_voxels finest voxels
-  // on a side (1, 2, 4 or 8). 16 bytes a cell (two buffers of 8).
+  // on a side (1, 2, 4 or 8). 10 bytes a cell (two buffers of 5).
   int cells_per_side = 128;
   int cell_voxels = 2;
   // World point the window is centred on (clamped into the map's cube); NaN: the cube's centre.

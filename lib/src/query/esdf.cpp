@@ -549,6 +549,13 @@ void EsdfField::sweep_slice(int z, int dz) {
     c[3] = site.box ? kHalfDiagonal : 0.0f;
     c[4] = distance;
   };
+  // The distance of cell i (centre q) to its site, computed when first asked.
+  constexpr float kNotYet = -2e30f;
+  auto distance_of = [cache](std::size_t i, const Eigen::Vector3f& q) {
+    float* c = cache + kSliceFloats * i;
+    if (c[4] == kNotYet) c[4] = (q - Eigen::Vector3f(c[0], c[1], c[2])).norm() - c[3];
+    return c[4];
+  };
   // Neighbours along z mostly share seeds: decode the last one once.
   std::uint32_t decoded_seed = kNoSite;
   Site decoded;
@@ -566,8 +573,8 @@ void EsdfField::sweep_slice(int z, int dz) {
         decoded = site_of(back, seed);
         decoded_seed = seed;
       }
-      const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
-      store(i, decoded, (w & kSeedBit) != 0 ? -1e30f : propagation_distance(decoded, q));
+      // A cell whose neighbours share its seed is never compared: its distance waits until asked.
+      store(i, decoded, (w & kSeedBit) != 0 ? -1e30f : kNotYet);
     }
   }
   const int zp = z - dz;
@@ -586,7 +593,7 @@ void EsdfField::sweep_slice(int z, int dz) {
         }
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
         const float candidate = propagation_distance(decoded, q);
-        if (candidate >= cache[kSliceFloats * i + 4]) continue;
+        if (candidate >= distance_of(i, q)) continue;
         back.set_word(here + i, seed);
         store(i, decoded, candidate);
       }
@@ -598,7 +605,7 @@ void EsdfField::sweep_slice(int z, int dz) {
     const float* from = cache + kSliceFloats * j;
     const float candidate = (q - Eigen::Vector3f(from[0], from[1], from[2])).norm() - from[3];
     float* to = cache + kSliceFloats * i;
-    if (candidate >= to[4]) return;
+    if (candidate >= distance_of(i, q)) return;
     back.set_word(here + i, seed);
     to[0] = from[0];
     to[1] = from[1];

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 
 #include "octofuse/map/interpolation.hpp"
 
@@ -44,6 +45,13 @@ Status validate(const EsdfConfig& config, const MapConfig& map) {
   if (n < 8 || n > 1016 || n % kChunkCells != 0) return Status(StatusCode::invalid_argument);
   if (c != 1 && c != 2 && c != 4 && c != 8) return Status(StatusCode::invalid_argument);
   if (static_cast<long>(n) * c > static_cast<long>(map.voxels_per_side())) {
+    return Status(StatusCode::invalid_argument);
+  }
+  // The buffers must be addressable: a 32-bit target cannot hold the largest windows (1016^3
+  // cells take 10.5 GB), and their byte counts would wrap.
+  const std::uint64_t cells =
+      static_cast<std::uint64_t>(n) * static_cast<std::uint64_t>(n) * static_cast<std::uint64_t>(n);
+  if (cells * EsdfField::kBytesPerCell > std::numeric_limits<std::size_t>::max() / 2) {
     return Status(StatusCode::invalid_argument);
   }
   const Eigen::Vector3f& centre = config.centre_W;

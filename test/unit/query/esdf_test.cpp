@@ -615,6 +615,14 @@ TEST_CASE("bad configurations and points are refused") {
     CHECK(validate(c, map_config()).code() == StatusCode::invalid_argument);
   }
 
+  // The largest window (1016^3 cells, 10.5 GB) is refused where it cannot be addressed.
+  c = field_config();
+  c.cells_per_side = 1016;
+  c.cell_voxels = 1;
+  const MapConfig big = MapConfig::centred(Eigen::Vector3f::Zero(), kVoxel_m, 10, 40000, 40000);
+  CHECK(validate(c, big).code() ==
+        (sizeof(std::size_t) >= 8 ? StatusCode::ok : StatusCode::invalid_argument));
+
   Field f(field_config());
   const float nan = std::numeric_limits<float>::quiet_NaN();
   CHECK(f.field.distance(Eigen::Vector3f(nan, 0, 0)).status().code() ==

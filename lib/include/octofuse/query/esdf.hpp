@@ -78,6 +78,7 @@ struct EsdfReport {
 
 class EsdfField {
  public:
+  static constexpr std::size_t kBytesPerCell = 10;  // a cell in each of the two buffers
   static std::size_t bytes_required(const EsdfConfig& config);
 
   template <typename Arena>
@@ -152,7 +153,7 @@ class EsdfField {
   // kDiscRadius cells) across its normal. Any other cell holds the packed coordinates of the seed
   // whose site it took (10 bits an axis, pack_cell()), or kNoSite.
   // Cells packed 5 bytes apart, so that neighbours share cache lines (a query reads 27).
-  static constexpr std::size_t kCellBytes = 5;
+  static constexpr std::size_t kCellBytes = kBytesPerCell / 2;
   struct Buffer {
     std::uint8_t* bytes = nullptr;
     std::uint32_t word(std::size_t i) const {

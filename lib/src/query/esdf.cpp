@@ -183,10 +183,14 @@ EsdfField::Site EsdfField::site_of(const Buffer& buffer, std::uint32_t seed) con
   const int y = static_cast<int>((seed >> 10) & 1023u);
   const int z = static_cast<int>((seed >> 20) & 1023u);
   const std::size_t i = cell_index(seed);
-  const std::uint32_t word = buffer.word(i);
+  return decode_seed(buffer.word(i), buffer.site_z(i), x, y, z);
+}
+
+EsdfField::Site EsdfField::decode_seed(std::uint32_t word, std::uint8_t site_z, int x, int y,
+                                       int z) const {
   const int ux = x * site_units_ + static_cast<int>((word >> 9) & 255u) - kOffsetBias;
   const int uy = y * site_units_ + static_cast<int>((word >> 1) & 255u) - kOffsetBias;
-  const int uz = z * site_units_ + static_cast<int>(buffer.site_z(i)) - kOffsetBias;
+  const int uz = z * site_units_ + static_cast<int>(site_z) - kOffsetBias;
   Site site;
   site.s = Eigen::Vector3f(static_cast<float>(ux), static_cast<float>(uy), static_cast<float>(uz)) *
            (1.0f / static_cast<float>(site_units_));
@@ -767,6 +771,8 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
   // First the seeds of the 27 cells (in order, each once), then their sites: the sites' reads
   // are independent of each other, so their cache misses overlap.
   std::uint32_t seeds[27];
+  Site sites[27];
+  bool from_elsewhere[27] = {};  // a seed that lies outside the 27 cells, read after them
   int seed_count = 0;
   for (int dz = -1; dz <= 1; ++dz) {
     for (int dy = -1; dy <= 1; ++dy) {
@@ -775,21 +781,26 @@ EsdfAnswer EsdfField::answer_unguarded(const Eigen::Vector3f& p_W) const {
         const int ny = y + dy;
         const int nz = z + dz;
         if (nx < 0 || ny < 0 || nz < 0 || nx >= n_ || ny >= n_ || nz >= n_) continue;
-        const std::uint32_t w = cells.word(
-            (static_cast<std::size_t>(nz) * n_ + static_cast<std::size_t>(ny)) * n_ + nx);
+        const std::size_t i =
+            (static_cast<std::size_t>(nz) * n_ + static_cast<std::size_t>(ny)) * n_ + nx;
+        const std::uint32_t w = cells.word(i);
         if (w == kNoSite) continue;
-        const std::uint32_t seed = seed_of(w, nx, ny, nz);
-        // A seed's own cell comes once; a cell that took a seed's site may repeat one.
-        if ((w & kSeedBit) == 0 &&
-            std::find(seeds, seeds + seed_count, seed) != seeds + seed_count) {
+        if ((w & kSeedBit) != 0) {
+          // A seed's own cell comes once, and holds its site.
+          sites[seed_count] = decode_seed(w, cells.site_z(i), nx, ny, nz);
+          seeds[seed_count++] = pack_cell(nx, ny, nz);
           continue;
         }
-        seeds[seed_count++] = seed;
+        // A cell that took a seed's site may repeat one.
+        if (std::find(seeds, seeds + seed_count, w) != seeds + seed_count) continue;
+        from_elsewhere[seed_count] = true;
+        seeds[seed_count++] = w;
       }
     }
   }
-  Site sites[27];
-  for (int k = 0; k < seed_count; ++k) sites[k] = site_of(cells, seeds[k]);
+  for (int k = 0; k < seed_count; ++k) {
+    if (from_elsewhere[k]) sites[k] = site_of(cells, seeds[k]);
+  }
   float best = 1e30f;
   bool found = false;
   Eigen::Vector3f best_away = Eigen::Vector3f::Zero();

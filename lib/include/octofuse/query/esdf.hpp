@@ -190,6 +190,8 @@ class EsdfField {
     bool box = false;
   };
   Site site_of(const Buffer& buffer, std::uint32_t seed) const;
+  // The site of the seed at cell (x, y, z) holding `word` and `site_z`.
+  Site decode_seed(std::uint32_t word, std::uint8_t site_z, int x, int y, int z) const;
   static constexpr int kNormalSteps = 90;    // octahedral grid per axis
   static constexpr int kNormalCodes = 8192;  // 13 bits; kNoNormal: none
   static constexpr int kNoNormal = kNormalCodes - 1;

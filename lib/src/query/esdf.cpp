@@ -91,8 +91,8 @@ int EsdfField::encode_normal(const Eigen::Vector3f& n) {
 }
 
 void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, const Buffer (&buffers)[2],
-                      float* normals, float* slice_distance) {
-  slice_distance_ = slice_distance;
+                      float* normals, float* slice_cache) {
+  slice_cache_ = slice_cache;
   config_ = config;
   buffers_[0] = buffers[0];
   buffers_[1] = buffers[1];
@@ -186,11 +186,18 @@ EsdfField::Site EsdfField::site_of(const Buffer& buffer, std::uint32_t seed) con
   return decode_seed(buffer.word(i), buffer.site_z(i), x, y, z);
 }
 
+Eigen::Vector3i EsdfField::seed_offset(std::uint32_t word, std::uint8_t site_z) {
+  return Eigen::Vector3i(static_cast<int>((word >> 9) & 255u), static_cast<int>((word >> 1) & 255u),
+                         static_cast<int>(site_z)) -
+         Eigen::Vector3i::Constant(kOffsetBias);
+}
+
 EsdfField::Site EsdfField::decode_seed(std::uint32_t word, std::uint8_t site_z, int x, int y,
                                        int z) const {
-  const int ux = x * site_units_ + static_cast<int>((word >> 9) & 255u) - kOffsetBias;
-  const int uy = y * site_units_ + static_cast<int>((word >> 1) & 255u) - kOffsetBias;
-  const int uz = z * site_units_ + static_cast<int>(site_z) - kOffsetBias;
+  const Eigen::Vector3i offset = seed_offset(word, site_z);
+  const int ux = x * site_units_ + offset.x();
+  const int uy = y * site_units_ + offset.y();
+  const int uz = z * site_units_ + offset.z();
   Site site;
   site.s = Eigen::Vector3f(static_cast<float>(ux), static_cast<float>(uy), static_cast<float>(uz)) *
            (1.0f / static_cast<float>(site_units_));
@@ -359,15 +366,11 @@ bool EsdfField::copy_seed(const Eigen::Vector3i& shift_cells, int x, int y, int 
     *site_z = front.site_z(i);
     return true;
   }
-  // The site lies as far from the cell as before; from the moved window's corner it lies shift
-  // cells less far, and must stay in the window.
-  const Site seed = site_of(front, pack_cell(source.x(), source.y(), source.z()));
-  const int units = site_units_;
-  for (int a = 0; a < 3; ++a) {
-    const int unit =
-        static_cast<int>(seed.s[a] * static_cast<float>(units)) - shift_cells[a] * units;
-    if (unit < 0 || unit >= n_ * units) return false;
-  }
+  // The site keeps its offset from the cell, which is cell (x, y, z) of the moved window; it
+  // must stay in that window.
+  const Eigen::Vector3i units =
+      Eigen::Vector3i(x, y, z) * site_units_ + seed_offset(front.word(i), front.site_z(i));
+  if ((units.array() < 0).any() || (units.array() >= n_ * site_units_).any()) return false;
   *word = front.word(i);
   *site_z = front.site_z(i);
   return true;
@@ -551,7 +554,7 @@ void EsdfField::sweep_slice(int z, int dz) {
   const std::size_t slice = static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   const std::size_t here = static_cast<std::size_t>(z) * slice;
   // Per cell of the slice: site x, y, z (cells), less (a box's half diagonal, else 0), distance.
-  float* cache = slice_distance_;
+  float* cache = slice_cache_;
   const float zc = static_cast<float>(z) + 0.5f;
   auto store = [cache](std::size_t i, const Site& site, float distance) {
     float* c = cache + kSliceFloats * i;
@@ -561,11 +564,15 @@ void EsdfField::sweep_slice(int z, int dz) {
     c[3] = site.box ? kHalfDiagonal : 0.0f;
     c[4] = distance;
   };
+  // From q to a cached site: what propagation_distance() gives for it.
+  auto distance_to = [](const float* c, const Eigen::Vector3f& q) {
+    return (q - Eigen::Vector3f(c[0], c[1], c[2])).norm() - c[3];
+  };
   // The distance of cell i (centre q) to its site, computed when first asked.
   constexpr float kNotYet = -2e30f;
-  auto distance_of = [cache](std::size_t i, const Eigen::Vector3f& q) {
+  auto distance_of = [cache, &distance_to](std::size_t i, const Eigen::Vector3f& q) {
     float* c = cache + kSliceFloats * i;
-    if (c[4] == kNotYet) c[4] = (q - Eigen::Vector3f(c[0], c[1], c[2])).norm() - c[3];
+    if (c[4] == kNotYet) c[4] = distance_to(c, q);
     return c[4];
   };
   // Neighbours along z mostly share seeds: decode the last one once.
@@ -615,14 +622,11 @@ void EsdfField::sweep_slice(int z, int dz) {
   auto consider = [&](std::size_t i, std::size_t j, std::uint32_t seed, const Eigen::Vector3f& q) {
     if (seed == back.word(here + i)) return;
     const float* from = cache + kSliceFloats * j;
-    const float candidate = (q - Eigen::Vector3f(from[0], from[1], from[2])).norm() - from[3];
-    float* to = cache + kSliceFloats * i;
+    const float candidate = distance_to(from, q);
     if (candidate >= distance_of(i, q)) return;
     back.set_word(here + i, seed);
-    to[0] = from[0];
-    to[1] = from[1];
-    to[2] = from[2];
-    to[3] = from[3];
+    float* to = cache + kSliceFloats * i;
+    std::copy(from, from + 4, to);  // the site and its `less`
     to[4] = candidate;
   };
   for (int pass = 0; pass < 2; ++pass) {

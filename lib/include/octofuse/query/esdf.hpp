@@ -93,12 +93,12 @@ class EsdfField {
     }
     Result<float*> normals = arena.template allocate_array<float>(3 * kNormalCodes);
     OCTOFUSE_TRY(normals);
-    Result<float*> slice_distance = arena.template allocate_array<float>(
+    Result<float*> slice_cache = arena.template allocate_array<float>(
         kSliceFloats * static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side);
-    OCTOFUSE_TRY(slice_distance);
+    OCTOFUSE_TRY(slice_cache);
     // The sizing pass hands out no memory to clear.
     if constexpr (!std::is_same<Arena, ArenaSizer>::value) {
-      setup(config, map, buffers, normals.value(), slice_distance.value());
+      setup(config, map, buffers, normals.value(), slice_cache.value());
     }
     return ok_status();
   }
@@ -190,6 +190,8 @@ class EsdfField {
     bool box = false;
   };
   Site site_of(const Buffer& buffer, std::uint32_t seed) const;
+  // A seed's offset from its cell's minimum corner, in site units.
+  static Eigen::Vector3i seed_offset(std::uint32_t word, std::uint8_t site_z);
   // The site of the seed at cell (x, y, z) holding `word` and `site_z`.
   Site decode_seed(std::uint32_t word, std::uint8_t site_z, int x, int y, int z) const;
   static constexpr int kNormalSteps = 90;    // octahedral grid per axis
@@ -212,7 +214,7 @@ class EsdfField {
     return static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   }
   void setup(const EsdfConfig& config, const MapConfig& map, const Buffer (&buffers)[2],
-             float* normals, float* slice_distance);
+             float* normals, float* slice_cache);
   template <typename VoxelT>
   EsdfReport advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                      std::uint32_t frame, std::uint64_t map_version, std::uint64_t budget);
@@ -244,7 +246,7 @@ class EsdfField {
   // their distances (what propagation compares), kept as cells take nearer sites: each seed is
   // read from where it lies once, not at every comparison.
   static constexpr std::size_t kSliceFloats = 5;
-  float* slice_distance_ = nullptr;
+  float* slice_cache_ = nullptr;
   int front_ = 0;  // the published buffer
   int n_ = 0;
   int chunks_per_side_ = 0;

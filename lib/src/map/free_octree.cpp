@@ -535,6 +535,13 @@ FreeOctant FreeOctree::find(const Eigen::Vector3i& voxel) const {
       voxel.z() >= n) {
     return out;
   }
+  // Where nothing is free: the octant of `size` voxels around the voxel, which holds no free one.
+  auto none_in = [&out, &voxel](int size) {
+    out.size_voxels = size;
+    out.min_voxel = Eigen::Vector3i(voxel.x() & ~(size - 1), voxel.y() & ~(size - 1),
+                                    voxel.z() & ~(size - 1));
+    return out;
+  };
   const int leaf = leaf_level();
   std::uint32_t index = 0;
   for (int level = 0;; ++level) {
@@ -550,21 +557,21 @@ FreeOctant FreeOctree::find(const Eigen::Vector3i& voxel) const {
       return out;
     }
     if (level == leaf) {
-      if (node.sub_free == 0) return out;
       const int leaf_size = 1 << (depth - level);
+      if (node.sub_free == 0) return none_in(leaf_size);
       const Eigen::Vector3i in_leaf(voxel.x() & (leaf_size - 1), voxel.y() & (leaf_size - 1),
                                     voxel.z() & (leaf_size - 1));
       const Eigen::Vector3i cell = in_leaf / sub_cell_voxels_;
+      out.size_voxels = sub_cell_voxels_;
+      out.min_voxel = (voxel - in_leaf) + cell * sub_cell_voxels_;
       if (((node.sub_free >> (cell.x() + 2 * cell.y() + 4 * cell.z())) & 1u) == 0) return out;
       out.free = true;
       out.free_frame = node.free_frame;
       out.level = level + 1;
-      out.size_voxels = sub_cell_voxels_;
-      out.min_voxel = (voxel - in_leaf) + cell * sub_cell_voxels_;
       return out;
     }
     index = node.children[child_towards(voxel, level, depth)];
-    if (index == kNoNode) return out;
+    if (index == kNoNode) return none_in(1 << (depth - level - 1));
   }
 }
 

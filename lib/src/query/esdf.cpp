@@ -66,9 +66,11 @@ Status validate(const EsdfConfig& config, const MapConfig& map) {
 std::size_t EsdfField::bytes_required(const EsdfConfig& config) {
   const std::size_t cells = cell_count(config.cells_per_side);
   const std::size_t slice_cells =
-      kSliceFloats * static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side;
+      static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side;
   return 2 * cells * kCellBytes + 3 * kNormalCodes * sizeof(float) + alignof(float) +
-         slice_cells * sizeof(float) + alignof(float);
+         2 * kSliceFloats * slice_cells * sizeof(float) + alignof(float) +
+         2 * slice_cells * sizeof(std::uint32_t) + alignof(std::uint32_t) +
+         static_cast<std::size_t>(config.cells_per_side);
 }
 
 // Octahedral code of a direction (sign ignored by the disc distance, kept anyway).
@@ -91,8 +93,11 @@ int EsdfField::encode_normal(const Eigen::Vector3f& n) {
 }
 
 void EsdfField::setup(const EsdfConfig& config, const MapConfig& map, const Buffer (&buffers)[2],
-                      float* normals, float* slice_cache) {
+                      float* normals, float* slice_cache, std::uint32_t* slice_seeds,
+                      std::uint8_t* open_rows) {
   slice_cache_ = slice_cache;
+  slice_seeds_ = slice_seeds;
+  open_rows_ = open_rows;
   config_ = config;
   buffers_[0] = buffers[0];
   buffers_[1] = buffers[1];
@@ -168,6 +173,7 @@ void EsdfField::clear() {
   }
   phase_ = Phase::idle;
   cursor_ = 0;
+  cached_slice_z_ = -1;
   all_dirty_ = true;
   rebuild_all_ = true;
   front_valid_ = false;
@@ -406,17 +412,10 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         back.set_site_z(index, copied_z);
         if (copied) continue;
         any_from_map = true;
-        // Cell centre in continuous finest-voxel coordinates, and in the world.
-        const Eigen::Vector3f q =
-            window.min_voxel.cast<float>() +
-            (Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) +
-             Eigen::Vector3f::Constant(0.5f)) *
-                cv;
-        const Eigen::Vector3f p_W = map.config().origin_W + q * voxel_m_;
-        const Eigen::Vector3i voxel(static_cast<int>(std::floor(q.x())),
-                                    static_cast<int>(std::floor(q.y())),
-                                    static_cast<int>(std::floor(q.z())));
-        // The window lies inside the cube, and so does every cell's voxel.
+        // The finest voxel holding the cell's centre (cells are whole voxels on the map's cell
+        // grid). The window lies inside the cube, and so does every cell's voxel.
+        const Eigen::Vector3i voxel = window.min_voxel + Eigen::Vector3i(x, y, z) * cell_voxels_ +
+                                      Eigen::Vector3i::Constant(cell_voxels_ / 2);
         const Eigen::Vector3i block_coords = voxel_to_block(voxel);
         if (block_coords != cached_block_coords) {
           cached_block_coords = block_coords;
@@ -432,9 +431,16 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
         bool site = false;
         bool valley_site = false;  // a box around a dip's bottom, not around the cell's centre
         int normal = kNoNormal;
-        Eigen::Vector3f site_W = p_W;
+        Eigen::Vector3f site_W = Eigen::Vector3f::Zero();  // of a site not at the cell's centre
         // With unknown space as obstacle, a cell whose centre is unobserved stays one.
         if (block != nullptr || !config_.unknown_is_obstacle) {
+          // The cell's centre in continuous finest-voxel coordinates, and in the world.
+          const Eigen::Vector3f q = window.min_voxel.cast<float>() +
+                                    (Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y),
+                                                     static_cast<float>(z)) +
+                                     Eigen::Vector3f::Constant(0.5f)) *
+                                        cv;
+          const Eigen::Vector3f p_W = map.config().origin_W + q * voxel_m_;
           // The trilinear sample needs all 8 voxels around its point observed: where the
           // cell's centre lacks one (the edge of what the camera saw, a scale boundary, a block
           // never allocated beside a surface), a point a quarter cell towards each corner may
@@ -505,8 +511,9 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
           }
         }
         if (!observed && config_.unknown_is_obstacle) {
-          // Free octants are mostly larger than a cell: look each up once.
-          if (!octant.free || (voxel.array() < octant.min_voxel.array()).any() ||
+          // Octants, free or known to hold nothing free, are mostly larger than a cell: look
+          // each up once.
+          if (octant.size_voxels == 0 || (voxel.array() < octant.min_voxel.array()).any() ||
               (voxel.array() >= (octant.min_voxel.array() + octant.size_voxels)).any()) {
             if (free_space != nullptr) octant = free_space->find(voxel);
           }
@@ -519,18 +526,17 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
           }
         }
         if (site) {
-          const Eigen::Vector3f s_cells =
-              box && !valley_site
-                  ? Eigen::Vector3f(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f,
-                                    static_cast<float>(z) + 0.5f)
-                  : (site_W - window.min_W) / cell_m_;
           const int u = site_units_;
-          const std::uint32_t ox =
-              offset_byte(to_site_units(s_cells.x(), n_, u), x * u, kOffsetBias);
-          const std::uint32_t oy =
-              offset_byte(to_site_units(s_cells.y(), n_, u), y * u, kOffsetBias);
-          const std::uint32_t oz =
-              offset_byte(to_site_units(s_cells.z(), n_, u), z * u, kOffsetBias);
+          // A box around the cell's centre sits half a cell from its corner.
+          std::uint32_t ox = static_cast<std::uint32_t>(u / 2 + kOffsetBias);
+          std::uint32_t oy = ox;
+          std::uint32_t oz = ox;
+          if (!box || valley_site) {
+            const Eigen::Vector3f s_cells = (site_W - window.min_W) / cell_m_;
+            ox = offset_byte(to_site_units(s_cells.x(), n_, u), x * u, kOffsetBias);
+            oy = offset_byte(to_site_units(s_cells.y(), n_, u), y * u, kOffsetBias);
+            oz = offset_byte(to_site_units(s_cells.z(), n_, u), z * u, kOffsetBias);
+          }
           box = box || valley_site;
           const std::uint32_t code = static_cast<std::uint32_t>(box ? kNoNormal : normal);
           back.set_word(index,
@@ -553,11 +559,19 @@ void EsdfField::sweep_slice(int z, int dz) {
   const int n = n_;
   const std::size_t slice = static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   const std::size_t here = static_cast<std::size_t>(z) * slice;
-  // Per cell of the slice: site x, y, z (cells), less (a box's half diagonal, else 0), distance.
-  float* cache = slice_cache_;
+  const int zp = z - dz;
+  const bool has_prev = zp >= 0 && zp < n;
+  // The slice before along the sweep, as swept (a budget may have stopped between the two): its
+  // sites decoded, each cell's seed.
+  const int prev_half = cached_half_;
+  const float* prev_cache = slice_cache_ + kSliceFloats * slice * prev_half;
+  std::uint32_t* prev_seeds = slice_seeds_ + slice * prev_half;
+  const bool prev_cached = has_prev && cached_slice_z_ == zp && cached_slice_dz_ == dz;
+  float* cache = slice_cache_ + kSliceFloats * slice * (1 - prev_half);
+  std::uint32_t* seeds = slice_seeds_ + slice * (1 - prev_half);
   const float zc = static_cast<float>(z) + 0.5f;
-  auto store = [cache](std::size_t i, const Site& site, float distance) {
-    float* c = cache + kSliceFloats * i;
+  // Per cell of the slice: site x, y, z (cells), less (a box's half diagonal, else 0), distance.
+  auto store = [](float* c, const Site& site, float distance) {
     c[0] = site.s.x();
     c[1] = site.s.y();
     c[2] = site.s.z();
@@ -575,56 +589,79 @@ void EsdfField::sweep_slice(int z, int dz) {
     if (c[4] == kNotYet) c[4] = distance_to(c, q);
     return c[4];
   };
-  // Neighbours along z mostly share seeds: decode the last one once.
-  std::uint32_t decoded_seed = kNoSite;
-  Site decoded;
-  // Seeds are never replaced (and never asked); a cell without a site takes any.
-  for (int y = 0; y < n; ++y) {
-    for (int x = 0; x < n; ++x) {
-      const std::size_t i = static_cast<std::size_t>(y) * n + x;
-      const std::uint32_t w = back.word(here + i);
-      if (w == kNoSite) {
-        store(i, Site(), 1e30f);
-        continue;
-      }
-      const std::uint32_t seed = seed_of(w, x, y, z);
-      if (seed != decoded_seed) {
-        decoded = site_of(back, seed);
-        decoded_seed = seed;
-      }
-      // A cell whose neighbours share its seed is never compared: its distance waits until asked.
-      store(i, decoded, (w & kSeedBit) != 0 ? -1e30f : kNotYet);
-    }
-  }
-  const int zp = z - dz;
-  if (zp >= 0 && zp < n) {
-    const std::size_t prev = static_cast<std::size_t>(zp) * slice;
+  // A slice's seeds and decoded sites from its words. Neighbours mostly share seeds, and so do
+  // cells along z: a seed is decoded once for a run of cells, or taken from the slice before.
+  auto load = [&](int at_z, float* to_cache, std::uint32_t* to_seeds, const float* from_cache,
+                  const std::uint32_t* from_seeds) {
+    const std::size_t at = static_cast<std::size_t>(at_z) * slice;
+    std::uint32_t decoded_seed = kNoSite;
+    Site decoded;
     for (int y = 0; y < n; ++y) {
+      open_rows_[y] = 0;
       for (int x = 0; x < n; ++x) {
         const std::size_t i = static_cast<std::size_t>(y) * n + x;
-        const std::uint32_t from = back.word(prev + i);
-        if (from == kNoSite || (back.word(here + i) & kSeedBit) != 0) continue;
-        const std::uint32_t seed = seed_of(from, x, y, zp);
-        if (seed == back.word(here + i)) continue;
-        if (seed != decoded_seed) {
-          decoded = site_of(back, seed);
-          decoded_seed = seed;
+        float* c = to_cache + kSliceFloats * i;
+        const std::uint32_t w = back.word(at + i);
+        if (w == kNoSite) {
+          to_seeds[i] = kNoSite;
+          open_rows_[y] = 1;
+          store(c, Site(), 1e30f);
+          continue;
         }
-        const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
-        const float candidate = propagation_distance(decoded, q);
-        if (candidate >= distance_of(i, q)) continue;
-        back.set_word(here + i, seed);
-        store(i, decoded, candidate);
+        if ((w & kSeedBit) != 0) {
+          // A seed's own cell is never replaced (and never asked).
+          to_seeds[i] = pack_cell(x, y, at_z) | kSeedBit;
+          store(c, decode_seed(w, back.site_z(at + i), x, y, at_z), -1e30f);
+          continue;
+        }
+        // Any other cell holds its seed's coordinates. One whose neighbours share its seed is
+        // never compared: its distance waits until asked.
+        open_rows_[y] = 1;
+        to_seeds[i] = w;
+        if (from_seeds != nullptr && (from_seeds[i] & ~kSeedBit) == w) {
+          std::copy(from_cache + kSliceFloats * i, from_cache + kSliceFloats * i + 4, c);
+          c[4] = kNotYet;
+          continue;
+        }
+        if (w != decoded_seed) {
+          decoded = site_of(back, w);
+          decoded_seed = w;
+        }
+        store(c, decoded, kNotYet);
       }
     }
+  };
+  if (has_prev && !prev_cached) {
+    load(zp, const_cast<float*>(prev_cache), prev_seeds, nullptr, nullptr);
   }
-  // Cell i takes the site of cell j of the slice (whose seed is `seed`) where it is nearer.
-  auto consider = [&](std::size_t i, std::size_t j, std::uint32_t seed, const Eigen::Vector3f& q) {
-    if (seed == back.word(here + i)) return;
+  load(z, cache, seeds, has_prev ? prev_cache : nullptr, has_prev ? prev_seeds : nullptr);
+  // Only cells that are not seeds take sites, and rows of seeds alone are passed over.
+  for (int y = 0; has_prev && y < n; ++y) {
+    if (open_rows_[y] == 0) continue;
+    for (int x = 0; x < n; ++x) {
+      const std::size_t i = static_cast<std::size_t>(y) * n + x;
+      const std::uint32_t from = prev_seeds[i];
+      if (from == kNoSite || (seeds[i] & kSeedBit) != 0) continue;
+      const std::uint32_t seed = from & ~kSeedBit;
+      if (seed == seeds[i]) continue;
+      const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
+      const float* c = prev_cache + kSliceFloats * i;
+      const float candidate = distance_to(c, q);
+      if (candidate >= distance_of(i, q)) continue;
+      seeds[i] = seed;
+      float* to = cache + kSliceFloats * i;
+      std::copy(c, c + 4, to);  // the site and its `less`
+      to[4] = candidate;
+    }
+  }
+  // Cell i takes the site of cell j of the slice where it is nearer.
+  auto consider = [&](std::size_t i, std::size_t j, const Eigen::Vector3f& q) {
+    const std::uint32_t seed = seeds[j] & ~kSeedBit;
+    if (seed == seeds[i]) return;
     const float* from = cache + kSliceFloats * j;
     const float candidate = distance_to(from, q);
     if (candidate >= distance_of(i, q)) return;
-    back.set_word(here + i, seed);
+    seeds[i] = seed;
     float* to = cache + kSliceFloats * i;
     std::copy(from, from + 4, to);  // the site and its `less`
     to[4] = candidate;
@@ -633,29 +670,38 @@ void EsdfField::sweep_slice(int z, int dz) {
     const int dy = pass == 0 ? 1 : -1;
     for (int step = 0; step < n; ++step) {
       const int y = dy > 0 ? step : n - 1 - step;
+      if (open_rows_[y] == 0) continue;
       const std::size_t row = static_cast<std::size_t>(y) * n;
       const int yp = y - dy;
       const bool has_prev_row = yp >= 0 && yp < n;
       const std::size_t prev_row = static_cast<std::size_t>(has_prev_row ? yp : y) * n;
       const float yc = static_cast<float>(y) + 0.5f;
       for (int x = 0; x < n; ++x) {
-        const std::uint32_t above = has_prev_row ? back.word(here + prev_row + x) : kNoSite;
-        const std::uint32_t left = x > 0 ? back.word(here + row + x - 1) : kNoSite;
-        if ((above == kNoSite && left == kNoSite) || (back.word(here + row + x) & kSeedBit) != 0) {
-          continue;
-        }
+        const std::uint32_t above = has_prev_row ? seeds[prev_row + x] : kNoSite;
+        const std::uint32_t left = x > 0 ? seeds[row + x - 1] : kNoSite;
+        if ((seeds[row + x] & kSeedBit) != 0 || (above == kNoSite && left == kNoSite)) continue;
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
-        if (above != kNoSite) consider(row + x, prev_row + x, seed_of(above, x, yp, z), q);
-        if (left != kNoSite) consider(row + x, row + x - 1, seed_of(left, x - 1, y, z), q);
+        if (above != kNoSite) consider(row + x, prev_row + x, q);
+        if (left != kNoSite) consider(row + x, row + x - 1, q);
       }
       for (int x = n - 2; x >= 0; --x) {
-        const std::uint32_t right = back.word(here + row + x + 1);
-        if (right == kNoSite || (back.word(here + row + x) & kSeedBit) != 0) continue;
+        if ((seeds[row + x] & kSeedBit) != 0 || seeds[row + x + 1] == kNoSite) continue;
         const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, yc, zc);
-        consider(row + x, row + x + 1, seed_of(right, x + 1, y, z), q);
+        consider(row + x, row + x + 1, q);
       }
     }
   }
+  // Seeds' own words never change; every other cell refers to its seed.
+  for (int y = 0; y < n; ++y) {
+    if (open_rows_[y] == 0) continue;
+    for (std::size_t i = static_cast<std::size_t>(y) * n; i < static_cast<std::size_t>(y + 1) * n;
+         ++i) {
+      if ((seeds[i] & kSeedBit) == 0) back.set_word(here + i, seeds[i]);
+    }
+  }
+  cached_half_ = 1 - prev_half;
+  cached_slice_z_ = z;
+  cached_slice_dz_ = dz;
 }
 
 template <typename VoxelT>

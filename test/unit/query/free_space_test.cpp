@@ -274,6 +274,54 @@ TEST_CASE(
           RegionState::free);
 }
 
+TEST_CASE("find() outside free space names an octant around the voxel that holds no free voxel") {
+  AnalyticScene scene = wall_at(kWall_m);
+  scene.spheres.push_back({Eigen::Vector3d(0.1, 0.05, 1.3), 0.12});
+  Mapper m;
+  m.fuse(scene, Se3d::Identity());
+  const int sub = m.free_space.sub_cell_voxels();
+  const int leaf_voxels = sub * 2;
+  bool seen_sub = false;
+  bool seen_leaf = false;
+  bool seen_larger = false;
+  int not_free = 0;
+  for (float z = -0.2f; z < 2.4f; z += 0.01f) {
+    for (float x = -0.6f; x <= 0.6f; x += 0.01f) {
+      const Eigen::Vector3i v = m.map.point_to_voxel(Eigen::Vector3f(x, 0.05f, z));
+      const FreeOctant o = m.free_space.find(v);
+      if (o.free) continue;
+      ++not_free;
+      REQUIRE(o.size_voxels > 0);
+      // A power of two, aligned to it, holding the voxel.
+      REQUIRE((o.size_voxels & (o.size_voxels - 1)) == 0);
+      for (int a = 0; a < 3; ++a) REQUIRE(o.min_voxel[a] % o.size_voxels == 0);
+      REQUIRE(((v - o.min_voxel).array() >= 0).all());
+      REQUIRE(((v - o.min_voxel).array() < o.size_voxels).all());
+      seen_sub = seen_sub || o.size_voxels == sub;
+      seen_leaf = seen_leaf || o.size_voxels == leaf_voxels;
+      seen_larger = seen_larger || o.size_voxels > leaf_voxels;
+      // No voxel of it is free: a lattice of 5^3 points over it, its corners included.
+      const int last = o.size_voxels - 1;
+      for (int k = 0; k < 125; ++k) {
+        const Eigen::Vector3i at(last * (k % 5) / 4, last * (k / 5 % 5) / 4, last * (k / 25) / 4);
+        const FreeOctant inside = m.free_space.find(o.min_voxel + at);
+        REQUIRE(!inside.free);
+        // The same octant: every voxel of it ends the tree's walk where this one did.
+        REQUIRE(inside.size_voxels == o.size_voxels);
+        REQUIRE(inside.min_voxel == o.min_voxel);
+      }
+    }
+  }
+  REQUIRE(not_free > 1000);
+  REQUIRE(seen_sub);
+  REQUIRE(seen_leaf);
+  REQUIRE(seen_larger);
+  // Outside the cube: nothing.
+  const FreeOctant outside = m.free_space.find(Eigen::Vector3i(-1, 0, 0));
+  REQUIRE(!outside.free);
+  REQUIRE(outside.size_voxels == 0);
+}
+
 TEST_CASE("prune() forgets the free space far from a point and keeps the tree whole") {
   Mapper m;
   // Two views: one from the origin, one from 1.5 m to the side, each carving its own air.

@@ -209,7 +209,9 @@ class FreeOctree {
   Status graft_region_record(std::uint64_t region_key, const std::uint8_t* record,
                              std::size_t size);
 
-  // The free octant containing finest voxel `voxel` (inside the cube), or free = false.
+  // The free octant containing finest voxel `voxel` (inside the cube), or free = false with, in
+  // min_voxel and size_voxels, the octant around it known to hold no free voxel (size 0 outside
+  // the cube): a caller walking a grid asks again only once it leaves either.
   FreeOctant find(const Eigen::Vector3i& voxel) const;
 
   const FreeSpaceConfig& config() const { return config_; }

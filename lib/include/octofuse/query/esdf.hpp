@@ -93,12 +93,19 @@ class EsdfField {
     }
     Result<float*> normals = arena.template allocate_array<float>(3 * kNormalCodes);
     OCTOFUSE_TRY(normals);
-    Result<float*> slice_cache = arena.template allocate_array<float>(
-        kSliceFloats * static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side);
+    const std::size_t slice_cells =
+        static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side;
+    Result<float*> slice_cache = arena.template allocate_array<float>(2 * kSliceFloats * slice_cells);
     OCTOFUSE_TRY(slice_cache);
+    Result<std::uint32_t*> slice_seeds = arena.template allocate_array<std::uint32_t>(2 * slice_cells);
+    OCTOFUSE_TRY(slice_seeds);
+    Result<std::uint8_t*> open_rows = arena.template allocate_array<std::uint8_t>(
+        static_cast<std::size_t>(config.cells_per_side));
+    OCTOFUSE_TRY(open_rows);
     // The sizing pass hands out no memory to clear.
     if constexpr (!std::is_same<Arena, ArenaSizer>::value) {
-      setup(config, map, buffers, normals.value(), slice_cache.value());
+      setup(config, map, buffers, normals.value(), slice_cache.value(), slice_seeds.value(),
+            open_rows.value());
     }
     return ok_status();
   }
@@ -214,7 +221,8 @@ class EsdfField {
     return static_cast<std::size_t>(n) * static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   }
   void setup(const EsdfConfig& config, const MapConfig& map, const Buffer (&buffers)[2],
-             float* normals, float* slice_cache);
+             float* normals, float* slice_cache, std::uint32_t* slice_seeds,
+             std::uint8_t* open_rows);
   template <typename VoxelT>
   EsdfReport advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                      std::uint32_t frame, std::uint64_t map_version, std::uint64_t budget);
@@ -244,9 +252,17 @@ class EsdfField {
   const float* normals_ = nullptr;  // unit vector of each normal code (3 floats)
   // A swept slice's cells' sites, decoded (position in cells, what a box's distance is less), and
   // their distances (what propagation compares), kept as cells take nearer sites: each seed is
-  // read from where it lies once, not at every comparison.
+  // read from where it lies once, not at every comparison. Beside them each cell's seed (packed
+  // coordinates, kSeedBit on a seed's own cell, or kNoSite): the sweep works on these and writes
+  // the slice's words once at its end. Two slices, the one swept and the one before it along the
+  // sweep, whose sites the next slice takes without decoding them again.
   static constexpr std::size_t kSliceFloats = 5;
   float* slice_cache_ = nullptr;
+  std::uint32_t* slice_seeds_ = nullptr;
+  std::uint8_t* open_rows_ = nullptr;  // per row of the slice swept: 1 where a cell is no seed
+  int cached_half_ = 0;         // which half of the slice scratch holds the last swept slice
+  int cached_slice_z_ = -1;     // that slice (-1: none)
+  int cached_slice_dz_ = 0;     // and its sweep's direction
   int front_ = 0;  // the published buffer
   int n_ = 0;
   int chunks_per_side_ = 0;

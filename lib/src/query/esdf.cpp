@@ -200,13 +200,10 @@ Eigen::Vector3i EsdfField::seed_offset(std::uint32_t word, std::uint8_t site_z) 
 
 EsdfField::Site EsdfField::decode_seed(std::uint32_t word, std::uint8_t site_z, int x, int y,
                                        int z) const {
-  const Eigen::Vector3i offset = seed_offset(word, site_z);
-  const int ux = x * site_units_ + offset.x();
-  const int uy = y * site_units_ + offset.y();
-  const int uz = z * site_units_ + offset.z();
   Site site;
-  site.s = Eigen::Vector3f(static_cast<float>(ux), static_cast<float>(uy), static_cast<float>(uz)) *
-           (1.0f / static_cast<float>(site_units_));
+  site.s = Eigen::Vector3f(site_coordinate(x, (word >> 9) & 255u, site_units_),
+                           site_coordinate(y, (word >> 1) & 255u, site_units_),
+                           site_coordinate(z, site_z, site_units_));
   site.normal = static_cast<int>((word >> 17) & 8191u);
   site.box = (word & kBoxBit) != 0;
   return site;
@@ -400,6 +397,23 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
   // Cells along a row share blocks: look each up once.
   Eigen::Vector3i cached_block_coords = Eigen::Vector3i::Constant(-1);
   const VoxelBlock<VoxelT>* cached_block = nullptr;
+  // The same window, unchanged there: each seed stays where it was (copy_seed()'s plain case).
+  if (!from_map && shift_cells == Eigen::Vector3i::Zero()) {
+    const Buffer& front = buffers_[front_];
+    for (int z = cz * kChunkCells; z < (cz + 1) * kChunkCells; ++z) {
+      for (int y = cy * kChunkCells; y < (cy + 1) * kChunkCells; ++y) {
+        const std::size_t row =
+            (static_cast<std::size_t>(z) * n_ + static_cast<std::size_t>(y)) * n_;
+        for (int x = cx * kChunkCells; x < (cx + 1) * kChunkCells; ++x) {
+          const std::uint32_t word = front.word(row + x);
+          const bool seed = (word & kSeedBit) != 0;
+          back.set_word(row + x, seed ? word : kNoSite);
+          back.set_site_z(row + x, seed ? front.site_z(row + x) : 0);
+        }
+      }
+    }
+    return false;
+  }
   for (int z = cz * kChunkCells; z < (cz + 1) * kChunkCells; ++z) {
     for (int y = cy * kChunkCells; y < (cy + 1) * kChunkCells; ++y) {
       for (int x = cx * kChunkCells; x < (cx + 1) * kChunkCells; ++x) {
@@ -569,6 +583,10 @@ void EsdfField::sweep_slice(int z, int dz) {
   const bool prev_cached = has_prev && cached_slice_z_ == zp && cached_slice_dz_ == dz;
   float* cache = slice_cache_ + kSliceFloats * slice * (1 - prev_half);
   std::uint32_t* seeds = slice_seeds_ + slice * (1 - prev_half);
+  // This slice, once swept, is the one before the next.
+  cached_half_ = 1 - prev_half;
+  cached_slice_z_ = z;
+  cached_slice_dz_ = dz;
   const float zc = static_cast<float>(z) + 0.5f;
   // Per cell of the slice: site x, y, z (cells), less (a box's half diagonal, else 0), distance.
   auto store = [](float* c, const Site& site, float distance) {
@@ -596,6 +614,7 @@ void EsdfField::sweep_slice(int z, int dz) {
     const std::size_t at = static_cast<std::size_t>(at_z) * slice;
     std::uint32_t decoded_seed = kNoSite;
     Site decoded;
+    bool any_site = false;
     for (int y = 0; y < n; ++y) {
       open_rows_[y] = 0;
       for (int x = 0; x < n; ++x) {
@@ -608,10 +627,17 @@ void EsdfField::sweep_slice(int z, int dz) {
           store(c, Site(), 1e30f);
           continue;
         }
+        any_site = true;
         if ((w & kSeedBit) != 0) {
-          // A seed's own cell is never replaced (and never asked).
+          // A seed's own cell is never replaced (and never asked). Its site as decode_seed()
+          // gives it, straight into the scratch: most cells are seeds where unknown space is an
+          // obstacle.
           to_seeds[i] = pack_cell(x, y, at_z) | kSeedBit;
-          store(c, decode_seed(w, back.site_z(at + i), x, y, at_z), -1e30f);
+          c[0] = site_coordinate(x, (w >> 9) & 255u, site_units_);
+          c[1] = site_coordinate(y, (w >> 1) & 255u, site_units_);
+          c[2] = site_coordinate(at_z, back.site_z(at + i), site_units_);
+          c[3] = (w & kBoxBit) != 0 ? kHalfDiagonal : 0.0f;
+          c[4] = -1e30f;
           continue;
         }
         // Any other cell holds its seed's coordinates. One whose neighbours share its seed is
@@ -630,11 +656,13 @@ void EsdfField::sweep_slice(int z, int dz) {
         store(c, decoded, kNotYet);
       }
     }
+    return any_site;
   };
   if (has_prev && !prev_cached) {
     load(zp, const_cast<float*>(prev_cache), prev_seeds, nullptr, nullptr);
   }
-  load(z, cache, seeds, has_prev ? prev_cache : nullptr, has_prev ? prev_seeds : nullptr);
+  bool any_site =
+      load(z, cache, seeds, has_prev ? prev_cache : nullptr, has_prev ? prev_seeds : nullptr);
   // Only cells that are not seeds take sites, and rows of seeds alone are passed over.
   for (int y = 0; has_prev && y < n; ++y) {
     if (open_rows_[y] == 0) continue;
@@ -652,8 +680,11 @@ void EsdfField::sweep_slice(int z, int dz) {
       float* to = cache + kSliceFloats * i;
       std::copy(c, c + 4, to);  // the site and its `less`
       to[4] = candidate;
+      any_site = true;
     }
   }
+  // A slice without a site (ahead of every surface along the sweep) keeps its words.
+  if (!any_site) return;
   // Cell i takes the site of cell j of the slice where it is nearer.
   auto consider = [&](std::size_t i, std::size_t j, const Eigen::Vector3f& q) {
     const std::uint32_t seed = seeds[j] & ~kSeedBit;
@@ -699,9 +730,6 @@ void EsdfField::sweep_slice(int z, int dz) {
       if ((seeds[i] & kSeedBit) == 0) back.set_word(here + i, seeds[i]);
     }
   }
-  cached_half_ = 1 - prev_half;
-  cached_slice_z_ = z;
-  cached_slice_dz_ = dz;
 }
 
 template <typename VoxelT>

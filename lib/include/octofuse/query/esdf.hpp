@@ -95,9 +95,11 @@ class EsdfField {
     OCTOFUSE_TRY(normals);
     const std::size_t slice_cells =
         static_cast<std::size_t>(config.cells_per_side) * config.cells_per_side;
-    Result<float*> slice_cache = arena.template allocate_array<float>(2 * kSliceFloats * slice_cells);
+    Result<float*> slice_cache =
+        arena.template allocate_array<float>(2 * kSliceFloats * slice_cells);
     OCTOFUSE_TRY(slice_cache);
-    Result<std::uint32_t*> slice_seeds = arena.template allocate_array<std::uint32_t>(2 * slice_cells);
+    Result<std::uint32_t*> slice_seeds =
+        arena.template allocate_array<std::uint32_t>(2 * slice_cells);
     OCTOFUSE_TRY(slice_seeds);
     Result<std::uint8_t*> open_rows = arena.template allocate_array<std::uint8_t>(
         static_cast<std::size_t>(config.cells_per_side));
@@ -199,6 +201,12 @@ class EsdfField {
   Site site_of(const Buffer& buffer, std::uint32_t seed) const;
   // A seed's offset from its cell's minimum corner, in site units.
   static Eigen::Vector3i seed_offset(std::uint32_t word, std::uint8_t site_z);
+  // One coordinate of a seed's site, in cells from the window's corner, from its cell's and its
+  // offset's stored byte (`units` a cell).
+  static float site_coordinate(int cell, std::uint32_t offset_byte, int units) {
+    return static_cast<float>(cell * units + static_cast<int>(offset_byte) - kOffsetBias) *
+           (1.0f / static_cast<float>(units));
+  }
   // The site of the seed at cell (x, y, z) holding `word` and `site_z`.
   Site decode_seed(std::uint32_t word, std::uint8_t site_z, int x, int y, int z) const;
   static constexpr int kNormalSteps = 90;    // octahedral grid per axis
@@ -260,10 +268,10 @@ class EsdfField {
   float* slice_cache_ = nullptr;
   std::uint32_t* slice_seeds_ = nullptr;
   std::uint8_t* open_rows_ = nullptr;  // per row of the slice swept: 1 where a cell is no seed
-  int cached_half_ = 0;         // which half of the slice scratch holds the last swept slice
-  int cached_slice_z_ = -1;     // that slice (-1: none)
-  int cached_slice_dz_ = 0;     // and its sweep's direction
-  int front_ = 0;  // the published buffer
+  int cached_half_ = 0;                // which half of the slice scratch holds the last swept slice
+  int cached_slice_z_ = -1;            // that slice (-1: none)
+  int cached_slice_dz_ = 0;            // and its sweep's direction
+  int front_ = 0;                      // the published buffer
   int n_ = 0;
   int chunks_per_side_ = 0;
   int cell_voxels_ = 1;

@@ -354,7 +354,7 @@ bool EsdfField::copy_seed(const Eigen::Vector3i& shift_cells, int x, int y, int 
   const Eigen::Vector3i source = Eigen::Vector3i(x, y, z) + shift_cells;
   // Sites near the published window's faces may have been clamped into it: a moved window
   // takes only cells a margin inside (a seed's site lies within its cell's reach).
-  const int margin = shift_cells == Eigen::Vector3i::Zero() ? 0 : kCopyMarginCells;
+  const int margin = kCopyMarginCells;
   if ((source.array() < margin).any() || (source.array() >= n_ - margin).any()) return false;
   const Buffer& front = buffers_[front_];
   const std::size_t i =
@@ -363,12 +363,6 @@ bool EsdfField::copy_seed(const Eigen::Vector3i& shift_cells, int x, int y, int 
   *word = kNoSite;
   *site_z = 0;
   if ((front.word(i) & kSeedBit) == 0) return true;
-  if (margin == 0) {
-    // The same window: the site stays where it was.
-    *word = front.word(i);
-    *site_z = front.site_z(i);
-    return true;
-  }
   // The site keeps its offset from the cell, which is cell (x, y, z) of the moved window; it
   // must stay in that window.
   const Eigen::Vector3i units =
@@ -390,14 +384,8 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
   const int cx = chunk % chunks_per_side_;
   const int cy = (chunk / chunks_per_side_) % chunks_per_side_;
   const int cz = chunk / (chunks_per_side_ * chunks_per_side_);
-  const float half_diagonal_m = kHalfDiagonal * cell_m_;
-  const float cv = static_cast<float>(cell_voxels_);
-  FreeOctant octant;
-  bool any_from_map = from_map;
-  // Cells along a row share blocks: look each up once.
-  Eigen::Vector3i cached_block_coords = Eigen::Vector3i::Constant(-1);
-  const VoxelBlock<VoxelT>* cached_block = nullptr;
-  // The same window, unchanged there: each seed stays where it was (copy_seed()'s plain case).
+  // The same window, unchanged there: each seed stays where it was (a moved window's seeds go
+  // through copy_seed()).
   if (!from_map && shift_cells == Eigen::Vector3i::Zero()) {
     const Buffer& front = buffers_[front_];
     for (int z = cz * kChunkCells; z < (cz + 1) * kChunkCells; ++z) {
@@ -414,6 +402,13 @@ bool EsdfField::seed_chunk(const Octree<VoxelT>& map, const FreeSpace* free_spac
     }
     return false;
   }
+  const float half_diagonal_m = kHalfDiagonal * cell_m_;
+  const float cv = static_cast<float>(cell_voxels_);
+  FreeOctant octant;
+  bool any_from_map = from_map;
+  // Cells along a row share blocks: look each up once.
+  Eigen::Vector3i cached_block_coords = Eigen::Vector3i::Constant(-1);
+  const VoxelBlock<VoxelT>* cached_block = nullptr;
   for (int z = cz * kChunkCells; z < (cz + 1) * kChunkCells; ++z) {
     for (int y = cy * kChunkCells; y < (cy + 1) * kChunkCells; ++y) {
       for (int x = cx * kChunkCells; x < (cx + 1) * kChunkCells; ++x) {
@@ -578,7 +573,7 @@ void EsdfField::sweep_slice(int z, int dz) {
   // The slice before along the sweep, as swept (a budget may have stopped between the two): its
   // sites decoded, each cell's seed.
   const int prev_half = cached_half_;
-  const float* prev_cache = slice_cache_ + kSliceFloats * slice * prev_half;
+  float* prev_cache = slice_cache_ + kSliceFloats * slice * prev_half;
   std::uint32_t* prev_seeds = slice_seeds_ + slice * prev_half;
   const bool prev_cached = has_prev && cached_slice_z_ == zp && cached_slice_dz_ == dz;
   float* cache = slice_cache_ + kSliceFloats * slice * (1 - prev_half);
@@ -659,7 +654,7 @@ void EsdfField::sweep_slice(int z, int dz) {
     return any_site;
   };
   if (has_prev && !prev_cached) {
-    load(zp, const_cast<float*>(prev_cache), prev_seeds, nullptr, nullptr);
+    load(zp, prev_cache, prev_seeds, nullptr, nullptr);
   }
   bool any_site =
       load(z, cache, seeds, has_prev ? prev_cache : nullptr, has_prev ? prev_seeds : nullptr);

@@ -241,10 +241,10 @@ class EsdfField {
                   bool from_map);
   template <typename VoxelT>
   bool chunk_changed(const Octree<VoxelT>& map, int chunk) const;
-  // The seed of back-buffer cell (x, y, z) from the published cell at the same place
-  // (`shift_cells` on from it), into `word` and `site_z` (kNoSite where that cell held no seed);
-  // false where the published window does not hold the place or the shifted site leaves the
-  // stored range (the cell is then seeded from the map).
+  // A moved window: the seed of back-buffer cell (x, y, z) from the published cell at the same
+  // place (`shift_cells` on from it), into `word` and `site_z` (kNoSite where that cell held no
+  // seed); false where the published window does not hold the place a margin inside its faces or
+  // the shifted site leaves the stored range (the cell is then seeded from the map).
   bool copy_seed(const Eigen::Vector3i& shift_cells, int x, int y, int z, std::uint32_t* word,
                  std::uint8_t* site_z) const;
   void sweep_slice(int z, int dz);
@@ -267,7 +267,7 @@ class EsdfField {
   static constexpr std::size_t kSliceFloats = 5;
   float* slice_cache_ = nullptr;
   std::uint32_t* slice_seeds_ = nullptr;
-  std::uint8_t* open_rows_ = nullptr;  // per row of the slice swept: 1 where a cell is no seed
+  std::uint8_t* open_rows_ = nullptr;  // per row of the slice swept: 1 where a cell may take a site
   int cached_half_ = 0;                // which half of the slice scratch holds the last swept slice
   int cached_slice_z_ = -1;            // that slice (-1: none)
   int cached_slice_dz_ = 0;            // and its sweep's direction

@@ -727,6 +727,24 @@ void EsdfField::sweep_slice(int z, int dz) {
   }
 }
 
+void EsdfField::publish(bool swap) {
+  {
+    // Readers see the old field or the new one, never a mix.
+    if (guard_ != nullptr) {
+      ExclusiveHold hold(*guard_);
+      if (swap) front_ = 1 - front_;
+      published_version_ = rebuild_version_;
+    } else {
+      if (swap) front_ = 1 - front_;
+      published_version_ = rebuild_version_;
+    }
+  }
+  front_valid_ = true;
+  have_published_ = true;
+  published_start_frame_ = rebuild_start_frame_;
+  phase_ = Phase::idle;
+}
+
 template <typename VoxelT>
 EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_space, float mu_m,
                               std::uint32_t frame, std::uint64_t map_version,
@@ -749,6 +767,7 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
       windows_[1 - front_] = target_;
       rebuild_all_ = all_dirty_ || !front_valid_ || config_.unknown_is_obstacle;
       all_dirty_ = false;
+      rebuild_chunks_from_map_ = 0;
     }
     if (steps >= budget) {
       report.budget_hit = true;
@@ -756,11 +775,23 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
     }
     if (phase_ == Phase::seed) {
       const bool from_map = rebuild_all_ || chunk_changed(map, cursor_);
-      if (seed_chunk(map, free_space, mu_m, cursor_, from_map)) ++report.chunks_reseeded;
+      if (seed_chunk(map, free_space, mu_m, cursor_, from_map)) {
+        ++report.chunks_reseeded;
+        ++rebuild_chunks_from_map_;
+      }
       steps += kChunkCells * kChunkCells * kChunkCells;
       if (++cursor_ == chunks) {
         phase_ = Phase::forward;
         cursor_ = 0;
+        // The map changed only outside the window (no chunk seeded from it, the window where
+        // it was): the seeds are the published field's, and so would the sweeps' result be.
+        // The published field stands for the new map version as it is.
+        if (!rebuild_all_ && rebuild_chunks_from_map_ == 0 &&
+            windows_[1 - front_].min_voxel == windows_[front_].min_voxel) {
+          publish(false);
+          report.published = true;
+          break;
+        }
       }
     } else if (phase_ == Phase::forward) {
       sweep_slice(cursor_, 1);
@@ -773,21 +804,7 @@ EsdfReport EsdfField::advance(const Octree<VoxelT>& map, const FreeSpace* free_s
       sweep_slice(cursor_, -1);
       steps += slice_cells;
       if (--cursor_ < 0) {
-        {
-          // Readers see the old field or the new one, never a mix.
-          if (guard_ != nullptr) {
-            ExclusiveHold hold(*guard_);
-            front_ = 1 - front_;
-            published_version_ = rebuild_version_;
-          } else {
-            front_ = 1 - front_;
-            published_version_ = rebuild_version_;
-          }
-        }
-        front_valid_ = true;
-        have_published_ = true;
-        published_start_frame_ = rebuild_start_frame_;
-        phase_ = Phase::idle;
+        publish(true);
         report.published = true;
         // One rebuild per call at most: the next frame starts the next one.
         break;

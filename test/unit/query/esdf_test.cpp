@@ -402,6 +402,64 @@ TEST_CASE("an update re-seeds only what changed and matches a rebuild from scrat
   CHECK(e.over_bound == 0);
 }
 
+TEST_CASE("a map that changed only outside the window publishes the field it has, unswept") {
+  test::OwnedMap<TsdfVoxel> owned(map_config());
+  const Scene scene;
+  test::fill_band(owned.map, kMu_m, scene, [](const Eigen::Vector3i&) { return 0; });
+  EsdfConfig config = field_config();
+  config.cells_per_side = 32;  // 64 voxels about the cube's middle: blocks 4-11 on each axis
+  const std::uint32_t volume = 32u * 32u * 32u;
+  Field f(config);
+  REQUIRE(f.field.flush(owned.map, nullptr, kMu_m, 0, 1).published);
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(-0.3f, 0.3f);
+  std::vector<Eigen::Vector3f> points;
+  std::vector<EsdfAnswer> before;
+  for (int i = 0; i < 2000; ++i) {
+    points.emplace_back(u(rng), u(rng), u(rng));
+    before.push_back(f.field.distance(points.back()).value());
+  }
+
+  // A block in the cube's corner, far outside the window, is fused at frame 7.
+  const Eigen::Vector3i corner(0, 0, 0);
+  if (owned.map.find_block(corner) == nullptr) REQUIRE(owned.map.allocate_block(corner).ok());
+  owned.map.find_block(corner)->last_updated_frame = 7;
+  const EsdfReport outside = f.field.update(owned.map, nullptr, kMu_m, 7, 2);
+  CHECK(outside.published);
+  CHECK(outside.chunks_reseeded == 0);
+  CHECK(outside.cell_steps == volume);  // the seeding's pass, no sweeps
+  CHECK(f.field.published_version() == 2);
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const EsdfAnswer a = f.field.distance(points[i]).value();
+    REQUIRE(a.has_distance == before[i].has_distance);
+    REQUIRE(a.distance_m == before[i].distance_m);
+    REQUIRE(a.gradient == before[i].gradient);
+    CHECK(a.map_version == 2);
+  }
+
+  // A block inside it changes at frame 8: a whole rebuild, seeds and both sweeps.
+  VoxelBlock<TsdfVoxel>* inside = nullptr;
+  for (int z = 4; z < 12 && inside == nullptr; ++z) {
+    for (int y = 4; y < 12 && inside == nullptr; ++y) {
+      for (int x = 4; x < 12 && inside == nullptr; ++x) {
+        inside = owned.map.find_block(Eigen::Vector3i(x, y, z));
+      }
+    }
+  }
+  REQUIRE(inside != nullptr);
+  inside->last_updated_frame = 8;
+  const EsdfReport changed = f.field.update(owned.map, nullptr, kMu_m, 8, 3);
+  CHECK(changed.published);
+  CHECK(changed.chunks_reseeded > 0);
+  CHECK(changed.cell_steps == 3 * volume);
+  CHECK(f.field.published_version() == 3);
+  // The same answers (the map's voxels did not change), now from the swept back buffer.
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const EsdfAnswer a = f.field.distance(points[i]).value();
+    REQUIRE(a.distance_m == before[i].distance_m);
+  }
+}
+
 TEST_CASE("a budget spreads a rebuild over frames; queries see the old field until it is whole") {
   test::OwnedMap<TsdfVoxel> owned(map_config());
   const Scene scene;

@@ -248,6 +248,9 @@ class EsdfField {
   bool copy_seed(const Eigen::Vector3i& shift_cells, int x, int y, int z, std::uint32_t* word,
                  std::uint8_t* site_z) const;
   void sweep_slice(int z, int dz);
+  // Ends the rebuild: its map version becomes the published one, with the back buffer (swap) or
+  // with the published field, which a rebuild found to stand for it unchanged.
+  void publish(bool swap);
   // Plain distance to the site (a box's less its half diagonal), in cells: what propagation keeps.
   static float propagation_distance(const Site& site, const Eigen::Vector3f& q);
   // The distance to the site's disc (or box), in cells, and the direction away from its nearest
@@ -291,6 +294,7 @@ class EsdfField {
   int cursor_ = 0;  // next chunk (seed) or slice (sweeps)
   bool all_dirty_ = true;
   bool rebuild_all_ = true;  // the rebuild in progress seeds every chunk from the map
+  std::uint32_t rebuild_chunks_from_map_ = 0;  // chunks it has seeded from the map so far
   bool front_valid_ = false;
   std::uint32_t rebuild_start_frame_ = 0;    // frame the rebuild in progress started at
   std::uint32_t published_start_frame_ = 0;  // frame the published field's rebuild started at

@@ -658,6 +658,17 @@ void EsdfField::sweep_slice(int z, int dz) {
   }
   bool any_site =
       load(z, cache, seeds, has_prev ? prev_cache : nullptr, has_prev ? prev_seeds : nullptr);
+  // Cell i (centre q) takes `seed`, whose site `from` holds, where it is nearer: true if so.
+  auto take = [&](std::size_t i, std::uint32_t seed, const float* from, const Eigen::Vector3f& q) {
+    if (seed == seeds[i]) return false;
+    const float candidate = distance_to(from, q);
+    if (candidate >= distance_of(i, q)) return false;
+    seeds[i] = seed;
+    float* to = cache + kSliceFloats * i;
+    std::copy(from, from + 4, to);  // the site and its `less`
+    to[4] = candidate;
+    return true;
+  };
   // Only cells that are not seeds take sites, and rows of seeds alone are passed over.
   for (int y = 0; has_prev && y < n; ++y) {
     if (open_rows_[y] == 0) continue;
@@ -665,32 +676,15 @@ void EsdfField::sweep_slice(int z, int dz) {
       const std::size_t i = static_cast<std::size_t>(y) * n + x;
       const std::uint32_t from = prev_seeds[i];
       if (from == kNoSite || (seeds[i] & kSeedBit) != 0) continue;
-      const std::uint32_t seed = from & ~kSeedBit;
-      if (seed == seeds[i]) continue;
       const Eigen::Vector3f q(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f, zc);
-      const float* c = prev_cache + kSliceFloats * i;
-      const float candidate = distance_to(c, q);
-      if (candidate >= distance_of(i, q)) continue;
-      seeds[i] = seed;
-      float* to = cache + kSliceFloats * i;
-      std::copy(c, c + 4, to);  // the site and its `less`
-      to[4] = candidate;
-      any_site = true;
+      if (take(i, from & ~kSeedBit, prev_cache + kSliceFloats * i, q)) any_site = true;
     }
   }
   // A slice without a site (ahead of every surface along the sweep) keeps its words.
   if (!any_site) return;
   // Cell i takes the site of cell j of the slice where it is nearer.
   auto consider = [&](std::size_t i, std::size_t j, const Eigen::Vector3f& q) {
-    const std::uint32_t seed = seeds[j] & ~kSeedBit;
-    if (seed == seeds[i]) return;
-    const float* from = cache + kSliceFloats * j;
-    const float candidate = distance_to(from, q);
-    if (candidate >= distance_of(i, q)) return;
-    seeds[i] = seed;
-    float* to = cache + kSliceFloats * i;
-    std::copy(from, from + 4, to);  // the site and its `less`
-    to[4] = candidate;
+    take(i, seeds[j] & ~kSeedBit, cache + kSliceFloats * j, q);
   };
   for (int pass = 0; pass < 2; ++pass) {
     const int dy = pass == 0 ? 1 : -1;

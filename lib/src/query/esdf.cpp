@@ -192,18 +192,13 @@ EsdfField::Site EsdfField::site_of(const Buffer& buffer, std::uint32_t seed) con
   return decode_seed(buffer.word(i), buffer.site_z(i), x, y, z);
 }
 
-Eigen::Vector3i EsdfField::seed_offset(std::uint32_t word, std::uint8_t site_z) {
-  return Eigen::Vector3i(static_cast<int>((word >> 9) & 255u), static_cast<int>((word >> 1) & 255u),
-                         static_cast<int>(site_z)) -
-         Eigen::Vector3i::Constant(kOffsetBias);
-}
-
 EsdfField::Site EsdfField::decode_seed(std::uint32_t word, std::uint8_t site_z, int x, int y,
                                        int z) const {
+  const Eigen::Vector3i offset = seed_offset(word, site_z);
   Site site;
-  site.s = Eigen::Vector3f(site_coordinate(x, (word >> 9) & 255u, site_units_),
-                           site_coordinate(y, (word >> 1) & 255u, site_units_),
-                           site_coordinate(z, site_z, site_units_));
+  site.s = Eigen::Vector3f(site_coordinate(x, offset.x(), site_units_),
+                           site_coordinate(y, offset.y(), site_units_),
+                           site_coordinate(z, offset.z(), site_units_));
   site.normal = static_cast<int>((word >> 17) & 8191u);
   site.box = (word & kBoxBit) != 0;
   return site;
@@ -354,8 +349,10 @@ bool EsdfField::copy_seed(const Eigen::Vector3i& shift_cells, int x, int y, int 
   const Eigen::Vector3i source = Eigen::Vector3i(x, y, z) + shift_cells;
   // Sites near the published window's faces may have been clamped into it: a moved window
   // takes only cells a margin inside (a seed's site lies within its cell's reach).
-  const int margin = kCopyMarginCells;
-  if ((source.array() < margin).any() || (source.array() >= n_ - margin).any()) return false;
+  if ((source.array() < kCopyMarginCells).any() ||
+      (source.array() >= n_ - kCopyMarginCells).any()) {
+    return false;
+  }
   const Buffer& front = buffers_[front_];
   const std::size_t i =
       (static_cast<std::size_t>(source.z()) * n_ + static_cast<std::size_t>(source.y())) * n_ +
@@ -584,11 +581,11 @@ void EsdfField::sweep_slice(int z, int dz) {
   cached_slice_dz_ = dz;
   const float zc = static_cast<float>(z) + 0.5f;
   // Per cell of the slice: site x, y, z (cells), less (a box's half diagonal, else 0), distance.
-  auto store = [](float* c, const Site& site, float distance) {
-    c[0] = site.s.x();
-    c[1] = site.s.y();
-    c[2] = site.s.z();
-    c[3] = site.box ? kHalfDiagonal : 0.0f;
+  auto store = [](float* c, const Eigen::Vector3f& s, bool box, float distance) {
+    c[0] = s.x();
+    c[1] = s.y();
+    c[2] = s.z();
+    c[3] = box ? kHalfDiagonal : 0.0f;
     c[4] = distance;
   };
   // From q to a cached site: what propagation_distance() gives for it.
@@ -619,20 +616,20 @@ void EsdfField::sweep_slice(int z, int dz) {
         if (w == kNoSite) {
           to_seeds[i] = kNoSite;
           open_rows_[y] = 1;
-          store(c, Site(), 1e30f);
+          store(c, Eigen::Vector3f::Zero(), false, 1e30f);
           continue;
         }
         any_site = true;
         if ((w & kSeedBit) != 0) {
           // A seed's own cell is never replaced (and never asked). Its site as decode_seed()
-          // gives it, straight into the scratch: most cells are seeds where unknown space is an
+          // gives it, from the word already read: most cells are seeds where unknown space is an
           // obstacle.
           to_seeds[i] = pack_cell(x, y, at_z) | kSeedBit;
-          c[0] = site_coordinate(x, (w >> 9) & 255u, site_units_);
-          c[1] = site_coordinate(y, (w >> 1) & 255u, site_units_);
-          c[2] = site_coordinate(at_z, back.site_z(at + i), site_units_);
-          c[3] = (w & kBoxBit) != 0 ? kHalfDiagonal : 0.0f;
-          c[4] = -1e30f;
+          const Eigen::Vector3i offset = seed_offset(w, back.site_z(at + i));
+          const Eigen::Vector3f s(site_coordinate(x, offset.x(), site_units_),
+                                  site_coordinate(y, offset.y(), site_units_),
+                                  site_coordinate(at_z, offset.z(), site_units_));
+          store(c, s, (w & kBoxBit) != 0, -1e30f);
           continue;
         }
         // Any other cell holds its seed's coordinates. One whose neighbours share its seed is
@@ -648,7 +645,7 @@ void EsdfField::sweep_slice(int z, int dz) {
           decoded = site_of(back, w);
           decoded_seed = w;
         }
-        store(c, decoded, kNotYet);
+        store(c, decoded.s, decoded.box, kNotYet);
       }
     }
     return any_site;
@@ -722,16 +719,16 @@ void EsdfField::sweep_slice(int z, int dz) {
 }
 
 void EsdfField::publish(bool swap) {
-  {
-    // Readers see the old field or the new one, never a mix.
-    if (guard_ != nullptr) {
-      ExclusiveHold hold(*guard_);
-      if (swap) front_ = 1 - front_;
-      published_version_ = rebuild_version_;
-    } else {
-      if (swap) front_ = 1 - front_;
-      published_version_ = rebuild_version_;
-    }
+  auto make_current = [this, swap] {
+    if (swap) front_ = 1 - front_;
+    published_version_ = rebuild_version_;
+  };
+  // Readers see the old field or the new one, never a mix.
+  if (guard_ != nullptr) {
+    ExclusiveHold hold(*guard_);
+    make_current();
+  } else {
+    make_current();
   }
   front_valid_ = true;
   have_published_ = true;

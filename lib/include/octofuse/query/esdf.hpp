@@ -199,13 +199,17 @@ class EsdfField {
     bool box = false;
   };
   Site site_of(const Buffer& buffer, std::uint32_t seed) const;
-  // A seed's offset from its cell's minimum corner, in site units.
-  static Eigen::Vector3i seed_offset(std::uint32_t word, std::uint8_t site_z);
-  // One coordinate of a seed's site, in cells from the window's corner, from its cell's and its
-  // offset's stored byte (`units` a cell).
-  static float site_coordinate(int cell, std::uint32_t offset_byte, int units) {
-    return static_cast<float>(cell * units + static_cast<int>(offset_byte) - kOffsetBias) *
-           (1.0f / static_cast<float>(units));
+  // A seed's offset from its cell's minimum corner, in site units. Inline: the sweeps decode a
+  // seed's own site per cell with it.
+  static Eigen::Vector3i seed_offset(std::uint32_t word, std::uint8_t site_z) {
+    return Eigen::Vector3i(static_cast<int>((word >> 9) & 255u) - kOffsetBias,
+                           static_cast<int>((word >> 1) & 255u) - kOffsetBias,
+                           static_cast<int>(site_z) - kOffsetBias);
+  }
+  // One coordinate of a seed's site, in cells from the window's corner: its cell's and its offset
+  // (seed_offset(), `units` a cell).
+  static float site_coordinate(int cell, int offset, int units) {
+    return static_cast<float>(cell * units + offset) * (1.0f / static_cast<float>(units));
   }
   // The site of the seed at cell (x, y, z) holding `word` and `site_z`.
   Site decode_seed(std::uint32_t word, std::uint8_t site_z, int x, int y, int z) const;

@@ -12,6 +12,7 @@
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/pipeline/pipeline.hpp"
 #include "octofuse/ports/host/trajectory_io.hpp"
+#include "reload_latency.hpp"
 #include "sources.hpp"
 
 namespace octofuse::examples {
@@ -139,6 +140,7 @@ struct RunSummary {
   std::uint64_t store_keys = 0;
   std::uint64_t store_live_bytes = 0;   // the newest record of every block
   std::uint64_t store_compactions = 0;  // finished in this run
+  ReloadLatency store_reload_latency;   // frames stored blocks waited to be read back
   // With --map-file and free space: the free-space store (FILE.free), as above.
   FreeStoreReport free_store_total;
   std::uint64_t free_store_file_bytes = 0;

@@ -489,7 +489,10 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
     }
 
     FrameStats stats;
+    if (run->store_probe != nullptr)
+      run->store_probe->begin_frame(static_cast<std::uint64_t>(processed));
     const Status status = pipeline.process(frame, prior, &stats);
+    if (run->store_probe != nullptr) run->store_probe->end_frame();
     ++processed;
     if (options.on_frame) options.on_frame(stats);
     if (stats.result == FrameResult::rejected) {

@@ -286,6 +286,8 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   json.key("store_keys").value(summary->store_keys);
   json.key("store_live_bytes").value(summary->store_live_bytes);
   json.key("store_compactions").value(summary->store_compactions);
+  json.key("store_reload_latency");
+  write_reload_latency_json(json, summary->store_reload_latency);
   const FreeStoreReport& free_total = summary->free_store_total;
   json.key("free_store_written").value(static_cast<std::uint64_t>(free_total.written));
   json.key("free_store_merged").value(static_cast<std::uint64_t>(free_total.merged));

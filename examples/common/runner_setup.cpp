@@ -435,7 +435,9 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
     std::string store_error;
     run->store = open_store(options.map_file_path, geometry, sizeof(geometry), &store_error);
     if (run->store == nullptr) return error_exit(store_error);
-    if (!pipeline.set_block_store(run->store.get()).ok()) {
+    run->store_probe =
+        std::make_unique<ReloadLatencyProbe>(run->store.get(), &summary->store_reload_latency);
+    if (!pipeline.set_block_store(run->store_probe.get()).ok()) {
       return error_exit("--map-file needs eviction (--evict HIGH,LOW)");
     }
     if (pipeline.config().free_space.enabled) {

@@ -16,6 +16,7 @@
 #include "octofuse/ports/host/block_store_file.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/trajectory_io.hpp"
+#include "reload_latency.hpp"
 #include "runner.hpp"
 
 #if defined(OCTOFUSE_EXAMPLES_HAVE_SIM)
@@ -58,6 +59,8 @@ struct PipelineRun {
   const Clock clock = steady_clock();
   std::unique_ptr<host::BlockStoreFile> store;       // --map-file
   std::unique_ptr<host::BlockStoreFile> free_store;  // --map-file's FILE.free (free space on)
+  // Between the pipeline and `store`: how long blocks wait to be read back.
+  std::unique_ptr<ReloadLatencyProbe> store_probe;
 };
 
 // What the frame loop leaves for the outputs.

@@ -26,8 +26,11 @@ namespace octofuse::bench {
 namespace {
 
 using examples::percentiles;
+using examples::reload_latency_since;
+using examples::ReloadLatency;
 using examples::RunOptions;
 using examples::RunSummary;
+using examples::write_reload_latency_json;
 
 // Stored pass rows; a run with more passes (passes of a few frames) still prints and counts
 // them. Sized before the first frame so the records' own pages are resident from the start.
@@ -107,6 +110,14 @@ struct PassRow {
   std::uint64_t store_bytes_read = 0;
   std::uint64_t store_bytes_written = 0;
   std::uint64_t frames_waiting = 0;  // frames that left stored blocks in view for a later one
+  // Blocks read back in the pass that some frame had left out (ReloadLatencyProbe): the frames
+  // that went without each (median, p90, p99, max) and the frames from the first of them to the
+  // read (median, p99); blocks left out and not read back at the pass's end.
+  std::uint64_t reload_left_out = 0;
+  std::uint64_t reload_median_frames = 0, reload_p90_frames = 0, reload_p99_frames = 0;
+  std::uint64_t reload_max_frames = 0;
+  std::uint64_t reload_median_waited = 0, reload_p99_waited = 0;
+  std::uint64_t reload_waiting = 0;
   // The free-space store (FILE.free): regions read back and written, and their bytes.
   std::uint64_t free_store_read = 0;
   std::uint64_t free_store_written = 0;
@@ -135,6 +146,7 @@ struct SoakRun {
   double rss_end_first_pass_mb = 0.0;
   double max_rss_after_first_pass_mb = 0.0;
   RunSummary summary;
+  ReloadLatency reload_at_pass_start;  // summary.store_reload_latency when the pass began
   int exit_code = 0;
   double wall_s = 0.0;
 
@@ -174,6 +186,21 @@ void print_row(const SoakRun& run, const PassRow& row) {
                                     static_cast<double>(row.frames)
                               : 0.0,
                static_cast<unsigned long long>(row.frames_waiting));
+  if (row.store_read > 0 || row.reload_waiting > 0) {
+    std::fprintf(stderr,
+                 "[soak %s %g MB] pass %d: reload latency: %llu blocks read back had been left "
+                 "out, for median %llu, p90 %llu, p99 %llu, max %llu frames (median %llu, p99 "
+                 "%llu frames from the first to the read); %llu still left out\n",
+                 run.name, static_cast<double>(run.map_memory_mb), row.pass,
+                 static_cast<unsigned long long>(row.reload_left_out),
+                 static_cast<unsigned long long>(row.reload_median_frames),
+                 static_cast<unsigned long long>(row.reload_p90_frames),
+                 static_cast<unsigned long long>(row.reload_p99_frames),
+                 static_cast<unsigned long long>(row.reload_max_frames),
+                 static_cast<unsigned long long>(row.reload_median_waited),
+                 static_cast<unsigned long long>(row.reload_p99_waited),
+                 static_cast<unsigned long long>(row.reload_waiting));
+  }
   if (row.free_store_read + row.free_store_written > 0) {
     std::fprintf(stderr,
                  "[soak %s %g MB] pass %d: free-space store: read %llu, written %llu regions, "
@@ -198,6 +225,17 @@ void close_pass(SoakRun& run) {
       std::vector<double>(run.pass_ms.begin(), run.pass_ms.begin() + run.pass_ms_count));
   row.median_ms = ms.median;
   row.p99_ms = ms.p99;
+  const ReloadLatency reload =
+      reload_latency_since(run.summary.store_reload_latency, run.reload_at_pass_start);
+  run.reload_at_pass_start = run.summary.store_reload_latency;
+  row.reload_left_out = reload.frames_left_out.nonzero();
+  row.reload_median_frames = reload.frames_left_out.frames_at(0.5);
+  row.reload_p90_frames = reload.frames_left_out.frames_at(0.9);
+  row.reload_p99_frames = reload.frames_left_out.frames_at(0.99);
+  row.reload_max_frames = reload.frames_left_out.max_frames;
+  row.reload_median_waited = reload.frames_waited.frames_at(0.5);
+  row.reload_p99_waited = reload.frames_waited.frames_at(0.99);
+  row.reload_waiting = reload.waiting;
   run.frames += row.frames;
   run.lost += row.lost;
   run.rejected += row.rejected;
@@ -317,6 +355,8 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
   json.key("map_bytes_used").value(static_cast<std::uint64_t>(run.summary.map_memory.bytes_used));
   json.key("wall_s").value(run.wall_s);
   json.key("store_file_bytes").value(run.summary.store_file_bytes);
+  json.key("store_reload_latency");
+  write_reload_latency_json(json, run.summary.store_reload_latency);
   json.key("store_keys").value(run.summary.store_keys);
   json.key("store_live_bytes").value(run.summary.store_live_bytes);
   json.key("store_compactions").value(run.summary.store_compactions);
@@ -362,6 +402,14 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
     json.key("store_bytes_read").value(row.store_bytes_read);
     json.key("store_bytes_written").value(row.store_bytes_written);
     json.key("frames_waiting").value(row.frames_waiting);
+    json.key("reload_left_out").value(row.reload_left_out);
+    json.key("reload_median_frames").value(row.reload_median_frames);
+    json.key("reload_p90_frames").value(row.reload_p90_frames);
+    json.key("reload_p99_frames").value(row.reload_p99_frames);
+    json.key("reload_max_frames").value(row.reload_max_frames);
+    json.key("reload_median_waited").value(row.reload_median_waited);
+    json.key("reload_p99_waited").value(row.reload_p99_waited);
+    json.key("reload_waiting").value(row.reload_waiting);
     json.key("free_store_read").value(row.free_store_read);
     json.key("free_store_written").value(row.free_store_written);
     json.key("free_store_bytes_read").value(row.free_store_bytes_read);

@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include "cli.hpp"
 #include "octofuse/map/interpolation.hpp"
 #include "octofuse/pipeline/mapper.hpp"
 #include "octofuse/pipeline/steady_clock.hpp"
@@ -53,6 +54,23 @@ struct Options {
   int show_unsafe = 0;    // print the first N unsafe points with what the map holds around them
   float follow_m = 0.0f;  // > 0: the window follows the camera (EsdfConfig::follow_m)
 };
+
+// Strict numbers (the whole token, finite, in range): a typo is an error, not a silent zero.
+template <typename T>
+bool number(const char* text, double min, double max, T* out) {
+  double v = 0.0;
+  if (!cli::parse_double(text, min, max, v)) return false;
+  *out = static_cast<T>(v);
+  return true;
+}
+
+template <typename T>
+bool integer(const char* text, std::int64_t min, std::int64_t max, T* out) {
+  std::int64_t v = 0;
+  if (!cli::parse_int(text, min, max, v)) return false;
+  *out = static_cast<T>(v);
+  return true;
+}
 
 int usage(const char* why) {
   std::fprintf(stderr,
@@ -198,41 +216,45 @@ int main(int argc, char** argv) {
       o.scene = value();
       if (o.scene != "desk" && o.scene != "room") return usage("--scene is desk or room");
     } else if (arg == "--voxel") {
-      o.voxel_m = std::strtof(value(), nullptr);
-      if (!(o.voxel_m >= 0.005f && o.voxel_m <= 0.1f)) return usage("--voxel in [0.005, 0.1]");
+      if (!number(value(), 0.005, 0.1, &o.voxel_m)) return usage("--voxel in [0.005, 0.1]");
     } else if (arg == "--frames") {
-      o.frames = std::atoi(value());
-      if (o.frames < 1) return usage("--frames >= 1");
+      if (!integer(value(), 1, 1000000, &o.frames)) return usage("--frames in [1, 1000000]");
     } else if (arg == "--points") {
-      o.points = std::atol(value());
-      if (o.points < 1) return usage("--points >= 1");
+      if (!integer(value(), 1, 100000000, &o.points)) return usage("--points in [1, 100000000]");
     } else if (arg == "--radius") {
-      o.radius_m = std::strtof(value(), nullptr);
-      if (!(o.radius_m > 0.0f && o.radius_m < 2.0f)) return usage("--radius in (0, 2)");
+      if (!number(value(), 0.0, 2.0, &o.radius_m) || !(o.radius_m > 0.0f && o.radius_m < 2.0f)) {
+        return usage("--radius in (0, 2)");
+      }
     } else if (arg == "--start") {
       if (!parse_point(value(), &o.start_W)) return usage("--start X,Y,Z");
     } else if (arg == "--goal") {
       if (!parse_point(value(), &o.goal_W)) return usage("--goal X,Y,Z");
     } else if (arg == "--replan-every") {
-      o.replan_every = std::atoi(value());
-      if (o.replan_every < 1) return usage("--replan-every >= 1");
+      if (!integer(value(), 1, 1000000, &o.replan_every)) {
+        return usage("--replan-every in [1, 1000000]");
+      }
     } else if (arg == "--lattice") {
-      o.lattice_m = std::strtof(value(), nullptr);
-      if (!(o.lattice_m >= 0.02f && o.lattice_m <= 0.5f)) return usage("--lattice in [0.02, 0.5]");
+      if (!number(value(), 0.02, 0.5, &o.lattice_m)) return usage("--lattice in [0.02, 0.5]");
     } else if (arg == "--budget") {
-      o.budget = static_cast<std::uint32_t>(std::strtoul(value(), nullptr, 10));
+      if (!integer(value(), 0, 0xffffffffLL, &o.budget)) {
+        return usage("--budget in [0, 4294967295] (0: unbounded)");
+      }
     } else if (arg == "--cells") {
-      o.cells = std::atoi(value());
+      if (!integer(value(), 8, 1016, &o.cells) || o.cells % 8 != 0) {
+        return usage("--cells is a multiple of 8 in [8, 1016]");
+      }
     } else if (arg == "--cell-voxels") {
-      o.cell_voxels = std::atoi(value());
-      if (o.cell_voxels != 1 && o.cell_voxels != 2 && o.cell_voxels != 4 && o.cell_voxels != 8) {
+      if (!integer(value(), 1, 8, &o.cell_voxels) ||
+          (o.cell_voxels != 1 && o.cell_voxels != 2 && o.cell_voxels != 4 && o.cell_voxels != 8)) {
         return usage("--cell-voxels is 1, 2, 4 or 8");
       }
     } else if (arg == "--follow") {
-      o.follow_m = std::strtof(value(), nullptr);
-      if (!(o.follow_m > 0.0f && o.follow_m <= 100.0f)) return usage("--follow in (0, 100]");
+      if (!number(value(), 0.0, 100.0, &o.follow_m) || !(o.follow_m > 0.0f)) {
+        return usage("--follow in (0, 100]");
+      }
     } else if (arg == "--show-unsafe") {
-      o.show_unsafe = std::atoi(value());
+      if (!integer(value(), 0, 1000000, &o.show_unsafe))
+        return usage("--show-unsafe in [0, 1000000]");
     } else {
       return usage(("unknown option: " + arg).c_str());
     }

@@ -2,7 +2,9 @@
 // (--map-file). `info FILE` checks the whole file and prints its format version, voxel type and
 // size, blocks per scale, free-space nodes and memory; `mesh FILE OUT.ply` meshes it as
 // octofuse-replay's mesh.ply. A store holds the blocks a run evicted (after a crash, what it had
-// not saved otherwise); it is read without being changed.
+// not saved otherwise); it is read without being changed. `compare A.ply B.ply` measures how far
+// each mesh's vertices lie from the other's surface (a capped run against an uncapped one, a
+// build against the one before).
 
 #include <sys/stat.h>
 
@@ -16,6 +18,7 @@
 
 #include "cli.hpp"
 #include "host_memory.hpp"
+#include "mesh_distance.hpp"
 #include "octofuse/map/coarse_estimate.hpp"
 #include "octofuse/mesh/mesher.hpp"
 #include "octofuse/ports/host/block_store_file.hpp"
@@ -41,6 +44,10 @@ const Command kCommands[] = {
     {"mesh", "FILE OUT.ply",
      "write FILE's surface (a map file or a block store) as a binary PLY\n"
      "(as octofuse-replay's mesh.ply)"},
+    {"compare", "A.ply B.ply",
+     "how far each mesh's vertices lie from the other's surface: the share\n"
+     "within M and 2 M (--within, default 0.01 m), the median, p90 and p99\n"
+     "distance, and the share farther than 4 M (where the search stops)"},
 };
 
 struct MeshArgs {
@@ -62,11 +69,13 @@ void print_usage() {
   std::string text =
       "usage: octofuse-map info FILE\n"
       "       octofuse-map mesh FILE OUT.ply [--mesh-scale current|finest]\n"
+      "       octofuse-map compare A.ply B.ply [--within M]\n"
       "\n";
   for (const Command& command : kCommands) {
     text += cli::format_option(command.name, command.arguments, command.help);
   }
   text += cli::options_usage(kMeshOptions);
+  text += cli::format_option("--within", "M", "compare's distance in metres, in [1e-5, 10]");
   std::fputs(text.c_str(), stdout);
 }
 
@@ -145,6 +154,48 @@ int write_mesh(const Octree<VoxelT>& map, const char* out_path, MeshReadScale re
   if (!host::write_ply(out_path, mesh, &ply_error).ok()) return error_exit(ply_error.c_str());
   std::printf("wrote %s (%zu vertices, %zu triangles)\n", out_path, mesh.vertex_count,
               mesh.triangle_count);
+  return 0;
+}
+
+void print_distances(const std::string& from, const std::string& to,
+                     const examples::SurfaceDistances& d, float within_m, float search_m) {
+  const double n = static_cast<double>(d.points);
+  std::printf(
+      "%s's vertices to %s's surface: %.1f %% within %g m, %.1f %% within %g m; median %.2f mm, "
+      "p90 %.2f mm, p99 %.2f mm; %.1f %% farther than %g m\n",
+      from.c_str(), to.c_str(), 100.0 * static_cast<double>(d.within) / n,
+      static_cast<double>(within_m), 100.0 * static_cast<double>(d.within_twice) / n,
+      2.0 * static_cast<double>(within_m), 1e3 * d.median_m, 1e3 * d.p90_m, 1e3 * d.p99_m,
+      100.0 * static_cast<double>(d.beyond) / n, static_cast<double>(search_m));
+}
+
+// Both ways: A's vertices against B's triangles, then B's against A's.
+int compare_meshes(const char* path_a, const char* path_b, float within_m) {
+  host::Mesh mesh[2];
+  const char* paths[2] = {path_a, path_b};
+  for (int i = 0; i < 2; ++i) {
+    ErrorText error;
+    if (!host::read_ply(paths[i], &mesh[i], &error).ok()) return error_exit(error.c_str());
+    if (mesh[i].indices.empty()) return error_exit(std::string(paths[i]) + ": no triangles");
+    std::printf("%s: %zu vertices, %zu triangles\n", paths[i], mesh[i].vertices.size(),
+                mesh[i].indices.size() / 3);
+  }
+  const float search_m = 4.0f * within_m;
+  examples::TriangleGrid grid[2];
+  for (int i = 0; i < 2; ++i) {
+    if (!grid[i].build(mesh[i].vertices.data(), mesh[i].vertices.size(), mesh[i].indices.data(),
+                       mesh[i].indices.size() / 3, search_m)) {
+      return error_exit(std::string(paths[i]) +
+                        ": a vertex is not finite or a triangle spans more than 4096 cells of " +
+                        std::to_string(search_m) + " m");
+    }
+  }
+  for (int i = 0; i < 2; ++i) {
+    const host::Mesh& from = mesh[i];
+    const examples::SurfaceDistances d = examples::distances_to_surface(
+        from.vertices.data(), from.vertices.size(), grid[1 - i], within_m);
+    print_distances(paths[i], paths[1 - i], d, within_m, search_m);
+  }
   return 0;
 }
 
@@ -328,8 +379,21 @@ int main(int argc, char** argv) {
       return cli::fail(error);
     }
     read_scale = mesh_args.read_scale;
+  } else if (command == "compare") {
+    float within_m = 0.01f;
+    if (argc == 6 && std::string(argv[4]) == "--within") {
+      double value = 0.0;
+      if (!cli::parse_double(argv[5], 1e-5, 10.0, value)) {
+        return cli::fail("--within needs metres in [1e-5, 10]");
+      }
+      within_m = static_cast<float>(value);
+    } else if (argc != 4) {
+      std::fprintf(stderr, "error: compare takes two .ply meshes [--within M] (see --help)\n");
+      return 2;
+    }
+    return compare_meshes(argv[2], argv[3], within_m);
   } else {
-    std::fprintf(stderr, "error: unknown command '%s' (info or mesh)\n", command.c_str());
+    std::fprintf(stderr, "error: unknown command '%s' (info, mesh or compare)\n", command.c_str());
     return 2;
   }
   ErrorText error;

@@ -49,6 +49,11 @@ awk '/^  at scale [01] /{fine += $4} /^mid levels /{mid = $3; seen = 1}
      END{exit !(seen && mid == fine)}' "${work}/info.out" || fail "info: mid levels not the blocks at scales 0-1"
 "${map}" mesh "${work}/a.ofmap" "${work}/a_mesh.ply" >/dev/null 2>&1 || fail "mesh failed"
 cmp -s "${work}/a_mesh.ply" "${work}/a/mesh.ply" || fail "octofuse-map mesh differs from the run's mesh.ply"
+# compare: a mesh lies on itself, every vertex of it both ways.
+"${map}" compare "${work}/a_mesh.ply" "${work}/a/mesh.ply" --within 0.001 >"${work}/cmp.out" 2>&1 ||
+  fail "compare: $(cat "${work}/cmp.out")"
+[[ $(grep -c "surface: 100.0 % within 0.001 m, 100.0 % within 0.002 m; median 0.00 mm" \
+  "${work}/cmp.out") -eq 2 ]] || fail "compare: a mesh is not on itself: $(cat "${work}/cmp.out")"
 
 "${replay}" "${common[@]}" --frames 2 --out "${work}/b" --load-map "${work}/a.ofmap" \
   >"${work}/b.out" 2>&1 || fail "load run: $(cat "${work}/b.out")"
@@ -105,6 +110,10 @@ expect_error small "needs .* blocks" "${replay}" "${common[@]}" --out "${work}/c
 expect_error every "--save-every needs --save-map" "${replay}" --save-every 3
 expect_error pose "--initial-pose needs" "${replay}" --initial-pose 1,2,3,0,0,0,5
 expect_error command "unknown command" "${map}" show "${work}/a.ofmap"
+expect_error within "--within needs metres" "${map}" compare "${work}/a_mesh.ply" \
+  "${work}/a_mesh.ply" --within 0
+expect_error no_mesh "none.ply" "${map}" compare "${work}/a_mesh.ply" "${work}/none.ply"
+expect_error not_mesh "a.ofmap" "${map}" compare "${work}/a.ofmap" "${work}/a_mesh.ply"
 
 # A block store (--map-file) of a run whose map memory holds a fraction of the room: octofuse-map
 # reads it as it is (nothing written, a torn tail only warned about) and refuses a damaged header.

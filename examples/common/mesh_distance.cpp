@@ -20,8 +20,9 @@ Eigen::Vector3f closest_point_on_segment(const Eigen::Vector3f& p, const Eigen::
 // Cells of the grid: coordinates offset into [0, 2^21) and packed, as the map packs blocks.
 constexpr std::int64_t kCellOffset = std::int64_t{1} << 20;
 constexpr std::int64_t kCellLimit = std::int64_t{1} << 21;
-// A triangle spanning more cells than this is refused (a mesh of a map has triangles of a voxel
-// or two; a hostile file's one huge triangle would fill memory with cell entries).
+// A triangle spanning more cells than this is refused (the cells are at least the 99th
+// percentile of the triangles' extents; a hostile file's one huge triangle would fill memory
+// with cell entries).
 constexpr std::int64_t kMaxCellsPerTriangle = 4096;
 
 bool cell_of(float coordinate, float cell_m, std::int64_t* cell) {
@@ -88,11 +89,14 @@ bool TriangleGrid::build(const Eigen::Vector3f* vertices, std::size_t vertex_cou
   vertices_ = vertices;
   indices_ = indices;
   search_m_ = search_m;
+  cell_m_ = search_m;
   cell_keys_.clear();
   cell_triangles_.clear();
   if (!(search_m > 0.0f && search_m <= 1e3f)) return false;
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> entries;
-  entries.reserve(triangle_count * 2);
+  // Cells at least the search radius (a query looks one cell around its own) and at least the
+  // 99th percentile of the triangles' extents (so a small radius does not cut each triangle into
+  // many cells).
+  std::vector<float> extents(triangle_count);
   for (std::size_t t = 0; t < triangle_count; ++t) {
     Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity());
     Eigen::Vector3f hi = -lo;
@@ -102,10 +106,28 @@ bool TriangleGrid::build(const Eigen::Vector3f* vertices, std::size_t vertex_cou
       lo = lo.cwiseMin(vertices[i]);
       hi = hi.cwiseMax(vertices[i]);
     }
+    extents[t] = (hi - lo).maxCoeff();
+  }
+  if (triangle_count > 0) {
+    std::vector<float> sorted = extents;
+    const std::size_t rank = std::min(triangle_count - 1, triangle_count * 99 / 100);
+    std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(rank),
+                     sorted.end());
+    cell_m_ = std::max(search_m, sorted[rank]);
+  }
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> entries;
+  entries.reserve(triangle_count * 2);
+  for (std::size_t t = 0; t < triangle_count; ++t) {
+    Eigen::Vector3f lo = vertices[indices[3 * t]];
+    Eigen::Vector3f hi = lo;
+    for (int k = 1; k < 3; ++k) {
+      lo = lo.cwiseMin(vertices[indices[3 * t + static_cast<std::size_t>(k)]]);
+      hi = hi.cwiseMax(vertices[indices[3 * t + static_cast<std::size_t>(k)]]);
+    }
     std::int64_t l[3], h[3];
     std::int64_t cells = 1;
     for (int d = 0; d < 3; ++d) {
-      if (!cell_of(lo[d], search_m, &l[d]) || !cell_of(hi[d], search_m, &h[d])) return false;
+      if (!cell_of(lo[d], cell_m_, &l[d]) || !cell_of(hi[d], cell_m_, &h[d])) return false;
       cells *= h[d] - l[d] + 1;
     }
     if (cells > kMaxCellsPerTriangle) return false;
@@ -133,7 +155,7 @@ float TriangleGrid::distance(const Eigen::Vector3f& p) const {
   // A triangle within the radius overlaps a cell within one cell of p's.
   std::int64_t c[3];
   for (int d = 0; d < 3; ++d) {
-    if (!cell_of(p[d], search_m_, &c[d])) return none;
+    if (!cell_of(p[d], cell_m_, &c[d])) return none;
   }
   float best2 = search_m_ * search_m_;
   bool found = false;

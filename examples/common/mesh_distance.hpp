@@ -20,10 +20,10 @@ Eigen::Vector3f closest_point_on_triangle(const Eigen::Vector3f& p, const Eigen:
 
 class TriangleGrid {
  public:
-  // Indexes the triangles (three indices each, all below vertex_count) in cells of `search_m`;
-  // false for an index out of range, a non-finite vertex of an indexed triangle, a triangle
-  // spanning more than 4096 cells, or a search radius not in (0, 1e3]. The mesh must outlive the
-  // grid.
+  // Indexes the triangles (three indices each, all below vertex_count) in cells of `search_m`
+  // or, when larger, the 99th percentile of the triangles' extents; false for an index out of
+  // range, a non-finite vertex of an indexed triangle, a triangle spanning more than 4096 cells
+  // (a hundredfold outlier), or a search radius not in (0, 1e3]. The mesh must outlive the grid.
   bool build(const Eigen::Vector3f* vertices, std::size_t vertex_count,
              const std::uint32_t* indices, std::size_t triangle_count, float search_m);
   // Distance from p to the nearest triangle, when one lies within the search radius; otherwise
@@ -35,6 +35,7 @@ class TriangleGrid {
   const Eigen::Vector3f* vertices_ = nullptr;
   const std::uint32_t* indices_ = nullptr;
   float search_m_ = 0.0f;
+  float cell_m_ = 0.0f;  // the search radius, or the triangles' p99 extent when larger
   // (cell key, triangle) for every cell a triangle's box overlaps, sorted by key.
   std::vector<std::uint64_t> cell_keys_;
   std::vector<std::uint32_t> cell_triangles_;

@@ -358,17 +358,49 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   }
 }
 
-// mesh.ply, and the mesh kept in the summary with keep_mesh.
+// Meshes `map` into `sink`; false when the mesher cannot reserve its memory.
 template <typename VoxelT>
-void write_mesh(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
-                LateFailures& late_failure) {
+bool extract_map_mesh(const Octree<VoxelT>& map, const RunOptions& options, VectorMeshSink* sink) {
+  MeshConfig mesh_config;
+  mesh_config.read_scale = options.mesh_read_scale;
+  // Dual marching cubes yields a few dozen vertices per surface block: size the
+  // de-duplication table (48-96 bytes per vertex) from the map, capped at 8 M vertices.
+  mesh_config.vertex_capacity = static_cast<std::uint32_t>(
+      std::clamp<std::uint64_t>(std::uint64_t{96} * map.memory().blocks_used, 1u << 16, 1u << 23));
+  const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
+  AlignedBuffer mesh_buffer(bytes);
+  LinearArena arena(mesh_buffer.data, bytes);
+  Mesher<VoxelT> mesher;
+  if (!mesher.reserve(arena, mesh_config).ok()) return false;
+  const Result<MeshStats> meshed = mesher.extract(map, *sink);
+  if (!meshed.ok()) {
+    std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
+  }
+  return true;
+}
+
+// mesh.ply, and the mesh kept in the summary with keep_mesh.
+// With --map-file the mesh is the whole map's, as --save-map's file is: the blocks in memory and
+// those the store holds.
+template <typename VoxelT>
+void write_mesh(const RunOptions& options, const Pipeline<VoxelT>& pipeline,
+                host::BlockStoreFile* store, RunSummary* summary, LateFailures& late_failure) {
   const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
+  if (!write_mesh_file && !options.keep_mesh) return;
+  std::unique_ptr<host::HeapMap<VoxelT>> merged;
+  if (store != nullptr) {
+    ErrorText merge_error;
+    if (!host::merge_map_with_store(&pipeline.map(), pipeline.map().config(), *store,
+                                    options.map_file_path.c_str(), &merged, &merge_error)
+             .ok()) {
+      late_failure(std::string("mesh.ply not written: ") + merge_error.c_str());
+      return;
+    }
+  }
   VectorMeshSink sink;
   const bool meshed =
-      (write_mesh_file || options.keep_mesh) && extract_mesh(pipeline, options, &sink);
-  if ((write_mesh_file || options.keep_mesh) && !meshed) {
-    late_failure("mesh.ply not written: cannot reserve the mesher");
-  }
+      extract_map_mesh(merged != nullptr ? merged->map : pipeline.map(), options, &sink);
+  if (!meshed) late_failure("mesh.ply not written: cannot reserve the mesher");
   if (meshed) {
     host::MeshView mesh;
     mesh.vertices = sink.positions.data();
@@ -446,26 +478,10 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
   return true;
 }
 
-// Meshes the map into `sink`; false when the mesher cannot reserve its memory.
 template <typename VoxelT>
 bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,
                   VectorMeshSink* sink) {
-  MeshConfig mesh_config;
-  mesh_config.read_scale = options.mesh_read_scale;
-  // Dual marching cubes yields a few dozen vertices per surface block: size the
-  // de-duplication table (48-96 bytes per vertex) from the map, capped at 8 M vertices.
-  mesh_config.vertex_capacity = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(
-      std::uint64_t{96} * pipeline.map().memory().blocks_used, 1u << 16, 1u << 23));
-  const std::size_t bytes = Mesher<VoxelT>::bytes_required(mesh_config);
-  AlignedBuffer mesh_buffer(bytes);
-  LinearArena arena(mesh_buffer.data, bytes);
-  Mesher<VoxelT> mesher;
-  if (!mesher.reserve(arena, mesh_config).ok()) return false;
-  const Result<MeshStats> meshed = mesher.extract(pipeline.map(), *sink);
-  if (!meshed.ok()) {
-    std::fprintf(stderr, "warning: meshing stopped early (%s)\n", meshed.status().name());
-  }
-  return true;
+  return extract_map_mesh(pipeline.map(), options, sink);
 }
 
 // Ends the run: closes the trajectory file and the source, and takes the pipeline's figures
@@ -560,7 +576,7 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
     }
   }
 
-  write_mesh(options, pipeline, summary, late_failure);
+  write_mesh(options, pipeline, run->store.get(), summary, late_failure);
 
   judge_run(loop->fused_after_first, summary);
 

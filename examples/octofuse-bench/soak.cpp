@@ -19,6 +19,7 @@
 #include <sstream>
 #include <vector>
 
+#include "mesh_distance.hpp"
 #include "octofuse/ports/host/json_writer.hpp"
 #include "runner.hpp"
 
@@ -320,6 +321,7 @@ void run_one(const SoakOptions& soak, SoakRun& run) {
   options.write_mesh = false;
   options.progress = false;
   options.keep_frame_records = false;  // per-frame records would grow with the run
+  options.keep_mesh = true;            // the two runs' surfaces are compared at the end
   if (!soak.map_file.empty() && run.map_memory_mb == soak.map_memory_mb &&
       std::string(run.name) == "capped") {
     std::remove(soak.map_file.c_str());  // a fresh store for a fresh run
@@ -418,6 +420,38 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
   }
   json.end_array();
   json.end_object();
+}
+
+// The capped run's final surface against the reference's, both ways, within one voxel.
+struct SurfaceComparison {
+  bool done = false;
+  examples::SurfaceDistances capped_to_reference, reference_to_capped;
+};
+
+SurfaceComparison compare_surfaces(const SoakRun& capped, const SoakRun& reference, float voxel_m) {
+  SurfaceComparison c;
+  const RunSummary* summaries[2] = {&capped.summary, &reference.summary};
+  examples::TriangleGrid grids[2];
+  for (int i = 0; i < 2; ++i) {
+    const RunSummary& s = *summaries[i];
+    if (s.mesh_indices.empty() ||
+        !grids[i].build(s.mesh_positions.data(), s.mesh_positions.size(), s.mesh_indices.data(),
+                        s.mesh_indices.size() / 3, 4.0f * voxel_m)) {
+      return c;
+    }
+  }
+  c.capped_to_reference =
+      examples::distances_to_surface(capped.summary.mesh_positions.data(),
+                                     capped.summary.mesh_positions.size(), grids[1], voxel_m);
+  c.reference_to_capped =
+      examples::distances_to_surface(reference.summary.mesh_positions.data(),
+                                     reference.summary.mesh_positions.size(), grids[0], voxel_m);
+  c.done = true;
+  return c;
+}
+
+double share(std::size_t part, std::size_t whole) {
+  return whole > 0 ? 100.0 * static_cast<double>(part) / static_cast<double>(whole) : 0.0;
 }
 
 std::string run_table(const SoakRun& run) {
@@ -542,7 +576,22 @@ int run_soak(const SoakOptions& soak) {
                 capped.peak_reset ? "" : "; VmHWM could not be reset, RSS sampled per frame",
                 static_cast<unsigned long long>(capped.lost), lost_only_capped.size(),
                 static_cast<unsigned long long>(reference.lost));
-  md << text << (reason.empty() ? "Soak passed.\n" : "Soak failed: " + reason + "\n");
+  md << text;
+  // What the capped map keeps of the surface (a measurement, not a pass condition).
+  const SurfaceComparison surface = compare_surfaces(capped, reference, soak.voxel_size_m);
+  if (surface.done) {
+    const examples::SurfaceDistances& a = surface.capped_to_reference;
+    const examples::SurfaceDistances& b = surface.reference_to_capped;
+    std::snprintf(text, sizeof(text),
+                  "Surface at the end (octofuse-map compare of the two runs' meshes): %.1f %% of "
+                  "the capped map's vertices within one voxel of the reference's surface (median "
+                  "%.2f mm, p99 %.2f mm), %.1f %% of the reference's within one voxel of the "
+                  "capped one's (median %.2f mm, p99 %.2f mm).\n",
+                  share(a.within, a.points), 1e3 * a.median_m, 1e3 * a.p99_m,
+                  share(b.within, b.points), 1e3 * b.median_m, 1e3 * b.p99_m);
+    md << text;
+  }
+  md << (reason.empty() ? "Soak passed.\n" : "Soak failed: " + reason + "\n");
 
   host::JsonWriter json;
   json.begin_object();
@@ -557,6 +606,18 @@ int run_soak(const SoakOptions& soak) {
   json.key("lost_only_capped").begin_array();
   for (std::uint64_t index : lost_only_capped) json.value(index);
   json.end_array();
+  if (surface.done) {
+    json.key("surface").begin_object();
+    json.key("capped_within_voxel")
+        .value(share(surface.capped_to_reference.within, surface.capped_to_reference.points));
+    json.key("capped_median_m").value(surface.capped_to_reference.median_m);
+    json.key("capped_p99_m").value(surface.capped_to_reference.p99_m);
+    json.key("reference_within_voxel")
+        .value(share(surface.reference_to_capped.within, surface.reference_to_capped.points));
+    json.key("reference_median_m").value(surface.reference_to_capped.median_m);
+    json.key("reference_p99_m").value(surface.reference_to_capped.p99_m);
+    json.end_object();
+  }
   json.key("passed").value(reason.empty());
   json.key("reason").value(reason.c_str());
   json.end_object();

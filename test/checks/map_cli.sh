@@ -118,8 +118,12 @@ expect_error not_mesh "a.ofmap" "${map}" compare "${work}/a.ofmap" "${work}/a_me
 # A block store (--map-file) of a run whose map memory holds a fraction of the room: octofuse-map
 # reads it as it is (nothing written, a torn tail only warned about) and refuses a damaged header.
 "${replay}" --source sim:room --voxel-size 0.04 --gt-poses --quiet --frames 60 --map-memory 1 \
-  --map-file "${work}/k.store" --out "${work}/k" >"${work}/k.out" 2>&1 ||
+  --map-file "${work}/k.store" --save-map "${work}/k.ofmap" --out "${work}/k" >"${work}/k.out" 2>&1 ||
   fail "--map-file run: $(cat "${work}/k.out")"
+# The run's mesh.ply is the whole map's (memory and store), as its --save-map file is.
+"${map}" mesh "${work}/k.ofmap" "${work}/k_saved.ply" >/dev/null 2>&1 || fail "saved map mesh failed"
+cmp -s "${work}/k_saved.ply" "${work}/k/mesh.ply" ||
+  fail "a --map-file run's mesh.ply is not the mesh of its whole map"
 cp "${work}/k.store" "${work}/k.copy"
 "${map}" info "${work}/k.store" >"${work}/kinfo.out" 2>&1 || fail "store info: $(cat "${work}/kinfo.out")"
 grep -q "a block store, every record checked" "${work}/kinfo.out" || fail "store info: not read as a store"

@@ -136,9 +136,18 @@ TEST_CASE("a mesh the grid cannot index is refused") {
   std::vector<Vector3f> bad = m.vertices;
   bad[4].x() = std::numeric_limits<float>::infinity();
   CHECK_FALSE(grid.build(bad.data(), bad.size(), m.indices.data(), 8, 0.1f));
-  // One triangle 1 km across in cells of 1 cm.
+  // One triangle 1 km across among 20 000 of 1 cm: a hostile outlier, refused.
+  GridMesh outlier = plane(100, 1.0f, 0.0f);
+  const std::uint32_t base = static_cast<std::uint32_t>(outlier.vertices.size());
+  outlier.vertices.insert(outlier.vertices.end(), {{0, 0, 0}, {1000, 0, 0}, {0, 1000, 0}});
+  outlier.indices.insert(outlier.indices.end(), {base, base + 1, base + 2});
+  CHECK_FALSE(grid.build(outlier.vertices.data(), outlier.vertices.size(), outlier.indices.data(),
+                         outlier.indices.size() / 3, 0.01f));
+  // Large triangles alone set the cells' size: searched as any other.
   const std::vector<Vector3f> huge = {{0, 0, 0}, {1000, 0, 0}, {0, 1000, 0}};
   const std::uint32_t one[3] = {0, 1, 2};
-  CHECK_FALSE(grid.build(huge.data(), huge.size(), one, 1, 0.01f));
+  REQUIRE(grid.build(huge.data(), huge.size(), one, 1, 0.01f));
+  CHECK(grid.distance({10.0f, 10.0f, 0.005f}) == Approx(0.005f).margin(1e-5));
+  CHECK(grid.distance({10.0f, 10.0f, 0.5f}) > 0.01f);
   CHECK(grid.build(m.vertices.data(), m.vertices.size(), m.indices.data(), 8, 0.1f));
 }

@@ -96,6 +96,7 @@ bool TriangleGrid::build(const Eigen::Vector3f* vertices, std::size_t vertex_cou
   // Cells at least the search radius (a query looks one cell around its own) and at least the
   // 99th percentile of the triangles' extents (so a small radius does not cut each triangle into
   // many cells).
+  std::vector<Eigen::Vector3f> box_lo(triangle_count), box_hi(triangle_count);
   std::vector<float> extents(triangle_count);
   for (std::size_t t = 0; t < triangle_count; ++t) {
     Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity());
@@ -106,24 +107,21 @@ bool TriangleGrid::build(const Eigen::Vector3f* vertices, std::size_t vertex_cou
       lo = lo.cwiseMin(vertices[i]);
       hi = hi.cwiseMax(vertices[i]);
     }
+    box_lo[t] = lo;
+    box_hi[t] = hi;
     extents[t] = (hi - lo).maxCoeff();
   }
   if (triangle_count > 0) {
-    std::vector<float> sorted = extents;
     const std::size_t rank = std::min(triangle_count - 1, triangle_count * 99 / 100);
-    std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(rank),
-                     sorted.end());
-    cell_m_ = std::max(search_m, sorted[rank]);
+    std::nth_element(extents.begin(), extents.begin() + static_cast<std::ptrdiff_t>(rank),
+                     extents.end());
+    cell_m_ = std::max(search_m, extents[rank]);
   }
   std::vector<std::pair<std::uint64_t, std::uint32_t>> entries;
   entries.reserve(triangle_count * 2);
   for (std::size_t t = 0; t < triangle_count; ++t) {
-    Eigen::Vector3f lo = vertices[indices[3 * t]];
-    Eigen::Vector3f hi = lo;
-    for (int k = 1; k < 3; ++k) {
-      lo = lo.cwiseMin(vertices[indices[3 * t + static_cast<std::size_t>(k)]]);
-      hi = hi.cwiseMax(vertices[indices[3 * t + static_cast<std::size_t>(k)]]);
-    }
+    const Eigen::Vector3f& lo = box_lo[t];
+    const Eigen::Vector3f& hi = box_hi[t];
     std::int64_t l[3], h[3];
     std::int64_t cells = 1;
     for (int d = 0; d < 3; ++d) {
@@ -211,6 +209,23 @@ SurfaceDistances distances_to_surface(const Eigen::Vector3f* points, std::size_t
   s.p90_m = at(0.9);
   s.p99_m = at(0.99);
   return s;
+}
+
+int compare_meshes(const MeshRef& a, const MeshRef& b, float within_m, SurfaceDistances* a_to_b,
+                   SurfaceDistances* b_to_a) {
+  const MeshRef* meshes[2] = {&a, &b};
+  TriangleGrid grids[2];
+  for (int i = 0; i < 2; ++i) {
+    const MeshRef& m = *meshes[i];
+    if (m.triangle_count == 0 ||
+        !grids[i].build(m.vertices, m.vertex_count, m.indices, m.triangle_count,
+                        kCompareSearchWithins * within_m)) {
+      return i;
+    }
+  }
+  *a_to_b = distances_to_surface(a.vertices, a.vertex_count, grids[1], within_m);
+  *b_to_a = distances_to_surface(b.vertices, b.vertex_count, grids[0], within_m);
+  return -1;
 }
 
 }  // namespace octofuse::examples

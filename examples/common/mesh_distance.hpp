@@ -53,4 +53,19 @@ struct SurfaceDistances {
 SurfaceDistances distances_to_surface(const Eigen::Vector3f* points, std::size_t count,
                                       const TriangleGrid& surface, float within_m);
 
+// A mesh in someone else's buffers: vertices and three indices per triangle.
+struct MeshRef {
+  const Eigen::Vector3f* vertices = nullptr;
+  std::size_t vertex_count = 0;
+  const std::uint32_t* indices = nullptr;
+  std::size_t triangle_count = 0;
+};
+
+// Both ways, searching to kCompareSearchWithins times `within_m`: a's vertices against b's
+// surface, then b's against a's. -1 when both could be compared, else the mesh (0: a, 1: b)
+// that has no triangle or that TriangleGrid::build() refuses.
+inline constexpr float kCompareSearchWithins = 4.0f;
+int compare_meshes(const MeshRef& a, const MeshRef& b, float within_m, SurfaceDistances* a_to_b,
+                   SurfaceDistances* b_to_a);
+
 }  // namespace octofuse::examples

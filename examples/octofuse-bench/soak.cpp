@@ -429,24 +429,13 @@ struct SurfaceComparison {
 };
 
 SurfaceComparison compare_surfaces(const SoakRun& capped, const SoakRun& reference, float voxel_m) {
+  auto ref = [](const RunSummary& s) {
+    return examples::MeshRef{s.mesh_positions.data(), s.mesh_positions.size(),
+                             s.mesh_indices.data(), s.mesh_indices.size() / 3};
+  };
   SurfaceComparison c;
-  const RunSummary* summaries[2] = {&capped.summary, &reference.summary};
-  examples::TriangleGrid grids[2];
-  for (int i = 0; i < 2; ++i) {
-    const RunSummary& s = *summaries[i];
-    if (s.mesh_indices.empty() ||
-        !grids[i].build(s.mesh_positions.data(), s.mesh_positions.size(), s.mesh_indices.data(),
-                        s.mesh_indices.size() / 3, 4.0f * voxel_m)) {
-      return c;
-    }
-  }
-  c.capped_to_reference =
-      examples::distances_to_surface(capped.summary.mesh_positions.data(),
-                                     capped.summary.mesh_positions.size(), grids[1], voxel_m);
-  c.reference_to_capped =
-      examples::distances_to_surface(reference.summary.mesh_positions.data(),
-                                     reference.summary.mesh_positions.size(), grids[0], voxel_m);
-  c.done = true;
+  c.done = examples::compare_meshes(ref(capped.summary), ref(reference.summary), voxel_m,
+                                    &c.capped_to_reference, &c.reference_to_capped) < 0;
   return c;
 }
 

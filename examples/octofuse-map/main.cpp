@@ -180,22 +180,20 @@ int compare_meshes(const char* path_a, const char* path_b, float within_m) {
     std::printf("%s: %zu vertices, %zu triangles\n", paths[i], mesh[i].vertices.size(),
                 mesh[i].indices.size() / 3);
   }
-  const float search_m = 4.0f * within_m;
-  examples::TriangleGrid grid[2];
+  const float search_m = examples::kCompareSearchWithins * within_m;
+  examples::MeshRef refs[2];
   for (int i = 0; i < 2; ++i) {
-    if (!grid[i].build(mesh[i].vertices.data(), mesh[i].vertices.size(), mesh[i].indices.data(),
-                       mesh[i].indices.size() / 3, search_m)) {
-      return error_exit(std::string(paths[i]) +
-                        ": a vertex is not finite or a triangle spans more than 4096 cells of " +
-                        std::to_string(search_m) + " m");
-    }
+    refs[i] = {mesh[i].vertices.data(), mesh[i].vertices.size(), mesh[i].indices.data(),
+               mesh[i].indices.size() / 3};
   }
-  for (int i = 0; i < 2; ++i) {
-    const host::Mesh& from = mesh[i];
-    const examples::SurfaceDistances d = examples::distances_to_surface(
-        from.vertices.data(), from.vertices.size(), grid[1 - i], within_m);
-    print_distances(paths[i], paths[1 - i], d, within_m, search_m);
+  examples::SurfaceDistances d[2];
+  const int refused = examples::compare_meshes(refs[0], refs[1], within_m, &d[0], &d[1]);
+  if (refused >= 0) {
+    return error_exit(std::string(paths[refused]) +
+                      ": a vertex is not finite or a triangle spans more than 4096 cells of " +
+                      std::to_string(search_m) + " m");
   }
+  for (int i = 0; i < 2; ++i) print_distances(paths[i], paths[1 - i], d[i], within_m, search_m);
   return 0;
 }
 

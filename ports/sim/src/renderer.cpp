@@ -133,18 +133,27 @@ Status SceneRenderer::render(const Scene& scene, const Se3d& T_W_C, const Render
             u += sigma_px * gaussian_from_bits(hash_key(options.jitter_key, pixel, 0, 1));
             v += sigma_px * gaussian_from_bits(hash_key(options.jitter_key, pixel, 0, 2));
           }
-          Eigen::Vector3d d_C((u - cx) * inv_fx, (v - cy) * inv_fy, 1.0);
-          const double inv_norm = 1.0 / d_C.norm();
-          d_C *= inv_norm;  // now unit; its z is the depth per metre of ray
-          const double t_limit = max_range / d_C.z();
+          // The unit ray in scalars, in Eigen's order of operations (see scene.cpp): one
+          // temporary less per pixel and primitive in sanitizer builds, the same bits.
+          const double x_C = (u - cx) * inv_fx;
+          const double y_C = (v - cy) * inv_fy;
+          const double inv_norm = 1.0 / std::sqrt(x_C * x_C + (y_C * y_C + 1.0));
+          const double dx_C = x_C * inv_norm;
+          const double dy_C = y_C * inv_norm;
+          const double dz_C = inv_norm;  // the depth per metre of ray
+          const double t_limit = max_range / dz_C;
           double best_t = t_limit;
           double best_cos = 0.0;
           bool hit = false;
           for (int k = 0; k < count; ++k) {
             const FramePrimitive& fp = frame_primitives_[list[k]];
+            const Eigen::Matrix3d& R = fp.R_P_C;
+            const Eigen::Vector3d d_P(R(0, 0) * dx_C + (R(0, 1) * dy_C + R(0, 2) * dz_C),
+                                      R(1, 0) * dx_C + (R(1, 1) * dy_C + R(1, 2) * dz_C),
+                                      R(2, 0) * dx_C + (R(2, 1) * dy_C + R(2, 2) * dz_C));
             double t;
             double c;
-            if (fp.primitive->intersect_local(fp.o_P, fp.R_P_C * d_C, &t, &c) && t < best_t) {
+            if (fp.primitive->intersect_local(fp.o_P, d_P, &t, &c) && t < best_t) {
               best_t = t;
               best_cos = c;
               hit = true;
@@ -152,7 +161,7 @@ Status SceneRenderer::render(const Scene& scene, const Se3d& T_W_C, const Render
           }
           tests += static_cast<std::uint64_t>(count);
           if (hit) ++hits;
-          depth_row[x] = hit ? static_cast<float>(best_t * d_C.z()) : 0.0f;
+          depth_row[x] = hit ? static_cast<float>(best_t * dz_C) : 0.0f;
           if (want_cos) cos_row[x] = hit ? static_cast<float>(best_cos) : 0.0f;
         }
       }

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "dot3.hpp"
 #include "octofuse/ports/sim/random.hpp"
 
 namespace octofuse::sim {
@@ -133,11 +134,10 @@ Status SceneRenderer::render(const Scene& scene, const Se3d& T_W_C, const Render
             u += sigma_px * gaussian_from_bits(hash_key(options.jitter_key, pixel, 0, 1));
             v += sigma_px * gaussian_from_bits(hash_key(options.jitter_key, pixel, 0, 2));
           }
-          // The unit ray in scalars, in Eigen's order of operations (see scene.cpp): one
-          // temporary less per pixel and primitive in sanitizer builds, the same bits.
+          // The unit ray and its rotation into each primitive's frame in scalars (dot3.hpp).
           const double x_C = (u - cx) * inv_fx;
           const double y_C = (v - cy) * inv_fy;
-          const double inv_norm = 1.0 / std::sqrt(x_C * x_C + (y_C * y_C + 1.0));
+          const double inv_norm = 1.0 / std::sqrt(dot3(x_C, y_C, 1.0, x_C, y_C, 1.0));
           const double dx_C = x_C * inv_norm;
           const double dy_C = y_C * inv_norm;
           const double dz_C = inv_norm;  // the depth per metre of ray
@@ -148,9 +148,9 @@ Status SceneRenderer::render(const Scene& scene, const Se3d& T_W_C, const Render
           for (int k = 0; k < count; ++k) {
             const FramePrimitive& fp = frame_primitives_[list[k]];
             const Eigen::Matrix3d& R = fp.R_P_C;
-            const Eigen::Vector3d d_P(R(0, 0) * dx_C + (R(0, 1) * dy_C + R(0, 2) * dz_C),
-                                      R(1, 0) * dx_C + (R(1, 1) * dy_C + R(1, 2) * dz_C),
-                                      R(2, 0) * dx_C + (R(2, 1) * dy_C + R(2, 2) * dz_C));
+            const Eigen::Vector3d d_P(dot3(R(0, 0), R(0, 1), R(0, 2), dx_C, dy_C, dz_C),
+                                      dot3(R(1, 0), R(1, 1), R(1, 2), dx_C, dy_C, dz_C),
+                                      dot3(R(2, 0), R(2, 1), R(2, 2), dx_C, dy_C, dz_C));
             double t;
             double c;
             if (fp.primitive->intersect_local(fp.o_P, d_P, &t, &c) && t < best_t) {

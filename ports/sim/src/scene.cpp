@@ -7,6 +7,7 @@
 #include <Eigen/LU>
 #include <limits>
 
+#include "dot3.hpp"
 #include "octofuse/ports/sim/random.hpp"
 
 namespace octofuse::sim {
@@ -55,10 +56,7 @@ void set_bounds(Primitive* p) {
   p->aabb_max_W = p->t_W_P + half_W;
 }
 
-// The ray tests run once per pixel and primitive: they are written in scalars, in the order
-// Eigen evaluates the vector expressions they stand for (a sum of three terms is a + (b + c)), so
-// the bits are the same, and sanitizer builds do not instrument a stack temporary per operation
-// (with Eigen's expressions the renderer took most of a sanitized test's time).
+// The ray tests below are scalar code built on dot3() (see dot3.hpp for why).
 
 // Entry of a ray into a sphere of radius r centred at (0, 0, c_z) (in the same frame as o).
 bool sphere_entry(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double c_z, double r,
@@ -69,12 +67,12 @@ bool sphere_entry(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double c_z
   const double ocx = o.x();  // x - 0 is x, bit for bit
   const double ocy = o.y();
   const double ocz = o.z() - c_z;
-  const double t_closest = -(ocx * dx + (ocy * dy + ocz * dz));
+  const double t_closest = -dot3(ocx, ocy, ocz, dx, dy, dz);
   // Closest approach; no cancellation.
   const double qx = ocx + t_closest * dx;
   const double qy = ocy + t_closest * dy;
   const double qz = ocz + t_closest * dz;
-  const double h2 = r * r - (qx * qx + (qy * qy + qz * qz));
+  const double h2 = r * r - dot3(qx, qy, qz, qx, qy, qz);
   if (h2 < 0.0) return false;
   const double t_entry = t_closest - std::sqrt(h2);
   if (t_entry <= 0.0) return false;
@@ -168,7 +166,7 @@ bool Primitive::intersect_local(const Eigen::Vector3d& o, const Eigen::Vector3d&
       const double px = o.x() + t * d.x();
       const double py = o.y() + t * d.y();
       const double pz = o.z() + t * d.z();
-      *cos_incidence = std::abs(px * d.x() + (py * d.y() + pz * d.z())) / radius_m;
+      *cos_incidence = std::abs(dot3(px, py, pz, d.x(), d.y(), d.z())) / radius_m;
       return true;
     }
     case PrimitiveKind::capsule: {
@@ -193,7 +191,7 @@ bool Primitive::intersect_local(const Eigen::Vector3d& o, const Eigen::Vector3d&
       }
       if (best == kInfinity) return false;
       *t_m = best;
-      *cos_incidence = std::min(1.0, std::abs(nx * d.x() + (ny * d.y() + nz * d.z())) / radius_m);
+      *cos_incidence = std::min(1.0, std::abs(dot3(nx, ny, nz, d.x(), d.y(), d.z())) / radius_m);
       return true;
     }
     case PrimitiveKind::cylinder: {

@@ -18,6 +18,32 @@ TEST_CASE("crc32 matches the IEEE check value and continues across calls") {
   CHECK(crc32(bytes, 0) == 0u);
 }
 
+TEST_CASE("crc32 equals the bitwise definition at every length and split") {
+  // The polynomial applied bit by bit, as the standard defines it.
+  auto reference = [](const std::uint8_t* bytes, std::size_t count) {
+    std::uint32_t crc = 0xFFFFFFFFu;
+    for (std::size_t i = 0; i < count; ++i) {
+      crc ^= bytes[i];
+      for (int k = 0; k < 8; ++k) crc = (crc & 1u) != 0 ? 0xEDB88320u ^ (crc >> 1) : crc >> 1;
+    }
+    return ~crc;
+  };
+  std::uint8_t bytes[300];
+  std::uint32_t state = 12345u;
+  for (std::uint8_t& b : bytes) {
+    state = state * 1664525u + 1013904223u;
+    b = static_cast<std::uint8_t>(state >> 24);
+  }
+  for (std::size_t count = 0; count <= sizeof(bytes); ++count) {
+    CAPTURE(count);
+    const std::uint32_t expected = reference(bytes, count);
+    REQUIRE(crc32(bytes, count) == expected);
+    // Any split, and any alignment of the start.
+    const std::size_t split = count / 3;
+    REQUIRE(crc32(bytes + split, count - split, crc32(bytes, split)) == expected);
+  }
+}
+
 TEST_CASE("a 16-bit map file says so and is refused by float maps, and they by it",
           "[multires16]") {
   const Frames frames(3);

@@ -143,6 +143,8 @@ struct RunSummary {
   ReloadLatency store_reload_latency;   // frames stored blocks waited to be read back
   // With --map-file and free space: the free-space store (FILE.free), as above.
   FreeStoreReport free_store_total;
+  std::uint64_t finest_store_file_bytes = 0;  // --map-file's FILE.fine
+  std::uint64_t finest_store_keys = 0;
   std::uint64_t free_store_file_bytes = 0;
   std::uint64_t free_store_keys = 0;
   std::size_t mesh_vertices = 0;

@@ -403,6 +403,9 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
   bool free_store_sync_warned = false;
   bool free_store_compact_warned = false;
   bool free_store_failed_warned = false;
+  bool finest_store_sync_warned = false;
+  bool finest_store_compact_warned = false;
+  bool finest_store_write_warned = false;
   const PipelineBudget default_budget;
   for (int level = 0; level < kPyramidLevels; ++level) {
     warnings.icp_budget_set = warnings.icp_budget_set || options.budget.icp_iterations[level] !=
@@ -536,9 +539,29 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
       t.deferred += stats.store.deferred;
       t.bytes_written += stats.store.bytes_written;
       t.bytes_read += stats.store.bytes_read;
+      t.finest_written += stats.store.finest_written;
+      t.finest_write_failed += stats.store.finest_write_failed;
+      t.finest_bytes_written += stats.store.finest_bytes_written;
+      t.finest_read += stats.store.finest_read;
+      t.finest_read_failed += stats.store.finest_read_failed;
+      t.finest_waiting += stats.store.finest_waiting;
+      t.finest_bytes_read += stats.store.finest_bytes_read;
       keep_store(*run->store, stats.store.written > 0, stats.store.bytes_written,
                  options.map_file_path.c_str(), "blocks", &store_sync_warned,
                  &store_compact_warned);
+      if (run->finest_store != nullptr) {
+        keep_store(*run->finest_store, stats.store.finest_written > 0,
+                   stats.store.finest_bytes_written, (options.map_file_path + ".fine").c_str(),
+                   "finest levels", &finest_store_sync_warned, &finest_store_compact_warned);
+      }
+      if (stats.store.finest_write_failed > 0 && !finest_store_write_warned) {
+        finest_store_write_warned = true;
+        std::fprintf(stderr,
+                     "warning: frame %lu: the finest-level store refused %u records (that detail "
+                     "is lost; store_finest_write_failed in stats.json)\n",
+                     static_cast<unsigned long>(stats.frame_index),
+                     stats.store.finest_write_failed);
+      }
       if (stats.store.write_failed > 0 && !store_write_warned) {
         store_write_warned = true;
         std::fprintf(stderr,
@@ -603,7 +626,7 @@ int run_frames(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>
         processed % options.save_every == 0) {
       std::string save_error;
       if (!save_map_now(options, pipeline, summary, &save_error, run->store.get(),
-                        run->free_store.get())) {
+                        run->free_store.get(), run->finest_store.get())) {
         std::fprintf(stderr, "warning: map not saved: %s\n", save_error.c_str());
       }
     }

@@ -81,6 +81,15 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("store_deferred").value(static_cast<std::uint64_t>(s.store.deferred));
   json.key("store_bytes_written").value(s.store.bytes_written);
   json.key("store_bytes_read").value(s.store.bytes_read);
+  json.key("store_finest_written").value(static_cast<std::uint64_t>(s.store.finest_written));
+  json.key("store_finest_write_failed")
+      .value(static_cast<std::uint64_t>(s.store.finest_write_failed));
+  json.key("store_finest_bytes_written").value(s.store.finest_bytes_written);
+  json.key("store_finest_read").value(static_cast<std::uint64_t>(s.store.finest_read));
+  json.key("store_finest_read_failed")
+      .value(static_cast<std::uint64_t>(s.store.finest_read_failed));
+  json.key("store_finest_waiting").value(static_cast<std::uint64_t>(s.store.finest_waiting));
+  json.key("store_finest_bytes_read").value(s.store.finest_bytes_read);
   json.key("free_store_written").value(static_cast<std::uint64_t>(s.free_store.written));
   json.key("free_store_merged").value(static_cast<std::uint64_t>(s.free_store.merged));
   json.key("free_store_write_failed").value(static_cast<std::uint64_t>(s.free_store.write_failed));
@@ -282,6 +291,19 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   json.key("store_deferred").value(static_cast<std::uint64_t>(summary->store_total.deferred));
   json.key("store_bytes_written").value(summary->store_total.bytes_written);
   json.key("store_bytes_read").value(summary->store_total.bytes_read);
+  json.key("store_finest_written")
+      .value(static_cast<std::uint64_t>(summary->store_total.finest_written));
+  json.key("store_finest_write_failed")
+      .value(static_cast<std::uint64_t>(summary->store_total.finest_write_failed));
+  json.key("store_finest_bytes_written").value(summary->store_total.finest_bytes_written);
+  json.key("store_finest_read").value(static_cast<std::uint64_t>(summary->store_total.finest_read));
+  json.key("store_finest_read_failed")
+      .value(static_cast<std::uint64_t>(summary->store_total.finest_read_failed));
+  json.key("store_finest_waiting")
+      .value(static_cast<std::uint64_t>(summary->store_total.finest_waiting));
+  json.key("store_finest_bytes_read").value(summary->store_total.finest_bytes_read);
+  json.key("store_finest_file_bytes").value(summary->finest_store_file_bytes);
+  json.key("store_finest_keys").value(summary->finest_store_keys);
   json.key("store_file_bytes").value(summary->store_file_bytes);
   json.key("store_keys").value(summary->store_keys);
   json.key("store_live_bytes").value(summary->store_live_bytes);
@@ -384,14 +406,16 @@ bool extract_map_mesh(const Octree<VoxelT>& map, const RunOptions& options, Vect
 // those the store holds.
 template <typename VoxelT>
 void write_mesh(const RunOptions& options, const Pipeline<VoxelT>& pipeline,
-                host::BlockStoreFile* store, RunSummary* summary, LateFailures& late_failure) {
+                host::BlockStoreFile* store, host::BlockStoreFile* finest_store,
+                RunSummary* summary, LateFailures& late_failure) {
   const bool write_mesh_file = options.write_mesh && !options.out_dir.empty();
   if (!write_mesh_file && !options.keep_mesh) return;
   std::unique_ptr<host::HeapMap<VoxelT>> merged;
   if (store != nullptr) {
     ErrorText merge_error;
+    const host::FinestMerge finest{finest_store, pipeline.config().fusion.y_max};
     if (!host::merge_map_with_store(&pipeline.map(), pipeline.map().config(), *store,
-                                    options.map_file_path.c_str(), &merged, &merge_error)
+                                    options.map_file_path.c_str(), &merged, &merge_error, finest)
              .ok()) {
       late_failure(std::string("mesh.ply not written: ") + merge_error.c_str());
       return;
@@ -451,8 +475,8 @@ bool write_render(Pipeline<VoxelT>& pipeline, const std::string& path, ErrorText
 // Writes --save-map's file; false (with the reason in *error) when it could not.
 template <typename VoxelT>
 bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
-                  std::string* error, host::BlockStoreFile* store,
-                  host::BlockStoreFile* free_store) {
+                  std::string* error, host::BlockStoreFile* store, host::BlockStoreFile* free_store,
+                  host::BlockStoreFile* finest_store) {
   const auto start = std::chrono::steady_clock::now();
   ErrorText text;
   MapSaveInfo info;
@@ -464,7 +488,8 @@ bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, R
   const Status saved =
       store != nullptr
           ? host::save_map_file_with_store(options.save_map_path.c_str(), pipeline.map(),
-                                           free_space, *store, info, &text, free_store)
+                                           free_space, *store, info, &text, free_store,
+                                           {finest_store, pipeline.config().fusion.y_max})
           : host::save_map_file(options.save_map_path.c_str(), pipeline.map(), free_space, info,
                                 &text);
   if (!saved.ok()) {
@@ -518,6 +543,11 @@ int close_run(const RunOptions& options, RunInputs* inputs, PipelineRun<VoxelT>*
     summary->store_live_bytes = store.live_bytes;
     summary->store_compactions = store.compactions;
   }
+  if (run->finest_store != nullptr) {
+    const host::BlockStoreFileStats finest_store = run->finest_store->stats();
+    summary->finest_store_file_bytes = finest_store.file_bytes;
+    summary->finest_store_keys = finest_store.keys;
+  }
   if (run->free_store != nullptr) {
     const host::BlockStoreFileStats free_store = run->free_store->stats();
     summary->free_store_file_bytes = free_store.file_bytes;
@@ -562,7 +592,7 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
   if (!options.save_map_path.empty()) {
     std::string save_error;
     if (!save_map_now(options, pipeline, summary, &save_error, run->store.get(),
-                      run->free_store.get())) {
+                      run->free_store.get(), run->finest_store.get())) {
       late_failure(save_error);
     }
   }
@@ -576,7 +606,7 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
     }
   }
 
-  write_mesh(options, pipeline, run->store.get(), summary, late_failure);
+  write_mesh(options, pipeline, run->store.get(), run->finest_store.get(), summary, late_failure);
 
   judge_run(loop->fused_after_first, summary);
 
@@ -606,12 +636,13 @@ template int write_outputs<TsdfVoxel>(const RunOptions&, RunInputs*, PipelineRun
                                       LoopResult*, RunSummary*);
 template bool save_map_now<MultiresVoxel>(const RunOptions&, const Pipeline<MultiresVoxel>&,
                                           RunSummary*, std::string*, host::BlockStoreFile*,
-                                          host::BlockStoreFile*);
+                                          host::BlockStoreFile*, host::BlockStoreFile*);
 template bool save_map_now<Multires16Voxel>(const RunOptions&, const Pipeline<Multires16Voxel>&,
                                             RunSummary*, std::string*, host::BlockStoreFile*,
-                                            host::BlockStoreFile*);
+                                            host::BlockStoreFile*, host::BlockStoreFile*);
 template bool save_map_now<TsdfVoxel>(const RunOptions&, const Pipeline<TsdfVoxel>&, RunSummary*,
-                                      std::string*, host::BlockStoreFile*, host::BlockStoreFile*);
+                                      std::string*, host::BlockStoreFile*, host::BlockStoreFile*,
+                                      host::BlockStoreFile*);
 template bool extract_mesh<MultiresVoxel>(const Pipeline<MultiresVoxel>&, const RunOptions&,
                                           VectorMeshSink*);
 template bool extract_mesh<Multires16Voxel>(const Pipeline<Multires16Voxel>&, const RunOptions&,

@@ -92,6 +92,9 @@ bool check_outputs(const RunOptions& options, std::string* error) {
   if (!options.map_file_path.empty()) {
     outputs.push_back({options.map_file_path, "--map-file"});
     if (options.free_space) outputs.push_back({options.map_file_path + ".free", "--map-file"});
+    if (options.map_kind != MapKind::single_res) {
+      outputs.push_back({options.map_file_path + ".fine", "--map-file"});
+    }
   }
   if (options.deadline_ms > 0.0 && !options.deadline_calibration.empty() &&
       !options.deadline_freeze) {
@@ -439,6 +442,17 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
         std::make_unique<ReloadLatencyProbe>(run->store.get(), &summary->store_reload_latency);
     if (!pipeline.set_block_store(run->store_probe.get()).ok()) {
       return error_exit("--map-file needs eviction (--evict HIGH,LOW)");
+    }
+    if constexpr (Pipeline<VoxelT>::Map::kSplitFinest) {
+      // Finest levels given up for room go to FILE.fine, the block's record at that moment.
+      std::uint8_t finest_geometry[host::kFinestStoreGeometryBytes];
+      host::encode_finest_store_geometry(store_geometry, finest_geometry);
+      run->finest_store = open_store(options.map_file_path + ".fine", finest_geometry,
+                                     sizeof(finest_geometry), &store_error);
+      if (run->finest_store == nullptr) return error_exit(store_error);
+      if (!pipeline.set_finest_store(run->finest_store.get()).ok()) {
+        return error_exit("cannot attach the finest-level store");
+      }
     }
     if (pipeline.config().free_space.enabled) {
       // Free space the pool forgets goes to FILE.free, by region.

@@ -57,8 +57,9 @@ struct PipelineRun {
   Pipeline<VoxelT> pipeline;
   std::unique_ptr<AlignedBuffer> buffer;
   const Clock clock = steady_clock();
-  std::unique_ptr<host::BlockStoreFile> store;       // --map-file
-  std::unique_ptr<host::BlockStoreFile> free_store;  // --map-file's FILE.free (free space on)
+  std::unique_ptr<host::BlockStoreFile> store;         // --map-file
+  std::unique_ptr<host::BlockStoreFile> free_store;    // --map-file's FILE.free (free space on)
+  std::unique_ptr<host::BlockStoreFile> finest_store;  // --map-file's FILE.fine (multires)
   // Between the pipeline and `store`: how long blocks wait to be read back.
   std::unique_ptr<ReloadLatencyProbe> store_probe;
 };
@@ -103,7 +104,8 @@ int write_outputs(const RunOptions& options, RunInputs* inputs, PipelineRun<Voxe
 template <typename VoxelT>
 bool save_map_now(const RunOptions& options, const Pipeline<VoxelT>& pipeline, RunSummary* summary,
                   std::string* error, host::BlockStoreFile* store = nullptr,
-                  host::BlockStoreFile* free_store = nullptr);
+                  host::BlockStoreFile* free_store = nullptr,
+                  host::BlockStoreFile* finest_store = nullptr);
 // Meshes the map into `sink`; false when the mesher cannot reserve its memory.
 template <typename VoxelT>
 bool extract_mesh(const Pipeline<VoxelT>& pipeline, const RunOptions& options,

@@ -326,6 +326,7 @@ void run_one(const SoakOptions& soak, SoakRun& run) {
       std::string(run.name) == "capped") {
     std::remove(soak.map_file.c_str());  // a fresh store for a fresh run
     std::remove((soak.map_file + ".free").c_str());
+    std::remove((soak.map_file + ".fine").c_str());
     options.map_file_path = soak.map_file;
   }
   options.on_frame = [&run](const FrameStats& stats) { on_frame(run, stats); };

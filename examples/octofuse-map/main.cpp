@@ -207,7 +207,27 @@ int run_store(const std::string& command, const char* path, host::BlockStoreFile
   config.origin_W = geometry.origin_W;
   std::unique_ptr<host::HeapMap<VoxelT>> merged;
   ErrorText error;
-  if (!host::merge_map_with_store<VoxelT>(nullptr, config, store, path, &merged, &error).ok()) {
+  // Finest levels the run gave up for room lie beside the store, in FILE.fine: merged too (by
+  // down-propagation with the default weight cap, which only bounds the weights).
+  const std::string finest_path = std::string(path) + ".fine";
+  host::BlockStoreFile finest_store;
+  host::FinestMerge finest;
+  if (host::is_block_store_file(finest_path.c_str())) {
+    ErrorText warning;
+    if (!finest_store.open(finest_path.c_str(), nullptr, 0, &error, &warning).ok()) {
+      return error_exit(error.c_str());
+    }
+    if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
+    std::uint8_t expected[host::kFinestStoreGeometryBytes];
+    host::encode_finest_store_geometry(geometry, expected);
+    if (finest_store.geometry_size() != sizeof(expected) ||
+        std::memcmp(finest_store.geometry(), expected, sizeof(expected)) != 0) {
+      return error_exit(finest_path + ": not the finest-level store of " + path);
+    }
+    finest.store = &finest_store;
+  }
+  if (!host::merge_map_with_store<VoxelT>(nullptr, config, store, path, &merged, &error, finest)
+           .ok()) {
     return error_exit(error.c_str());
   }
   const Octree<VoxelT>& map = merged->map;
@@ -227,6 +247,12 @@ int run_store(const std::string& command, const char* path, host::BlockStoreFile
       static_cast<double>(geometry.origin_W.x()), static_cast<double>(geometry.origin_W.y()),
       static_cast<double>(geometry.origin_W.z()));
   print_blocks(map);
+  if (finest.store != nullptr) {
+    std::printf("finest levels   %llu records in %s (merged)\n",
+                static_cast<unsigned long long>(finest_store.stats().keys), finest_path.c_str());
+  } else {
+    std::printf("finest levels   not stored\n");
+  }
   // The free space a run forgot lies beside the store, in FILE.free (by region).
   const std::string free_path = std::string(path) + ".free";
   if (!host::is_block_store_file(free_path.c_str())) {
@@ -409,6 +435,14 @@ int main(int argc, char** argv) {
       std::fprintf(stderr,
                    "error: %s: a free-space store; give its block store (the name without "
                    "\".free\"), which reads it too\n",
+                   path);
+      return 1;
+    }
+    if (store.geometry_size() == host::kFinestStoreGeometryBytes &&
+        store.geometry()[host::kStoreGeometryBytes] == host::kFinestStoreGeometryTag) {
+      std::fprintf(stderr,
+                   "error: %s: a finest-level store; give its block store (the name without "
+                   "\".fine\"), which reads it too\n",
                    path);
       return 1;
     }

@@ -124,6 +124,14 @@ expect_error not_mesh "a.ofmap" "${map}" compare "${work}/a.ofmap" "${work}/a_me
 "${map}" mesh "${work}/k.ofmap" "${work}/k_saved.ply" >/dev/null 2>&1 || fail "saved map mesh failed"
 cmp -s "${work}/k_saved.ply" "${work}/k/mesh.ply" ||
   fail "a --map-file run's mesh.ply is not the mesh of its whole map"
+# Finest levels the 1 MB run gave up for room lie beside it, in FILE.fine: the whole map (its
+# saved file, and octofuse-map given the store) merges them; given alone, or another map's, refused.
+[[ -s "${work}/k.store.fine" ]] || fail "no finest-level store beside the block store"
+"${map}" info "${work}/k.store" >"${work}/kfine.out" 2>&1 || fail "store info: $(cat "${work}/kfine.out")"
+grep -q "^finest levels   [1-9][0-9]* records in .*k.store.fine (merged)$" "${work}/kfine.out" ||
+  fail "store info: finest-level store not merged: $(cat "${work}/kfine.out")"
+expect_error finealone "a finest-level store; give its block store" "${map}" info \
+  "${work}/k.store.fine"
 cp "${work}/k.store" "${work}/k.copy"
 "${map}" info "${work}/k.store" >"${work}/kinfo.out" 2>&1 || fail "store info: $(cat "${work}/kinfo.out")"
 grep -q "a block store, every record checked" "${work}/kinfo.out" || fail "store info: not read as a store"
@@ -164,6 +172,11 @@ head -c $((free_size - 10)) "${work}/f.store.free" >"${work}/fcut.store.free"
 "${map}" info "${work}/fcut.store" >"${work}/fcut.out" 2>"${work}/fcut.err" ||
   fail "cut free-space store: $(cat "${work}/fcut.err")"
 grep -q "^warning: .*torn or damaged tail" "${work}/fcut.err" || fail "cut free-space store: no warning"
+# Another map's finest-level store beside a block store (4 cm levels beside a 2 cm store).
+cp "${work}/f.store" "${work}/fmix.store"
+cp "${work}/k.store.fine" "${work}/fmix.store.fine"
+expect_error finemix "fmix.store.fine: not the finest-level store of" "${map}" info \
+  "${work}/fmix.store"
 
 if [[ -n "${live}" ]]; then
   "${live}" "${common[@]}" --frames 100000 --out "${work}/l" --save-map "${work}/live.ofmap" \

@@ -5,8 +5,8 @@
 #include <type_traits>
 
 #include "octofuse/core/lanes.hpp"
-#include "octofuse/fusion/detail/propagation.hpp"
 #include "octofuse/map/detail/mip.hpp"
+#include "octofuse/map/detail/propagation.hpp"
 
 namespace octofuse {
 
@@ -891,14 +891,24 @@ BlockList keep_existing_blocks(FrameBlock* blocks, std::uint32_t touched) {
 
 // Fine levels for blocks about to integrate at scale 0 (1) for the first time, serially and in
 // list order so the pools' indices do not depend on the worker count. Refused: one scale coarser
-// (a block refused its finest level integrates at scale 1, one refused its mid level at 2).
+// (a block refused its finest level integrates at scale 1, one refused its mid level at 2). A
+// block that held a finest level once (min_scale 0) and gave it up asks `source` for it first.
 template <typename VoxelT>
 void acquire_fine_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& list,
-                         IntegrationReport& report) {
+                         FinestLevelSource<VoxelT>* source, IntegrationReport& report) {
+  using Answer = typename FinestLevelSource<VoxelT>::Answer;
   for (std::uint32_t i = 0; i < list.count && list.finest_scale <= 1; ++i) {
     FrameBlock& b = blocks[i];
     if (b.skip != 0 || b.scale > 1) continue;
     VoxelBlock<VoxelT>& block = map.block(b.block);
+    if (source != nullptr && b.scale == 0 && !block.has_finest() && block.min_scale == 0) {
+      const Answer answer = source->restore(map, b.block);
+      if (answer == Answer::restored) continue;
+      if (answer == Answer::wait) {
+        b.scale = 1;
+        list.coarsest = std::max(list.coarsest, 1);
+      }
+    }
     if (!block.has_mid() && !map.acquire_mid(block).ok()) {
       b.scale = 2;
       list.coarsest = std::max(list.coarsest, 2);
@@ -1126,7 +1136,7 @@ IntegrationReport Integrator<VoxelT>::integrate_looked_up(Octree<VoxelT>& map, F
 
   // 3. Budgets (the scales were picked in step 2), then finest levels for the blocks at scale 0.
   const bool budget_bound = apply_budgets(list.count, list.cost, budget, report);
-  if constexpr (kMultires) acquire_fine_levels(map, frame_blocks_, list, report);
+  if constexpr (kMultires) acquire_fine_levels(map, frame_blocks_, list, finest_source_, report);
   f.mip_target = mip_target(frame_blocks_, list, budget_bound);
 
   // 4. Integrate in pool order, in a fixed number of tasks. Blocks are independent, so the order

@@ -8,6 +8,7 @@
 
 #include "octofuse/map/block_store.hpp"
 #include "octofuse/map/detail/little_endian.hpp"
+#include "octofuse/map/detail/propagation.hpp"
 #include "octofuse/map/free_octree.hpp"
 
 namespace octofuse {
@@ -1130,24 +1131,37 @@ Result<std::size_t> encode_block_record(const VoxelBlock<VoxelT>& block, std::ui
   return sink.size();
 }
 
+namespace {
+
+// A whole block record checked and its voxels read into `scratch` (every level, in the record's
+// order; scale 0 left as it is when the record holds none): ok or data_loss.
 template <typename VoxelT>
-Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8_t* record,
-                                           std::size_t size, ErrorText* error) {
-  using Block = VoxelBlock<VoxelT>;
+Status decode_block_record(const std::uint8_t* record, std::size_t size, int voxel_depth,
+                           BlockFields& fields, VoxelT* scratch, ErrorText* error) {
   MemorySource source(record, size);
   RecordReader r(source, error);
   r.begin_record("stored block", -1);
-  BlockFields fields;
-  if (!read_block_fields<VoxelT>(r, map.voxel_depth(), fields)) return r.status();
-  // Voxels into scratch first: a damaged record changes nothing.
-  static_assert(sizeof(VoxelT) <= 16, "scratch sized for 16-byte voxels");
-  VoxelT scratch[kBlockVoxelCount];
+  if (!read_block_fields<VoxelT>(r, voxel_depth, fields)) return r.status();
   const int first = fields.has_finest ? 0 : kBlockFinestVoxelCount;
   if (!r.voxels(scratch + first, kBlockVoxelCount - first) || !r.end_record()) return r.status();
   if (!r.at_end()) {
     r.fail(StatusCode::data_loss, "extra bytes after the record");
     return r.status();
   }
+  return ok_status();
+}
+
+}  // namespace
+
+template <typename VoxelT>
+Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8_t* record,
+                                           std::size_t size, ErrorText* error) {
+  using Block = VoxelBlock<VoxelT>;
+  BlockFields fields;
+  // Voxels into scratch first: a damaged record changes nothing.
+  static_assert(sizeof(VoxelT) <= 16, "scratch sized for 16-byte voxels");
+  VoxelT scratch[kBlockVoxelCount];
+  OCTOFUSE_TRY(decode_block_record(record, size, map.voxel_depth(), fields, scratch, error));
   const Key key{fields.morton, static_cast<std::uint8_t>(map.block_level())};
   const Eigen::Vector3i coords = voxel_to_block(key_corner_voxel(key));
   if (map.find_block_index(coords) != kNoIndex) return StatusCode::failed_precondition;
@@ -1215,12 +1229,108 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   return index;
 }
 
-#define OCTOFUSE_BLOCK_RECORD(VoxelT)                                                        \
-  template std::size_t block_record_max_bytes<VoxelT>();                                     \
-  template Result<std::size_t> encode_block_record(const VoxelBlock<VoxelT>&, std::uint8_t*, \
-                                                   std::size_t);                             \
-  template Result<std::uint32_t> restore_block_record(Octree<VoxelT>&, const std::uint8_t*,  \
-                                                      std::size_t, ErrorText*);
+template <typename VoxelT>
+bool block_record_holds_finest(const std::uint8_t* record, std::size_t size) {
+  if constexpr (VoxelBlock<VoxelT>::kSplitFinest) {
+    MemorySource source(record, size);
+    RecordReader r(source, nullptr);
+    r.begin_record("stored block", -1);
+    BlockFields fields;
+    // The depth only bounds the key: the largest a cube may have, so any key passes here.
+    return read_block_fields<VoxelT>(r, kMaxVoxelDepth, fields) && fields.has_finest;
+  } else {
+    (void)record;
+    (void)size;
+    return false;
+  }
+}
+
+template <typename VoxelT>
+Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
+                                  const std::uint8_t* record, std::size_t size, float y_max,
+                                  ErrorText* error) {
+  using Block = VoxelBlock<VoxelT>;
+  if constexpr (!Block::kSplitFinest) {
+    (void)map, (void)index, (void)record, (void)size, (void)y_max, (void)error;
+    return StatusCode::failed_precondition;
+  } else {
+    if (index >= map.block_count()) return StatusCode::out_of_range;
+    Block& block = map.block(index);
+    if (block.has_finest() || !block.integrated() || block.current_scale < 1) {
+      return StatusCode::failed_precondition;
+    }
+    BlockFields fields;
+    static_assert(sizeof(VoxelT) <= 16, "scratch sized for 16-byte voxels");
+    VoxelT scratch[kBlockVoxelCount];
+    OCTOFUSE_TRY(decode_block_record(record, size, map.voxel_depth(), fields, scratch, error));
+    if (fields.morton != block.morton || !fields.has_finest ||
+        fields.min_scale == kNeverIntegrated) {
+      if (error != nullptr) error->set("the record is another block's or holds no finest level");
+      return StatusCode::invalid_argument;
+    }
+    const bool need_mid = !block.has_mid();
+    const MapMemory memory = map.memory();
+    if (memory.finest_used >= memory.finest_capacity ||
+        (need_mid && memory.mid_used >= memory.mid_capacity)) {
+      return StatusCode::resource_exhausted;  // before anything changes
+    }
+    // The record as a block of its own, through levels lent for the moment.
+    FinestLevel<VoxelT> rec_finest;
+    MidLevel<VoxelT> rec_mid;
+    Block rec;
+    rec.finest = &rec_finest;
+    rec.mid = &rec_mid;
+    rec.current_scale = fields.current;
+    rec.min_scale = fields.min_scale;
+    rec.mip_scale = fields.mip;
+    const int inline_first = kBlockFinestVoxelCount + kBlockMidVoxelCount;
+    std::copy(scratch, scratch + kBlockFinestVoxelCount, rec_finest.voxels);
+    std::copy(scratch + kBlockFinestVoxelCount, scratch + inline_first, rec_mid.voxels);
+    std::copy(scratch + inline_first, scratch + kBlockVoxelCount, rec.scale_begin(2));
+    // Its finest level up to date with its own coarser levels (a record taken while the block
+    // integrated coarser than scale 0), as the integrator would refine it.
+    for (int l = rec.current_scale; l > 0; --l) propagate_block_down(rec, l, y_max);
+    rec.current_scale = 0;
+    // The block's finest held level (1 with its mid level, else 2) is the parent of the levels
+    // coming back: its values when the block gave them up are the record's at that level, as
+    // demotion made them (coarsen_block(), the same code). The change since is the block's
+    // value less that, and the weight it gained: x_last and delta_y, which the integrator's
+    // down-propagation (eq. 5) reads when it refines the block.
+    const int parent_scale = need_mid ? 2 : 1;
+    Octree<VoxelT>::coarsen_block(rec, parent_scale);
+    const int side = block_scale_side(parent_scale);
+    VoxelT* now = block.scale_begin(parent_scale);
+    const VoxelT* then = rec.scale_begin(parent_scale);
+    for (int i = 0; i < side * side * side; ++i) {
+      set_voxel_x_last(now[i], voxel_tsdf(then[i]));
+      set_voxel_delta_y(now[i], std::max(0.0f, voxel_weight(now[i]) - voxel_weight(then[i])));
+    }
+    OCTOFUSE_CHECK(map.acquire_finest(block).ok());  // room checked above
+    if (need_mid) {
+      // The record's scale 1, whose finest voxels are up to date with it.
+      VoxelT* mid = block.scale_begin(1);
+      std::copy(rec_mid.voxels, rec_mid.voxels + kBlockMidVoxelCount, mid);
+      for (int i = 0; i < kBlockMidVoxelCount; ++i) {
+        set_voxel_x_last(mid[i], voxel_tsdf(mid[i]));
+        set_voxel_delta_y(mid[i], 0.0f);
+      }
+    }
+    std::copy(rec_finest.voxels, rec_finest.voxels + kBlockFinestVoxelCount, block.scale_begin(0));
+    block.min_scale = 0;
+    block.stored_clean = 0;
+    return ok_status();
+  }
+}
+
+#define OCTOFUSE_BLOCK_RECORD(VoxelT)                                                             \
+  template std::size_t block_record_max_bytes<VoxelT>();                                          \
+  template Result<std::size_t> encode_block_record(const VoxelBlock<VoxelT>&, std::uint8_t*,      \
+                                                   std::size_t);                                  \
+  template Result<std::uint32_t> restore_block_record(Octree<VoxelT>&, const std::uint8_t*,       \
+                                                      std::size_t, ErrorText*);                   \
+  template bool block_record_holds_finest<VoxelT>(const std::uint8_t*, std::size_t);              \
+  template Status restore_finest_from_record(Octree<VoxelT>&, std::uint32_t, const std::uint8_t*, \
+                                             std::size_t, float, ErrorText*);
 OCTOFUSE_BLOCK_RECORD(TsdfVoxel)
 OCTOFUSE_BLOCK_RECORD(MultiresVoxel)
 OCTOFUSE_BLOCK_RECORD(Multires16Voxel)

@@ -1,4 +1,4 @@
-#include "octofuse/fusion/detail/propagation.hpp"
+#include "octofuse/map/detail/propagation.hpp"
 
 #include <algorithm>
 

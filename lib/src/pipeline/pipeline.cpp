@@ -535,6 +535,12 @@ Status Pipeline<VoxelT>::reset() {
         store_->release(morton_encode(map_.block(i).coords));
       }
     }
+    if (finest_store_ != nullptr) {
+      // So are finest levels taken back: the store's record is the level again.
+      for (std::uint32_t i = 0; i < map_.block_count(); ++i) {
+        finest_store_->release(morton_encode(map_.block(i).coords));
+      }
+    }
     map_.clear();
     if (free_store_ != nullptr) {
       // Every region goes to the store (merged with what it held): a later frame reads it back.
@@ -771,6 +777,11 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   std::uint32_t* keep_1 = std::partition(demoted_begin, demoted_end,
                                          [](std::uint32_t v) { return (v & kDemoteMid) != 0; });
   for (std::uint32_t* v = demoted_begin; v != keep_1; ++v) *v &= ~kDemoteMid;
+  if (finest_store_ != nullptr) {
+    for (const std::uint32_t* v = demoted_begin; v != demoted_end; ++v) {
+      if (map_.block(*v).has_finest()) keep_finest(*v);
+    }
+  }
   map_.release_mid(demoted_begin, static_cast<std::size_t>(keep_1 - demoted_begin));
   map_.release_finest(keep_1, static_cast<std::size_t>(demoted_end - keep_1));
   map_.evict_blocks(eviction_indices_, evicted);
@@ -778,6 +789,74 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   report.demoted = demoted;
   report.demoted_mid = demoted_mid;
   return report;
+}
+
+template <typename VoxelT>
+typename FinestLevelSource<VoxelT>::Answer Pipeline<VoxelT>::FinestReader::restore(
+    Octree<VoxelT>& map, std::uint32_t index) {
+  Pipeline& p = *pipeline_;
+  StoreReport& report = p.current_.store;
+  const std::uint64_t key = morton_encode(map.block(index).coords);
+  if (!p.finest_store_->holds(key)) return FinestLevelSource<VoxelT>::Answer::none;
+  // No room for the level: no read; a fresh level is refused as well, and counted as usual.
+  const MapMemory memory = map.memory();
+  if (memory.finest_used >= memory.finest_capacity ||
+      (!map.block(index).has_mid() && memory.mid_used >= memory.mid_capacity)) {
+    return FinestLevelSource<VoxelT>::Answer::none;
+  }
+  if (report.finest_read + report.finest_read_failed == p.config_.budget.max_store_reads) {
+    ++report.finest_waiting;
+    report.budget_hit = true;
+    return FinestLevelSource<VoxelT>::Answer::wait;
+  }
+  const Result<std::size_t> size =
+      p.finest_store_->take(key, p.store_record_, block_record_max_bytes<VoxelT>());
+  if (!size.ok()) {
+    ++report.finest_read_failed;
+    return FinestLevelSource<VoxelT>::Answer::none;
+  }
+  report.finest_bytes_read += size.value();
+  const Status refined =
+      restore_finest_from_record(map, index, p.store_record_, size.value(), p.config_.fusion.y_max);
+  if (refined.ok()) {
+    ++report.finest_read;
+    return FinestLevelSource<VoxelT>::Answer::restored;
+  }
+  p.finest_store_->release(key);  // still the block's newest finest record
+  ++report.finest_read_failed;
+  return FinestLevelSource<VoxelT>::Answer::none;
+}
+
+template <typename VoxelT>
+void Pipeline<VoxelT>::keep_finest(std::uint32_t index) {
+  const Result<std::size_t> size =
+      encode_block_record(map_.block(index), store_record_, block_record_max_bytes<VoxelT>());
+  if (!size.ok()) {
+    ++current_.store.finest_write_failed;
+    return;
+  }
+  put_finest(morton_encode(map_.block(index).coords), size.value());
+}
+
+template <typename VoxelT>
+void Pipeline<VoxelT>::keep_finest_read_back(std::uint32_t index, std::uint64_t key,
+                                             std::size_t record_size) {
+  if (finest_store_ == nullptr || map_.block(index).has_finest() ||
+      !block_record_holds_finest<VoxelT>(store_record_, record_size)) {
+    return;
+  }
+  put_finest(key, record_size);
+}
+
+template <typename VoxelT>
+void Pipeline<VoxelT>::put_finest(std::uint64_t key, std::size_t record_size) {
+  StoreReport& report = current_.store;
+  if (finest_store_->put(key, store_record_, record_size).ok()) {
+    ++report.finest_written;
+    report.finest_bytes_written += record_size;
+  } else {
+    ++report.finest_write_failed;
+  }
 }
 
 // Hands the blocks about to be evicted (the first `count` of eviction_indices_) to the store.
@@ -877,6 +956,7 @@ void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
     if (index.ok()) {
       ++report.read;
       eviction_indices_[restored++] = index.value();
+      keep_finest_read_back(index.value(), key, size.value());
     } else if (index.status().code() == StatusCode::failed_precondition) {
       ++report.remapped;
     } else if (index.status().code() == StatusCode::resource_exhausted) {
@@ -950,6 +1030,7 @@ void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
       ++report.read;
       ++report.read_in_place;
       eviction_indices_[restored++] = index.value();
+      keep_finest_read_back(index.value(), key, size.value());
     } else if (index.status().code() == StatusCode::resource_exhausted) {
       store_->release(key);  // a pool is full: the block is mapped afresh, as before
       break;

@@ -456,7 +456,8 @@ bool decode_store_geometry(const std::uint8_t* bytes, std::size_t size, StoreGeo
 template <typename VoxelT>
 Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry,
                             BlockStoreFile& store, const char* path,
-                            std::unique_ptr<HeapMap<VoxelT>>* out, ErrorText* error) {
+                            std::unique_ptr<HeapMap<VoxelT>>* out, ErrorText* error,
+                            const FinestMerge& finest) {
   auto find = [&](std::uint64_t key) {
     return map != nullptr ? map->find_block_index_morton(key) : kNoIndex;
   };
@@ -464,6 +465,13 @@ Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry
   store.for_each_key([&](std::uint64_t key) {
     if (find(key) == kNoIndex) ++extra;
   });
+  if (finest.store != nullptr) {
+    // A finest record whose block is nowhere else (its block store write failed) comes back
+    // itself.
+    finest.store->for_each_key([&](std::uint64_t key) {
+      if (find(key) == kNoIndex && !store.in_memory(key) && !store.holds(key)) ++extra;
+    });
+  }
   MapConfig config = map != nullptr ? map->config() : geometry;
   const std::size_t in_memory = map != nullptr ? map->block_count() : 0;
   config.block_capacity = static_cast<std::uint32_t>(in_memory + extra + 1);
@@ -522,6 +530,41 @@ Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry
     indices[count++] = index.value();
   });
   if (!failed.ok()) return failed;
+  if (finest.store != nullptr) {
+    // Blocks that gave their finest level up take it back from their newest finest record
+    // (one that kept or took a finest level since is newer than the record: it stays).
+    finest.store->for_each_key([&](std::uint64_t key) {
+      if (!failed.ok()) return;
+      const Result<std::size_t> size = finest.store->read(key, record, record_bytes);
+      ErrorText why;
+      Status merged_one = size.status();
+      if (size.ok()) {
+        const std::uint32_t index = merged->map.find_block_index_morton(key);
+        if (index == kNoIndex) {
+          const Result<std::uint32_t> restored =
+              restore_block_record(merged->map, record, size.value(), &why);
+          merged_one = restored.status();
+          if (restored.ok()) indices[count++] = restored.value();
+        } else if (merged->map.block(index).has_finest()) {
+          merged_one = ok_status();
+        } else {
+          merged_one = restore_finest_from_record(merged->map, index, record, size.value(),
+                                                  finest.y_max, &why);
+          // A block that cannot take it (never integrated) keeps what it has. (Its index is
+          // listed already: its summary is propagated below.)
+          if (merged_one.code() == StatusCode::failed_precondition) merged_one = ok_status();
+        }
+      }
+      if (!merged_one.ok()) {
+        if (error != nullptr) {
+          error->set("%s: a stored finest level cannot be merged (%s%s%s)", path, merged_one.name(),
+                     why.empty() ? "" : ": ", why.c_str());
+        }
+        failed = merged_one;
+      }
+    });
+    if (!failed.ok()) return failed;
+  }
   merged->map.propagate_summaries(indices, count);
   *out = std::move(merged);
   return ok_status();
@@ -531,9 +574,9 @@ template <typename VoxelT>
 Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
                                 const FreeSpace* free_space, BlockStoreFile& store,
                                 const MapSaveInfo& info, ErrorText* error,
-                                BlockStoreFile* free_store) {
+                                BlockStoreFile* free_store, const FinestMerge& finest) {
   std::unique_ptr<HeapMap<VoxelT>> merged;
-  OCTOFUSE_TRY(merge_map_with_store(&map, map.config(), store, path, &merged, error));
+  OCTOFUSE_TRY(merge_map_with_store(&map, map.config(), store, path, &merged, error, finest));
   if (free_space == nullptr || free_store == nullptr) {
     return save_map_file(path, merged->map, free_space, info, error);
   }
@@ -545,6 +588,11 @@ Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
 void encode_free_store_geometry(const StoreGeometry& geometry, std::uint8_t* out) {
   encode_store_geometry(geometry, out);
   out[kStoreGeometryBytes] = kFreeStoreGeometryTag;
+}
+
+void encode_finest_store_geometry(const StoreGeometry& geometry, std::uint8_t* out) {
+  encode_store_geometry(geometry, out);
+  out[kStoreGeometryBytes] = kFinestStoreGeometryTag;
 }
 
 Status merge_free_space_with_store(const FreeSpace& free_space, BlockStoreFile& free_store,
@@ -624,10 +672,10 @@ Status merge_free_space_with_store(const FreeSpace& free_space, BlockStoreFile& 
   return ok_status();
 }
 
-#define OCTOFUSE_MERGE_WITH_STORE(VoxelT)                                                        \
-  template Status merge_map_with_store(const Octree<VoxelT>*, const MapConfig&, BlockStoreFile&, \
-                                       const char*, std::unique_ptr<HeapMap<VoxelT>>*,           \
-                                       ErrorText*);
+#define OCTOFUSE_MERGE_WITH_STORE(VoxelT)                                                          \
+  template Status merge_map_with_store(const Octree<VoxelT>*, const MapConfig&, BlockStoreFile&,   \
+                                       const char*, std::unique_ptr<HeapMap<VoxelT>>*, ErrorText*, \
+                                       const FinestMerge&);
 OCTOFUSE_MERGE_WITH_STORE(TsdfVoxel)
 OCTOFUSE_MERGE_WITH_STORE(MultiresVoxel)
 OCTOFUSE_MERGE_WITH_STORE(Multires16Voxel)
@@ -635,12 +683,12 @@ OCTOFUSE_MERGE_WITH_STORE(Multires16Voxel)
 
 template Status save_map_file_with_store(const char*, const Octree<TsdfVoxel>&, const FreeSpace*,
                                          BlockStoreFile&, const MapSaveInfo&, ErrorText*,
-                                         BlockStoreFile*);
+                                         BlockStoreFile*, const FinestMerge&);
 template Status save_map_file_with_store(const char*, const Octree<MultiresVoxel>&,
                                          const FreeSpace*, BlockStoreFile&, const MapSaveInfo&,
-                                         ErrorText*, BlockStoreFile*);
+                                         ErrorText*, BlockStoreFile*, const FinestMerge&);
 template Status save_map_file_with_store(const char*, const Octree<Multires16Voxel>&,
                                          const FreeSpace*, BlockStoreFile&, const MapSaveInfo&,
-                                         ErrorText*, BlockStoreFile*);
+                                         ErrorText*, BlockStoreFile*, const FinestMerge&);
 
 }  // namespace octofuse::host

@@ -88,6 +88,23 @@ struct TaskTally {
 
 }  // namespace fusion_internal
 
+// Where a block about to integrate at scale 0 without a finest level may find the one it gave up
+// for room (the pipeline's finest-level store): the integrator asks before lending it a fresh,
+// interpolated one. Called serially, in list order.
+template <typename VoxelT>
+class FinestLevelSource {
+ public:
+  enum class Answer {
+    none,      // nothing kept: a fresh level is lent
+    restored,  // block `index` holds its level again (restore_finest_from_record())
+    wait,      // kept but not readable this frame (budget, pool): the block integrates at scale 1
+  };
+  virtual Answer restore(Octree<VoxelT>& map, std::uint32_t index) = 0;
+
+ protected:
+  ~FinestLevelSource() = default;
+};
+
 template <typename VoxelT>
 class Integrator {
  public:
@@ -223,6 +240,10 @@ class Integrator {
     return dropped;
   }
 
+  // Blocks that gave their finest level up ask `source` for it back (null: none asked). Set it
+  // between frames; it must outlive its use.
+  void set_finest_source(FinestLevelSource<VoxelT>* source) { finest_source_ = source; }
+
   const FusionConfig& config() const { return config_; }
   // Between frames (a frame deadline's step): allocation marches every step-th pixel's ray in x
   // and y; below 1 is 1. Blocks only the skipped rays cross are not integrated that frame.
@@ -262,6 +283,7 @@ class Integrator {
                               fusion_internal::TaskTally& tally);
 
   FusionConfig config_;
+  FinestLevelSource<VoxelT>* finest_source_ = nullptr;
   int width_ = 0;
   int height_ = 0;
   fusion_internal::FrameSetEntry* set_ = nullptr;

@@ -67,4 +67,27 @@ template <typename VoxelT>
 Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8_t* record,
                                            std::size_t size, ErrorText* error = nullptr);
 
+// Whether `record` (a block record) holds a finest level; false for a damaged head or a
+// single-res map.
+template <typename VoxelT>
+bool block_record_holds_finest(const std::uint8_t* record, std::size_t size);
+
+// Gives block `index` of `map` (multires, integrated, at scale 1 or coarser, no finest level)
+// the finest level of `record`: the same block's record from when it held one (as the pipeline's
+// finest-level store keeps it: Pipeline::set_finest_store()). The block stays at its scale, as a
+// block that kept its finest level while integrating coarser would be: its finest held level
+// (scale 1 with its mid level, else 2, the record's scale 1 coming back too) is made the parent
+// of the levels coming back, with what it learned since the record as the change the paper's
+// down-propagation (eq. 5) applies when the block refines (the integrator does that when it
+// next fuses the block at scale 0): each observed finest voxel then moves by its parent's change
+// and gains the weight its parent gained; unobserved ones are interpolated from the parents.
+// ok; data_loss (damaged record); invalid_argument (another block's record, or one without a
+// finest level); failed_precondition (the block holds a finest level or is not integrated, or
+// the map is single-res); out_of_range (no such block); resource_exhausted (the finest- or
+// mid-level pool is full). Unless ok the map is unchanged.
+template <typename VoxelT>
+Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
+                                  const std::uint8_t* record, std::size_t size, float y_max,
+                                  ErrorText* error = nullptr);
+
 }  // namespace octofuse

@@ -123,6 +123,19 @@ struct StoreReport {
   std::uint64_t bytes_written = 0;
   std::uint64_t bytes_read = 0;
   bool budget_hit = false;  // max_store_reads or max_store_writes bound
+  // With a finest-level store (Pipeline::set_finest_store()): records of blocks whose finest
+  // level was given up (demoted, or read back demoted into a full pool) handed to it.
+  std::uint32_t finest_written = 0;
+  std::uint32_t finest_write_failed = 0;  // ... that it refused (that detail is lost)
+  std::uint64_t finest_bytes_written = 0;
+  // Blocks about to integrate at scale 0 that took their finest level back from it, instead of
+  // a fresh interpolated one; damaged or unusable records (a fresh level then); blocks whose
+  // record waits for a later frame (the read budget: they integrate at scale 1). With the finest
+  // pool full nothing is read (the level would be refused, as a fresh one is).
+  std::uint32_t finest_read = 0;
+  std::uint32_t finest_read_failed = 0;
+  std::uint32_t finest_waiting = 0;
+  std::uint64_t finest_bytes_read = 0;
 };
 
 // Where a pose prior may plausibly be, and how far it may move between two frames
@@ -347,6 +360,25 @@ class Pipeline {
     store_ = store;
     return ok_status();
   }
+  // Finest levels given up to make room (a demoted block, a block read back into a full pool)
+  // go to `store` as the block's record at that moment, keyed like the block store's, the newest
+  // winning; the block stays in memory at a coarser scale. When such a block is next to
+  // integrate at scale 0 it takes its level back from the store (restore_finest_from_record(),
+  // then down-propagation of what its coarse levels learned since) instead of a fresh interpolated
+  // one, within max_store_reads records a frame (beyond, it waits at scale 1; with the finest
+  // pool full it is refused a level as any block is). A map merged with the store (the host port's
+  // merge_map_with_store()) does the same for every block, so the map kept on disk holds the detail
+  // memory could not. A store of its own, not the block store's. Records written are bounded by
+  // max_evictions (demotions count there). null: given-up finest levels are gone.
+  // failed_precondition without eviction enabled or for a single-res map. Set it between frames.
+  Status set_finest_store(BlockStore* store) {
+    if (store != nullptr && (eviction_candidates_ == nullptr || !Map::kSplitFinest)) {
+      return StatusCode::failed_precondition;
+    }
+    finest_store_ = store;
+    integrator_.set_finest_source(store != nullptr ? &finest_reader_ : nullptr);
+    return ok_status();
+  }
   // Free space forgotten to make room goes to `store` by region and comes back from it when the
   // camera returns (FreeOctree::spill_and_prune()); a store of its own, not the block store's.
   // null: forgotten air is gone. failed_precondition without free space. Set it between frames.
@@ -455,6 +487,13 @@ class Pipeline {
   // blocks the frame would map afresh.
   void read_back_missing(StoreReport& report);
   void sort_nearest_first(std::uint32_t count);
+  // With a finest-level store (set_finest_store()): hands it block `index`'s record, its finest
+  // level about to be given up (store_record_ is the scratch).
+  void keep_finest(std::uint32_t index);
+  // ... or the record just read back into store_record_ (`key`, `record_size` bytes) when it
+  // held a finest level that block `index` came back without.
+  void keep_finest_read_back(std::uint32_t index, std::uint64_t key, std::size_t record_size);
+  void put_finest(std::uint64_t key, std::size_t record_size);
   // In step (2): hands the first `count` blocks of eviction_indices_ to the store.
   void spill(std::uint32_t count);
   // Sets the tracker's, ray-caster's and free space's budgets from a deadline plan.
@@ -527,6 +566,18 @@ class Pipeline {
   std::uint32_t evict_low_mid_ = 0;
   BlockStore* store_ = nullptr;
   BlockStore* free_store_ = nullptr;
+  BlockStore* finest_store_ = nullptr;
+  // Reads finest levels back from finest_store_ for the integrator.
+  class FinestReader final : public FinestLevelSource<VoxelT> {
+   public:
+    explicit FinestReader(Pipeline* pipeline) : pipeline_(pipeline) {}
+    typename FinestLevelSource<VoxelT>::Answer restore(Octree<VoxelT>& map,
+                                                       std::uint32_t index) override;
+
+   private:
+    Pipeline* pipeline_;
+  };
+  FinestReader finest_reader_{this};
   std::uint8_t* store_record_ = nullptr;  // one block record (with eviction)
   std::uint64_t* store_keys_ = nullptr;   // kStoreKeyCapacity keys found in view
   std::size_t store_keys_found_ = 0;      // by this frame's reload_stored(), in key order

@@ -18,6 +18,7 @@
 #include <memory>
 
 #include "octofuse/core/error_text.hpp"
+#include "octofuse/fusion/fusion_config.hpp"
 #include "octofuse/map/block_store.hpp"
 #include "octofuse/map/map_io.hpp"
 #include "octofuse/query/free_space.hpp"
@@ -139,13 +140,29 @@ struct HeapMap {
   Octree<VoxelT> map;
 };
 
+// The finest-level store beside a block store at FILE (Pipeline::set_finest_store()): FILE with
+// ".fine" appended, whose geometry is the block store's with kFinestStoreGeometryTag after it.
+inline constexpr std::uint8_t kFinestStoreGeometryTag = 'S';
+constexpr std::size_t kFinestStoreGeometryBytes = kStoreGeometryBytes + 1;
+void encode_finest_store_geometry(const StoreGeometry& geometry, std::uint8_t* out);
+
+// A finest-level store to merge as well, and the weight cap of the run (FusionConfig::y_max),
+// which catching a record's finest level up with its coarser levels uses.
+struct FinestMerge {
+  BlockStoreFile* store = nullptr;
+  float y_max = FusionConfig{}.y_max;
+};
+
 // `map`'s blocks (none when null) and every stored block not in memory, merged into a map of
-// `geometry` (map's own when given) reserved here on the heap. ok, resource_exhausted (no memory
-// for the merge) or data_loss (a damaged stored record), with a one-line `error` naming `path`.
+// `geometry` (map's own when given) reserved here on the heap; with `finest.store`, every merged
+// block without a finest level that has a finest record gets it back at its scale, ready to
+// refine as if it had kept it (restore_finest_from_record()). ok, resource_exhausted (no memory for
+// the merge) or data_loss (a damaged stored record), with a one-line `error` naming `path`.
 template <typename VoxelT>
 Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry,
                             BlockStoreFile& store, const char* path,
-                            std::unique_ptr<HeapMap<VoxelT>>* out, ErrorText* error);
+                            std::unique_ptr<HeapMap<VoxelT>>* out, ErrorText* error,
+                            const FinestMerge& finest = {});
 
 // The free space's store (Pipeline::set_free_space_store()) beside a block store at FILE: FILE
 // with ".free" appended, whose geometry is the block store's with kFreeStoreGeometryTag after it
@@ -176,6 +193,7 @@ template <typename VoxelT>
 Status save_map_file_with_store(const char* path, const Octree<VoxelT>& map,
                                 const FreeSpace* free_space, BlockStoreFile& store,
                                 const MapSaveInfo& info, ErrorText* error,
-                                BlockStoreFile* free_store = nullptr);
+                                BlockStoreFile* free_store = nullptr,
+                                const FinestMerge& finest = {});
 
 }  // namespace octofuse::host

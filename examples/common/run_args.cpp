@@ -567,6 +567,19 @@ const RunOption kRunOptions[] = {
        *v = o.map_file_path;
        return !o.map_file_path.empty();
      }},
+    {"map-file-finest", "on|off",
+     "with --map-file, keep the finest levels the pool gives up in\n"
+     "FILE.fine and read them back when their blocks refine (default on;\n"
+     "off: they are interpolated afresh, no disk work for them)",
+     [](RunOptions& o, const std::string& v) {
+       if (v != "on" && v != "off") return std::string(" needs on or off");
+       o.map_file_finest = v == "on";
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = o.map_file_finest ? "on" : "off";
+       return !o.map_file_finest;
+     }},
     {"evict", "HIGH,LOW",
      "when the block or finest-level pool is over HIGH % full, evict the\n"
      "blocks farthest from the camera until it is at LOW % (default\n"

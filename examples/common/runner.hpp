@@ -101,6 +101,7 @@ struct RunOptions {
   std::string load_map_path;
   // --map-file: evicted blocks go to this store and come back when the camera returns.
   std::string map_file_path;
+  bool map_file_finest = true;  // --map-file-finest: FILE.fine beside it (multires maps)
   // --initial-pose: the first frame's pose (camera to world) instead of the source's ground truth.
   bool have_initial_pose = false;
   Se3d initial_T_W_C = Se3d::Identity();

@@ -92,7 +92,7 @@ bool check_outputs(const RunOptions& options, std::string* error) {
   if (!options.map_file_path.empty()) {
     outputs.push_back({options.map_file_path, "--map-file"});
     if (options.free_space) outputs.push_back({options.map_file_path + ".free", "--map-file"});
-    if (options.map_kind != MapKind::single_res) {
+    if (options.map_kind != MapKind::single_res && options.map_file_finest) {
       outputs.push_back({options.map_file_path + ".fine", "--map-file"});
     }
   }
@@ -443,7 +443,7 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
     if (!pipeline.set_block_store(run->store_probe.get()).ok()) {
       return error_exit("--map-file needs eviction (--evict HIGH,LOW)");
     }
-    if constexpr (Pipeline<VoxelT>::Map::kSplitFinest) {
+    if (Pipeline<VoxelT>::Map::kSplitFinest && options.map_file_finest) {
       // Finest levels given up for room go to FILE.fine, the block's record at that moment.
       std::uint8_t finest_geometry[host::kFinestStoreGeometryBytes];
       host::encode_finest_store_geometry(store_geometry, finest_geometry);

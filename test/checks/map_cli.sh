@@ -132,6 +132,14 @@ grep -q "^finest levels   [1-9][0-9]* records in .*k.store.fine (merged)$" "${wo
   fail "store info: finest-level store not merged: $(cat "${work}/kfine.out")"
 expect_error finealone "a finest-level store; give its block store" "${map}" info \
   "${work}/k.store.fine"
+# Off: no finest-level store, the rest as before.
+"${replay}" --source sim:room --voxel-size 0.04 --gt-poses --quiet --frames 20 --map-memory 1 \
+  --map-file "${work}/koff.store" --map-file-finest off --out "${work}/koff" >"${work}/koff.out" 2>&1 ||
+  fail "--map-file-finest off run: $(cat "${work}/koff.out")"
+[[ -s "${work}/koff.store" && ! -e "${work}/koff.store.fine" ]] ||
+  fail "--map-file-finest off: a finest-level store was made, or no block store"
+expect_error fineflag "map-file-finest needs on or off" "${replay}" --source sim:room \
+  --map-file "${work}/kx.store" --map-file-finest maybe --out "${work}/kx"
 cp "${work}/k.store" "${work}/k.copy"
 "${map}" info "${work}/k.store" >"${work}/kinfo.out" 2>&1 || fail "store info: $(cat "${work}/kinfo.out")"
 grep -q "a block store, every record checked" "${work}/kinfo.out" || fail "store info: not read as a store"

@@ -130,6 +130,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "in.ofmap",
                  "--map-file",
                  "blocks.store",
+                 "--map-file-finest",
+                 "off",
                  "--no-free-space",
                  "--esdf-follow",
                  "0.25",

@@ -197,6 +197,23 @@ int compare_meshes(const char* path_a, const char* path_b, float within_m) {
   return 0;
 }
 
+// Opens a store kept beside block store `path` (FILE.fine, FILE.free) read only (a torn tail is
+// warned about) and checks it was made for the same map (its geometry bytes `expected`): false,
+// with the reason in `error`, otherwise.
+bool open_side_store(host::BlockStoreFile& store, const std::string& side_path,
+                     const std::uint8_t* expected, std::size_t expected_size, const char* what,
+                     const char* path, ErrorText* error) {
+  ErrorText warning;
+  if (!store.open(side_path.c_str(), nullptr, 0, error, &warning).ok()) return false;
+  if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
+  if (store.geometry_size() != expected_size ||
+      std::memcmp(store.geometry(), expected, expected_size) != 0) {
+    error->set("%s: not %s of %s", side_path.c_str(), what, path);
+    return false;
+  }
+  return true;
+}
+
 // A block store: its blocks merged into one map (on the heap), then as for a map file.
 template <typename VoxelT>
 int run_store(const std::string& command, const char* path, host::BlockStoreFile& store,
@@ -207,22 +224,17 @@ int run_store(const std::string& command, const char* path, host::BlockStoreFile
   config.origin_W = geometry.origin_W;
   std::unique_ptr<host::HeapMap<VoxelT>> merged;
   ErrorText error;
-  // Finest levels the run gave up for room lie beside the store, in FILE.fine: merged too (by
-  // down-propagation with the default weight cap, which only bounds the weights).
+  // Finest levels the run gave up for room lie beside the store, in FILE.fine: merged too (each
+  // at its block's scale; the default weight cap only bounds their weights).
   const std::string finest_path = std::string(path) + ".fine";
   host::BlockStoreFile finest_store;
   host::FinestMerge finest;
   if (host::is_block_store_file(finest_path.c_str())) {
-    ErrorText warning;
-    if (!finest_store.open(finest_path.c_str(), nullptr, 0, &error, &warning).ok()) {
-      return error_exit(error.c_str());
-    }
-    if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
     std::uint8_t expected[host::kFinestStoreGeometryBytes];
     host::encode_finest_store_geometry(geometry, expected);
-    if (finest_store.geometry_size() != sizeof(expected) ||
-        std::memcmp(finest_store.geometry(), expected, sizeof(expected)) != 0) {
-      return error_exit(finest_path + ": not the finest-level store of " + path);
+    if (!open_side_store(finest_store, finest_path, expected, sizeof(expected),
+                         "the finest-level store", path, &error)) {
+      return error_exit(error.c_str());
     }
     finest.store = &finest_store;
   }
@@ -259,16 +271,11 @@ int run_store(const std::string& command, const char* path, host::BlockStoreFile
     std::printf("free space      not stored\n");
   } else {
     host::BlockStoreFile free_store;
-    ErrorText warning;
-    if (!free_store.open(free_path.c_str(), nullptr, 0, &error, &warning).ok()) {
-      return error_exit(error.c_str());
-    }
-    if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
     std::uint8_t expected[host::kFreeStoreGeometryBytes];
     host::encode_free_store_geometry(geometry, expected);
-    if (free_store.geometry_size() != sizeof(expected) ||
-        std::memcmp(free_store.geometry(), expected, sizeof(expected)) != 0) {
-      return error_exit(free_path + ": not the free space of " + path);
+    if (!open_side_store(free_store, free_path, expected, sizeof(expected), "the free space", path,
+                         &error)) {
+      return error_exit(error.c_str());
     }
     // Every region grafted into an empty tree: each is checked, and the nodes counted.
     FreeSpaceConfig free_config;

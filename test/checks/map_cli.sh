@@ -185,6 +185,9 @@ cp "${work}/f.store" "${work}/fmix.store"
 cp "${work}/k.store.fine" "${work}/fmix.store.fine"
 expect_error finemix "fmix.store.fine: not the finest-level store of" "${map}" info \
   "${work}/fmix.store"
+cp "${work}/f.store" "${work}/fmix2.store"
+cp "${work}/k.store.free" "${work}/fmix2.store.free"
+expect_error freemix "fmix2.store.free: not the free space of" "${map}" info "${work}/fmix2.store"
 
 if [[ -n "${live}" ]]; then
   "${live}" "${common[@]}" --frames 100000 --out "${work}/l" --save-map "${work}/live.ofmap" \

@@ -124,6 +124,11 @@ struct PassRow {
   std::uint64_t free_store_written = 0;
   std::uint64_t free_store_bytes_read = 0;
   std::uint64_t free_store_bytes_written = 0;
+  // The finest-level store (FILE.fine): levels given up and read back, and their bytes.
+  std::uint64_t finest_store_read = 0;
+  std::uint64_t finest_store_written = 0;
+  std::uint64_t finest_store_bytes_read = 0;
+  std::uint64_t finest_store_bytes_written = 0;
 };
 
 struct SoakRun {
@@ -216,6 +221,20 @@ void print_row(const SoakRun& run, const PassRow& row) {
                                       static_cast<double>(row.frames)
                                 : 0.0);
   }
+  if (row.finest_store_read + row.finest_store_written > 0) {
+    std::fprintf(stderr,
+                 "[soak %s %g MB] pass %d: finest-level store: read back %llu, written %llu "
+                 "levels, %.1f / %.1f KB per frame read / written\n",
+                 run.name, static_cast<double>(run.map_memory_mb), row.pass,
+                 static_cast<unsigned long long>(row.finest_store_read),
+                 static_cast<unsigned long long>(row.finest_store_written),
+                 row.frames > 0 ? static_cast<double>(row.finest_store_bytes_read) / 1024.0 /
+                                      static_cast<double>(row.frames)
+                                : 0.0,
+                 row.frames > 0 ? static_cast<double>(row.finest_store_bytes_written) / 1024.0 /
+                                      static_cast<double>(row.frames)
+                                : 0.0);
+  }
 }
 
 void close_pass(SoakRun& run) {
@@ -274,6 +293,10 @@ void on_frame(SoakRun& run, const FrameStats& stats) {
     row.free_store_written += stats.free_store.written;
     row.free_store_bytes_read += stats.free_store.bytes_read;
     row.free_store_bytes_written += stats.free_store.bytes_written;
+    row.finest_store_read += stats.store.finest_read;
+    row.finest_store_written += stats.store.finest_written;
+    row.finest_store_bytes_read += stats.store.finest_bytes_read;
+    row.finest_store_bytes_written += stats.store.finest_bytes_written;
     row.blocks_resident = stats.memory.blocks_used;
     row.block_capacity = stats.memory.block_capacity;
     run.blocks_high_water = std::max(run.blocks_high_water, stats.memory.blocks_used);
@@ -417,6 +440,10 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
     json.key("free_store_written").value(row.free_store_written);
     json.key("free_store_bytes_read").value(row.free_store_bytes_read);
     json.key("free_store_bytes_written").value(row.free_store_bytes_written);
+    json.key("finest_store_read").value(row.finest_store_read);
+    json.key("finest_store_written").value(row.finest_store_written);
+    json.key("finest_store_bytes_read").value(row.finest_store_bytes_read);
+    json.key("finest_store_bytes_written").value(row.finest_store_bytes_written);
     json.end_object();
   }
   json.end_array();

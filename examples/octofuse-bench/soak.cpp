@@ -159,6 +159,21 @@ struct SoakRun {
   double growth_mb() const { return max_rss_after_first_pass_mb - rss_end_first_pass_mb; }
 };
 
+// One line for a store beside the block store (FILE.free, FILE.fine) when the pass used it.
+void print_side_store(const SoakRun& run, const PassRow& row, const char* read_what,
+                      const char* unit, std::uint64_t read, std::uint64_t written,
+                      std::uint64_t bytes_read, std::uint64_t bytes_written) {
+  if (read + written == 0) return;
+  const double frames = row.frames > 0 ? static_cast<double>(row.frames) : 1.0;
+  std::fprintf(stderr,
+               "[soak %s %g MB] pass %d: %s %llu, written %llu %s, %.1f / %.1f KB per frame read "
+               "/ written\n",
+               run.name, static_cast<double>(run.map_memory_mb), row.pass, read_what,
+               static_cast<unsigned long long>(read), static_cast<unsigned long long>(written),
+               unit, static_cast<double>(bytes_read) / 1024.0 / frames,
+               static_cast<double>(bytes_written) / 1024.0 / frames);
+}
+
 void print_row(const SoakRun& run, const PassRow& row) {
   std::fprintf(stderr,
                "[soak %s %g MB] pass %d: frames %llu-%llu, lost %llu, evicted %llu, blocks "
@@ -207,34 +222,11 @@ void print_row(const SoakRun& run, const PassRow& row) {
                  static_cast<unsigned long long>(row.reload_p99_waited),
                  static_cast<unsigned long long>(row.reload_waiting));
   }
-  if (row.free_store_read + row.free_store_written > 0) {
-    std::fprintf(stderr,
-                 "[soak %s %g MB] pass %d: free-space store: read %llu, written %llu regions, "
-                 "%.1f / %.1f KB per frame read / written\n",
-                 run.name, static_cast<double>(run.map_memory_mb), row.pass,
-                 static_cast<unsigned long long>(row.free_store_read),
-                 static_cast<unsigned long long>(row.free_store_written),
-                 row.frames > 0 ? static_cast<double>(row.free_store_bytes_read) / 1024.0 /
-                                      static_cast<double>(row.frames)
-                                : 0.0,
-                 row.frames > 0 ? static_cast<double>(row.free_store_bytes_written) / 1024.0 /
-                                      static_cast<double>(row.frames)
-                                : 0.0);
-  }
-  if (row.finest_store_read + row.finest_store_written > 0) {
-    std::fprintf(stderr,
-                 "[soak %s %g MB] pass %d: finest-level store: read back %llu, written %llu "
-                 "levels, %.1f / %.1f KB per frame read / written\n",
-                 run.name, static_cast<double>(run.map_memory_mb), row.pass,
-                 static_cast<unsigned long long>(row.finest_store_read),
-                 static_cast<unsigned long long>(row.finest_store_written),
-                 row.frames > 0 ? static_cast<double>(row.finest_store_bytes_read) / 1024.0 /
-                                      static_cast<double>(row.frames)
-                                : 0.0,
-                 row.frames > 0 ? static_cast<double>(row.finest_store_bytes_written) / 1024.0 /
-                                      static_cast<double>(row.frames)
-                                : 0.0);
-  }
+  print_side_store(run, row, "free-space store: read", "regions", row.free_store_read,
+                   row.free_store_written, row.free_store_bytes_read, row.free_store_bytes_written);
+  print_side_store(run, row, "finest-level store: read back", "levels", row.finest_store_read,
+                   row.finest_store_written, row.finest_store_bytes_read,
+                   row.finest_store_bytes_written);
 }
 
 void close_pass(SoakRun& run) {

@@ -816,9 +816,9 @@ typename FinestLevelSource<VoxelT>::Answer Pipeline<VoxelT>::FinestReader::resto
     return FinestLevelSource<VoxelT>::Answer::none;
   }
   report.finest_bytes_read += size.value();
-  const Status refined =
+  const Status restored =
       restore_finest_from_record(map, index, p.store_record_, size.value(), p.config_.fusion.y_max);
-  if (refined.ok()) {
+  if (restored.ok()) {
     ++report.finest_read;
     return FinestLevelSource<VoxelT>::Answer::restored;
   }

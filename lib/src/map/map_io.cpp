@@ -1133,17 +1133,22 @@ Result<std::size_t> encode_block_record(const VoxelBlock<VoxelT>& block, std::ui
 
 namespace {
 
-// A whole block record checked and its voxels read into `scratch` (every level, in the record's
-// order; scale 0 left as it is when the record holds none): ok or data_loss.
+// A whole block record checked and its voxels read into `finest` (scale 0, left as it is when the
+// record holds none), `mid` (scale 1) and `coarse` (scales 2 and 3): ok or data_loss.
 template <typename VoxelT>
 Status decode_block_record(const std::uint8_t* record, std::size_t size, int voxel_depth,
-                           BlockFields& fields, VoxelT* scratch, ErrorText* error) {
+                           BlockFields& fields, VoxelT* finest, VoxelT* mid, VoxelT* coarse,
+                           ErrorText* error) {
   MemorySource source(record, size);
   RecordReader r(source, error);
   r.begin_record("stored block", -1);
   if (!read_block_fields<VoxelT>(r, voxel_depth, fields)) return r.status();
-  const int first = fields.has_finest ? 0 : kBlockFinestVoxelCount;
-  if (!r.voxels(scratch + first, kBlockVoxelCount - first) || !r.end_record()) return r.status();
+  if ((fields.has_finest && !r.voxels(finest, kBlockFinestVoxelCount)) ||
+      !r.voxels(mid, kBlockMidVoxelCount) ||
+      !r.voxels(coarse, kBlockVoxelCount - kBlockFinestVoxelCount - kBlockMidVoxelCount) ||
+      !r.end_record()) {
+    return r.status();
+  }
   if (!r.at_end()) {
     r.fail(StatusCode::data_loss, "extra bytes after the record");
     return r.status();
@@ -1161,7 +1166,9 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   // Voxels into scratch first: a damaged record changes nothing.
   static_assert(sizeof(VoxelT) <= 16, "scratch sized for 16-byte voxels");
   VoxelT scratch[kBlockVoxelCount];
-  OCTOFUSE_TRY(decode_block_record(record, size, map.voxel_depth(), fields, scratch, error));
+  OCTOFUSE_TRY(decode_block_record(record, size, map.voxel_depth(), fields, scratch,
+                                   scratch + kBlockFinestVoxelCount,
+                                   scratch + kBlockFinestVoxelCount + kBlockMidVoxelCount, error));
   const Key key{fields.morton, static_cast<std::uint8_t>(map.block_level())};
   const Eigen::Vector3i coords = voxel_to_block(key_corner_voxel(key));
   if (map.find_block_index(coords) != kNoIndex) return StatusCode::failed_precondition;
@@ -1259,10 +1266,16 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
     if (block.has_finest() || !block.integrated() || block.current_scale < 1) {
       return StatusCode::failed_precondition;
     }
+    // The record as a block of its own, its levels lent for the moment and read straight into
+    // them (a damaged record changes nothing of the map).
+    FinestLevel<VoxelT> rec_finest;
+    MidLevel<VoxelT> rec_mid;
+    Block rec;
+    rec.finest = &rec_finest;
+    rec.mid = &rec_mid;
     BlockFields fields;
-    static_assert(sizeof(VoxelT) <= 16, "scratch sized for 16-byte voxels");
-    VoxelT scratch[kBlockVoxelCount];
-    OCTOFUSE_TRY(decode_block_record(record, size, map.voxel_depth(), fields, scratch, error));
+    OCTOFUSE_TRY(decode_block_record(record, size, map.voxel_depth(), fields, rec_finest.voxels,
+                                     rec_mid.voxels, rec.scale_begin(2), error));
     if (fields.morton != block.morton || !fields.has_finest ||
         fields.min_scale == kNeverIntegrated) {
       if (error != nullptr) error->set("the record is another block's or holds no finest level");
@@ -1274,19 +1287,9 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
         (need_mid && memory.mid_used >= memory.mid_capacity)) {
       return StatusCode::resource_exhausted;  // before anything changes
     }
-    // The record as a block of its own, through levels lent for the moment.
-    FinestLevel<VoxelT> rec_finest;
-    MidLevel<VoxelT> rec_mid;
-    Block rec;
-    rec.finest = &rec_finest;
-    rec.mid = &rec_mid;
     rec.current_scale = fields.current;
     rec.min_scale = fields.min_scale;
     rec.mip_scale = fields.mip;
-    const int inline_first = kBlockFinestVoxelCount + kBlockMidVoxelCount;
-    std::copy(scratch, scratch + kBlockFinestVoxelCount, rec_finest.voxels);
-    std::copy(scratch + kBlockFinestVoxelCount, scratch + inline_first, rec_mid.voxels);
-    std::copy(scratch + inline_first, scratch + kBlockVoxelCount, rec.scale_begin(2));
     // Its finest level up to date with its own coarser levels (a record taken while the block
     // integrated coarser than scale 0), as the integrator would refine it.
     for (int l = rec.current_scale; l > 0; --l) propagate_block_down(rec, l, y_max);

@@ -535,18 +535,17 @@ Status merge_map_with_store(const Octree<VoxelT>* map, const MapConfig& geometry
     // (one that kept or took a finest level since is newer than the record: it stays).
     finest.store->for_each_key([&](std::uint64_t key) {
       if (!failed.ok()) return;
+      const std::uint32_t index = merged->map.find_block_index_morton(key);
+      if (index != kNoIndex && merged->map.block(index).has_finest()) return;  // no read needed
       const Result<std::size_t> size = finest.store->read(key, record, record_bytes);
       ErrorText why;
       Status merged_one = size.status();
       if (size.ok()) {
-        const std::uint32_t index = merged->map.find_block_index_morton(key);
         if (index == kNoIndex) {
           const Result<std::uint32_t> restored =
               restore_block_record(merged->map, record, size.value(), &why);
           merged_one = restored.status();
           if (restored.ok()) indices[count++] = restored.value();
-        } else if (merged->map.block(index).has_finest()) {
-          merged_one = ok_status();
         } else {
           merged_one = restore_finest_from_record(merged->map, index, record, size.value(),
                                                   finest.y_max, &why);

@@ -21,6 +21,17 @@
 namespace octofuse::examples::detail {
 namespace {
 
+// The finest-level store's figures of a frame or of the run (the same keys in both).
+void write_finest_store_keys(host::JsonWriter& json, const StoreReport& r) {
+  json.key("store_finest_written").value(static_cast<std::uint64_t>(r.finest_written));
+  json.key("store_finest_write_failed").value(static_cast<std::uint64_t>(r.finest_write_failed));
+  json.key("store_finest_bytes_written").value(r.finest_bytes_written);
+  json.key("store_finest_read").value(static_cast<std::uint64_t>(r.finest_read));
+  json.key("store_finest_read_failed").value(static_cast<std::uint64_t>(r.finest_read_failed));
+  json.key("store_finest_waiting").value(static_cast<std::uint64_t>(r.finest_waiting));
+  json.key("store_finest_bytes_read").value(r.finest_bytes_read);
+}
+
 void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.begin_object();
   json.key("index").value(s.frame_index);
@@ -81,15 +92,7 @@ void write_frame_json(host::JsonWriter& json, const FrameStats& s) {
   json.key("store_deferred").value(static_cast<std::uint64_t>(s.store.deferred));
   json.key("store_bytes_written").value(s.store.bytes_written);
   json.key("store_bytes_read").value(s.store.bytes_read);
-  json.key("store_finest_written").value(static_cast<std::uint64_t>(s.store.finest_written));
-  json.key("store_finest_write_failed")
-      .value(static_cast<std::uint64_t>(s.store.finest_write_failed));
-  json.key("store_finest_bytes_written").value(s.store.finest_bytes_written);
-  json.key("store_finest_read").value(static_cast<std::uint64_t>(s.store.finest_read));
-  json.key("store_finest_read_failed")
-      .value(static_cast<std::uint64_t>(s.store.finest_read_failed));
-  json.key("store_finest_waiting").value(static_cast<std::uint64_t>(s.store.finest_waiting));
-  json.key("store_finest_bytes_read").value(s.store.finest_bytes_read);
+  write_finest_store_keys(json, s.store);
   json.key("free_store_written").value(static_cast<std::uint64_t>(s.free_store.written));
   json.key("free_store_merged").value(static_cast<std::uint64_t>(s.free_store.merged));
   json.key("free_store_write_failed").value(static_cast<std::uint64_t>(s.free_store.write_failed));
@@ -291,17 +294,7 @@ void write_stats(const RunOptions& options, MapKind map_kind, RunSummary* summar
   json.key("store_deferred").value(static_cast<std::uint64_t>(summary->store_total.deferred));
   json.key("store_bytes_written").value(summary->store_total.bytes_written);
   json.key("store_bytes_read").value(summary->store_total.bytes_read);
-  json.key("store_finest_written")
-      .value(static_cast<std::uint64_t>(summary->store_total.finest_written));
-  json.key("store_finest_write_failed")
-      .value(static_cast<std::uint64_t>(summary->store_total.finest_write_failed));
-  json.key("store_finest_bytes_written").value(summary->store_total.finest_bytes_written);
-  json.key("store_finest_read").value(static_cast<std::uint64_t>(summary->store_total.finest_read));
-  json.key("store_finest_read_failed")
-      .value(static_cast<std::uint64_t>(summary->store_total.finest_read_failed));
-  json.key("store_finest_waiting")
-      .value(static_cast<std::uint64_t>(summary->store_total.finest_waiting));
-  json.key("store_finest_bytes_read").value(summary->store_total.finest_bytes_read);
+  write_finest_store_keys(json, summary->store_total);
   json.key("store_finest_file_bytes").value(summary->finest_store_file_bytes);
   json.key("store_finest_keys").value(summary->finest_store_keys);
   json.key("store_file_bytes").value(summary->store_file_bytes);

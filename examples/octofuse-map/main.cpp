@@ -437,21 +437,26 @@ int main(int argc, char** argv) {
     }
     if (!warning.empty()) std::fprintf(stderr, "warning: %s\n", warning.c_str());
     host::StoreGeometry geometry;
-    if (store.geometry_size() == host::kFreeStoreGeometryBytes &&
-        store.geometry()[host::kStoreGeometryBytes] == host::kFreeStoreGeometryTag) {
-      std::fprintf(stderr,
-                   "error: %s: a free-space store; give its block store (the name without "
-                   "\".free\"), which reads it too\n",
-                   path);
-      return 1;
-    }
-    if (store.geometry_size() == host::kFinestStoreGeometryBytes &&
-        store.geometry()[host::kStoreGeometryBytes] == host::kFinestStoreGeometryTag) {
-      std::fprintf(stderr,
-                   "error: %s: a finest-level store; give its block store (the name without "
-                   "\".fine\"), which reads it too\n",
-                   path);
-      return 1;
+    // The stores kept beside a block store: the block store's geometry with a tag after it.
+    static_assert(host::kFreeStoreGeometryBytes == host::kStoreGeometryBytes + 1 &&
+                      host::kFinestStoreGeometryBytes == host::kStoreGeometryBytes + 1,
+                  "a side store's geometry is the block store's and one tag byte");
+    struct SideStore {
+      std::uint8_t tag;
+      const char* what;
+      const char* suffix;
+    };
+    for (const SideStore& side :
+         {SideStore{host::kFreeStoreGeometryTag, "a free-space store", ".free"},
+          SideStore{host::kFinestStoreGeometryTag, "a finest-level store", ".fine"}}) {
+      if (store.geometry_size() == host::kStoreGeometryBytes + 1 &&
+          store.geometry()[host::kStoreGeometryBytes] == side.tag) {
+        std::fprintf(stderr,
+                     "error: %s: %s; give its block store (the name without \"%s\"), which reads "
+                     "it too\n",
+                     path, side.what, side.suffix);
+        return 1;
+      }
     }
     if (!host::decode_store_geometry(store.geometry(), store.geometry_size(), &geometry)) {
       std::fprintf(stderr, "error: %s: the store's map geometry is out of range\n", path);

@@ -171,6 +171,71 @@ TEST_CASE("finest levels given up for room go to the store and come back from it
   }
 }
 
+// Counts, per block, the frames after which it held a finest level, over `frames` frames that all
+// show the sim's first view (ground-truth pose).
+std::vector<std::uint32_t> held_frames_one_view(const sim::SimConfig& sim_config,
+                                                const PipelineConfig& config, int frames,
+                                                MemoryStore* finest_store) {
+  sim::SimSource source(sim_config);
+  REQUIRE(source.open().ok());
+  Buffer buffer(bytes_required(config));
+  Pipeline<MultiresVoxel> pipeline;
+  REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+  if (finest_store != nullptr) REQUIRE(pipeline.set_finest_store(finest_store).ok());
+  DepthFrame frame;
+  REQUIRE(source.next(frame).outcome == FrameOutcome::frame);
+  std::vector<std::uint32_t> held;
+  for (int f = 0; f < frames; ++f) {
+    frame.timestamp_us = f * 33333;
+    frame.sequence = static_cast<std::uint64_t>(f);
+    FrameStats stats;
+    const Status status = pipeline.process(frame, &stats);
+    REQUIRE((status.ok() || status.code() == StatusCode::resource_exhausted));
+    const Octree<MultiresVoxel>& map = pipeline.map();
+    held.resize(map.block_count(), 0);
+    for (std::uint32_t i = 0; i < map.block_count(); ++i) held[i] += map.block(i).has_finest();
+  }
+  return held;
+}
+
+TEST_CASE("a view larger than the finest-level pool takes turns at scale 0", "[store]") {
+  const sim::SimConfig sim_config = small_sim(1, /*noise=*/false);
+  sim::SimSource truth(sim_config);
+  REQUIRE(truth.open().ok());
+  PipelineConfig config = small_config(truth, kVoxel_m, 1);
+  config.pose_source = PoseSource::ground_truth;
+  constexpr int kFrames = 40;
+  const std::vector<std::uint32_t> unbounded =
+      held_frames_one_view(sim_config, config, kFrames, nullptr);
+  std::uint32_t view = 0;  // blocks the view fuses at scale 0
+  for (const std::uint32_t h : unbounded) view += h == kFrames;
+  REQUIRE(view > 100);
+
+  // Half the view's levels: each frame eviction takes the levels held longest down to the
+  // low-water mark and the frame lends them to the blocks that waited longest.
+  config.map.finest_capacity = view / 2;
+  config.eviction.enabled = true;
+  config.budget.max_store_reads = 0xFFFFFFFFu;
+  MemoryStore store;
+  const std::vector<std::uint32_t> held = held_frames_one_view(sim_config, config, kFrames, &store);
+  // The same blocks, in the same pool order (nothing evicted whole).
+  REQUIRE(held.size() == unbounded.size());
+  std::uint32_t fewest = kFrames, most = 0;
+  for (std::size_t i = 0; i < held.size(); ++i) {
+    if (unbounded[i] != kFrames) continue;
+    fewest = std::min(fewest, held[i]);
+    most = std::max(most, held[i]);
+  }
+  INFO("of " << view << " blocks at scale 0, with " << config.map.finest_capacity
+             << " levels: each held one after " << fewest << " to " << most << " of " << kFrames
+             << " frames");
+  // Every block had its turns, and no block many more than another: with half the levels each
+  // holds one about half the frames.
+  REQUIRE(fewest >= kFrames / 4);
+  REQUIRE(most <= 3 * kFrames / 4);
+  REQUIRE(store.puts > 0);
+}
+
 TEST_CASE("a finest-level store needs eviction and a multires map", "[store]") {
   const sim::SimConfig sim_config = small_sim(2, /*noise=*/false);
   sim::SimSource truth(sim_config);

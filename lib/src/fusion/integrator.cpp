@@ -889,41 +889,77 @@ BlockList keep_existing_blocks(FrameBlock* blocks, std::uint32_t touched) {
   return list;
 }
 
+// Counts a block refused a level: it integrates one scale coarser.
+void refuse_level(FrameBlock& b, BlockList& list, int scale, IntegrationReport& report) {
+  b.scale = static_cast<std::int8_t>(scale);
+  list.coarsest = std::max(list.coarsest, scale);
+  ++(scale == 1 ? report.finest_refusals : report.mid_refusals);
+  ++report.pool_refusals;
+  report.status = StatusCode::resource_exhausted;
+}
+
+// More blocks about to integrate at scale 0 without a finest level than the pool has free: those
+// that waited longest for one (finest_turn, then list position: a total order) are served, the
+// others are refused now. Without this the same blocks, first in the list, would win every frame
+// and the rest of a view larger than the pool would never be fused at scale 0. `scratch` holds
+// list.count entries.
+template <typename VoxelT>
+void ration_finest_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& list,
+                          std::uint64_t* scratch, IntegrationReport& report) {
+  const MapMemory memory = map.memory();
+  const std::uint32_t free =
+      memory.finest_capacity > memory.finest_used ? memory.finest_capacity - memory.finest_used : 0;
+  std::uint32_t asking = 0;
+  for (std::uint32_t i = 0; i < list.count; ++i) {
+    const FrameBlock& b = blocks[i];
+    if (b.skip != 0 || b.scale != 0) continue;
+    const VoxelBlock<VoxelT>& block = map.block(b.block);
+    if (!block.has_finest()) scratch[asking++] = (std::uint64_t{block.finest_turn} << 32) | i;
+  }
+  if (asking <= free) return;
+  // The keys are distinct, so the served set does not depend on how the partition orders it.
+  std::nth_element(scratch, scratch + free, scratch + asking);
+  for (std::uint32_t k = free; k < asking; ++k) {
+    refuse_level(blocks[scratch[k] & 0xFFFFFFFFu], list, 1, report);
+  }
+  map.count_finest_refusals(asking - free);
+}
+
 // Fine levels for blocks about to integrate at scale 0 (1) for the first time, serially and in
 // list order so the pools' indices do not depend on the worker count. Refused: one scale coarser
 // (a block refused its finest level integrates at scale 1, one refused its mid level at 2). A
 // block that held a finest level once (min_scale 0) and gave it up asks `source` for it first.
+// A block given its finest level has its turn stamped with the frame.
 template <typename VoxelT>
 void acquire_fine_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& list,
-                         FinestLevelSource<VoxelT>* source, IntegrationReport& report) {
+                         FinestLevelSource<VoxelT>* source, std::uint32_t frame_index,
+                         std::uint64_t* scratch, IntegrationReport& report) {
   using Answer = typename FinestLevelSource<VoxelT>::Answer;
+  if (list.finest_scale == 0) ration_finest_levels(map, blocks, list, scratch, report);
   for (std::uint32_t i = 0; i < list.count && list.finest_scale <= 1; ++i) {
     FrameBlock& b = blocks[i];
     if (b.skip != 0 || b.scale > 1) continue;
     VoxelBlock<VoxelT>& block = map.block(b.block);
     if (source != nullptr && b.scale == 0 && !block.has_finest() && block.min_scale == 0) {
       const Answer answer = source->restore(map, b.block);
-      if (answer == Answer::restored) continue;
+      if (answer == Answer::restored) {
+        block.finest_turn = frame_index;
+        continue;
+      }
       if (answer == Answer::wait) {
         b.scale = 1;
         list.coarsest = std::max(list.coarsest, 1);
       }
     }
     if (!block.has_mid() && !map.acquire_mid(block).ok()) {
-      b.scale = 2;
-      list.coarsest = std::max(list.coarsest, 2);
-      ++report.mid_refusals;
-      ++report.pool_refusals;
-      report.status = StatusCode::resource_exhausted;
+      refuse_level(b, list, 2, report);
       continue;
     }
     if (b.scale != 0 || block.has_finest()) continue;
-    if (!map.acquire_finest(block).ok()) {
-      b.scale = 1;
-      list.coarsest = std::max(list.coarsest, 1);
-      ++report.finest_refusals;
-      ++report.pool_refusals;
-      report.status = StatusCode::resource_exhausted;
+    if (map.acquire_finest(block).ok()) {
+      block.finest_turn = frame_index;
+    } else {
+      refuse_level(b, list, 1, report);
     }
   }
 }
@@ -1136,7 +1172,9 @@ IntegrationReport Integrator<VoxelT>::integrate_looked_up(Octree<VoxelT>& map, F
 
   // 3. Budgets (the scales were picked in step 2), then finest levels for the blocks at scale 0.
   const bool budget_bound = apply_budgets(list.count, list.cost, budget, report);
-  if constexpr (kMultires) acquire_fine_levels(map, frame_blocks_, list, finest_source_, report);
+  if constexpr (kMultires) {
+    acquire_fine_levels(map, frame_blocks_, list, finest_source_, frame_index, pool_order_, report);
+  }
   f.mip_target = mip_target(frame_blocks_, list, budget_bound);
 
   // 4. Integrate in pool order, in a fixed number of tasks. Blocks are independent, so the order

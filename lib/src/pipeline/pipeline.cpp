@@ -622,7 +622,7 @@ std::uint32_t Pipeline<VoxelT>::count_new_nodes() {
   std::uint32_t missing = 0;
   integrator_.for_each_listed_block([this, capacity, &missing](std::uint64_t morton,
                                                                const Eigen::Vector3i&,
-                                                               std::uint32_t index) {
+                                                               std::uint32_t index, int) {
     if (index == kNoIndex && missing < capacity) eviction_candidates_[missing++].morton = morton;
   });
   // In Morton order the blocks under one octant are consecutive: an ancestor is new once, for the
@@ -705,24 +705,35 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   // and this frame's (evicting one would lose what it holds, or with a store write it and map it
   // afresh at once, its record dropped when next read); within each, farthest first (squared
   // distance in voxels from the camera's voxel to the block's centre, exact in integers), then by
-  // Morton code, a total order.
+  // Morton code, a total order. When only the fine levels are over their marks, the last tier
+  // gives up first the levels of blocks this frame does not fuse at scale 0 (farthest first),
+  // then those of the blocks that have held theirs longest (finest_turn): a view larger than the
+  // pool takes turns at scale 0 instead of some blocks never getting one.
   const Eigen::Vector3i camera_voxel =
       map_.point_to_voxel(T_W_C_.translation().template cast<float>());
   const std::uint32_t count = map_.block_count();
   const std::uint32_t recent_frame = frame_index > 0 ? frame_index - 1 : 0;
+  constexpr std::uint8_t kListed = 1;
+  constexpr std::uint8_t kListedAtFinest = 2;
   integrator_.for_each_listed_block(
-      [this](std::uint64_t, const Eigen::Vector3i&, std::uint32_t index) {
-        if (index != kNoIndex) in_frame_[index] = 1;
+      [this](std::uint64_t, const Eigen::Vector3i&, std::uint32_t index, int scale) {
+        if (index != kNoIndex) in_frame_[index] = scale == 0 ? kListedAtFinest : kListed;
       });
+  const bool levels_only = over_blocks == 0;
   for (std::uint32_t i = 0; i < count; ++i) {
     const typename Map::Block& block = map_.block(i);
-    const std::uint64_t d2 = block_distance2(block.coords, camera_voxel);
     const bool recent =
         (block.last_updated_frame >= recent_frame && block.integrated()) || in_frame_[i] != 0;
-    in_frame_[i] = 0;
     const std::uint64_t tier = recent ? 0 : i >= read_back_from_ ? 1 : 2;
+    std::uint64_t order = block_distance2(block.coords, camera_voxel);  // below 2^60
+    if (tier == 0 && levels_only && in_frame_[i] == kListedAtFinest) {
+      order = std::uint64_t{0xFFFFFFFFu - block.finest_turn};
+    } else if (tier == 0 && levels_only) {
+      order |= std::uint64_t{1} << 60;
+    }
+    in_frame_[i] = 0;
     EvictionCandidate& c = eviction_candidates_[i];
-    c.rank = (tier << 61) | d2;
+    c.rank = (tier << 61) | order;
     c.morton = block.morton;
     c.index = i;
     c.has_finest = block.has_finest() && Map::kSplitFinest;
@@ -777,10 +788,10 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   std::uint32_t* keep_1 = std::partition(demoted_begin, demoted_end,
                                          [](std::uint32_t v) { return (v & kDemoteMid) != 0; });
   for (std::uint32_t* v = demoted_begin; v != keep_1; ++v) *v &= ~kDemoteMid;
-  if (finest_store_ != nullptr) {
-    for (const std::uint32_t* v = demoted_begin; v != demoted_end; ++v) {
-      if (map_.block(*v).has_finest()) keep_finest(*v);
-    }
+  for (const std::uint32_t* v = demoted_begin; v != demoted_end; ++v) {
+    typename Map::Block& block = map_.block(*v);
+    if (finest_store_ != nullptr && block.has_finest()) keep_finest(*v);
+    block.finest_turn = frame_index;
   }
   map_.release_mid(demoted_begin, static_cast<std::size_t>(keep_1 - demoted_begin));
   map_.release_finest(keep_1, static_cast<std::size_t>(demoted_end - keep_1));
@@ -1000,7 +1011,7 @@ void Pipeline<VoxelT>::read_back_missing(StoreReport& report) {
   // found in view are capped at kStoreKeyCapacity, which a large view's box can exceed.
   std::uint32_t candidates = 0;
   integrator_.for_each_listed_block(
-      [&](std::uint64_t morton, const Eigen::Vector3i& coords, std::uint32_t index) {
+      [&](std::uint64_t morton, const Eigen::Vector3i& coords, std::uint32_t index, int) {
         if (index != kNoIndex || candidates == capacity) return;
         EvictionCandidate& c = eviction_candidates_[candidates++];
         c.rank = block_distance2(coords, camera_voxel);

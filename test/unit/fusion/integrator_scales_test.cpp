@@ -4,6 +4,7 @@
 #include "octofuse/fusion/integrator.hpp"
 
 #include <catch2/catch.hpp>
+#include <vector>
 
 #include "unit/fusion/integrator_support.hpp"
 
@@ -488,6 +489,47 @@ TEST_CASE("a full finest-level pool keeps blocks at scale 1, counted, and the ma
     const double z = zero_crossing_z(fusion.map, column, 1, 0, 256);
     REQUIRE(std::isfinite(z));
     CHECK(std::abs(z - kPlaneZ_m) <= kTolerance_m);
+  }
+}
+
+TEST_CASE("a finest-level pool with fewer free than blocks asking serves those that waited longest",
+          "[fusion][integrator][finest]") {
+  AnalyticScene scene;
+  scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.237});
+  MapConfig mc = map_config(0.01f, 8, 8000);
+  constexpr std::uint32_t kFinest = 12;
+  mc.finest_capacity = kFinest;
+  Fusion<MultiresVoxel> fusion(mc, fusion_config(0.08f, 0), test::centred_camera(160, 120, 131.0f));
+  const Se3d T_W_C = test::looking_along_z({0, 0, 0.1});
+  IntegrationReport r = fusion.fuse(scene, T_W_C);
+  Octree<MultiresVoxel>& map = fusion.map;
+  const std::uint32_t blocks = map.block_count();
+  REQUIRE(blocks > 3 * kFinest);
+  REQUIRE(r.finest_refusals == blocks - kFinest);
+  // Every level back, and each block a distinct turn that does not follow the list's order (nor
+  // the pool's): a scrambled permutation of 1..blocks.
+  std::vector<std::uint32_t> holders;
+  for (std::uint32_t i = 0; i < blocks; ++i) {
+    if (map.block(i).has_finest()) holders.push_back(i);
+    map.block(i).finest_turn = 1 + (i * 7919u) % blocks;
+  }
+  REQUIRE(holders.size() == kFinest);
+  map.release_finest(holders.data(), holders.size());
+  REQUIRE(map.memory().finest_used == 0);
+  const std::uint64_t refusals_before = map.memory().finest_refusals;
+
+  r = fusion.fuse(scene, T_W_C);
+  CHECK(r.blocks_per_scale[0] == kFinest);
+  CHECK(r.finest_refusals == blocks - kFinest);
+  CHECK(map.memory().finest_refusals - refusals_before == blocks - kFinest);
+  // Served: exactly the blocks whose turns were the kFinest smallest, stamped with this frame.
+  for (std::uint32_t i = 0; i < blocks; ++i) {
+    const VoxelBlock<MultiresVoxel>& b = map.block(i);
+    const std::uint32_t turn = 1 + (i * 7919u) % blocks;
+    CAPTURE(i, turn);
+    REQUIRE(b.has_finest() == (turn <= kFinest));
+    REQUIRE(b.current_scale == (b.has_finest() ? 0 : 1));
+    REQUIRE(b.finest_turn == (b.has_finest() ? 1u : turn));
   }
 }
 

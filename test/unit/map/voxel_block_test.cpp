@@ -46,14 +46,14 @@ TEST_CASE("mip levels cost 14% over single-resolution blocks", "[map][block]") {
 
 TEST_CASE("single-res blocks hold all levels inline, multires blocks only the coarse ones",
           "[map][block]") {
-  // The header is 72 bytes with 64-bit pointers (60 on 32-bit targets).
+  // The header is 72 bytes with 64-bit pointers (64 on 32-bit targets).
   constexpr std::size_t kMaxHeaderBytes = 72;
   VoxelBlock<MultiresVoxel> probe;
   const std::size_t header = static_cast<std::size_t>(
       reinterpret_cast<const char*>(probe.inline_voxels) - reinterpret_cast<const char*>(&probe));
   CHECK(header <= kMaxHeaderBytes);
   // The header, the inline voxels and the tail padding to the block's alignment (32-bit targets
-  // pad a 60-byte header's blocks to 8 bytes).
+  // pad a header's blocks to 8 bytes).
   const auto padded = [](std::size_t bytes, std::size_t align) {
     return (bytes + align - 1) / align * align;
   };

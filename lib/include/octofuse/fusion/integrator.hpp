@@ -210,15 +210,15 @@ class Integrator {
                                  const WorkerTeam& team);
 
   // Between begin_frame() and finish_frame(): each block the frame touches, as visit(morton,
-  // block coordinates, pool index as looked up at begin_frame(): kNoIndex where not allocated),
-  // in the list's order (the pipeline reads back stored ones in the place of the missing, and
-  // eviction keeps the allocated ones to the last).
+  // block coordinates, pool index as looked up at begin_frame(): kNoIndex where not allocated,
+  // the scale picked for it), in the list's order (the pipeline reads back stored ones in the place
+  // of the missing, and eviction keeps the allocated ones to the last).
   template <typename Visit>
   void for_each_listed_block(Visit&& visit) const {
     if (begun_.map == nullptr) return;
     for (std::uint32_t i = 0; i < frame_block_count_; ++i) {
       const fusion_internal::FrameBlock& b = frame_blocks_[i];
-      visit(b.morton, b.coords, b.block);
+      visit(b.morton, b.coords, b.block, static_cast<int>(b.scale));
     }
   }
 
@@ -294,6 +294,7 @@ class Integrator {
   Key* keys_ = nullptr;
   std::uint32_t* block_indices_ = nullptr;
   // Step 4's list: (block index << 8) | scale, sorted by block index; twice max_blocks_per_frame.
+  // Step 3 rations the finest levels in it.
   std::uint64_t* pool_order_ = nullptr;
   std::uint64_t* seen_ = nullptr;        // (kCollectTasks + 1) * kSeenCacheSize entries
   std::uint64_t* band_cells_ = nullptr;  // kCollectTasks lists of band_capacity_ packed cells

@@ -278,6 +278,12 @@ class Octree {
     }
     return ok_status();
   }
+  // Counts `count` finest levels refused without asking the pool: it had fewer free than blocks
+  // asking, and the caller served the others first.
+  void count_finest_refusals(std::uint32_t count) {
+    refusals_ += count;
+    finest_refusals_ += count;
+  }
   // The same for the mid level (scale 1) alone.
   Status acquire_mid(Block& block) {
     if constexpr (kSplitFinest) {

@@ -92,6 +92,10 @@ struct VoxelBlock {
   // 1 while the block is as restore_block_record() brought it back from a block store (integration
   // clears it): evicting it again needs no write, the store still holds its state.
   std::uint8_t stored_clean = 0;
+  // Multires: the frame the block last got or gave up its finest level (0: never). A finest pool
+  // smaller than the view lends its levels to the blocks that waited longest and takes them back
+  // from those that held one longest, so every block in view gets its turn at scale 0.
+  std::uint32_t finest_turn = 0;
   // Summary of the observed voxels at current_scale, kept by the integrator for empty-space
   // skipping: min and max normalised TSDF (1 / -1 when nothing is observed, so min > max).
   float tsdf_min = 1.0f;

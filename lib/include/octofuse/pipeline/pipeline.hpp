@@ -557,7 +557,7 @@ class Pipeline {
   };
   EvictionCandidate* eviction_candidates_ = nullptr;
   std::uint32_t* eviction_indices_ = nullptr;
-  std::uint8_t* in_frame_ = nullptr;     // per pool index: 1 while evict() ranks a listed block
+  std::uint8_t* in_frame_ = nullptr;  // per pool index: nonzero while evict() ranks a listed block
   std::uint32_t evict_high_blocks_ = 0;  // marks as block / finest-level counts
   std::uint32_t evict_low_blocks_ = 0;
   std::uint32_t evict_high_finest_ = 0;

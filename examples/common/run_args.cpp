@@ -610,6 +610,22 @@ const RunOption kRunOptions[] = {
        }
        return true;
      }},
+    {"finest-turn", "N",
+     "a block in view keeps a finest level it got for at least N frames\n"
+     "before eviction may give it to another block of a view larger than\n"
+     "the finest-level pool (default 30)",
+     [](RunOptions& o, const std::string& v) {
+       std::int64_t integer = 0;
+       if (!cli::parse_int(v, 0, UINT32_MAX, integer)) {
+         return std::string(" needs a count of frames");
+       }
+       o.eviction.finest_turn_frames = static_cast<std::uint32_t>(integer);
+       return std::string();
+     },
+     [](const RunOptions& o, std::string* v) {
+       *v = std::to_string(o.eviction.finest_turn_frames);
+       return true;
+     }},
     {"budget-evict", "N", "evict at most N blocks per frame",
      [](RunOptions& o, const std::string& v) {
        std::int64_t integer = 0;

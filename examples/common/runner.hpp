@@ -58,7 +58,7 @@ struct RunOptions {
   std::string deadline_calibration;
   bool deadline_freeze = false;
   // --evict: on by default in the programs, so a memory cap bounds the map instead of tracking.
-  EvictionConfig eviction = {true, 0.9f, 0.8f};
+  EvictionConfig eviction = {true, 0.9f, 0.8f, 30};
   bool bilateral = false;
   float icp_depth_knee_m = -1.0f;  // < 0: the library's default
   bool icp_quarter = false;        // TrackConfig::finest_level_quarter_on_half_model

@@ -107,6 +107,8 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
                  "85,70",
                  "--budget-evict",
                  "50",
+                 "--finest-turn",
+                 "12",
                  "--gt-poses",
                  "--icp-depth-knee",
                  "0.1",
@@ -191,6 +193,7 @@ TEST_CASE("Every option set on the command line comes back from its printed conf
   CHECK(reread.eviction.high_water == 0.85f);
   CHECK(reread.eviction.low_water == 0.7f);
   CHECK(reread.budget.max_evictions == 50u);
+  CHECK(reread.eviction.finest_turn_frames == 12u);
   CHECK(reread.pose_source == PoseSource::ground_truth);
   CHECK(reread.icp_depth_knee_m == options.icp_depth_knee_m);
   CHECK(reread.bilateral);

@@ -171,11 +171,17 @@ TEST_CASE("finest levels given up for room go to the store and come back from it
   }
 }
 
-// Counts, per block, the frames after which it held a finest level, over `frames` frames that all
-// show the sim's first view (ground-truth pose).
-std::vector<std::uint32_t> held_frames_one_view(const sim::SimConfig& sim_config,
-                                                const PipelineConfig& config, int frames,
-                                                MemoryStore* finest_store) {
+// Over `frames` frames that all show the sim's first view (ground-truth pose): per block, the
+// frames after which it held a finest level, and the shortest run of such frames that ended
+// before the last frame (a turn given up).
+struct OneViewTurns {
+  std::vector<std::uint32_t> held;
+  std::uint32_t shortest_turn = 0xFFFFFFFFu;
+  std::uint32_t turns_given_up = 0;
+};
+
+OneViewTurns turns_one_view(const sim::SimConfig& sim_config, const PipelineConfig& config,
+                            int frames, MemoryStore* finest_store) {
   sim::SimSource source(sim_config);
   REQUIRE(source.open().ok());
   Buffer buffer(bytes_required(config));
@@ -184,7 +190,8 @@ std::vector<std::uint32_t> held_frames_one_view(const sim::SimConfig& sim_config
   if (finest_store != nullptr) REQUIRE(pipeline.set_finest_store(finest_store).ok());
   DepthFrame frame;
   REQUIRE(source.next(frame).outcome == FrameOutcome::frame);
-  std::vector<std::uint32_t> held;
+  OneViewTurns out;
+  std::vector<std::uint32_t> run;  // per block, the frames of its current turn
   for (int f = 0; f < frames; ++f) {
     frame.timestamp_us = f * 33333;
     frame.sequence = static_cast<std::uint64_t>(f);
@@ -192,10 +199,20 @@ std::vector<std::uint32_t> held_frames_one_view(const sim::SimConfig& sim_config
     const Status status = pipeline.process(frame, &stats);
     REQUIRE((status.ok() || status.code() == StatusCode::resource_exhausted));
     const Octree<MultiresVoxel>& map = pipeline.map();
-    held.resize(map.block_count(), 0);
-    for (std::uint32_t i = 0; i < map.block_count(); ++i) held[i] += map.block(i).has_finest();
+    out.held.resize(map.block_count(), 0);
+    run.resize(map.block_count(), 0);
+    for (std::uint32_t i = 0; i < map.block_count(); ++i) {
+      if (map.block(i).has_finest()) {
+        ++out.held[i];
+        ++run[i];
+      } else if (run[i] > 0) {
+        out.shortest_turn = std::min(out.shortest_turn, run[i]);
+        ++out.turns_given_up;
+        run[i] = 0;
+      }
+    }
   }
-  return held;
+  return out;
 }
 
 TEST_CASE("a view larger than the finest-level pool takes turns at scale 0", "[store]") {
@@ -205,35 +222,48 @@ TEST_CASE("a view larger than the finest-level pool takes turns at scale 0", "[s
   PipelineConfig config = small_config(truth, kVoxel_m, 1);
   config.pose_source = PoseSource::ground_truth;
   constexpr int kFrames = 40;
-  const std::vector<std::uint32_t> unbounded =
-      held_frames_one_view(sim_config, config, kFrames, nullptr);
+  const OneViewTurns unbounded = turns_one_view(sim_config, config, kFrames, nullptr);
   std::uint32_t view = 0;  // blocks the view fuses at scale 0
-  for (const std::uint32_t h : unbounded) view += h == kFrames;
+  for (const std::uint32_t h : unbounded.held) view += h == kFrames;
   REQUIRE(view > 100);
+  REQUIRE(unbounded.turns_given_up == 0);
 
   // Half the view's levels: each frame eviction takes the levels held longest down to the
   // low-water mark and the frame lends them to the blocks that waited longest.
   config.map.finest_capacity = view / 2;
   config.eviction.enabled = true;
   config.budget.max_store_reads = 0xFFFFFFFFu;
-  MemoryStore store;
-  const std::vector<std::uint32_t> held = held_frames_one_view(sim_config, config, kFrames, &store);
-  // The same blocks, in the same pool order (nothing evicted whole).
-  REQUIRE(held.size() == unbounded.size());
-  std::uint32_t fewest = kFrames, most = 0;
-  for (std::size_t i = 0; i < held.size(); ++i) {
-    if (unbounded[i] != kFrames) continue;
-    fewest = std::min(fewest, held[i]);
-    most = std::max(most, held[i]);
-  }
-  INFO("of " << view << " blocks at scale 0, with " << config.map.finest_capacity
-             << " levels: each held one after " << fewest << " to " << most << " of " << kFrames
-             << " frames");
-  // Every block had its turns, and no block many more than another: with half the levels each
-  // holds one about half the frames.
-  REQUIRE(fewest >= kFrames / 4);
-  REQUIRE(most <= 3 * kFrames / 4);
-  REQUIRE(store.puts > 0);
+  const auto check = [&](std::uint32_t turn_frames, std::uint32_t fewest_at_least,
+                         std::uint32_t most_at_most) {
+    config.eviction.finest_turn_frames = turn_frames;
+    MemoryStore store;
+    const OneViewTurns capped = turns_one_view(sim_config, config, kFrames, &store);
+    // The same blocks, in the same pool order (nothing evicted whole).
+    REQUIRE(capped.held.size() == unbounded.held.size());
+    std::uint32_t fewest = kFrames, most = 0;
+    for (std::size_t i = 0; i < capped.held.size(); ++i) {
+      if (unbounded.held[i] != kFrames) continue;
+      fewest = std::min(fewest, capped.held[i]);
+      most = std::max(most, capped.held[i]);
+    }
+    INFO("of " << view << " blocks at scale 0, with " << config.map.finest_capacity
+               << " levels and turns of at least " << turn_frames << " frames: each held one after "
+               << fewest << " to " << most << " of " << kFrames << " frames; "
+               << capped.turns_given_up << " turns given up, the shortest " << capped.shortest_turn
+               << " frames");
+    // Every block had its turns, and no block many more than another.
+    REQUIRE(fewest >= fewest_at_least);
+    REQUIRE(most <= most_at_most);
+    REQUIRE(capped.turns_given_up > 0);
+    REQUIRE(capped.shortest_turn >= std::max<std::uint32_t>(turn_frames, 1));
+    REQUIRE(store.puts == capped.turns_given_up);  // each turn given up is one record
+    return capped.turns_given_up;
+  };
+  // With half the levels each block holds one about half the frames.
+  const std::uint32_t churn = check(0, kFrames / 4, 3 * kFrames / 4);
+  // Turns of at least 10 frames: fewer, longer turns, still one for every block.
+  const std::uint32_t churn_10 = check(10, 10, 3 * kFrames / 4);
+  CHECK(churn_10 < churn);
 }
 
 TEST_CASE("a finest-level store needs eviction and a multires map", "[store]") {

@@ -726,14 +726,18 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
         (block.last_updated_frame >= recent_frame && block.integrated()) || in_frame_[i] != 0;
     const std::uint64_t tier = recent ? 0 : i >= read_back_from_ ? 1 : 2;
     std::uint64_t order = block_distance2(block.coords, camera_voxel);  // below 2^60
+    bool turn_kept = false;
     if (tier == 0 && levels_only && in_frame_[i] == kListedAtFinest) {
       order = std::uint64_t{0xFFFFFFFFu - block.finest_turn};
+      turn_kept = block.has_finest() &&
+                  frame_index - block.finest_turn < config_.eviction.finest_turn_frames;
     } else if (tier == 0 && levels_only) {
       order |= std::uint64_t{1} << 60;
     }
     in_frame_[i] = 0;
     EvictionCandidate& c = eviction_candidates_[i];
     c.rank = (tier << 61) | order;
+    c.turn_kept = turn_kept;
     c.morton = block.morton;
     c.index = i;
     c.has_finest = block.has_finest() && Map::kSplitFinest;
@@ -760,6 +764,7 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
     const EvictionCandidate& c = eviction_candidates_[i];
     const bool demote_mid = c.has_mid && over_mid > 0;
     if (over_blocks == 0 && !(c.has_finest && over_finest > 0) && !demote_mid) continue;
+    if (c.turn_kept) continue;
     const bool write = over_blocks > 0 && store_ != nullptr && !c.clean;
     const bool writes_spent = write && writes == config_.budget.max_store_writes;
     if (evicted + demoted == config_.budget.max_evictions || (writes_spent && evicted >= must_go)) {

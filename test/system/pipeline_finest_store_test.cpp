@@ -30,17 +30,27 @@ struct FinestRun {
   std::vector<std::pair<std::uint64_t, std::vector<MultiresVoxel>>> finest;
 };
 
+// A multires pipeline on the sim, with a finest-level store when one is given.
+struct SimPipeline {
+  SimPipeline(const sim::SimConfig& sim_config, const PipelineConfig& config,
+              MemoryStore* finest_store)
+      : source(sim_config), buffer(bytes_required(config)) {
+    REQUIRE(source.open().ok());
+    REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
+    if (finest_store != nullptr) REQUIRE(pipeline.set_finest_store(finest_store).ok());
+  }
+  sim::SimSource source;
+  Buffer buffer;
+  Pipeline<MultiresVoxel> pipeline;
+};
+
 FinestRun run_finest(const sim::SimConfig& sim_config, const PipelineConfig& config,
                      MemoryStore* finest_store) {
   FinestRun out;
-  sim::SimSource source(sim_config);
-  REQUIRE(source.open().ok());
-  Buffer buffer(bytes_required(config));
-  Pipeline<MultiresVoxel> pipeline;
-  REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
-  if (finest_store != nullptr) REQUIRE(pipeline.set_finest_store(finest_store).ok());
+  SimPipeline sim(sim_config, config, finest_store);
+  Pipeline<MultiresVoxel>& pipeline = sim.pipeline;
   DepthFrame frame;
-  while (source.next(frame).outcome == FrameOutcome::frame) {
+  while (sim.source.next(frame).outcome == FrameOutcome::frame) {
     FrameStats stats;
     const Status status = pipeline.process(frame, &stats);
     REQUIRE((status.ok() || status.code() == StatusCode::resource_exhausted));
@@ -182,14 +192,10 @@ struct OneViewTurns {
 
 OneViewTurns turns_one_view(const sim::SimConfig& sim_config, const PipelineConfig& config,
                             int frames, MemoryStore* finest_store) {
-  sim::SimSource source(sim_config);
-  REQUIRE(source.open().ok());
-  Buffer buffer(bytes_required(config));
-  Pipeline<MultiresVoxel> pipeline;
-  REQUIRE(pipeline.init(buffer.data, bytes_required(config), config).ok());
-  if (finest_store != nullptr) REQUIRE(pipeline.set_finest_store(finest_store).ok());
+  SimPipeline sim(sim_config, config, finest_store);
+  Pipeline<MultiresVoxel>& pipeline = sim.pipeline;
   DepthFrame frame;
-  REQUIRE(source.next(frame).outcome == FrameOutcome::frame);
+  REQUIRE(sim.source.next(frame).outcome == FrameOutcome::frame);
   OneViewTurns out;
   std::vector<std::uint32_t> run;  // per block, the frames of its current turn
   for (int f = 0; f < frames; ++f) {

@@ -889,10 +889,15 @@ BlockList keep_existing_blocks(FrameBlock* blocks, std::uint32_t touched) {
   return list;
 }
 
-// Counts a block refused a level: it integrates one scale coarser.
-void refuse_level(FrameBlock& b, BlockList& list, int scale, IntegrationReport& report) {
+// A block integrates at the coarser `scale` this frame; the list's coarsest scale follows.
+void integrate_coarser(FrameBlock& b, BlockList& list, int scale) {
   b.scale = static_cast<std::int8_t>(scale);
   list.coarsest = std::max(list.coarsest, scale);
+}
+
+// Counts a block refused a level: it integrates one scale coarser.
+void refuse_level(FrameBlock& b, BlockList& list, int scale, IntegrationReport& report) {
+  integrate_coarser(b, list, scale);
   ++(scale == 1 ? report.finest_refusals : report.mid_refusals);
   ++report.pool_refusals;
   report.status = StatusCode::resource_exhausted;
@@ -909,6 +914,7 @@ void ration_finest_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& li
   const MapMemory memory = map.memory();
   const std::uint32_t free =
       memory.finest_capacity > memory.finest_used ? memory.finest_capacity - memory.finest_used : 0;
+  if (free >= list.count) return;  // room for every block in the list: no need to count
   std::uint32_t asking = 0;
   for (std::uint32_t i = 0; i < list.count; ++i) {
     const FrameBlock& b = blocks[i];
@@ -946,10 +952,7 @@ void acquire_fine_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& lis
         block.finest_turn = frame_index;
         continue;
       }
-      if (answer == Answer::wait) {
-        b.scale = 1;
-        list.coarsest = std::max(list.coarsest, 1);
-      }
+      if (answer == Answer::wait) integrate_coarser(b, list, 1);
     }
     if (!block.has_mid() && !map.acquire_mid(block).ok()) {
       refuse_level(b, list, 2, report);

@@ -1290,6 +1290,9 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
     rec.current_scale = fields.current;
     rec.min_scale = fields.min_scale;
     rec.mip_scale = fields.mip;
+    // A record taken at scale 0 holds the block's own finest voxels, not ones derived from a
+    // coarser level.
+    bool unchanged = fields.current == 0;
     // Its finest level up to date with its own coarser levels (a record taken while the block
     // integrated coarser than scale 0), as the integrator would refine it.
     for (int l = rec.current_scale; l > 0; --l) propagate_block_down(rec, l, y_max);
@@ -1305,6 +1308,8 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
     VoxelT* now = block.scale_begin(parent_scale);
     const VoxelT* then = rec.scale_begin(parent_scale);
     for (int i = 0; i < side * side * side; ++i) {
+      unchanged = unchanged && voxel_tsdf(now[i]) == voxel_tsdf(then[i]) &&
+                  voxel_weight(now[i]) == voxel_weight(then[i]);
       set_voxel_x_last(now[i], voxel_tsdf(then[i]));
       set_voxel_delta_y(now[i], std::max(0.0f, voxel_weight(now[i]) - voxel_weight(then[i])));
     }
@@ -1321,6 +1326,12 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
     std::copy(rec_finest.voxels, rec_finest.voxels + kBlockFinestVoxelCount, block.scale_begin(0));
     block.min_scale = 0;
     block.stored_clean = 0;
+    if (unchanged) {
+      // Not fused since it gave the level up: the block is again exactly as it was then, at
+      // scale 0 (refining it would fill its unobserved finest voxels from the parents).
+      block.current_scale = 0;
+      Octree<VoxelT>::update_block_summary(block);
+    }
     return ok_status();
   }
 }

@@ -1,7 +1,7 @@
 // A block that gave its finest level up takes it back from its record
-// (restore_finest_from_record()) at its scale; refined then as the integrator does
-// (propagate_block_down), unchanged since, the observed finest voxels come back bit for bit, and
-// after its coarse levels changed each observed finest voxel moves by its parent's change (eq. 5);
+// (restore_finest_from_record()): unchanged since, at scale 0 and bit for bit; otherwise at its
+// scale, and refined then as the integrator does (propagate_block_down) each observed finest
+// voxel moves by its parent's change since the record (eq. 5);
 // bad records, a block that holds a finest level and a full pool leave the map unchanged.
 
 #include <algorithm>
@@ -69,7 +69,7 @@ int parent_of(int finest_index) {
   return x / 2 + (y / 2) * side + (z / 2) * side * side;
 }
 
-TEMPLATE_TEST_CASE("a demoted block refined from its record gets its finest voxels back",
+TEMPLATE_TEST_CASE("a demoted block not fused since gets its finest voxels back at scale 0",
                    "[map][store]", MultiresVoxel, Multires16Voxel) {
   using VoxelT = TestType;
   MapFixture<VoxelT> fixture(small_config(8, 64));
@@ -77,6 +77,7 @@ TEMPLATE_TEST_CASE("a demoted block refined from its record gets its finest voxe
   for (int keep : {1, 2}) {
     CAPTURE(keep);
     std::uint32_t index = make_fine_block(map, Eigen::Vector3i(2 + 3 * keep, 4, 6));
+    const VoxelBlock<VoxelT> header = map.block(index);
     const std::vector<VoxelT> before = finest_of(map.block(index));
     const std::vector<std::uint8_t> record = record_of(map.block(index));
     REQUIRE(block_record_holds_finest<VoxelT>(record.data(), record.size()));
@@ -93,28 +94,56 @@ TEMPLATE_TEST_CASE("a demoted block refined from its record gets its finest voxe
     REQUIRE(restore_finest_from_record(map, index, record.data(), record.size(), kYMax).ok());
     REQUIRE(block.has_finest());
     REQUIRE(block.has_mid());
-    REQUIRE(block.current_scale == keep);  // at its scale until it is fused finer
+    // As it was: at scale 0, its summary that of its finest voxels, every voxel the same bits
+    // (the unobserved ones not filled in from their parents, as refining would).
+    REQUIRE(block.current_scale == 0);
     REQUIRE(block.min_scale == 0);
+    REQUIRE(block.tsdf_min == header.tsdf_min);
+    REQUIRE(block.tsdf_max == header.tsdf_max);
+    REQUIRE(block.tsdf_mean == header.tsdf_mean);
+    REQUIRE(block.weight_mean == header.weight_mean);
     REQUIRE(map.memory().finest_used == finest_used + 1);
-    refine_to_finest(map.block(index));
     const std::vector<VoxelT> after = finest_of(block);
-    int interpolated = 0;
     for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
       CAPTURE(i);
-      if (voxel_observed(before[static_cast<std::size_t>(i)])) {
-        // Nothing changed since the record: bit for bit.
-        REQUIRE(voxel_tsdf(after[static_cast<std::size_t>(i)]) ==
-                voxel_tsdf(before[static_cast<std::size_t>(i)]));
-        REQUIRE(voxel_weight(after[static_cast<std::size_t>(i)]) ==
-                voxel_weight(before[static_cast<std::size_t>(i)]));
-      } else {
-        // Unobserved in the record: taken from the parents, with the parent's weight.
-        REQUIRE(voxel_observed(after[static_cast<std::size_t>(i)]));
-        ++interpolated;
-      }
+      REQUIRE(voxel_observed(after[static_cast<std::size_t>(i)]) ==
+              voxel_observed(before[static_cast<std::size_t>(i)]));
+      REQUIRE(voxel_tsdf(after[static_cast<std::size_t>(i)]) ==
+              voxel_tsdf(before[static_cast<std::size_t>(i)]));
+      REQUIRE(voxel_weight(after[static_cast<std::size_t>(i)]) ==
+              voxel_weight(before[static_cast<std::size_t>(i)]));
     }
-    REQUIRE(interpolated == (kBlockFinestVoxelCount + 6) / 7);
   }
+}
+
+TEST_CASE("a block recorded while it fused coarser comes back at its scale", "[map][store]") {
+  MapFixture<MultiresVoxel> fixture(small_config(8, 64));
+  Octree<MultiresVoxel>& map = fixture.map;
+  std::uint32_t index = make_fine_block(map, Eigen::Vector3i(1, 1, 1));
+  // Fused at scale 1 while it kept its finest level: the record's finest voxels lag its scale 1.
+  REQUIRE(Octree<MultiresVoxel>::coarsen_block(map.block(index), 1));
+  const std::vector<MultiresVoxel> before = finest_of(map.block(index));
+  const std::vector<std::uint8_t> record = record_of(map.block(index));
+  map.release_finest(&index, 1);
+  VoxelBlock<MultiresVoxel>& block = map.block(index);
+  REQUIRE(restore_finest_from_record(map, index, record.data(), record.size(), kYMax).ok());
+  REQUIRE(block.current_scale == 1);  // at its scale until it is fused finer
+  refine_to_finest(block);
+  const std::vector<MultiresVoxel> after = finest_of(block);
+  int interpolated = 0;
+  for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
+    CAPTURE(i);
+    if (voxel_observed(before[static_cast<std::size_t>(i)])) {
+      // Its scale 1 did not change: bit for bit.
+      REQUIRE(after[static_cast<std::size_t>(i)].x == before[static_cast<std::size_t>(i)].x);
+      REQUIRE(after[static_cast<std::size_t>(i)].y == before[static_cast<std::size_t>(i)].y);
+    } else {
+      // Unobserved in the record: taken from the parents, with the parent's weight.
+      REQUIRE(voxel_observed(after[static_cast<std::size_t>(i)]));
+      ++interpolated;
+    }
+  }
+  REQUIRE(interpolated == (kBlockFinestVoxelCount + 6) / 7);
 }
 
 TEST_CASE("a refined block's finest voxels move by their parent's change since the record",

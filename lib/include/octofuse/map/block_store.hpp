@@ -81,6 +81,8 @@ bool block_record_holds_finest(const std::uint8_t* record, std::size_t size);
 // down-propagation (eq. 5) applies when the block refines (the integrator does that when it
 // next fuses the block at scale 0): each observed finest voxel then moves by its parent's change
 // and gains the weight its parent gained; unobserved ones are interpolated from the parents.
+// A block not fused since a record taken at scale 0 (its held level the same bits as the
+// record's) comes back at scale 0, exactly as it was when it gave the level up.
 // ok; data_loss (damaged record); invalid_argument (another block's record, or one without a
 // finest level); failed_precondition (the block holds a finest level or is not integrated, or
 // the map is single-res); out_of_range (no such block); resource_exhausted (the finest- or

@@ -1,9 +1,12 @@
 // octofuse-replay with the 16-bit map (--map multires16): the whole loop, every output file, and a
 // map file that says what it holds and starts the next run with that voxel type.
 #include <catch2/catch.hpp>
+#include <cmath>
+#include <cstdlib>
 #include <string>
 #include <vector>
 
+#include "octofuse/map/voxel_block.hpp"
 #include "octofuse/ports/host/map_file.hpp"
 #include "octofuse/ports/host/trajectory_io.hpp"
 #include "replay_process.hpp"
@@ -14,6 +17,14 @@ namespace {
 
 bool has(const std::string& text, const std::string& part) {
   return text.find(part) != std::string::npos;
+}
+
+// The number after "key": in a stats.json.
+double json_number(const std::string& text, const std::string& key) {
+  const std::string tag = "\"" + key + "\":";
+  const std::size_t at = text.find(tag);
+  REQUIRE(at != std::string::npos);
+  return std::strtod(text.c_str() + at + tag.size(), nullptr);
 }
 
 std::size_t trajectory_poses(const std::string& path) {
@@ -54,6 +65,49 @@ TEST_CASE("octofuse-replay --map multires16 runs end to end and its map file say
   REQUIRE(resumed.exit_status == 0);
   CHECK(has(test::read_file(dir + "/resumed/stats.json"), "\"map\":\"multires16\""));
   CHECK(trajectory_poses(dir + "/resumed/trajectory.txt") == 3);
+}
+
+TEST_CASE(
+    "under a cap a 16-bit map keeps the float map's blocks and spends what it saves on "
+    "finest levels",
+    "[programs][multires16]") {
+  const std::string dir = test::make_test_dir("replay-multires16-cap");
+  const auto pools = [&](const char* kind) {
+    const std::string out = dir + "/" + kind;
+    const test::RunResult run =
+        test::run_replay({"--map", kind, "--frames", "2", "--gt-poses", "--voxel-size", "0.01",
+                          "--map-memory", "16", "--out", out, "--no-mesh", "--quiet"},
+                         dir + "/" + kind + ".log");
+    INFO(run.output);
+    REQUIRE(run.exit_status == 0);
+    return test::read_file(out + "/stats.json");
+  };
+  const std::string wide = pools("multires");
+  const std::string narrow = pools("multires16");
+  const double blocks = json_number(wide, "pool_block_capacity");
+  CHECK(json_number(narrow, "pool_block_capacity") == blocks);
+  CHECK(json_number(narrow, "pool_mid_capacity") == json_number(wide, "pool_mid_capacity"));
+  // Half the cap in finest levels for the float map; for the 16-bit one half the cap and what its
+  // blocks and mid levels save on the float's (72 + 512 bytes each), in its smaller levels.
+  const double cap = 16.0 * 1048576.0;
+  const double mids = json_number(wide, "pool_mid_capacity");
+  const double wide_finest = json_number(wide, "pool_finest_capacity");
+  const double narrow_finest = json_number(narrow, "pool_finest_capacity");
+  using WideBlock = VoxelBlock<MultiresVoxel>;
+  using NarrowBlock = VoxelBlock<Multires16Voxel>;
+  const double saved = blocks * static_cast<double>(sizeof(WideBlock) - sizeof(NarrowBlock)) +
+                       mids * static_cast<double>(sizeof(MidLevel<MultiresVoxel>) -
+                                                  sizeof(MidLevel<Multires16Voxel>));
+  CHECK(wide_finest == std::floor(0.5 * cap / sizeof(FinestLevel<MultiresVoxel>)));
+  CHECK(narrow_finest == std::floor((0.5 * cap + saved) / sizeof(FinestLevel<Multires16Voxel>)));
+  CHECK(narrow_finest > 2.9 * wide_finest);
+  // Both maps' pools within the cap.
+  CHECK(blocks * sizeof(WideBlock) + mids * sizeof(MidLevel<MultiresVoxel>) +
+            wide_finest * sizeof(FinestLevel<MultiresVoxel>) <=
+        cap);
+  CHECK(blocks * sizeof(NarrowBlock) + mids * sizeof(MidLevel<Multires16Voxel>) +
+            narrow_finest * sizeof(FinestLevel<Multires16Voxel>) <=
+        cap);
 }
 
 }  // namespace

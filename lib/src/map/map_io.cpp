@@ -1291,8 +1291,8 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
     rec.min_scale = fields.min_scale;
     rec.mip_scale = fields.mip;
     // A record taken at scale 0 holds the block's own finest voxels, not ones derived from a
-    // coarser level.
-    bool unchanged = fields.current == 0;
+    // coarser level; a block now coarser than the level it holds fused there since.
+    bool unchanged = fields.current == 0 && block.current_scale == (need_mid ? 2 : 1);
     // Its finest level up to date with its own coarser levels (a record taken while the block
     // integrated coarser than scale 0), as the integrator would refine it.
     for (int l = rec.current_scale; l > 0; --l) propagate_block_down(rec, l, y_max);

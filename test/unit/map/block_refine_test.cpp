@@ -116,6 +116,23 @@ TEMPLATE_TEST_CASE("a demoted block not fused since gets its finest voxels back 
   }
 }
 
+TEST_CASE("a block that fused coarser than its held level since comes back at its scale",
+          "[map][store]") {
+  MapFixture<MultiresVoxel> fixture(small_config(8, 64));
+  Octree<MultiresVoxel>& map = fixture.map;
+  std::uint32_t index = make_fine_block(map, Eigen::Vector3i(1, 1, 1));
+  const std::vector<std::uint8_t> record = record_of(map.block(index));
+  map.release_finest(&index, 1);
+  VoxelBlock<MultiresVoxel>& block = map.block(index);
+  // Fused at scale 2 since (its scale 1, the level it holds, untouched): the change is there.
+  REQUIRE(Octree<MultiresVoxel>::coarsen_block(block, 2));
+  MultiresVoxel* scale2 = block.scale_begin(2);
+  scale2[0].x = scale2[0].x - 0.125f;
+  REQUIRE(restore_finest_from_record(map, index, record.data(), record.size(), kYMax).ok());
+  REQUIRE(block.has_finest());
+  REQUIRE(block.current_scale == 2);
+}
+
 TEST_CASE("a block recorded while it fused coarser comes back at its scale", "[map][store]") {
   MapFixture<MultiresVoxel> fixture(small_config(8, 64));
   Octree<MultiresVoxel>& map = fixture.map;

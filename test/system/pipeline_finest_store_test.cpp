@@ -182,10 +182,12 @@ TEST_CASE("finest levels given up for room go to the store and come back from it
 }
 
 // Over `frames` frames that all show the sim's first view (ground-truth pose): per block, the
-// frames after which it held a finest level, and the shortest run of such frames that ended
-// before the last frame (a turn given up).
+// frames after which it held a finest level and whether it may hold the surface at the end
+// (VoxelBlock::may_hold_surface()), and the shortest run of such frames that ended before the
+// last frame (a turn given up).
 struct OneViewTurns {
   std::vector<std::uint32_t> held;
+  std::vector<std::uint8_t> surface;
   std::uint32_t shortest_turn = 0xFFFFFFFFu;
   std::uint32_t turns_given_up = 0;
 };
@@ -218,6 +220,10 @@ OneViewTurns turns_one_view(const sim::SimConfig& sim_config, const PipelineConf
       }
     }
   }
+  const Octree<MultiresVoxel>& map = pipeline.map();
+  for (std::uint32_t i = 0; i < map.block_count(); ++i) {
+    out.surface.push_back(map.block(i).may_hold_surface() ? 1 : 0);
+  }
   return out;
 }
 
@@ -240,35 +246,52 @@ TEST_CASE("a view larger than the finest-level pool takes turns at scale 0", "[s
   config.eviction.enabled = true;
   config.budget.max_store_reads = 0xFFFFFFFFu;
   const auto check = [&](std::uint32_t turn_frames, std::uint32_t fewest_at_least,
-                         std::uint32_t most_at_most) {
+                         std::uint32_t others_fewest_at_least) {
     config.eviction.finest_turn_frames = turn_frames;
     MemoryStore store;
     const OneViewTurns capped = turns_one_view(sim_config, config, kFrames, &store);
     // The same blocks, in the same pool order (nothing evicted whole).
     REQUIRE(capped.held.size() == unbounded.held.size());
-    std::uint32_t fewest = kFrames, most = 0;
+    // Per group (0: no surface, 1: the surface, as the unbounded run ends), the fewest and most
+    // frames a block held a level, and the blocks.
+    std::uint32_t fewest[2] = {kFrames, kFrames}, most[2] = {0, 0}, blocks[2] = {0, 0};
+    std::uint64_t sum[2] = {0, 0};
     for (std::size_t i = 0; i < capped.held.size(); ++i) {
       if (unbounded.held[i] != kFrames) continue;
-      fewest = std::min(fewest, capped.held[i]);
-      most = std::max(most, capped.held[i]);
+      const int g = capped.surface[i];
+      fewest[g] = std::min(fewest[g], capped.held[i]);
+      most[g] = std::max(most[g], capped.held[i]);
+      sum[g] += capped.held[i];
+      ++blocks[g];
     }
-    INFO("of " << view << " blocks at scale 0, with " << config.map.finest_capacity
-               << " levels and turns of at least " << turn_frames << " frames: each held one after "
-               << fewest << " to " << most << " of " << kFrames << " frames; "
-               << capped.turns_given_up << " turns given up, the shortest " << capped.shortest_turn
-               << " frames");
+    INFO("of " << view << " blocks at scale 0 (" << blocks[1] << " with the surface), with "
+               << config.map.finest_capacity << " levels and turns of at least " << turn_frames
+               << " frames: each surface block held one after " << fewest[1] << " to " << most[1]
+               << " of " << kFrames << " frames (mean " << sum[1] / std::max(1u, blocks[1])
+               << "), the others " << fewest[0] << " to " << most[0] << " (mean "
+               << sum[0] / std::max(1u, blocks[0]) << "); " << capped.turns_given_up
+               << " turns given up, the shortest " << capped.shortest_turn << " frames");
     // Every block had its turns, and no block many more than another.
-    REQUIRE(fewest >= fewest_at_least);
-    REQUIRE(most <= most_at_most);
+    // The surface first: each surface block held a level most frames, more than the others
+    // did, and the others still had turns.
+    REQUIRE(blocks[1] > 0);
+    REQUIRE(blocks[0] > 0);
+    REQUIRE(fewest[1] >= fewest_at_least);
+    REQUIRE(sum[1] * blocks[0] > 2 * sum[0] * blocks[1]);  // means: twice as many frames
+    REQUIRE(fewest[0] >= others_fewest_at_least);
     REQUIRE(capped.turns_given_up > 0);
     REQUIRE(capped.shortest_turn >= std::max<std::uint32_t>(turn_frames, 1));
-    REQUIRE(store.puts == capped.turns_given_up);  // each turn given up is one record
-    return capped.turns_given_up;
+    // Each turn given up is a record; a surface block may also give its level up and take it
+    // back within a frame (a record written and read) when the marks free more levels than the
+    // other blocks hold.
+    REQUIRE(store.puts >= capped.turns_given_up);
+    return store.puts;
   };
-  // With half the levels each block holds one about half the frames.
-  const std::uint32_t churn = check(0, kFrames / 4, 3 * kFrames / 4);
-  // Turns of at least 10 frames: fewer, longer turns, still one for every block.
-  const std::uint32_t churn_10 = check(10, 10, 3 * kFrames / 4);
+  // Half the view's levels, a little more than its surface blocks need: every block had turns.
+  const std::uint32_t churn = check(0, kFrames / 2, 1);
+  // Turns of at least 10 frames: fewer records; a block that held a level keeps it 10 frames, so
+  // surface blocks wait longer and blocks without the surface may not get a turn.
+  const std::uint32_t churn_10 = check(10, kFrames / 4, 0);
   CHECK(churn_10 < churn);
 }
 

@@ -904,10 +904,11 @@ void refuse_level(FrameBlock& b, BlockList& list, int scale, IntegrationReport& 
 }
 
 // More blocks about to integrate at scale 0 without a finest level than the pool has free: those
-// that waited longest for one (finest_turn, then list position: a total order) are served, the
-// others are refused now. Without this the same blocks, first in the list, would win every frame
-// and the rest of a view larger than the pool would never be fused at scale 0. `scratch` holds
-// list.count entries.
+// that may hold the surface (VoxelBlock::may_hold_surface()) come first, and within each group
+// those that waited longest for one (finest_turn, then list position: a total order) are served;
+// the others are refused now. Without turns the same blocks, first in the list, would win every
+// frame and the rest of a view larger than the pool would never be fused at scale 0. `scratch`
+// holds list.count entries.
 template <typename VoxelT>
 void ration_finest_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& list,
                           std::uint64_t* scratch, IntegrationReport& report) {
@@ -915,16 +916,26 @@ void ration_finest_levels(Octree<VoxelT>& map, FrameBlock* blocks, BlockList& li
   const std::uint32_t free =
       memory.finest_capacity > memory.finest_used ? memory.finest_capacity - memory.finest_used : 0;
   if (free >= list.count) return;  // room for every block in the list: no need to count
+  // Surface blocks' keys, then the others'.
   std::uint32_t asking = 0;
-  for (std::uint32_t i = 0; i < list.count; ++i) {
-    const FrameBlock& b = blocks[i];
-    if (b.skip != 0 || b.scale != 0) continue;
-    const VoxelBlock<VoxelT>& block = map.block(b.block);
-    if (!block.has_finest()) scratch[asking++] = (std::uint64_t{block.finest_turn} << 32) | i;
+  std::uint32_t surface = 0;
+  for (int pass = 0; pass < 2; ++pass) {
+    for (std::uint32_t i = 0; i < list.count; ++i) {
+      const FrameBlock& b = blocks[i];
+      if (b.skip != 0 || b.scale != 0) continue;
+      const VoxelBlock<VoxelT>& block = map.block(b.block);
+      if (block.has_finest() || block.may_hold_surface() != (pass == 0)) continue;
+      scratch[asking++] = (std::uint64_t{block.finest_turn} << 32) | i;
+    }
+    if (pass == 0) surface = asking;
   }
   if (asking <= free) return;
   // The keys are distinct, so the served set does not depend on how the partition orders it.
-  std::nth_element(scratch, scratch + free, scratch + asking);
+  if (free < surface) {
+    std::nth_element(scratch, scratch + free, scratch + surface);
+  } else {
+    std::nth_element(scratch + surface, scratch + free, scratch + asking);
+  }
   for (std::uint32_t k = free; k < asking; ++k) {
     refuse_level(blocks[scratch[k] & 0xFFFFFFFFu], list, 1, report);
   }

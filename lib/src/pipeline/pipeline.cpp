@@ -707,8 +707,9 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
   // distance in voxels from the camera's voxel to the block's centre, exact in integers), then by
   // Morton code, a total order. When only the fine levels are over their marks, the last tier
   // gives up first the levels of blocks this frame does not fuse at scale 0 (farthest first),
-  // then those of the blocks that have held theirs longest (finest_turn): a view larger than the
-  // pool takes turns at scale 0 instead of some blocks never getting one.
+  // then those of the blocks that hold no surface, then of those that do, each by who has held
+  // theirs longest (finest_turn): a view larger than the pool takes turns at scale 0, the surface
+  // first, instead of some blocks never getting one.
   const Eigen::Vector3i camera_voxel =
       map_.point_to_voxel(T_W_C_.translation().template cast<float>());
   const std::uint32_t count = map_.block_count();
@@ -729,6 +730,7 @@ EvictionReport Pipeline<VoxelT>::evict(std::uint32_t frame_index, std::uint32_t 
     bool turn_kept = false;
     if (tier == 0 && levels_only && in_frame_[i] == kListedAtFinest) {
       order = std::uint64_t{0xFFFFFFFFu - block.finest_turn};
+      if (!block.may_hold_surface()) order |= std::uint64_t{1} << 59;
       turn_kept = block.has_finest() &&
                   frame_index - block.finest_turn < config_.eviction.finest_turn_frames;
     } else if (tier == 0 && levels_only) {

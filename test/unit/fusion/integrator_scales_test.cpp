@@ -492,44 +492,79 @@ TEST_CASE("a full finest-level pool keeps blocks at scale 1, counted, and the ma
   }
 }
 
-TEST_CASE("a finest-level pool with fewer free than blocks asking serves those that waited longest",
-          "[fusion][integrator][finest]") {
+TEST_CASE(
+    "a finest-level pool with fewer free than blocks asking serves the surface first, then "
+    "those that waited longest",
+    "[fusion][integrator][finest]") {
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), 1.237});
-  MapConfig mc = map_config(0.01f, 8, 8000);
-  constexpr std::uint32_t kFinest = 12;
-  mc.finest_capacity = kFinest;
-  Fusion<MultiresVoxel> fusion(mc, fusion_config(0.08f, 0), test::centred_camera(160, 120, 131.0f));
   const Se3d T_W_C = test::looking_along_z({0, 0, 0.1});
-  IntegrationReport r = fusion.fuse(scene, T_W_C);
-  Octree<MultiresVoxel>& map = fusion.map;
-  const std::uint32_t blocks = map.block_count();
-  REQUIRE(blocks > 3 * kFinest);
-  REQUIRE(r.finest_refusals == blocks - kFinest);
-  // Every level back, and each block a distinct turn that does not follow the list's order (nor
-  // the pool's): a scrambled permutation of 1..blocks.
-  std::vector<std::uint32_t> holders;
-  for (std::uint32_t i = 0; i < blocks; ++i) {
-    if (map.block(i).has_finest()) holders.push_back(i);
-    map.block(i).finest_turn = 1 + (i * 7919u) % blocks;
-  }
-  REQUIRE(holders.size() == kFinest);
-  map.release_finest(holders.data(), holders.size());
-  REQUIRE(map.memory().finest_used == 0);
-  const std::uint64_t refusals_before = map.memory().finest_refusals;
+  std::uint32_t surface_blocks = 0;
+  // A pool smaller than the blocks that hold the plane, then one larger.
+  for (int pass = 0; pass < 2; ++pass) {
+    MapConfig mc = map_config(0.01f, 8, 8000);
+    const std::uint32_t finest = pass == 0 ? 12 : surface_blocks + 7;
+    CAPTURE(pass, finest);
+    mc.finest_capacity = finest;
+    Fusion<MultiresVoxel> fusion(mc, fusion_config(0.08f, 0),
+                                 test::centred_camera(160, 120, 131.0f));
+    IntegrationReport r = fusion.fuse(scene, T_W_C);
+    Octree<MultiresVoxel>& map = fusion.map;
+    const std::uint32_t blocks = map.block_count();
+    REQUIRE(blocks > 3 * finest);
+    REQUIRE(r.finest_refusals == blocks - finest);
+    // Every level back, and each block a distinct turn that does not follow the list's order (nor
+    // the pool's): a scrambled permutation of 1..blocks.
+    std::vector<std::uint32_t> holders;
+    for (std::uint32_t i = 0; i < blocks; ++i) {
+      if (map.block(i).has_finest()) holders.push_back(i);
+      map.block(i).finest_turn = 1 + (i * 7919u) % blocks;
+    }
+    REQUIRE(holders.size() == finest);
+    map.release_finest(holders.data(), holders.size());
+    REQUIRE(map.memory().finest_used == 0);
+    // Expected: by (holds the surface at scale 1 first, turn), the first `finest`.
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> order;  // (group, turn), index
+    std::vector<bool> holds_surface(blocks, false);
+    std::uint32_t surface = 0;
+    for (std::uint32_t i = 0; i < blocks; ++i) {
+      const bool holds = map.block(i).may_hold_surface();
+      holds_surface[i] = holds;
+      surface += holds ? 1 : 0;
+      order.push_back({(holds ? 0u : 1u) * (blocks + 1) + map.block(i).finest_turn, i});
+    }
+    std::sort(order.begin(), order.end());
+    std::vector<bool> served(blocks, false);
+    for (std::uint32_t k = 0; k < finest; ++k) served[order[k].second] = true;
+    if (pass == 0) {
+      surface_blocks = surface;
+      // Both groups are there, and more surface blocks than levels.
+      REQUIRE(surface > finest);
+      REQUIRE(surface < blocks);
+    } else {
+      REQUIRE(surface == surface_blocks);
+      REQUIRE(blocks > finest);
+    }
+    const std::uint64_t refusals_before = map.memory().finest_refusals;
 
-  r = fusion.fuse(scene, T_W_C);
-  CHECK(r.blocks_per_scale[0] == kFinest);
-  CHECK(r.finest_refusals == blocks - kFinest);
-  CHECK(map.memory().finest_refusals - refusals_before == blocks - kFinest);
-  // Served: exactly the blocks whose turns were the kFinest smallest, stamped with this frame.
-  for (std::uint32_t i = 0; i < blocks; ++i) {
-    const VoxelBlock<MultiresVoxel>& b = map.block(i);
-    const std::uint32_t turn = 1 + (i * 7919u) % blocks;
-    CAPTURE(i, turn);
-    REQUIRE(b.has_finest() == (turn <= kFinest));
-    REQUIRE(b.current_scale == (b.has_finest() ? 0 : 1));
-    REQUIRE(b.finest_turn == (b.has_finest() ? 1u : turn));
+    r = fusion.fuse(scene, T_W_C);
+    CHECK(r.blocks_per_scale[0] == finest);
+    CHECK(r.finest_refusals == blocks - finest);
+    CHECK(map.memory().finest_refusals - refusals_before == blocks - finest);
+    // Served: exactly the expected blocks, stamped with this frame.
+    std::uint32_t served_without_surface = 0;
+    for (std::uint32_t i = 0; i < blocks; ++i) {
+      const VoxelBlock<MultiresVoxel>& b = map.block(i);
+      const std::uint32_t turn = 1 + (i * 7919u) % blocks;
+      CAPTURE(i, turn);
+      REQUIRE(b.has_finest() == served[i]);
+      REQUIRE(b.current_scale == (b.has_finest() ? 0 : 1));
+      REQUIRE(b.finest_turn == (b.has_finest() ? 1u : turn));
+      if (b.has_finest() && !holds_surface[i]) ++served_without_surface;
+    }
+    // The small pool serves surface blocks only; the larger one every surface block and the 7
+    // others that waited longest.
+    CHECK(served_without_surface == (pass == 0 ? 0u : 7u));
   }
 }
 

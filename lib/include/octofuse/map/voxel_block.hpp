@@ -113,6 +113,12 @@ struct VoxelBlock {
   VoxelT inline_voxels[kInlineCount] = {};
 
   bool integrated() const { return min_scale != kNeverIntegrated; }
+  // Whether the block may hold the surface: its observed voxels at current_scale change sign, or
+  // nothing is known of them yet. A finest-level pool smaller than the view serves these first:
+  // the surface is what the map's detail is for.
+  bool may_hold_surface() const {
+    return tsdf_min > tsdf_max || (tsdf_min <= 0.0f && tsdf_max >= 0.0f);
+  }
   // Whether scale 0 has storage (always for single-resolution blocks).
   bool has_finest() const {
     if constexpr (kSplitFinest) {

@@ -104,7 +104,7 @@ void BM_VoxelRead(benchmark::State& state) {
   const auto& map = m.map;
   std::size_t i = 0;
   for (auto _ : state) {
-    benchmark::DoNotOptimize(map.voxel(queries[i++ & 4095], 0));
+    benchmark::DoNotOptimize(map.finest_voxel(queries[i++ & 4095]));
   }
   state.SetItemsProcessed(state.iterations());
 }

@@ -82,13 +82,13 @@ void restore_finest(Map& map, const std::uint8_t* record, std::size_t size) {
   block.mip_scale = 1;
   std::vector<std::uint8_t> before(sizeof(Block));
   std::memcpy(before.data(), &block, sizeof(Block));
-  std::vector<MultiresVoxel> mid_before(block.scale_begin(1),
-                                        block.scale_begin(1) + octofuse::kBlockMidVoxelCount);
+  std::vector<MultiresVoxel> mid_before(block.level_begin(1),
+                                        block.level_begin(1) + octofuse::kBlockMidVoxelCount);
   const octofuse::Status restored =
       octofuse::restore_finest_from_record(map, allocated.value(), record, size, 100.0f);
   if (!restored.ok()) {
     if (std::memcmp(before.data(), &block, sizeof(Block)) != 0 ||
-        std::memcmp(mid_before.data(), block.scale_begin(1),
+        std::memcmp(mid_before.data(), block.level_begin(1),
                     sizeof(MultiresVoxel) * octofuse::kBlockMidVoxelCount) != 0 ||
         map.memory().finest_used != 0) {
       std::abort();

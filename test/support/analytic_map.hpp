@@ -27,6 +27,13 @@ inline void set_voxel(MultiresVoxel& v, float tsdf, float weight) {
   v.y = weight;
   v.delta_y = 0.0f;
 }
+// The same into voxel `index` of `block` (a finest voxel keeps the TSDF and weight).
+template <typename VoxelT>
+void set_block_voxel(VoxelBlock<VoxelT>& block, int index, float tsdf, float weight) {
+  VoxelT v;
+  set_voxel(v, tsdf, weight);
+  block.set_voxel(index, v);
+}
 
 // An octree with its own arena memory.
 template <typename VoxelT>
@@ -47,7 +54,7 @@ void fill_block(Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale, float
   if (scale == 0 && !map.acquire_finest(block).ok()) std::abort();
   if (scale == 1 && !map.acquire_mid(block).ok()) std::abort();
   for (int i = block.first_stored_voxel(); i < kBlockVoxelCount; ++i) {
-    block.voxel(i) = VoxelT();
+    block.set_voxel(i, VoxelT());
   }
   const int side = block_scale_side(scale);
   for (int z = 0; z < side; ++z) {
@@ -55,7 +62,8 @@ void fill_block(Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale, float
       for (int x = 0; x < side; ++x) {
         const Eigen::Vector3i voxel = block.min_voxel() + Eigen::Vector3i(x, y, z) * (1 << scale);
         const float d = sdf(map.voxel_centre_W(voxel, scale));
-        set_voxel(block.at(x, y, z, scale), std::max(-1.0f, std::min(1.0f, d / mu_m)), 1.0f);
+        set_block_voxel(block, block_voxel_index(x, y, z, scale),
+                        std::max(-1.0f, std::min(1.0f, d / mu_m)), 1.0f);
       }
     }
   }
@@ -69,7 +77,7 @@ void fill_block(Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale, float
             sum += voxel_tsdf(
                 block.at(2 * x + (c & 1), 2 * y + ((c >> 1) & 1), 2 * z + ((c >> 2) & 1), s - 1));
           }
-          set_voxel(block.at(x, y, z, s), sum / 8.0f, 1.0f);
+          set_block_voxel(block, block_voxel_index(x, y, z, s), sum / 8.0f, 1.0f);
         }
       }
     }

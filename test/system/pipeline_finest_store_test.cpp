@@ -61,9 +61,9 @@ FinestRun run_finest(const sim::SimConfig& sim_config, const PipelineConfig& con
     const VoxelBlock<MultiresVoxel>& block = map.block(i);
     const std::uint64_t key = morton_encode(block.coords);
     if (block.has_finest()) {
-      out.finest.emplace_back(
-          key, std::vector<MultiresVoxel>(block.scale_begin(0),
-                                          block.scale_begin(0) + kBlockFinestVoxelCount));
+      std::vector<MultiresVoxel> finest(kBlockFinestVoxelCount);
+      for (int k = 0; k < kBlockFinestVoxelCount; ++k) finest[k] = block.voxel(k);
+      out.finest.emplace_back(key, std::move(finest));
     } else if (block.min_scale == 0) {
       ++out.given_up;
       const std::vector<std::uint8_t>* record =

@@ -207,7 +207,6 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
   const Eigen::Vector3f dx = f.R_C_W.col(0) * vs;
   const Eigen::Vector3f dy = f.R_C_W.col(1) * vs;
   const Eigen::Vector3f dz = f.R_C_W.col(2) * vs;
-  VoxelT* voxels = block.scale_begin(scale);
   std::uint32_t updated = 0;
   float lo = 1.0f;
   float hi = -1.0f;
@@ -234,6 +233,14 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
         lift_count[k] = 0;
       }
     }
+    // Scale 0's voxels are a type of their own (FinestVoxelT).
+    auto* const voxels = [&] {
+      if constexpr (kScale0) {
+        return block.finest_begin();
+      } else {
+        return block.level_begin(scale);
+      }
+    }();
     int i = 0;
     const float u_end = static_cast<float>(f.width) - 0.5f;
     const float v_end = static_cast<float>(f.height) - 0.5f;
@@ -253,7 +260,7 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
     // Voxel i (the next in index order, x fastest) at (x, y, z) of its level, from lane k of a
     // projection.
     auto visit_voxel = [&](const RowProjection& row, int k, int x, int y, int z) {
-      VoxelT& v = voxels[i++];
+      auto& v = voxels[i++];
       // An updated voxel is observed (its weight is at least 1: FusionConfig validates
       // y_max >= 1), so only the others test their weight.
       if (row.pixel[k] >= 0 &&
@@ -357,7 +364,7 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
   if constexpr (kMultires) {
     if (target > scale) {
       visit_band(std::true_type{});
-      VoxelT* parents = block.scale_begin(scale + 1);
+      VoxelT* parents = block.level_begin(scale + 1);
       for (int k = 0; k < pn * pn * pn; ++k) {
         if (lift_count[k] == 0) continue;  // no observed child: the parent keeps its value
         const float count = static_cast<float>(lift_count[k]);
@@ -1019,8 +1026,12 @@ inline void prefetch_later_blocks(const Octree<VoxelT>& map, const std::uint64_t
     const std::uint64_t later = order[i + kPrefetchDistance];
     const int later_scale = pool_entry_scale(later);
     const VoxelBlock<VoxelT>& lb = map.block(pool_entry_block(later));
-    const char* first = reinterpret_cast<const char*>(lb.scale_begin(later_scale));
-    const int bytes = block_scale_count(later_scale) * static_cast<int>(sizeof(VoxelT));
+    const char* first = later_scale == 0
+                            ? reinterpret_cast<const char*>(lb.finest_begin())
+                            : reinterpret_cast<const char*>(lb.level_begin(later_scale));
+    const int bytes =
+        block_scale_count(later_scale) *
+        static_cast<int>(later_scale == 0 ? sizeof(FinestVoxelT<VoxelT>) : sizeof(VoxelT));
     __builtin_prefetch(first, 1);
     __builtin_prefetch(first + 64, 1);
     if (bytes > 64) __builtin_prefetch(first + std::min(bytes, 192) - 1, 1);

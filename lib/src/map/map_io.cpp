@@ -86,6 +86,14 @@ constexpr int voxel_bytes(const MultiresVoxel*) {
 constexpr int voxel_bytes(const Multires16Voxel*) {
   return 8;
 }
+// A finest voxel is written as its level's voxel type, with x_last = x and delta_y = 0 (it keeps
+// neither: FinestVoxelT), so records and files are the same format either way.
+constexpr int voxel_bytes(const MultiresFinestVoxel*) {
+  return voxel_bytes(static_cast<const MultiresVoxel*>(nullptr));
+}
+constexpr int voxel_bytes(const Multires16FinestVoxel*) {
+  return voxel_bytes(static_cast<const Multires16Voxel*>(nullptr));
+}
 void encode_voxel(const TsdfVoxel& v, std::uint8_t* p) {
   put_u32(p, float_bits(v.tsdf));
   put_u32(p + 4, float_bits(v.weight));
@@ -101,6 +109,12 @@ void encode_voxel(const Multires16Voxel& v, std::uint8_t* p) {
   put_u16(p + 2, static_cast<std::uint16_t>(v.x_last_q));
   put_u16(p + 4, v.y_q);
   put_u16(p + 6, v.delta_y_q);
+}
+void encode_voxel(const MultiresFinestVoxel& v, std::uint8_t* p) {
+  encode_voxel(widen_voxel(v), p);
+}
+void encode_voxel(const Multires16FinestVoxel& v, std::uint8_t* p) {
+  encode_voxel(widen_voxel(v), p);
 }
 bool decode_voxel(const std::uint8_t* p, TsdfVoxel& v) {
   const float tsdf = get_f32(p);
@@ -130,6 +144,21 @@ bool decode_voxel(const std::uint8_t* p, Multires16Voxel& v) {
   v.x_last_q = x_last;
   v.y_q = get_u16(p + 4);
   v.delta_y_q = get_u16(p + 6);
+  return true;
+}
+// A finest voxel keeps x and y of a record's voxel (checked as that voxel).
+bool decode_voxel(const std::uint8_t* p, MultiresFinestVoxel& v) {
+  MultiresVoxel wide;
+  if (!decode_voxel(p, wide)) return false;
+  v.x = wide.x;
+  v.y = wide.y;
+  return true;
+}
+bool decode_voxel(const std::uint8_t* p, Multires16FinestVoxel& v) {
+  Multires16Voxel wide;
+  if (!decode_voxel(p, wide)) return false;
+  v.x_q = wide.x_q;
+  v.y_q = wide.y_q;
   return true;
 }
 
@@ -432,11 +461,11 @@ void write_block_record(RecordWriter& w, const VoxelBlock<VoxelT>& b) {
   w.f32(b.tsdf_mean);
   w.f32(b.weight_mean);
   if (!VoxelBlock<VoxelT>::kSplitFinest || has_finest) {
-    w.voxels(b.scale_begin(0), kBlockFinestVoxelCount);
+    w.voxels(b.finest_begin(), kBlockFinestVoxelCount);
   }
   // Scale 1 reads unobserved without a mid level: the record is the same either way.
-  w.voxels(b.scale_begin(1), kBlockMidVoxelCount);
-  w.voxels(b.scale_begin(2), kBlockVoxelCount - kBlockFinestVoxelCount - kBlockMidVoxelCount);
+  w.voxels(b.level_begin(1), kBlockMidVoxelCount);
+  w.voxels(b.level_begin(2), kBlockVoxelCount - kBlockFinestVoxelCount - kBlockMidVoxelCount);
   w.end_record();
 }
 
@@ -769,14 +798,14 @@ bool read_block_record(RecordReader& r, Octree<VoxelT>& map, std::uint32_t index
     }
     ++finest_loaded;
   }
-  if (fields.has_finest && !r.voxels(block.scale_begin(0), kBlockFinestVoxelCount)) return false;
+  if (fields.has_finest && !r.voxels(block.finest_begin(), kBlockFinestVoxelCount)) return false;
   VoxelT mid[kBlockMidVoxelCount];
   if (!r.voxels(mid, kBlockMidVoxelCount)) return false;
   if (Block::kSplitFinest && needs_mid_level(fields, mid) && !map.acquire_mid(block).ok()) {
     return r.fail(StatusCode::resource_exhausted, "the mid-level pool is too small");
   }
-  if (block.has_mid()) std::copy(mid, mid + kBlockMidVoxelCount, block.scale_begin(1));
-  if (!r.voxels(block.scale_begin(2),
+  if (block.has_mid()) std::copy(mid, mid + kBlockMidVoxelCount, block.level_begin(1));
+  if (!r.voxels(block.level_begin(2),
                 kBlockVoxelCount - kBlockFinestVoxelCount - kBlockMidVoxelCount)) {
     return false;
   }
@@ -1135,9 +1164,9 @@ namespace {
 
 // A whole block record checked and its voxels read into `finest` (scale 0, left as it is when the
 // record holds none), `mid` (scale 1) and `coarse` (scales 2 and 3): ok or data_loss.
-template <typename VoxelT>
+template <typename VoxelT, typename FinestT>
 Status decode_block_record(const std::uint8_t* record, std::size_t size, int voxel_depth,
-                           BlockFields& fields, VoxelT* finest, VoxelT* mid, VoxelT* coarse,
+                           BlockFields& fields, FinestT* finest, VoxelT* mid, VoxelT* coarse,
                            ErrorText* error) {
   MemorySource source(record, size);
   RecordReader r(source, error);
@@ -1207,13 +1236,13 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
   block.weight_mean = fields.summary[3];
   block.stored_clean = 1;
   if (fields.has_finest && !demote_finest) {
-    std::copy(scratch, scratch + kBlockFinestVoxelCount, block.scale_begin(0));
+    Block::narrow_copy(scratch, kBlockFinestVoxelCount, block.finest_begin());
   }
   const int inline_first = kBlockFinestVoxelCount + kBlockMidVoxelCount;
   if (block.has_mid()) {
-    std::copy(scratch + kBlockFinestVoxelCount, scratch + inline_first, block.scale_begin(1));
+    std::copy(scratch + kBlockFinestVoxelCount, scratch + inline_first, block.level_begin(1));
   }
-  std::copy(scratch + inline_first, scratch + kBlockVoxelCount, block.scale_begin(2));
+  std::copy(scratch + inline_first, scratch + kBlockVoxelCount, block.level_begin(2));
   if constexpr (Block::kSplitFinest) {
     if (demote_finest || demote_mid) {
       // The scale kept from the record's finer voxels, through levels lent for the moment.
@@ -1221,7 +1250,7 @@ Result<std::uint32_t> restore_block_record(Octree<VoxelT>& map, const std::uint8
       FinestLevel<VoxelT> lent_finest;
       MidLevel<VoxelT> lent_mid;
       if (demote_finest) {
-        std::copy(scratch, scratch + kBlockFinestVoxelCount, lent_finest.voxels);
+        Block::narrow_copy(scratch, kBlockFinestVoxelCount, lent_finest.voxels);
         block.finest = &lent_finest;
       }
       if (demote_mid) {
@@ -1275,7 +1304,7 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
     rec.mid = &rec_mid;
     BlockFields fields;
     OCTOFUSE_TRY(decode_block_record(record, size, map.voxel_depth(), fields, rec_finest.voxels,
-                                     rec_mid.voxels, rec.scale_begin(2), error));
+                                     rec_mid.voxels, rec.level_begin(2), error));
     if (fields.morton != block.morton || !fields.has_finest ||
         fields.min_scale == kNeverIntegrated) {
       if (error != nullptr) error->set("the record is another block's or holds no finest level");
@@ -1305,8 +1334,8 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
     const int parent_scale = need_mid ? 2 : 1;
     Octree<VoxelT>::coarsen_block(rec, parent_scale);
     const int side = block_scale_side(parent_scale);
-    VoxelT* now = block.scale_begin(parent_scale);
-    const VoxelT* then = rec.scale_begin(parent_scale);
+    VoxelT* now = block.level_begin(parent_scale);
+    const VoxelT* then = rec.level_begin(parent_scale);
     for (int i = 0; i < side * side * side; ++i) {
       unchanged = unchanged && voxel_tsdf(now[i]) == voxel_tsdf(then[i]) &&
                   voxel_weight(now[i]) == voxel_weight(then[i]);
@@ -1316,14 +1345,14 @@ Status restore_finest_from_record(Octree<VoxelT>& map, std::uint32_t index,
     OCTOFUSE_CHECK(map.acquire_finest(block).ok());  // room checked above
     if (need_mid) {
       // The record's scale 1, whose finest voxels are up to date with it.
-      VoxelT* mid = block.scale_begin(1);
+      VoxelT* mid = block.level_begin(1);
       std::copy(rec_mid.voxels, rec_mid.voxels + kBlockMidVoxelCount, mid);
       for (int i = 0; i < kBlockMidVoxelCount; ++i) {
         set_voxel_x_last(mid[i], voxel_tsdf(mid[i]));
         set_voxel_delta_y(mid[i], 0.0f);
       }
     }
-    std::copy(rec_finest.voxels, rec_finest.voxels + kBlockFinestVoxelCount, block.scale_begin(0));
+    std::copy(rec_finest.voxels, rec_finest.voxels + kBlockFinestVoxelCount, block.finest_begin());
     block.min_scale = 0;
     block.stored_clean = 0;
     if (unchanged) {

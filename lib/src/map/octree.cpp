@@ -38,21 +38,22 @@ Result<std::uint32_t> Octree<VoxelT>::allocate_block(const Eigen::Vector3i& bloc
 template <typename VoxelT>
 void Octree<VoxelT>::update_block_summary(Block& block) {
   const int scale = block.current_scale;
-  const VoxelT* v = block.scale_begin(scale);
   float lo = 1.0f;
   float hi = -1.0f;
   float sum = 0.0f;
   float sum_weight = 0.0f;
   int observed = 0;
-  for (int i = 0; i < block_scale_count(scale); ++i) {
-    if (!voxel_observed(v[i])) continue;
-    const float t = voxel_tsdf(v[i]);
-    lo = t < lo ? t : lo;
-    hi = t > hi ? t : hi;
-    sum += t;
-    sum_weight += voxel_weight(v[i]);
-    ++observed;
-  }
+  block.with_level(scale, [&](const auto* v) {
+    for (int i = 0; i < block_scale_count(scale); ++i) {
+      if (!voxel_observed(v[i])) continue;
+      const float t = voxel_tsdf(v[i]);
+      lo = t < lo ? t : lo;
+      hi = t > hi ? t : hi;
+      sum += t;
+      sum_weight += voxel_weight(v[i]);
+      ++observed;
+    }
+  });
   block.tsdf_min = lo;
   block.tsdf_max = hi;
   if (observed > 0) {

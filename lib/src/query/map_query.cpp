@@ -279,7 +279,6 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
     const int side = block_scale_side(scale);
     const float size = static_cast<float>(1 << scale);
     const Eigen::Vector3f origin = block.min_voxel().template cast<float>();
-    const VoxelT* level = block.scale_begin(scale);
     // Blocked within the voxel's half-diagonal plus one finest voxel.
     const float blocked_below = 0.8660254f * size + 1.0f;
     for (int z = 0; z < side; ++z) {
@@ -295,7 +294,7 @@ RegionAnswer MapQuery<VoxelT>::region(const Shape& shape, const QueryLimits& lim
           }
           if (!shape.touches(lo, hi)) continue;
           if (!spend()) return true;
-          const VoxelT& v = level[x + y * side + z * side * side];
+          const VoxelT v = block.at(x, y, z, scale);
           if (voxel_observed(v)) {
             const float t = voxel_tsdf(v);
             if (t < 1.0f && t * mu_voxels <= blocked_below) return false;

@@ -228,9 +228,10 @@ inline bool inside_cube(const Eigen::Vector3f& q, float side_v) {
 // only when the block changes.
 template <typename VoxelT>
 struct MarchBlock {
-  const VoxelBlock<VoxelT>* block = nullptr;  // null: a free octant
-  int scale = 0;                              // the block's read scale ...
-  const VoxelT* level = nullptr;              // ... and that level's voxels
+  const VoxelBlock<VoxelT>* block = nullptr;     // null: a free octant
+  int scale = 0;                                 // the block's read scale ...
+  const VoxelT* level = nullptr;                 // ... and that level's voxels (scale 1-3 of a
+  const FinestVoxelT<VoxelT>* finest = nullptr;  // multires block; scale 0 here)
   Eigen::Vector3i coords = Eigen::Vector3i::Constant(-1);
   OctantLookup where;
 };
@@ -244,7 +245,11 @@ inline void enter_block(const Octree<VoxelT>& map, TreeCursor<VoxelT>& cursor,
   at.block = at.where.block == kNoIndex ? nullptr : &map.block(at.where.block);
   if (at.block != nullptr) {
     at.scale = block_read_scale(*at.block);
-    at.level = at.block->scale_begin(at.scale);
+    if (at.scale == 0) {
+      at.finest = at.block->finest_begin();
+    } else {
+      at.level = at.block->level_begin(at.scale);
+    }
   }
   at.coords = coords;
 }
@@ -284,21 +289,33 @@ inline float free_octant_exit(const Octree<VoxelT>& map, const VoxelRay& ray_v,
          kExitNudge_voxels * map.voxel_size_m();
 }
 
+// What the march reads of the voxel nearest a sample.
+struct NearestVoxel {
+  bool observed;
+  float tsdf;
+};
+
 template <typename VoxelT>
-inline const VoxelT& nearest_voxel(const MarchBlock<VoxelT>& at, const Eigen::Vector3i& voxel) {
+inline NearestVoxel nearest_voxel(const MarchBlock<VoxelT>& at, const Eigen::Vector3i& voxel) {
   const int side = block_scale_side(at.scale);
-  return at.level[((voxel.x() & (kBlockSide - 1)) >> at.scale) +
-                  ((voxel.y() & (kBlockSide - 1)) >> at.scale) * side +
-                  ((voxel.z() & (kBlockSide - 1)) >> at.scale) * side * side];
+  const int index = ((voxel.x() & (kBlockSide - 1)) >> at.scale) +
+                    ((voxel.y() & (kBlockSide - 1)) >> at.scale) * side +
+                    ((voxel.z() & (kBlockSide - 1)) >> at.scale) * side * side;
+  if (at.scale == 0) {
+    const FinestVoxelT<VoxelT>& v = at.finest[index];
+    return NearestVoxel{voxel_observed(v), voxel_tsdf(v)};
+  }
+  const VoxelT& v = at.level[index];
+  return NearestVoxel{voxel_observed(v), voxel_tsdf(v)};
 }
 
 // A guided march's first voxel must be observed and in front of a surface. A coarse voxel's
 // centre can lie behind the start by more than the margin: there the field at the start decides.
 template <typename VoxelT>
-inline bool start_in_front(const Octree<VoxelT>& map, const VoxelT& nearest,
+inline bool start_in_front(const Octree<VoxelT>& map, const NearestVoxel& nearest,
                            const MarchBlock<VoxelT>& at, const Eigen::Vector3f& q,
                            BlockNeighbourhood<VoxelT>& neighbourhood) {
-  bool accept = voxel_observed(nearest) && voxel_tsdf(nearest) > 0.0f;
+  bool accept = nearest.observed && nearest.tsdf > 0.0f;
   if (!accept && at.scale > 0) {
     TsdfSample at_start;
     accept = sample_tsdf_at_voxel_coords(map, q, at.block, neighbourhood, at_start) &&
@@ -532,14 +549,14 @@ MarchResult march(const Octree<VoxelT>& map, const RaycastConfig& config, const 
       memory.forget_at_free_octant();
       continue;
     }
-    const VoxelT& nearest = nearest_voxel(at, voxel);
+    const NearestVoxel nearest = nearest_voxel(at, voxel);
     if (guided) {
       if (!start_in_front(map, nearest, at, q, neighbourhood)) return MarchResult::rejected;
       guided = false;
     }
     bool unobserved = false;  // the sample at q is known to fail
-    if (voxel_observed(nearest)) {
-      const float f_near = voxel_tsdf(nearest);
+    if (nearest.observed) {
+      const float f_near = nearest.tsdf;
       float step = 0.0f;
       if (far_step(f_near, voxel_m * static_cast<float>(1 << at.scale), config.mu_m, step)) {
         const float t_next = t + step;

@@ -81,12 +81,12 @@ TEST_CASE(
 
 TEST_CASE("delta_y counts applied updates only", "[fusion][integrator]") {
   // A plane at z = 1.03: voxels more than mu behind it (in the block the band ends in) are
-  // never updated.
+  // never updated. At scale 1: scale 0 keeps no delta_y (it is never a parent).
   constexpr double kPlaneZ_m = 1.03;
   AnalyticScene scene;
   scene.planes.push_back({Eigen::Vector3d(0, 0, 1), kPlaneZ_m});
   constexpr int kFrames = 3;
-  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f, 0),
+  Fusion<MultiresVoxel> fusion(map_config(0.01f, 8, 8000), fusion_config(0.08f, 1),
                                test::centred_camera(160, 120, 131.0f));
   for (int i = 0; i < kFrames; ++i) {
     REQUIRE(fusion.fuse(scene, test::looking_along_z({0, 0, 0.3})).status.ok());
@@ -95,16 +95,16 @@ TEST_CASE("delta_y counts applied updates only", "[fusion][integrator]") {
   const Eigen::Vector3i column(128, 128, 0);
   int applied = 0;
   int rejected = 0;
-  for (int z = 0; z < 256; ++z) {
+  for (int z = 0; z < 256; z += 2) {
     const Eigen::Vector3i v(column.x(), column.y(), z);
-    const MultiresVoxel* voxel = map.voxel(v, 0);
+    const MultiresVoxel* voxel = map.voxel(v, 1);
     if (voxel == nullptr) continue;
-    const double d = kPlaneZ_m - map.voxel_centre_W(v).z();
-    if (d < -0.08 - 0.005) {
+    const double d = kPlaneZ_m - map.voxel_centre_W(v, 1).z();
+    if (d < -0.08 - 0.01) {
       CHECK(voxel->delta_y == 0.0f);
       CHECK(voxel->y == 0.0f);
       ++rejected;
-    } else if (d > -0.08 + 0.005) {
+    } else if (d > -0.08 + 0.01) {
       CHECK(voxel->delta_y == static_cast<float>(kFrames));
       CHECK(voxel->y == static_cast<float>(kFrames));
       ++applied;
@@ -286,7 +286,8 @@ TEST_CASE("at every scale each voxel takes the update of its own centre's pixel"
               }
               ++updated;
               REQUIRE(voxel.y == 1.0f);
-              REQUIRE(voxel.delta_y == 1.0f);
+              // Scale 0 keeps no interval (it is never a parent): it reads delta_y 0.
+              REQUIRE(voxel.delta_y == (scale == 0 ? 0.0f : 1.0f));
               REQUIRE(std::abs(voxel.x - expected.tsdf) < 2e-3);
             }
       }
@@ -354,7 +355,7 @@ TEST_CASE("blocks never integrated finer than scale 2 hold no mid level",
     // Without a mid level, scale 1 reads unobserved.
     if (!b.has_mid()) {
       for (int k = 0; k < block_scale_count(1); ++k) {
-        REQUIRE_FALSE(voxel_observed(b.scale_begin(1)[k]));
+        REQUIRE_FALSE(voxel_observed(b.level_begin(1)[k]));
       }
     }
   }
@@ -433,7 +434,7 @@ TEST_CASE("refining from scale 3 to 0 takes a finest level and down-propagates i
     REQUIRE(b.current_scale == 0);
     const MultiresVoxel parent = i < coarse_blocks ? coarse[i] : MultiresVoxel();
     for (int v = 0; v < kBlockFinestVoxelCount; ++v) {
-      const MultiresVoxel& child = b.scale_begin(0)[v];
+      const MultiresFinestVoxel& child = b.finest_begin()[v];
       CAPTURE(i, v, parent.x, parent.y, child.x, child.y);
       if (child.y == parent.y + 1.0f) {
         ++updated;
@@ -442,7 +443,6 @@ TEST_CASE("refining from scale 3 to 0 takes a finest level and down-propagates i
       REQUIRE(child.y == parent.y);
       if (voxel_observed(parent)) {
         REQUIRE(std::abs(child.x - parent.x) <= kInterpolationTolerance);
-        REQUIRE(child.delta_y == 0.0f);
       }
     }
   }

@@ -75,18 +75,21 @@ template <typename VoxelT>
 double zero_crossing_z(const Octree<VoxelT>& map, Eigen::Vector3i column, int scale, int z_begin,
                        int z_end) {
   const int step = 1 << scale;
-  const VoxelT* previous = nullptr;
+  bool have_previous = false;
+  VoxelT previous;
   double previous_z = 0.0;
   for (int z = z_begin; z < z_end; z += step) {
     column.z() = z;
-    const VoxelT* v = map.voxel(column, scale);
+    VoxelT v;
+    const bool found = map.read_voxel(column, scale, &v);
     const double centre_z = map.voxel_centre_W(column, scale).z();
-    if (v != nullptr && voxel_observed(*v) && previous != nullptr && voxel_observed(*previous) &&
-        voxel_tsdf(*previous) > 0.0f && voxel_tsdf(*v) <= 0.0f) {
-      const double a = voxel_tsdf(*previous);
-      const double b = voxel_tsdf(*v);
+    if (found && voxel_observed(v) && have_previous && voxel_observed(previous) &&
+        voxel_tsdf(previous) > 0.0f && voxel_tsdf(v) <= 0.0f) {
+      const double a = voxel_tsdf(previous);
+      const double b = voxel_tsdf(v);
       return previous_z + (centre_z - previous_z) * a / (a - b);
     }
+    have_previous = found;
     previous = v;
     previous_z = centre_z;
   }

@@ -75,9 +75,13 @@ TEMPLATE_TEST_CASE(
   int behind_cut = 0;
   for (int z = 0; z < 256; ++z) {
     const Eigen::Vector3i column(128, 128, z);
-    const TestType* a = full.map.voxel(column, 0);
-    const TestType* b = cut.map.voxel(column, 0);
-    if (a == nullptr || b == nullptr) continue;
+    TestType read_a;
+    TestType read_b;
+    if (!full.map.read_voxel(column, 0, &read_a) || !cut.map.read_voxel(column, 0, &read_b)) {
+      continue;
+    }
+    const TestType* a = &read_a;
+    const TestType* b = &read_b;
     const double behind_plane_m = full.map.voxel_centre_W(column, 0).z() - kPlaneZ_m;
     if (!voxel_observed(*a)) continue;
     CAPTURE(z, behind_plane_m);
@@ -118,8 +122,9 @@ TEST_CASE("where mu is under 2.5 voxels of the scale, voxels 2.5 voxels behind a
     // The column through the optical axis, where distances along the ray are along z.
     for (int z = 0; z < 256; z += 1 << scale) {
       const Eigen::Vector3i column(128, 128, z);
-      const MultiresVoxel* v = fusion.map.voxel(column, scale);
-      if (v == nullptr) continue;  // not in the band's blocks
+      MultiresVoxel read;
+      if (!fusion.map.read_voxel(column, scale, &read)) continue;  // not in the band's blocks
+      const MultiresVoxel* v = &read;
       const double behind_plane_m = fusion.map.voxel_centre_W(column, scale).z() - kPlaneZ_m;
       CAPTURE(z, behind_plane_m);
       if (behind_plane_m > behind_m + kMargin_m) {
@@ -230,14 +235,14 @@ TEST_CASE("the 16-bit voxel fuses like the float one within its quantisation bou
       const VoxelBlock<Multires16Voxel>& b = q16.map.block(i);
       REQUIRE(a.coords == b.coords);
       if (!a.integrated()) continue;
-      const MultiresVoxel* va = a.scale_begin(scale);
-      const Multires16Voxel* vb = b.scale_begin(scale);
       for (int k = 0; k < block_scale_count(scale); ++k) {
+        const MultiresVoxel va = a.voxel(block_scale_offset(scale) + k);
+        const Multires16Voxel vb = b.voxel(block_scale_offset(scale) + k);
         // Whole sample counts: the weights are exact.
-        REQUIRE(voxel_weight(vb[k]) == voxel_weight(va[k]));
-        REQUIRE(voxel_delta_y(vb[k]) == voxel_delta_y(va[k]));
-        if (!voxel_observed(va[k])) continue;
-        worst = std::max(worst, std::abs(double{voxel_tsdf(vb[k])} - voxel_tsdf(va[k])));
+        REQUIRE(voxel_weight(vb) == voxel_weight(va));
+        REQUIRE(voxel_delta_y(vb) == voxel_delta_y(va));
+        if (!voxel_observed(va)) continue;
+        worst = std::max(worst, std::abs(double{voxel_tsdf(vb)} - voxel_tsdf(va)));
         ++compared;
       }
     }

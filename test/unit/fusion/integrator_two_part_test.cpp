@@ -27,8 +27,8 @@ void require_same_blocks(const Octree<VoxelT>& one, const Octree<VoxelT>& two) {
     REQUIRE(std::memcmp(a.inline_voxels, b.inline_voxels, sizeof(a.inline_voxels)) == 0);
     REQUIRE(a.has_finest() == b.has_finest());
     if (a.has_finest()) {
-      REQUIRE(std::memcmp(a.scale_begin(0), b.scale_begin(0),
-                          sizeof(VoxelT) * kBlockFinestVoxelCount) == 0);
+      REQUIRE(std::memcmp(a.finest_begin(), b.finest_begin(),
+                          sizeof(FinestVoxelT<VoxelT>) * kBlockFinestVoxelCount) == 0);
     }
   }
   for (std::uint32_t i = 0; i < one.node_count(); ++i) {

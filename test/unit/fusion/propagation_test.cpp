@@ -17,13 +17,13 @@ TEST_CASE("down-propagation applies the parent's delta to observed children", "[
   MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
   block.mid = &mid;
   // Parent (scale 3) was 0.2 at its last propagation and is now 0.5, with 3 new samples.
-  block.at(0, 0, 0, 3) = MultiresVoxel{0.5f, 0.2f, 10.0f, 3.0f};
+  block.level_at(0, 0, 0, 3) = MultiresVoxel{0.5f, 0.2f, 10.0f, 3.0f};
   for (int i = 0; i < 8; ++i) {
-    MultiresVoxel& child = block.voxel(block_scale_offset(2) + i);
+    MultiresVoxel& child = block.level_voxel(block_scale_offset(2) + i);
     child = MultiresVoxel{0.1f * static_cast<float>(i) - 0.3f, 0.0f, 7.0f, 1.0f};
   }
-  block.voxel(block_scale_offset(2) + 7).x = 0.9f;   // will clamp at 1
-  block.voxel(block_scale_offset(2) + 6).y = 99.0f;  // will cap at y_max
+  block.level_voxel(block_scale_offset(2) + 7).x = 0.9f;   // will clamp at 1
+  block.level_voxel(block_scale_offset(2) + 6).y = 99.0f;  // will cap at y_max
   propagate_block_down(block, 3, kYMax);
   for (int i = 0; i < 6; ++i) {
     const MultiresVoxel& child = block.voxel(block_scale_offset(2) + i);
@@ -48,7 +48,7 @@ TEST_CASE("down-propagation interpolates unobserved children, extrapolating at t
   for (int z = 0; z < 2; ++z)
     for (int y = 0; y < 2; ++y)
       for (int x = 0; x < 2; ++x)
-        block.at(x, y, z, 2) = MultiresVoxel{0.2f + 0.4f * x, 0.2f + 0.4f * x, 5.0f, 0.0f};
+        block.level_at(x, y, z, 2) = MultiresVoxel{0.2f + 0.4f * x, 0.2f + 0.4f * x, 5.0f, 0.0f};
   propagate_block_down(block, 2, kYMax);
   // Children (4 per axis) centres sit at parent coordinates -0.25, 0.25, 0.75, 1.25: a linear
   // field is reproduced exactly, extrapolated beyond the outer parent centres.
@@ -70,8 +70,9 @@ TEST_CASE("hand-computed trilinear value for a non-linear parent field", "[fusio
   MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
   block.mid = &mid;
   // Scale-2 parents: all 0 except parent (1,1,1) = 0.8.
-  for (int i = 0; i < 8; ++i) block.voxel(block_scale_offset(2) + i) = {0.0f, 0.0f, 2.0f, 0.0f};
-  block.at(1, 1, 1, 2).x = 0.8f;
+  for (int i = 0; i < 8; ++i)
+    block.level_voxel(block_scale_offset(2) + i) = {0.0f, 0.0f, 2.0f, 0.0f};
+  block.level_at(1, 1, 1, 2).x = 0.8f;
   propagate_block_down(block, 2, kYMax);
   // Child (2,2,2) is nearest parent (1,1,1), 1/4 towards (0,0,0): weight 0.75^3 on 0.8.
   CHECK(block.at(2, 2, 2, 1).x == Approx(0.8f * 0.421875f).margin(1e-6));
@@ -90,7 +91,7 @@ TEST_CASE(
   VoxelBlock<MultiresVoxel> block;
   MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
   block.mid = &mid;
-  block.at(0, 0, 0, 2) = MultiresVoxel{-0.4f, -0.4f, 3.0f, 0.0f};
+  block.level_at(0, 0, 0, 2) = MultiresVoxel{-0.4f, -0.4f, 3.0f, 0.0f};
   propagate_block_down(block, 2, kYMax);
   CHECK(block.at(0, 0, 0, 1).x == -0.4f);  // neighbours unobserved: nearest parent
   CHECK(block.at(1, 1, 1, 1).y == 3.0f);
@@ -102,12 +103,12 @@ TEST_CASE("down then up: parents are the mean of the updated children", "[fusion
   MidLevel<MultiresVoxel> mid;  // scale 1, as the map would lend it
   block.mid = &mid;
   for (int i = 0; i < 8; ++i) {
-    block.voxel(block_scale_offset(2) + i) =
+    block.level_voxel(block_scale_offset(2) + i) =
         MultiresVoxel{0.0625f * static_cast<float>(i), 0.0f, 4.0f, 0.0f};
   }
   propagate_block_up(block, 2, 3);
-  block.at(0, 0, 0, 3).x += 0.25f;  // a coarse update
-  block.at(0, 0, 0, 3).delta_y = 1.0f;
+  block.level_at(0, 0, 0, 3).x += 0.25f;  // a coarse update
+  block.level_at(0, 0, 0, 3).delta_y = 1.0f;
   propagate_block_down(block, 3, kYMax);
   propagate_block_up(block, 2, 3);
   CHECK(block.at(0, 0, 0, 3).x == Approx(0.21875f + 0.25f).margin(1e-6));
@@ -136,8 +137,8 @@ TEST_CASE("16-bit down-propagation is the float one rounded to the nearest step"
       for (int x = 0; x < 4; ++x) {
         const float value = 0.9f - 0.05f * static_cast<float>(x * x + 2 * y + z);
         const float last = value - 0.01f * static_cast<float>(x + y);
-        MultiresVoxel& p = ref.at(x, y, z, 1);
-        Multires16Voxel& q = q16.at(x, y, z, 1);
+        MultiresVoxel& p = ref.level_at(x, y, z, 1);
+        Multires16Voxel& q = q16.level_at(x, y, z, 1);
         set_voxel_tsdf(q, value);
         set_voxel_x_last(q, last);
         set_voxel_weight(q, static_cast<float>(3 + x));
@@ -145,12 +146,14 @@ TEST_CASE("16-bit down-propagation is the float one rounded to the nearest step"
         p = MultiresVoxel{voxel_tsdf(q), voxel_x_last(q), voxel_weight(q), voxel_delta_y(q)};
       }
   for (int i = 0; i < kBlockFinestVoxelCount; i += 2) {
-    Multires16Voxel& q = q16.voxel(i);
+    Multires16Voxel q;
     set_voxel_tsdf(q, 0.3f - 0.001f * static_cast<float>(i));
     set_voxel_x_last(q, voxel_tsdf(q));
     set_voxel_weight(q, 95.0f + static_cast<float>(i % 7));
     set_voxel_delta_y(q, 1.0f);
-    ref.voxel(i) = MultiresVoxel{voxel_tsdf(q), voxel_x_last(q), voxel_weight(q), voxel_delta_y(q)};
+    q16.set_voxel(i, q);
+    ref.set_voxel(i,
+                  MultiresVoxel{voxel_tsdf(q), voxel_x_last(q), voxel_weight(q), voxel_delta_y(q)});
   }
   propagate_block_down(ref, 1, kYMax);
   propagate_block_down(q16, 1, kYMax);

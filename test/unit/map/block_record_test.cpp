@@ -18,8 +18,10 @@ void fill_block(Octree<VoxelT>& map, VoxelBlock<VoxelT>& block, int scale) {
   if (scale == 0) REQUIRE(map.acquire_finest(block).ok());
   if (scale == 1) REQUIRE(map.acquire_mid(block).ok());
   for (int i = block.first_stored_voxel(); i < kBlockVoxelCount; ++i) {
-    set_voxel_tsdf(block.voxel(i), static_cast<float>(i % 41) / 20.0f - 1.0f);
-    set_voxel_weight(block.voxel(i), 1.0f + static_cast<float>(i % 5));
+    VoxelT v = block.voxel(i);
+    set_voxel_tsdf(v, static_cast<float>(i % 41) / 20.0f - 1.0f);
+    set_voxel_weight(v, 1.0f + static_cast<float>(i % 5));
+    block.set_voxel(i, v);
   }
   block.current_scale = static_cast<std::int8_t>(scale);
   block.min_scale = static_cast<std::int8_t>(scale);
@@ -168,7 +170,7 @@ TEST_CASE("a record's scale-1 voxels come back whenever they hold anything", "[m
   VoxelBlock<MultiresVoxel>& block = a.map.block(index.value());
   fill_block(a.map, block, 2);
   REQUIRE(a.map.acquire_mid(block).ok());
-  block.at(1, 2, 3, 1) = MultiresVoxel{0.25f, 0.25f, 3.0f, 0.0f};
+  block.level_at(1, 2, 3, 1) = MultiresVoxel{0.25f, 0.25f, 3.0f, 0.0f};
   std::vector<std::uint8_t> record(block_record_max_bytes<MultiresVoxel>());
   const Result<std::size_t> size = encode_block_record(block, record.data(), record.size());
   REQUIRE(size.ok());

@@ -25,7 +25,7 @@ std::uint32_t make_fine_block(Octree<VoxelT>& map, const Eigen::Vector3i& coords
   VoxelBlock<VoxelT>& block = map.block(index.value());
   REQUIRE(map.acquire_finest(block).ok());
   for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
-    VoxelT& v = block.voxel(i);
+    auto& v = block.finest_begin()[i];
     if (i % 7 == 0) continue;  // unobserved
     set_voxel_tsdf(v, static_cast<float>(i % 37) / 18.0f - 1.0f);
     set_voxel_x_last(v, voxel_tsdf(v));
@@ -50,7 +50,10 @@ std::vector<std::uint8_t> record_of(const VoxelBlock<VoxelT>& block) {
 
 template <typename VoxelT>
 std::vector<VoxelT> finest_of(const VoxelBlock<VoxelT>& block) {
-  return std::vector<VoxelT>(block.scale_begin(0), block.scale_begin(0) + kBlockFinestVoxelCount);
+  std::vector<VoxelT> finest(kBlockFinestVoxelCount);
+  for (int i = 0; i < kBlockFinestVoxelCount; ++i)
+    finest[static_cast<std::size_t>(i)] = block.voxel(i);
+  return finest;
 }
 
 // What the integrator does to a block it fuses at scale 0 next.
@@ -126,7 +129,7 @@ TEST_CASE("a block that fused coarser than its held level since comes back at it
   VoxelBlock<MultiresVoxel>& block = map.block(index);
   // Fused at scale 2 since (its scale 1, the level it holds, untouched): the change is there.
   REQUIRE(Octree<MultiresVoxel>::coarsen_block(block, 2));
-  MultiresVoxel* scale2 = block.scale_begin(2);
+  MultiresVoxel* scale2 = block.level_begin(2);
   scale2[0].x = scale2[0].x - 0.125f;
   REQUIRE(restore_finest_from_record(map, index, record.data(), record.size(), kYMax).ok());
   REQUIRE(block.has_finest());
@@ -175,7 +178,7 @@ TEST_CASE("a refined block's finest voxels move by their parent's change since t
   // What the block learned at scale 1 after giving its finest level up: parent 0 moved by
   // +0.25 and gained 3 samples, parent 5 by -0.5 and 200 (past the cap); the rest unchanged.
   // The change is measured against the record, not the block's x_last and delta_y.
-  MultiresVoxel* mid = block.scale_begin(1);
+  MultiresVoxel* mid = block.level_begin(1);
   const MultiresVoxel parent0 = mid[0];
   const MultiresVoxel parent5 = mid[5];
   mid[0].x = parent0.x + 0.25f;
@@ -188,7 +191,7 @@ TEST_CASE("a refined block's finest voxels move by their parent's change since t
   REQUIRE(restore_finest_from_record(map, index, record.data(), record.size(), kYMax).ok());
   REQUIRE(block.current_scale == 1);
   refine_to_finest(block);
-  const MultiresVoxel* finest = block.scale_begin(0);
+  const MultiresFinestVoxel* finest = block.finest_begin();
   int moved = 0;
   for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
     const MultiresVoxel& was = before[static_cast<std::size_t>(i)];
@@ -225,19 +228,19 @@ TEST_CASE("a block that gave its mid level up too refines through the record's s
   const std::vector<std::uint8_t> record = record_of(map.block(index));
   map.release_mid(&index, 1);
   map.release_finest(&twin, 1);
-  const MultiresVoxel* scale1 = map.block(twin).scale_begin(1);
+  const MultiresVoxel* scale1 = map.block(twin).level_begin(1);
   VoxelBlock<MultiresVoxel>& block = map.block(index);
   REQUIRE(block.current_scale == 2);
   REQUIRE_FALSE(block.has_mid());
   // Scale-2 voxel 0 (the 4 x 4 x 4 finest corner) moved by -0.125 since.
-  MultiresVoxel* scale2 = block.scale_begin(2);
+  MultiresVoxel* scale2 = block.level_begin(2);
   const float x2 = scale2[0].x;
   scale2[0].x = x2 - 0.125f;
   REQUIRE(restore_finest_from_record(map, index, record.data(), record.size(), kYMax).ok());
   REQUIRE(block.has_mid());
   REQUIRE(block.current_scale == 2);
   refine_to_finest(block);
-  const MultiresVoxel* finest = block.scale_begin(0);
+  const MultiresFinestVoxel* finest = block.finest_begin();
   for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
     const MultiresVoxel& was = before[static_cast<std::size_t>(i)];
     if (!voxel_observed(was)) continue;
@@ -269,16 +272,16 @@ TEST_CASE("refining from a record refuses what it cannot do and changes nothing 
   REQUIRE(restore_finest_from_record(map, a, record_a.data(), record_a.size(), kYMax).code() ==
           StatusCode::failed_precondition);
   map.release_finest(&a, 1);
-  const std::vector<MultiresVoxel> mid_before(map.block(a).scale_begin(1),
-                                              map.block(a).scale_begin(1) + kBlockMidVoxelCount);
+  const std::vector<MultiresVoxel> mid_before(map.block(a).level_begin(1),
+                                              map.block(a).level_begin(1) + kBlockMidVoxelCount);
   auto unchanged = [&]() {
     const VoxelBlock<MultiresVoxel>& block = map.block(a);
     REQUIRE_FALSE(block.has_finest());
     REQUIRE(block.current_scale == 1);
     for (int i = 0; i < kBlockMidVoxelCount; ++i) {
-      REQUIRE(block.scale_begin(1)[i].x == mid_before[static_cast<std::size_t>(i)].x);
-      REQUIRE(block.scale_begin(1)[i].x_last == mid_before[static_cast<std::size_t>(i)].x_last);
-      REQUIRE(block.scale_begin(1)[i].delta_y == mid_before[static_cast<std::size_t>(i)].delta_y);
+      REQUIRE(block.level_begin(1)[i].x == mid_before[static_cast<std::size_t>(i)].x);
+      REQUIRE(block.level_begin(1)[i].x_last == mid_before[static_cast<std::size_t>(i)].x_last);
+      REQUIRE(block.level_begin(1)[i].delta_y == mid_before[static_cast<std::size_t>(i)].delta_y);
     }
   };
   // Another block's record.

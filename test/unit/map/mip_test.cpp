@@ -17,11 +17,9 @@ TEST_CASE("reads at scale s of a block filled at scale 0 follow the mean rule", 
   for (int z = 0; z < 8; ++z)
     for (int y = 0; y < 8; ++y)
       for (int x = 0; x < 8; ++x) {
-        MultiresVoxel& v = block.at(x, y, z, 0);
+        MultiresFinestVoxel& v = block.finest_begin()[block_voxel_index(x, y, z, 0)];
         v.x = static_cast<float>(x + 2 * y + 4 * z) / 64.0f;
-        v.x_last = 0.5f;
         v.y = static_cast<float>(1 + x);
-        v.delta_y = 2.0f;
       }
   propagate_block_up(block, 0, kMaxBlockScale);
   for (int s = 1; s <= kMaxBlockScale; ++s) {
@@ -52,11 +50,11 @@ TEST_CASE("reads at scale s of a block filled at scale 0 follow the mean rule", 
 TEST_CASE("up-propagation averages observed children only", "[map][mip]") {
   VoxelBlock<TsdfVoxel> block;
   // In the first parent (children of (0,0,0) at scale 1) observe three children.
-  block.at(0, 0, 0, 0) = TsdfVoxel{0.5f, 2.0f};
-  block.at(1, 0, 0, 0) = TsdfVoxel{-0.25f, 3.0f};
-  block.at(0, 1, 1, 0) = TsdfVoxel{0.0f, 3.0f};
+  block.level_at(0, 0, 0, 0) = TsdfVoxel{0.5f, 2.0f};
+  block.level_at(1, 0, 0, 0) = TsdfVoxel{-0.25f, 3.0f};
+  block.level_at(0, 1, 1, 0) = TsdfVoxel{0.0f, 3.0f};
   // The second parent keeps a value and no observed children: it must stay unchanged.
-  block.at(1, 0, 0, 1) = TsdfVoxel{0.125f, 7.0f};
+  block.level_at(1, 0, 0, 1) = TsdfVoxel{0.125f, 7.0f};
   propagate_block_up(block, 0, 1);
   CHECK(block.at(0, 0, 0, 1).tsdf == Approx(0.25f / 3.0f).margin(1e-7));
   CHECK(block.at(0, 0, 0, 1).weight == 3.0f);  // ceil(8 / 3)

@@ -61,7 +61,7 @@ TEST_CASE("exhaustion at exactly the capacity leaves earlier blocks intact", "[m
   for (std::uint32_t i = 0; i < kCapacity; ++i) {
     Result<std::uint32_t> b = map.allocate_block({static_cast<int>(i), 1, 2});
     REQUIRE(b.ok());
-    map.block(b.value()).voxel(0) = TsdfVoxel{0.5f, static_cast<float>(i + 1)};
+    map.block(b.value()).level_voxel(0) = TsdfVoxel{0.5f, static_cast<float>(i + 1)};
   }
   CHECK(map.refusals() == 0);
   CHECK(map.allocate_block({20, 1, 2}).status() == StatusCode::resource_exhausted);
@@ -111,8 +111,8 @@ TEST_CASE("out-of-cube keys and points never write", "[map][octree]") {
   CHECK(counts.rejected == 2);
   CHECK(map.block_count() == 0);
   CHECK(map.node_count() == 1);
-  CHECK(map.voxel({-1, 0, 0}) == nullptr);
-  CHECK(map.voxel({256, 0, 0}) == nullptr);
+  CHECK(map.voxel({-1, 0, 0}, 0) == nullptr);
+  CHECK(map.voxel({256, 0, 0}, 0) == nullptr);
   CHECK(map.find_block_at_point({5.0f, 0.0f, 0.0f}) == nullptr);
   CHECK(map.lookup({0, 0, 256}).level == -1);
 }
@@ -122,15 +122,23 @@ TEST_CASE("voxel access at any scale and across block borders", "[map][octree]")
   Octree<MultiresVoxel>& map = f.map;
   REQUIRE(map.allocate_block({1, 1, 1}).ok());
   REQUIRE(map.allocate_block({2, 1, 1}).ok());
-  MultiresVoxel* v = map.voxel({15, 8, 8}, 0);
+  // Scale 0 of a multires map is finest_voxel() (its own type), scales 1-3 voxel().
+  MultiresFinestVoxel* v = map.finest_voxel({15, 8, 8});
   REQUIRE(v != nullptr);
   v->x = 0.25f;
-  map.voxel({16, 8, 8}, 0)->x = -0.5f;
+  map.finest_voxel({16, 8, 8})->x = -0.5f;
   map.voxel({16, 8, 8}, 3)->x = 0.75f;  // the whole second block at scale 3
   const Octree<MultiresVoxel>& cmap = map;
   const Eigen::Vector3i step_x(1, 0, 0);
-  CHECK(cmap.neighbour({15, 8, 8}, 0, step_x)->x == -0.5f);
-  CHECK(cmap.neighbour({16, 8, 8}, 0, -step_x)->x == 0.25f);
+  CHECK(cmap.finest_voxel(Eigen::Vector3i(15, 8, 8) + step_x)->x == -0.5f);
+  CHECK(cmap.finest_voxel(Eigen::Vector3i(16, 8, 8) - step_x)->x == 0.25f);
+  MultiresVoxel read;
+  REQUIRE(cmap.read_voxel({16, 8, 8}, 0, &read));
+  CHECK(read.x == -0.5f);
+  CHECK(read.x_last == -0.5f);
+  REQUIRE(cmap.read_voxel({16, 8, 8}, 3, &read));
+  CHECK(read.x == 0.75f);
+  CHECK_FALSE(cmap.read_voxel({24, 8, 8}, 0, &read));  // block (3,1,1) absent
   CHECK(cmap.neighbour({9, 10, 11}, 3, step_x)->x == 0.75f);
   CHECK(cmap.neighbour({16, 8, 8}, 3, step_x) == nullptr);  // block (3,1,1) absent
   CHECK(cmap.voxel({23, 15, 15}, 3) == cmap.voxel({16, 8, 8}, 3));

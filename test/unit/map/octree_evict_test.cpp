@@ -40,8 +40,10 @@ void fill_evict_grid(Octree<MultiresVoxel>& map, const Keep& keep) {
         if (scale == 0) REQUIRE(map.acquire_finest(block).ok());
         if (scale == 1) REQUIRE(map.acquire_mid(block).ok());
         for (int i = block.first_stored_voxel(); i < kBlockVoxelCount; ++i) {
-          block.voxel(i).x = evict_test_tsdf(c, i);
-          block.voxel(i).y = 1.0f + static_cast<float>(i % 3);
+          MultiresVoxel v = block.voxel(i);
+          v.x = evict_test_tsdf(c, i);
+          v.y = 1.0f + static_cast<float>(i % 3);
+          block.set_voxel(i, v);
         }
         block.current_scale = static_cast<std::int8_t>(scale);
         block.min_scale = static_cast<std::int8_t>(scale);
@@ -300,7 +302,7 @@ TEST_CASE("release_finest keeps a block at scale 1 with the means of its finest 
     }
     // The block summary describes scale 1 now.
     float lo = 1.0f;
-    for (int k = 0; k < block_scale_count(1); ++k) lo = std::min(lo, block.scale_begin(1)[k].x);
+    for (int k = 0; k < block_scale_count(1); ++k) lo = std::min(lo, block.level_begin(1)[k].x);
     REQUIRE(block.tsdf_min == lo);
   }
   // The pool lends the levels again.
@@ -351,7 +353,7 @@ TEST_CASE("release_mid keeps a block at scale 2 with the means of its finer voxe
     // Scale 1 reads unobserved now; the summary describes scale 2.
     REQUIRE_FALSE(voxel_observed(block.at(1, 1, 1, 1)));
     float lo = 1.0f;
-    for (int k = 0; k < block_scale_count(2); ++k) lo = std::min(lo, block.scale_begin(2)[k].x);
+    for (int k = 0; k < block_scale_count(2); ++k) lo = std::min(lo, block.level_begin(2)[k].x);
     REQUIRE(block.tsdf_min == lo);
   }
   // Both pools lend their levels again.

@@ -76,7 +76,7 @@ TEST_CASE("finest levels are lent on demand, refused when the pool is full, retu
   CHECK(m.bytes_per_finest == sizeof(FinestLevel<MultiresVoxel>));
   CHECK(m.bytes_used == 3 * sizeof(VoxelBlock<MultiresVoxel>) + m.nodes_used * sizeof(OctreeNode));
   // Writes at scales 2 and 3 need no level; at scale 1 the accessor takes a mid level.
-  map.block(blocks[0]).at(0, 0, 0, 2).y = 2.0f;
+  map.block(blocks[0]).level_at(0, 0, 0, 2).y = 2.0f;
   CHECK_FALSE(map.block(blocks[0]).has_finest());
   CHECK_FALSE(map.block(blocks[0]).has_mid());
   MultiresVoxel* mid_voxel = map.voxel({0, 0, 0}, 1);
@@ -95,8 +95,8 @@ TEST_CASE("finest levels are lent on demand, refused when the pool is full, retu
   for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
     REQUIRE_FALSE(voxel_observed(first->voxels[i]));  // lent unobserved
   }
-  // The non-const voxel accessor takes both levels for writes at scale 0.
-  MultiresVoxel* v = map.voxel({8 + 3, 2, 1}, 0);
+  // The non-const finest voxel accessor takes both levels for writes at scale 0.
+  MultiresFinestVoxel* v = map.finest_voxel({8 + 3, 2, 1});
   REQUIRE(v != nullptr);
   v->y = 1.0f;
   CHECK(map.block(blocks[1]).has_finest());
@@ -108,10 +108,10 @@ TEST_CASE("finest levels are lent on demand, refused when the pool is full, retu
   // level that scale 1, where it integrates instead, needs).
   CHECK(map.acquire_finest(map.block(blocks[2])) == StatusCode::resource_exhausted);
   CHECK_FALSE(map.block(blocks[2]).has_finest());
-  CHECK(map.voxel({16, 0, 0}, 0) == nullptr);
+  CHECK(map.finest_voxel({16, 0, 0}) == nullptr);
   const Octree<MultiresVoxel>& read = map;
-  REQUIRE(read.voxel({16, 0, 0}, 0) != nullptr);
-  CHECK_FALSE(voxel_observed(*read.voxel({16, 0, 0}, 0)));
+  REQUIRE(read.finest_voxel({16, 0, 0}) != nullptr);
+  CHECK_FALSE(voxel_observed(*read.finest_voxel({16, 0, 0})));
   m = map.memory();
   CHECK(m.finest_refusals == 2);
   CHECK(m.mid_refusals == 0);
@@ -123,7 +123,7 @@ TEST_CASE("finest levels are lent on demand, refused when the pool is full, retu
   // The other blocks' data is intact.
   CHECK(map.block(blocks[0]).at(0, 0, 0, 2).y == 2.0f);
   CHECK(map.block(blocks[0]).at(0, 0, 0, 1).y == 4.0f);
-  CHECK(read.voxel({8 + 3, 2, 1}, 0)->y == 1.0f);
+  CHECK(read.finest_voxel({8 + 3, 2, 1})->y == 1.0f);
 
   map.clear();
   m = map.memory();

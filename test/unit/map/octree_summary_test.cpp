@@ -20,7 +20,8 @@ TEST_CASE("node summaries propagate up to the root", "[map][octree]") {
     VoxelBlock<MultiresVoxel>& block = map.block(idx);
     const float value = idx == b0 ? 0.5f : -0.25f;
     REQUIRE(map.acquire_finest(block).ok());
-    for (int i = 0; i < kBlockFinestVoxelCount; ++i) block.voxel(i) = {value, value, 4.0f, 0.0f};
+    for (int i = 0; i < kBlockFinestVoxelCount; ++i)
+      block.set_voxel(i, MultiresVoxel{value, value, 4.0f, 0.0f});
     propagate_block_up(block, 0, kMaxBlockScale);
     Octree<MultiresVoxel>::update_block_summary(block);
   }

@@ -62,15 +62,21 @@ TEST_CASE("single-res blocks hold all levels inline, multires blocks only the co
   // Scales 2 and 3 inline: 9 voxels.
   CHECK(sizeof(VoxelBlock<MultiresVoxel>) ==
         padded(header + 9 * sizeof(MultiresVoxel), alignof(VoxelBlock<MultiresVoxel>)));
-  CHECK(sizeof(FinestLevel<MultiresVoxel>) == kBlockFinestVoxelCount * sizeof(MultiresVoxel));
+  // Scale 0 keeps the TSDF and weight alone: half of a level of the block's voxel type.
+  CHECK(sizeof(MultiresFinestVoxel) == 8);
+  CHECK(sizeof(Multires16FinestVoxel) == 4);
+  CHECK(sizeof(FinestLevel<MultiresVoxel>) == kBlockFinestVoxelCount * sizeof(MultiresVoxel) / 2);
+  CHECK(sizeof(FinestLevel<Multires16Voxel>) ==
+        kBlockFinestVoxelCount * sizeof(Multires16Voxel) / 2);
+  CHECK(sizeof(FinestLevel<TsdfVoxel>) == kBlockFinestVoxelCount * sizeof(TsdfVoxel));
   CHECK(sizeof(MidLevel<MultiresVoxel>) == 64 * sizeof(MultiresVoxel));
   CHECK_FALSE(VoxelBlock<TsdfVoxel>::kSplitFinest);
   CHECK(VoxelBlock<MultiresVoxel>::kSplitFinest);
   VoxelBlock<TsdfVoxel> single;
   CHECK(single.has_finest());
   CHECK(single.has_mid());
-  CHECK(single.scale_begin(0) == single.inline_voxels);
-  CHECK(single.scale_begin(1) == single.inline_voxels + 512);
+  CHECK(single.finest_begin() == single.inline_voxels);
+  CHECK(single.level_begin(1) == single.inline_voxels + 512);
 }
 
 TEST_CASE("a fresh block is unobserved and never integrated", "[map][block]") {
@@ -91,10 +97,10 @@ TEST_CASE("a fresh block is unobserved and never integrated", "[map][block]") {
   CHECK(block.min_voxel() == Eigen::Vector3i(16, 24, 32));
   MidLevel<MultiresVoxel> mid;
   block.mid = &mid;
-  block.at_voxel(Eigen::Vector3i(16 + 5, 24 + 6, 32 + 7), 1).y = 3.0f;
-  CHECK(block.at(2, 3, 3, 1).y == 3.0f);
-  CHECK(&block.at(2, 3, 3, 1) == block.scale_begin(1) + 2 + 3 * 4 + 3 * 16);
-  CHECK(&block.at(2, 3, 3, 1) == &mid.voxels[2 + 3 * 4 + 3 * 16]);
+  block.level_at(2, 3, 3, 1).y = 3.0f;
+  CHECK(block.at_voxel(Eigen::Vector3i(16 + 5, 24 + 6, 32 + 7), 1).y == 3.0f);
+  CHECK(&block.level_at(2, 3, 3, 1) == block.level_begin(1) + 2 + 3 * 4 + 3 * 16);
+  CHECK(&block.level_at(2, 3, 3, 1) == &mid.voxels[2 + 3 * 4 + 3 * 16]);
 }
 
 TEST_CASE("without a finest level, scale 0 reads as unobserved; with one it is that level",
@@ -102,29 +108,37 @@ TEST_CASE("without a finest level, scale 0 reads as unobserved; with one it is t
   VoxelBlock<MultiresVoxel> block;
   const VoxelBlock<MultiresVoxel>& read = block;
   // Reads of scale 0 see a shared, never-written level.
-  CHECK(read.scale_begin(0) == kUnobservedFinestLevel<MultiresVoxel>.voxels);
+  CHECK(read.finest_begin() == kUnobservedFinestLevel<MultiresVoxel>.voxels);
   CHECK_FALSE(voxel_observed(read.at(7, 7, 7, 0)));
   CHECK_FALSE(voxel_observed(read.at_voxel(Eigen::Vector3i(3, 4, 5), 0)));
   FinestLevel<MultiresVoxel> level;
   block.finest = &level;
   CHECK(block.has_finest());
-  block.at(1, 2, 3, 0).y = 5.0f;
+  // A voxel written at scale 0 keeps its TSDF and weight; it reads back as one whose interval
+  // just started (x_last = x, delta_y = 0).
+  block.set_voxel(block_voxel_index(1, 2, 3, 0), MultiresVoxel{-0.25f, 0.5f, 5.0f, 2.0f});
+  CHECK(level.voxels[1 + 2 * 8 + 3 * 64].x == -0.25f);
   CHECK(level.voxels[1 + 2 * 8 + 3 * 64].y == 5.0f);
-  CHECK(read.scale_begin(0) == level.voxels);
-  CHECK(&read.voxel(block_voxel_index(1, 2, 3, 0)) == &level.voxels[1 + 2 * 8 + 3 * 64]);
+  CHECK(read.finest_begin() == level.voxels);
+  const MultiresVoxel back = read.at(1, 2, 3, 0);
+  CHECK(back.x == -0.25f);
+  CHECK(back.x_last == -0.25f);
+  CHECK(back.y == 5.0f);
+  CHECK(back.delta_y == 0.0f);
   // Scale 1 likewise: shared and unobserved until the block has a mid level, then that level.
-  CHECK(read.scale_begin(1) == kUnobservedMidLevel<MultiresVoxel>.voxels);
+  CHECK(read.level_begin(1) == kUnobservedMidLevel<MultiresVoxel>.voxels);
   CHECK_FALSE(voxel_observed(read.at(3, 3, 3, 1)));
   MidLevel<MultiresVoxel> mid;
   block.mid = &mid;
   CHECK(block.has_mid());
-  block.at(3, 0, 1, 1).y = 2.0f;
+  block.level_at(3, 0, 1, 1).y = 2.0f;
   CHECK(mid.voxels[3 + 0 * 4 + 1 * 16].y == 2.0f);
-  CHECK(&read.voxel(block_voxel_index(3, 0, 1, 1)) == &mid.voxels[3 + 16]);
+  CHECK(&block.level_voxel(block_voxel_index(3, 0, 1, 1)) == &mid.voxels[3 + 16]);
+  CHECK(read.voxel(block_voxel_index(3, 0, 1, 1)).y == 2.0f);
   // The two coarsest levels stay inline.
-  CHECK(block.scale_begin(2) == block.inline_voxels);
-  CHECK(block.scale_begin(3) == block.inline_voxels + 8);
-  CHECK(&read.voxel(block_voxel_index(1, 1, 1, 2)) == block.inline_voxels + 7);
+  CHECK(block.level_begin(2) == block.inline_voxels);
+  CHECK(block.level_begin(3) == block.inline_voxels + 8);
+  CHECK(&block.level_voxel(block_voxel_index(1, 1, 1, 2)) == block.inline_voxels + 7);
 }
 
 }  // namespace

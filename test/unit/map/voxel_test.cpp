@@ -124,7 +124,7 @@ TEST_CASE("a 16-bit parent is the rounded mean of its children and restarts its 
   block.mid = &mid;
   // Scale 1 -> 2 only (no finest level needed). Children TSDF c/10, weights 1..8.
   for (int c = 0; c < 8; ++c) {
-    Multires16Voxel& child = block.at(c & 1, (c >> 1) & 1, (c >> 2) & 1, 1);
+    Multires16Voxel& child = block.level_at(c & 1, (c >> 1) & 1, (c >> 2) & 1, 1);
     set_voxel_tsdf(child, static_cast<float>(c) / 10.0f);
     set_voxel_weight(child, static_cast<float>(c + 1));
   }

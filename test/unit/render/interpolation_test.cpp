@@ -120,7 +120,9 @@ TEST_CASE("a cell with unobserved corners is sampled from its observed ones, by 
     return base + Eigen::Vector3i(c & 1, (c >> 1) & 1, (c >> 2) & 1);
   };
   auto unobserve = [&](int c) {
-    test::set_voxel(owned.map.find_block_at_voxel(corner(c))->at_voxel(corner(c), 0), 0.0f, 0.0f);
+    const Eigen::Vector3i v = corner(c);
+    test::set_block_voxel(*owned.map.find_block_at_voxel(v),
+                          block_voxel_index(v.x() & 7, v.y() & 7, v.z() & 7, 0), 0.0f, 0.0f);
   };
   // Corner 7 unobserved: the full sample fails; the others' weighted mean, weight 0.944.
   unobserve(7);

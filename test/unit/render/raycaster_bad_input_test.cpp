@@ -42,7 +42,9 @@ TEST_CASE("corrupt voxels (NaN, out of range) end rays instead of hanging or cra
     VoxelBlock<MultiresVoxel>& block = owned.map.block(b);
     REQUIRE(owned.map.acquire_finest(block).ok());
     for (int i = 0; i < kBlockVoxelCount; ++i) {
-      block.voxel(i).x = (b % 4 == 0) ? std::nanf("") : 1e30f;
+      MultiresVoxel v = block.voxel(i);
+      v.x = (b % 4 == 0) ? std::nanf("") : 1e30f;
+      block.set_voxel(i, v);
     }
     owned.map.block(b).current_scale = static_cast<std::int8_t>(b % 4 == 0 ? 0 : 100);
   }

@@ -144,7 +144,6 @@ __attribute__((always_inline)) inline bool detail::sample_tsdf_checked(
         base - Eigen::Vector3i(home_min.x() >> scale, home_min.y() >> scale, home_min.z() >> scale);
     if (local.x() >= 0 && local.y() >= 0 && local.z() >= 0 && local.x() < side - 1 &&
         local.y() < side - 1 && local.z() < side - 1) {
-      const VoxelT* level = home->scale_begin(scale);
       const int first = local.x() + local.y() * side + local.z() * side * side;
       const int offsets[8] = {0,
                               1,
@@ -155,11 +154,13 @@ __attribute__((always_inline)) inline bool detail::sample_tsdf_checked(
                               side * side + side,
                               side * side + side + 1};
       // All 8 read, then one test: the reads stay inside the block either way.
-      for (int c = 0; c < 8; ++c) {
-        const VoxelT& v = level[first + offsets[c]];
-        ok &= voxel_observed(v);
-        values[c] = voxel_tsdf(v);
-      }
+      home->with_level(scale, [&](const auto* level) {
+        for (int c = 0; c < 8; ++c) {
+          const auto& v = level[first + offsets[c]];
+          ok &= voxel_observed(v);
+          values[c] = voxel_tsdf(v);
+        }
+      });
       if (!ok) return false;
     } else {
       // The corners span at most 2 blocks per axis: look each block up once, the home block
@@ -216,12 +217,12 @@ __attribute__((always_inline)) inline bool detail::sample_tsdf_checked(
         }
         const int cached_scale = neighbourhood.read_scale[slot];
         if (cached_scale > needed) needed = cached_scale;
-        const VoxelT& v = cached->scale_begin(scale)[index_of[c]];
-        if (!voxel_observed(v)) {
-          ok = false;
-          break;
-        }
-        values[c] = voxel_tsdf(v);
+        cached->with_level(scale, [&](const auto* level) {
+          const auto& v = level[index_of[c]];
+          ok = voxel_observed(v);
+          values[c] = voxel_tsdf(v);
+        });
+        if (!ok) break;
       }
     }
     if (!ok) {

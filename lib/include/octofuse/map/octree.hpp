@@ -124,6 +124,7 @@ class Octree {
   using Voxel = VoxelT;
   using Block = VoxelBlock<VoxelT>;
   using Finest = FinestLevel<VoxelT>;
+  using FinestVoxel = FinestVoxelT<VoxelT>;
   using Mid = MidLevel<VoxelT>;
   static constexpr bool kSplitFinest = Block::kSplitFinest;
   // Worst-case bytes per block (block plus its finest and mid levels), for sizing a pool from a
@@ -340,25 +341,55 @@ class Octree {
     return find_block_at_voxel(key_corner_voxel(key));
   }
 
-  // The voxel at `scale` (0..3) containing finest voxel `voxel`, or null when outside the cube
-  // or in an unallocated block. Reads whatever that scale holds (see the block's current_scale;
-  // scale 0 of a block without a finest level reads as unobserved). The non-const overload gives
-  // the block its finest level for scale 0 (null when the finest pool is full), so it must not
-  // overlap other calls, like allocate(); likewise its mid level for scale 1.
-  const VoxelT* voxel(const Eigen::Vector3i& voxel, int scale = 0) const {
-    OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
+  // The voxel at `scale` containing finest voxel `voxel`, or null when outside the cube or in an
+  // unallocated block; scale 1-3 for multires maps (scale 0 is finest_voxel()), 0-3 otherwise.
+  // Reads whatever that scale holds (see the block's current_scale; scale 1 of a block without a
+  // mid level reads as unobserved). The non-const overload gives the block its mid level for
+  // scale 1 (null when the mid pool is full), so it must not overlap other calls, like
+  // allocate().
+  const VoxelT* voxel(const Eigen::Vector3i& voxel, int scale) const {
+    OCTOFUSE_CHECK(scale >= (kSplitFinest ? 1 : 0) && scale <= kMaxBlockScale);
     const Block* b = find_block_at_voxel(voxel);
-    return b == nullptr ? nullptr : &b->at_voxel(voxel, scale);
+    return b == nullptr ? nullptr : level_voxel(*b, voxel, scale);
   }
-  VoxelT* voxel(const Eigen::Vector3i& voxel, int scale = 0) {
-    OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
+  VoxelT* voxel(const Eigen::Vector3i& voxel, int scale) {
+    OCTOFUSE_CHECK(scale >= (kSplitFinest ? 1 : 0) && scale <= kMaxBlockScale);
     Block* b = find_block_at_voxel(voxel);
     if (b == nullptr) return nullptr;
-    // A write at scale 0 (1) needs the finest (mid) level: take it now (null when that pool is
-    // full).
-    if (scale == 0 && !acquire_finest(*b).ok()) return nullptr;
-    if (scale == 1 && !acquire_mid(*b).ok()) return nullptr;
-    return &b->at_voxel(voxel, scale);
+    if (scale == 1 && !acquire_mid(*b).ok()) return nullptr;  // a write at scale 1 needs it
+    return level_voxel(*b, voxel, scale);
+  }
+  // The finest voxel `voxel`, or null as above; scale 0 of a block without a finest level reads
+  // as unobserved. The non-const overload gives the block its finest level (null when the finest
+  // pool is full), under the same terms as voxel().
+  const FinestVoxel* finest_voxel(const Eigen::Vector3i& voxel) const {
+    const Block* b = find_block_at_voxel(voxel);
+    return b == nullptr ? nullptr : b->finest_begin() + finest_index(voxel);
+  }
+  FinestVoxel* finest_voxel(const Eigen::Vector3i& voxel) {
+    Block* b = find_block_at_voxel(voxel);
+    if (b == nullptr || !acquire_finest(*b).ok()) return nullptr;
+    return b->finest_begin() + finest_index(voxel);
+  }
+  // The voxel at any scale 0..3 by value (a finest voxel as Block::voxel() reads it), or false as
+  // above.
+  bool read_voxel(const Eigen::Vector3i& voxel, int scale, VoxelT* out) const {
+    OCTOFUSE_CHECK(scale >= 0 && scale <= kMaxBlockScale);
+    const Block* b = find_block_at_voxel(voxel);
+    if (b == nullptr) return false;
+    *out = b->at_voxel(voxel, scale);
+    return true;
+  }
+  // Index of finest voxel `voxel` in its block's scale 0, and the voxel of level `scale` (> 0 for
+  // multires) containing it.
+  static int finest_index(const Eigen::Vector3i& voxel) {
+    return block_voxel_index(voxel.x() & 7, voxel.y() & 7, voxel.z() & 7, 0);
+  }
+  template <typename B>
+  static auto level_voxel(B& block, const Eigen::Vector3i& voxel, int scale) {
+    return block.level_begin(scale) +
+           (block_voxel_index_finest(voxel.x() & 7, voxel.y() & 7, voxel.z() & 7, scale) -
+            block_scale_offset(scale));
   }
   // The neighbour `step` voxels of scale `scale` away (crosses block borders), or null.
   const VoxelT* neighbour(const Eigen::Vector3i& voxel, int scale,

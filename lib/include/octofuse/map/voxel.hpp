@@ -64,6 +64,18 @@ inline int round_to_int(float c) {
 }
 }  // namespace voxel_detail
 
+// Scale 0 of a multires block: the TSDF and weight alone. x_last and delta_y are read only where a
+// level is the parent of a finer one (eq. 5), which scale 0 never is: without them a finest level
+// takes half the bytes, and a capped map holds twice the finest levels.
+struct MultiresFinestVoxel {
+  float x = 1.0f;  // as MultiresVoxel::x
+  float y = 0.0f;  // as MultiresVoxel::y
+};
+struct Multires16FinestVoxel {
+  std::int16_t x_q = 16384;  // as Multires16Voxel::x_q
+  std::uint16_t y_q = 0;     // as Multires16Voxel::y_q
+};
+
 // Normalised TSDF to its 16-bit step, clamped to [-1, 1] (NaN stores as -1).
 inline std::int16_t quantise_tsdf16(float x) {
   float c = x * kMultires16TsdfScale;  // exact: a power of two
@@ -104,6 +116,18 @@ inline float voxel_tsdf(const Multires16Voxel& v) {
 inline float voxel_weight(const Multires16Voxel& v) {
   return dequantise_weight16(v.y_q);
 }
+inline float voxel_tsdf(const MultiresFinestVoxel& v) {
+  return v.x;
+}
+inline float voxel_weight(const MultiresFinestVoxel& v) {
+  return v.y;
+}
+inline float voxel_tsdf(const Multires16FinestVoxel& v) {
+  return dequantise_tsdf16(v.x_q);
+}
+inline float voxel_weight(const Multires16FinestVoxel& v) {
+  return dequantise_weight16(v.y_q);
+}
 inline bool voxel_observed(const TsdfVoxel& v) {
   return v.weight > 0.0f;
 }
@@ -111,6 +135,12 @@ inline bool voxel_observed(const MultiresVoxel& v) {
   return v.y > 0.0f;
 }
 inline bool voxel_observed(const Multires16Voxel& v) {
+  return v.y_q != 0;
+}
+inline bool voxel_observed(const MultiresFinestVoxel& v) {
+  return v.y > 0.0f;
+}
+inline bool voxel_observed(const Multires16FinestVoxel& v) {
   return v.y_q != 0;
 }
 
@@ -159,6 +189,37 @@ inline void set_voxel_delta_y(Multires16Voxel& v, float delta_y) {
   v.delta_y_q = quantise_weight16(delta_y);
 }
 
+// A finest voxel has no interval of its own: it reads as one that just started (x_last = x,
+// delta_y = 0), and writes of either are dropped.
+inline void set_voxel_tsdf(MultiresFinestVoxel& v, float x) {
+  v.x = x;
+}
+inline void set_voxel_weight(MultiresFinestVoxel& v, float y) {
+  v.y = y;
+}
+inline float voxel_x_last(const MultiresFinestVoxel& v) {
+  return v.x;
+}
+inline float voxel_delta_y(const MultiresFinestVoxel&) {
+  return 0.0f;
+}
+inline void set_voxel_x_last(MultiresFinestVoxel&, float) {}
+inline void set_voxel_delta_y(MultiresFinestVoxel&, float) {}
+inline void set_voxel_tsdf(Multires16FinestVoxel& v, float x) {
+  v.x_q = quantise_tsdf16(x);
+}
+inline void set_voxel_weight(Multires16FinestVoxel& v, float y) {
+  v.y_q = quantise_weight16(y);
+}
+inline float voxel_x_last(const Multires16FinestVoxel& v) {
+  return dequantise_tsdf16(v.x_q);
+}
+inline float voxel_delta_y(const Multires16FinestVoxel&) {
+  return 0.0f;
+}
+inline void set_voxel_x_last(Multires16FinestVoxel&, float) {}
+inline void set_voxel_delta_y(Multires16FinestVoxel&, float) {}
+
 // After a sample is fused (eq. 3): y = min(y_max, y + 1) and delta_y += 1, as a store of each
 // through the setters would give. In 16-bit steps both additions are exact, so they are integer
 // additions there (saturating; the cap rounds as a stored y_max would).
@@ -175,6 +236,53 @@ inline void count_voxel_sample(Multires16Voxel& v, float y_max) {
   v.delta_y_q = static_cast<std::uint16_t>(delta_y < 65535 ? delta_y : 65535);
 }
 
+inline void count_voxel_sample(MultiresFinestVoxel& v, float y_max) {
+  v.y = std::min(y_max, v.y + 1.0f);
+}
+inline void count_voxel_sample(Multires16FinestVoxel& v, float y_max) {
+  constexpr int kOne = static_cast<int>(kMultires16WeightScale);
+  const int cap = quantise_weight16(y_max);
+  const int y = v.y_q + kOne;
+  v.y_q = static_cast<std::uint16_t>(y < cap ? y : cap);
+}
+
+// A voxel's finest part (its TSDF and weight), and a finest voxel as its level's type (x_last = x,
+// delta_y = 0): exact both ways.
+inline TsdfVoxel finest_part(const TsdfVoxel& v) {
+  return v;
+}
+inline MultiresFinestVoxel finest_part(const MultiresVoxel& v) {
+  return MultiresFinestVoxel{v.x, v.y};
+}
+inline Multires16FinestVoxel finest_part(const Multires16Voxel& v) {
+  return Multires16FinestVoxel{v.x_q, v.y_q};
+}
+inline TsdfVoxel widen_voxel(const TsdfVoxel& v) {
+  return v;
+}
+inline MultiresVoxel widen_voxel(const MultiresFinestVoxel& v) {
+  return MultiresVoxel{v.x, v.x, v.y, 0.0f};
+}
+inline Multires16Voxel widen_voxel(const Multires16FinestVoxel& v) {
+  return Multires16Voxel{v.x_q, v.x_q, v.y_q, 0};
+}
+
+// The voxel a map of VoxelT keeps at scale 0 (the same type for single-resolution maps).
+template <typename VoxelT>
+struct FinestVoxelOf {
+  using type = VoxelT;
+};
+template <>
+struct FinestVoxelOf<MultiresVoxel> {
+  using type = MultiresFinestVoxel;
+};
+template <>
+struct FinestVoxelOf<Multires16Voxel> {
+  using type = Multires16FinestVoxel;
+};
+template <typename VoxelT>
+using FinestVoxelT = typename FinestVoxelOf<VoxelT>::type;
+
 // True for the multi-resolution types (compile time; picks the integrator's code path).
 template <typename VoxelT>
 struct IsMultiresVoxel {
@@ -186,6 +294,14 @@ struct IsMultiresVoxel<MultiresVoxel> {
 };
 template <>
 struct IsMultiresVoxel<Multires16Voxel> {
+  static constexpr bool value = true;
+};
+template <>
+struct IsMultiresVoxel<MultiresFinestVoxel> {
+  static constexpr bool value = true;
+};
+template <>
+struct IsMultiresVoxel<Multires16FinestVoxel> {
   static constexpr bool value = true;
 };
 

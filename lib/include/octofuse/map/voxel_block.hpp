@@ -51,10 +51,11 @@ constexpr int block_voxel_index_finest(int x, int y, int z, int scale) {
 inline constexpr std::int8_t kNeverIntegrated = -1;
 inline constexpr std::uint32_t kNoIndex = 0xFFFFFFFFu;
 
-// The finest level of a split block: one slot of the map's finest-level pool.
+// The finest level of a split block: one slot of the map's finest-level pool, of the TSDF and
+// weight alone (FinestVoxelT).
 template <typename VoxelT>
 struct alignas(64) FinestLevel {
-  VoxelT voxels[kBlockFinestVoxelCount] = {};
+  FinestVoxelT<VoxelT> voxels[kBlockFinestVoxelCount] = {};
 };
 
 // Scale 1 of a split block: one slot of the map's mid-level pool.
@@ -73,6 +74,8 @@ inline constexpr MidLevel<VoxelT> kUnobservedMidLevel{};
 template <typename VoxelT>
 struct VoxelBlock {
   using Voxel = VoxelT;
+  // What scale 0 holds: VoxelT for single-resolution blocks, its TSDF and weight for multires.
+  using FinestVoxel = FinestVoxelT<VoxelT>;
   // Multires blocks keep their finest and mid levels (scales 0 and 1) out of line (see above).
   static constexpr bool kSplitFinest = IsMultiresVoxel<VoxelT>::value;
   // Block voxel index of the first inline voxel, and how many are inline.
@@ -143,60 +146,109 @@ struct VoxelBlock {
   // Minimum finest voxel of the block, cube coordinates.
   Eigen::Vector3i min_voxel() const { return coords * kBlockSide; }
 
-  // Voxel by block voxel index (0..584, see block_voxel_index).
-  VoxelT& voxel(int index) {
+  // Voxel by block voxel index (0..584, see block_voxel_index), by value (const, so that an
+  // assignment to it does not compile): a finest voxel of a split block reads with x_last = x
+  // and delta_y = 0 (it keeps neither). Writes: level_voxel(), finest_begin(), set_voxel().
+  const VoxelT voxel(int index) const {
     if constexpr (kSplitFinest) {
       if (index < kInlineBegin) {
-        if (index < kBlockFinestVoxelCount) return writable_finest()[index];
-        return writable_mid()[index - kBlockFinestVoxelCount];
-      }
-    }
-    return inline_voxels[index - kInlineBegin];
-  }
-  const VoxelT& voxel(int index) const {
-    if constexpr (kSplitFinest) {
-      if (index < kInlineBegin) {
-        if (index < kBlockFinestVoxelCount) return readable_finest()[index];
+        if (index < kBlockFinestVoxelCount) return widen_voxel(readable_finest()[index]);
         return readable_mid()[index - kBlockFinestVoxelCount];
       }
     }
     return inline_voxels[index - kInlineBegin];
   }
-
-  VoxelT& at(int x, int y, int z, int scale) { return voxel(block_voxel_index(x, y, z, scale)); }
-  const VoxelT& at(int x, int y, int z, int scale) const {
+  // Writable voxel by block voxel index, at scales 1-3 of a split block (its scale 0 is
+  // finest_begin(), of another type) and at any scale of a single-resolution one.
+  VoxelT& level_voxel(int index) {
+    if constexpr (kSplitFinest) {
+      OCTOFUSE_CHECK(index >= kBlockFinestVoxelCount);
+      if (index < kInlineBegin) return writable_mid()[index - kBlockFinestVoxelCount];
+    }
+    return inline_voxels[index - kInlineBegin];
+  }
+  VoxelT& level_at(int x, int y, int z, int scale) {
+    return level_voxel(block_voxel_index(x, y, z, scale));
+  }
+  // Writes voxel `index` (0..584); scale 0 of a split block keeps its TSDF and weight.
+  void set_voxel(int index, const VoxelT& v) {
+    if constexpr (kSplitFinest) {
+      if (index < kInlineBegin) {
+        if (index < kBlockFinestVoxelCount) {
+          writable_finest()[index] = finest_part(v);
+        } else {
+          writable_mid()[index - kBlockFinestVoxelCount] = v;
+        }
+        return;
+      }
+    }
+    inline_voxels[index - kInlineBegin] = v;
+  }
+  const VoxelT at(int x, int y, int z, int scale) const {
     return voxel(block_voxel_index(x, y, z, scale));
   }
   // Voxel at scale s containing finest voxel `voxel` (cube coordinates, inside this block).
-  VoxelT& at_voxel(const Eigen::Vector3i& v, int scale) {
+  const VoxelT at_voxel(const Eigen::Vector3i& v, int scale) const {
     return voxel(block_voxel_index_finest(v.x() & 7, v.y() & 7, v.z() & 7, scale));
   }
-  const VoxelT& at_voxel(const Eigen::Vector3i& v, int scale) const {
-    return voxel(block_voxel_index_finest(v.x() & 7, v.y() & 7, v.z() & 7, scale));
-  }
-  // The block_scale_count(scale) voxels of one level, contiguous.
-  VoxelT* scale_begin(int scale) {
+  // Scale 0's 512 voxels, contiguous.
+  FinestVoxel* finest_begin() {
     if constexpr (kSplitFinest) {
-      if (scale == 0) return writable_finest();
+      return writable_finest();
+    } else {
+      return inline_voxels;
+    }
+  }
+  const FinestVoxel* finest_begin() const {
+    if constexpr (kSplitFinest) {
+      return readable_finest();
+    } else {
+      return inline_voxels;
+    }
+  }
+  // The block_scale_count(scale) voxels of level `scale`, contiguous; scale 1-3 for split blocks
+  // (their scale 0 is finest_begin()).
+  VoxelT* level_begin(int scale) {
+    if constexpr (kSplitFinest) {
+      OCTOFUSE_CHECK(scale > 0);
       if (scale == 1) return writable_mid();
     }
     return inline_voxels + (block_scale_offset(scale) - kInlineBegin);
   }
-  const VoxelT* scale_begin(int scale) const {
+  const VoxelT* level_begin(int scale) const {
     if constexpr (kSplitFinest) {
-      // Scale 0 first: at 1 cm almost every read is there.
-      if (scale == 0) return readable_finest();
+      OCTOFUSE_CHECK(scale > 0);
       if (scale == 1) return readable_mid();
     }
     return inline_voxels + (block_scale_offset(scale) - kInlineBegin);
   }
+  // Calls f with level `scale`'s voxels: finest_begin() at scale 0, level_begin() above (one
+  // pointer type for single-resolution blocks, two for split ones).
+  template <typename F>
+  decltype(auto) with_level(int scale, F&& f) {
+    if (scale == 0) return f(finest_begin());
+    return f(level_begin(scale));
+  }
+  template <typename F>
+  decltype(auto) with_level(int scale, F&& f) const {
+    if (scale == 0) return f(finest_begin());
+    return f(level_begin(scale));
+  }
+  // Copies n voxels of the block's type into finest voxels (their TSDF and weight), and back
+  // (x_last = x, delta_y = 0).
+  static void narrow_copy(const VoxelT* from, int n, FinestVoxel* to) {
+    for (int i = 0; i < n; ++i) to[i] = finest_part(from[i]);
+  }
+  static void widen_copy(const FinestVoxel* from, int n, VoxelT* to) {
+    for (int i = 0; i < n; ++i) to[i] = widen_voxel(from[i]);
+  }
 
  private:
-  VoxelT* writable_finest() {
+  FinestVoxel* writable_finest() {
     OCTOFUSE_CHECK(finest != nullptr);  // writes at scale 0 need acquire_finest() first
     return finest->voxels;
   }
-  const VoxelT* readable_finest() const {
+  const FinestVoxel* readable_finest() const {
     return finest != nullptr ? finest->voxels : kUnobservedFinestLevel<VoxelT>.voxels;
   }
   VoxelT* writable_mid() {

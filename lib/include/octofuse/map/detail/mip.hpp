@@ -35,31 +35,33 @@ void propagate_block_up(VoxelBlock<VoxelT>& block, int from_scale, int to_scale)
   for (int s = from_scale; s < to_scale; ++s) {
     const int child_side = block_scale_side(s);
     const int side = block_scale_side(s + 1);
-    const VoxelT* children = block.scale_begin(s);
-    VoxelT* parents = block.scale_begin(s + 1);
-    for (int z = 0; z < side; ++z) {
-      for (int y = 0; y < side; ++y) {
-        for (int x = 0; x < side; ++x) {
-          float sum_tsdf = 0.0f;
-          float sum_weight = 0.0f;
-          int observed = 0;
-          for (int c = 0; c < 8; ++c) {
-            const int cx = 2 * x + (c & 1);
-            const int cy = 2 * y + ((c >> 1) & 1);
-            const int cz = 2 * z + ((c >> 2) & 1);
-            const VoxelT& child = children[cx + cy * child_side + cz * child_side * child_side];
-            if (!voxel_observed(child)) continue;
-            sum_tsdf += voxel_tsdf(child);
-            sum_weight += voxel_weight(child);
-            ++observed;
+    VoxelT* parents = block.level_begin(s + 1);
+    // Scale 0's voxels are a type of their own (FinestVoxelT).
+    block.with_level(s, [&](const auto* children) {
+      for (int z = 0; z < side; ++z) {
+        for (int y = 0; y < side; ++y) {
+          for (int x = 0; x < side; ++x) {
+            float sum_tsdf = 0.0f;
+            float sum_weight = 0.0f;
+            int observed = 0;
+            for (int c = 0; c < 8; ++c) {
+              const int cx = 2 * x + (c & 1);
+              const int cy = 2 * y + ((c >> 1) & 1);
+              const int cz = 2 * z + ((c >> 2) & 1);
+              const auto& child = children[cx + cy * child_side + cz * child_side * child_side];
+              if (!voxel_observed(child)) continue;
+              sum_tsdf += voxel_tsdf(child);
+              sum_weight += voxel_weight(child);
+              ++observed;
+            }
+            if (observed == 0) continue;
+            const float n = static_cast<float>(observed);
+            set_parent_from_children(parents[x + y * side + z * side * side], sum_tsdf / n,
+                                     std::ceil(sum_weight / n));
           }
-          if (observed == 0) continue;
-          const float n = static_cast<float>(observed);
-          set_parent_from_children(parents[x + y * side + z * side * side], sum_tsdf / n,
-                                   std::ceil(sum_weight / n));
         }
       }
-    }
+    });
   }
 }
 

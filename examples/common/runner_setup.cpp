@@ -207,8 +207,8 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
   const double scale0_max_depth_m = kScale0MaxRatio * working_fx * options.voxel_size_m;
   using Map = Octree<VoxelT>;
   // With eviction a small cap must still hold a whole view: blocks are cheap and a finest level
-  // costs 7x one, so the split below applies at any voxel size (blocks past the finest pool
-  // integrate at scale 1, the farthest give theirs back).
+  // costs 3x one with its mid level, so the split below applies at any voxel size (blocks past
+  // the finest pool integrate at scale 1, the farthest give theirs back).
   if (!Map::kSplitFinest ||
       (!options.eviction.enabled && scale0_max_depth_m >= 0.5 * defaults.fusion.far_m)) {
     sizes.blocks = static_cast<std::uint32_t>(
@@ -226,8 +226,8 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
           : 1.0;
   // The blocks a view needs depend on the scene and the voxel size, not on the voxel's width: the
   // block pool is sized as for 32-bit voxels, and what narrower voxels save on those blocks goes
-  // to finest levels (a 16-bit map under 16 MB at 1 cm: 6 765 blocks and 3 013 finest levels
-  // instead of 12 787 and 2 048, where a 7-Scenes view fuses up to 3 700 blocks at scale 0).
+  // to finest levels (a 16-bit map under 16 MB at 1 cm: 6 765 blocks and 6 025 finest levels
+  // instead of 12 787 and 4 096, where a 7-Scenes view fuses up to 3 700 blocks at scale 0).
   using Wide = Octree<MultiresVoxel>;
   const auto block_bytes = [mid_share](double block, double mid) {
     return block + mid_share * mid;

@@ -234,13 +234,9 @@ struct VoxelBlock {
     if (scale == 0) return f(finest_begin());
     return f(level_begin(scale));
   }
-  // Copies n voxels of the block's type into finest voxels (their TSDF and weight), and back
-  // (x_last = x, delta_y = 0).
+  // Copies n voxels of the block's type into finest voxels (their TSDF and weight).
   static void narrow_copy(const VoxelT* from, int n, FinestVoxel* to) {
     for (int i = 0; i < n; ++i) to[i] = finest_part(from[i]);
-  }
-  static void widen_copy(const FinestVoxel* from, int n, VoxelT* to) {
-    for (int i = 0; i < n; ++i) to[i] = widen_voxel(from[i]);
   }
 
  private:

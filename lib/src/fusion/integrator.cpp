@@ -222,7 +222,8 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
   float lift_sum[kMaxParents];
   float lift_weight[kMaxParents];
   int lift_count[kMaxParents];
-  auto visit = [&](auto lift_tag, auto past_mu_tag, auto scale0_tag) {
+  // voxels: the level's, finest_begin() at scale 0 (a type of its own: FinestVoxelT).
+  auto visit = [&](auto lift_tag, auto past_mu_tag, auto scale0_tag, auto* const voxels) {
     constexpr bool kLift = decltype(lift_tag)::value;
     constexpr bool kPastMu = decltype(past_mu_tag)::value;
     constexpr bool kScale0 = decltype(scale0_tag)::value;
@@ -233,14 +234,6 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
         lift_count[k] = 0;
       }
     }
-    // Scale 0's voxels are a type of their own (FinestVoxelT).
-    auto* const voxels = [&] {
-      if constexpr (kScale0) {
-        return block.finest_begin();
-      } else {
-        return block.level_begin(scale);
-      }
-    }();
     int i = 0;
     const float u_end = static_cast<float>(f.width) - 0.5f;
     const float v_end = static_cast<float>(f.height) - 0.5f;
@@ -350,9 +343,9 @@ void Integrator<VoxelT>::integrate_block(VoxelBlock<VoxelT>& block, int scale, c
     // function the packing cost scale 0 4-8 % more instructions.
     auto visit_shape = [&](auto past_mu_tag) {
       if (n == kBlockSide) {
-        visit(lift_tag, past_mu_tag, std::true_type{});
+        visit(lift_tag, past_mu_tag, std::true_type{}, block.finest_begin());
       } else {
-        visit(lift_tag, past_mu_tag, std::false_type{});
+        visit(lift_tag, past_mu_tag, std::false_type{}, block.level_begin(scale));
       }
     };
     if (behind_m > f.mu_m) {

@@ -5,6 +5,7 @@
 #include "octofuse/map/block_store.hpp"
 
 #include <catch2/catch.hpp>
+#include <cstring>
 #include <vector>
 
 #include "octofuse/map/map_io.hpp"
@@ -158,6 +159,79 @@ TEST_CASE(
     }
     REQUIRE(got.tsdf_mean == reference.tsdf_mean);
   }
+}
+
+// A finest voxel keeps its TSDF and weight alone; records keep their format, writing it with
+// x_last = x and delta_y = 0. A record of a build that kept both at scale 0 still restores, with
+// the same TSDF and weight.
+TEST_CASE(
+    "a finest level's record holds x_last = x and delta_y = 0, and one with other values "
+    "restores the TSDF and weight",
+    "[map][store]") {
+  MapFixture<MultiresVoxel> a(small_config(8, 64));
+  MapFixture<MultiresVoxel> b(small_config(8, 64));
+  const Result<std::uint32_t> index = a.map.allocate_block({2, 2, 2});
+  REQUIRE(index.ok());
+  const VoxelBlock<MultiresVoxel>& block = a.map.block(index.value());
+  fill_block(a.map, a.map.block(index.value()), 0);
+  std::vector<std::uint8_t> record(block_record_max_bytes<MultiresVoxel>());
+  const Result<std::size_t> size = encode_block_record(block, record.data(), record.size());
+  REQUIRE(size.ok());
+  record.resize(size.value());
+  // Tag, Morton code, frame, three scales, flags, summary: 33 bytes; then 16 a float voxel
+  // (x, x_last, y, delta_y), the finest level first; the record's CRC-32 last.
+  constexpr std::size_t kFirstVoxel = 33;
+  auto f32_at = [&record](std::size_t at) {
+    std::uint32_t bits = 0;
+    for (int k = 0; k < 4; ++k) bits |= std::uint32_t{record[at + k]} << (8 * k);
+    float value;
+    std::memcpy(&value, &bits, sizeof value);
+    return value;
+  };
+  auto put_f32 = [&record](std::size_t at, float value) {
+    std::uint32_t bits;
+    std::memcpy(&bits, &value, sizeof bits);
+    for (int k = 0; k < 4; ++k) record[at + k] = static_cast<std::uint8_t>(bits >> (8 * k));
+  };
+  auto put_crc = [&record] {
+    const std::uint32_t crc = crc32(record.data(), record.size() - 4);
+    for (int k = 0; k < 4; ++k) {
+      record[record.size() - 4 + k] = static_cast<std::uint8_t>(crc >> (8 * k));
+    }
+  };
+  const std::vector<std::uint8_t> written = record;
+  put_crc();
+  REQUIRE(record == written);  // the CRC covers the bytes before it
+  for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
+    const std::size_t at = kFirstVoxel + 16 * static_cast<std::size_t>(i);
+    CAPTURE(i);
+    REQUIRE(f32_at(at) == block.finest_begin()[i].x);
+    REQUIRE(f32_at(at + 4) == f32_at(at));  // x_last
+    REQUIRE(f32_at(at + 8) == block.finest_begin()[i].y);
+    REQUIRE(f32_at(at + 12) == 0.0f);  // delta_y
+  }
+  // As a build that kept an interval at scale 0 may have written it.
+  for (int i = 0; i < kBlockFinestVoxelCount; i += 3) {
+    const std::size_t at = kFirstVoxel + 16 * static_cast<std::size_t>(i);
+    put_f32(at + 4, -0.5f);
+    put_f32(at + 12, 7.0f);
+  }
+  put_crc();
+  const Result<std::uint32_t> restored = restore_block_record(b.map, record.data(), record.size());
+  REQUIRE(restored.ok());
+  const VoxelBlock<MultiresVoxel>& got = b.map.block(restored.value());
+  REQUIRE(got.has_finest());
+  for (int i = 0; i < kBlockFinestVoxelCount; ++i) {
+    CAPTURE(i);
+    REQUIRE(got.finest_begin()[i].x == block.finest_begin()[i].x);
+    REQUIRE(got.finest_begin()[i].y == block.finest_begin()[i].y);
+  }
+  // And it is written back as this build writes it.
+  std::vector<std::uint8_t> again(block_record_max_bytes<MultiresVoxel>());
+  const Result<std::size_t> again_size = encode_block_record(got, again.data(), again.size());
+  REQUIRE(again_size.ok());
+  again.resize(again_size.value());
+  CHECK(again == written);
 }
 
 TEST_CASE("a record's scale-1 voxels come back whenever they hold anything", "[map][store]") {

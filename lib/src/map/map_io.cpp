@@ -147,19 +147,18 @@ bool decode_voxel(const std::uint8_t* p, Multires16Voxel& v) {
   return true;
 }
 // A finest voxel keeps x and y of a record's voxel (checked as that voxel).
-bool decode_voxel(const std::uint8_t* p, MultiresFinestVoxel& v) {
-  MultiresVoxel wide;
+template <typename FinestVoxel>
+bool decode_finest_voxel(const std::uint8_t* p, FinestVoxel& v) {
+  decltype(widen_voxel(v)) wide;
   if (!decode_voxel(p, wide)) return false;
-  v.x = wide.x;
-  v.y = wide.y;
+  v = finest_part(wide);
   return true;
 }
+bool decode_voxel(const std::uint8_t* p, MultiresFinestVoxel& v) {
+  return decode_finest_voxel(p, v);
+}
 bool decode_voxel(const std::uint8_t* p, Multires16FinestVoxel& v) {
-  Multires16Voxel wide;
-  if (!decode_voxel(p, wide)) return false;
-  v.x_q = wide.x_q;
-  v.y_q = wide.y_q;
-  return true;
+  return decode_finest_voxel(p, v);
 }
 
 // Buffers bytes for the sink and keeps the running CRC of the current record.

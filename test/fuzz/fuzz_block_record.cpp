@@ -72,7 +72,7 @@ void restore_finest(Map& map, const std::uint8_t* record, std::size_t size) {
   Block& block = map.block(allocated.value());
   if (!map.acquire_mid(block).ok()) std::abort();
   for (int i = octofuse::kBlockFinestVoxelCount; i < octofuse::kBlockVoxelCount; ++i) {
-    MultiresVoxel& v = block.voxel(i);
+    MultiresVoxel& v = block.level_voxel(i);
     v.x = static_cast<float>(i % 17) / 8.0f - 1.0f;
     v.x_last = v.x;
     v.y = static_cast<float>(i % 5);

@@ -227,12 +227,17 @@ inline void count_voxel_sample(MultiresVoxel& v, float y_max) {
   v.y = std::min(y_max, v.y + 1.0f);
   v.delta_y += 1.0f;
 }
-inline void count_voxel_sample(Multires16Voxel& v, float y_max) {
-  constexpr int kOne = static_cast<int>(kMultires16WeightScale);
+namespace voxel_detail {
+// y + 1 in 16-bit weight steps, capped at y_max as a stored y_max would round.
+inline std::uint16_t counted_weight16(std::uint16_t y_q, float y_max) {
   const int cap = quantise_weight16(y_max);
-  const int y = v.y_q + kOne;
-  const int delta_y = v.delta_y_q + kOne;
-  v.y_q = static_cast<std::uint16_t>(y < cap ? y : cap);
+  const int y = y_q + static_cast<int>(kMultires16WeightScale);
+  return static_cast<std::uint16_t>(y < cap ? y : cap);
+}
+}  // namespace voxel_detail
+inline void count_voxel_sample(Multires16Voxel& v, float y_max) {
+  const int delta_y = v.delta_y_q + static_cast<int>(kMultires16WeightScale);
+  v.y_q = voxel_detail::counted_weight16(v.y_q, y_max);
   v.delta_y_q = static_cast<std::uint16_t>(delta_y < 65535 ? delta_y : 65535);
 }
 
@@ -240,10 +245,7 @@ inline void count_voxel_sample(MultiresFinestVoxel& v, float y_max) {
   v.y = std::min(y_max, v.y + 1.0f);
 }
 inline void count_voxel_sample(Multires16FinestVoxel& v, float y_max) {
-  constexpr int kOne = static_cast<int>(kMultires16WeightScale);
-  const int cap = quantise_weight16(y_max);
-  const int y = v.y_q + kOne;
-  v.y_q = static_cast<std::uint16_t>(y < cap ? y : cap);
+  v.y_q = voxel_detail::counted_weight16(v.y_q, y_max);
 }
 
 // A voxel's finest part (its TSDF and weight), and a finest voxel as its level's type (x_last = x,

@@ -415,7 +415,9 @@ const Option kOptions[] = {
      "instead of the matrix: replay a source in a loop under a memory cap and\n"
      "again with a large one; fails (exit 1) when the capped run lost a frame\n"
      "the other did not or its RSS grew after the first pass (soak.md,\n"
-     "soak.json in --out). Uses the first of --voxels and of --threads.",
+     "soak.json in --out). Uses the first of --voxels, --threads, --maps and\n"
+     "--poses (--poses gt: both runs fuse ground-truth poses, so their surfaces\n"
+     "differ only by the cap).",
      [](BenchArgs& a, const std::string&) {
        a.soak = true;
        return std::string();
@@ -511,6 +513,8 @@ int main(int argc, char** argv) {
     if (quick) return octofuse::cli::fail("--soak and --quick exclude each other");
     soak_options.voxel_size_m = voxels.front();
     soak_options.threads = thread_counts.front();
+    soak_options.map_kind = maps.front();
+    soak_options.pose_source = pose_modes.front();
     soak_options.out_dir = out_dir;
     return octofuse::bench::run_soak(soak_options);
   }

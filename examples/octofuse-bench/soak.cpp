@@ -99,10 +99,13 @@ struct PassRow {
   double peak_rss_mb = 0.0;  // VmHWM over the run so far
   double median_ms = 0.0;
   double p99_ms = 0.0;
-  // Refusals (blocks and nodes; finest levels are a degradation, not counted; free-space nodes)
-  // and, with a store, its traffic.
+  // Refusals (blocks and nodes: holes in the map; free-space nodes) and, with a store, its
+  // traffic. A finest or mid level refused is a degradation (the block fuses one scale coarser),
+  // not a hole: counted apart, not a pass condition.
   std::uint64_t refusals = 0;
   std::uint64_t free_space_refusals = 0;
+  std::uint64_t finest_refusals = 0;
+  std::uint64_t mid_refusals = 0;
   std::uint64_t store_read = 0;
   std::uint64_t store_remapped = 0;
   std::uint64_t store_deferred = 0;
@@ -187,7 +190,8 @@ void print_row(const SoakRun& run, const PassRow& row) {
                row.block_capacity, row.blocks_high_water, row.octree_nodes, row.free_space_nodes,
                row.rss_mb, row.peak_rss_mb, row.median_ms, row.p99_ms);
   std::fprintf(stderr,
-               "[soak %s %g MB] pass %d: refusals %llu (free space %llu); store: read %llu, "
+               "[soak %s %g MB] pass %d: refusals %llu (free space %llu; levels refused, fused "
+               "coarser: finest %llu, mid %llu); store: read %llu, "
                "re-mapped %llu, deferred %llu, written %llu, unchanged %llu, %.1f / %.1f KB per "
                "frame read / "
                "written, frames "
@@ -195,6 +199,8 @@ void print_row(const SoakRun& run, const PassRow& row) {
                run.name, static_cast<double>(run.map_memory_mb), row.pass,
                static_cast<unsigned long long>(row.refusals),
                static_cast<unsigned long long>(row.free_space_refusals),
+               static_cast<unsigned long long>(row.finest_refusals),
+               static_cast<unsigned long long>(row.mid_refusals),
                static_cast<unsigned long long>(row.store_read),
                static_cast<unsigned long long>(row.store_remapped),
                static_cast<unsigned long long>(row.store_deferred),
@@ -273,6 +279,8 @@ void on_frame(SoakRun& run, const FrameStats& stats) {
     row.refusals += stats.integration.pool_refusals - stats.integration.finest_refusals -
                     stats.integration.mid_refusals;
     row.free_space_refusals += stats.free_space.pool_refused;
+    row.finest_refusals += stats.integration.finest_refusals;
+    row.mid_refusals += stats.integration.mid_refusals;
     row.store_read += stats.store.read;
     row.store_remapped += stats.store.remapped;
     row.store_deferred += stats.store.deferred;
@@ -332,6 +340,8 @@ void run_one(const SoakOptions& soak, SoakRun& run) {
   options.loop_source = true;
   options.voxel_size_m = soak.voxel_size_m;
   options.threads = soak.threads;
+  options.map_kind = soak.map_kind;
+  options.pose_source = soak.pose_source;
   options.map_memory_mb = run.map_memory_mb;
   options.write_mesh = false;
   options.progress = false;
@@ -412,6 +422,8 @@ void write_run_json(host::JsonWriter& json, const SoakRun& run, double rss_toler
     json.key("p99_ms").value(row.p99_ms);
     json.key("refusals").value(row.refusals);
     json.key("free_space_refusals").value(row.free_space_refusals);
+    json.key("finest_refusals").value(row.finest_refusals);
+    json.key("mid_refusals").value(row.mid_refusals);
     json.key("store_read").value(row.store_read);
     json.key("store_remapped").value(row.store_remapped);
     json.key("store_deferred").value(row.store_deferred);
@@ -472,19 +484,23 @@ std::string run_table(const SoakRun& run) {
                 static_cast<unsigned long long>(run.passes), run.wall_s);
   md << line
      << "| pass | frames | lost | evicted blocks | blocks resident (most) | octree nodes | "
-        "free-space nodes | RSS MB | peak RSS MB | median ms | p99 ms |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "free-space nodes | refusals | finest / mid levels refused | RSS MB | peak RSS MB | "
+        "median ms | p99 ms |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (std::size_t i = 0; i < run.row_count; ++i) {
     const PassRow& row = run.rows[i];
     std::snprintf(line, sizeof(line),
-                  "| %d | %llu-%llu | %llu | %llu | %u / %u (%u) | %u | %u | %.1f | %.1f | %.1f | "
-                  "%.1f |\n",
+                  "| %d | %llu-%llu | %llu | %llu | %u / %u (%u) | %u | %u | %llu | %llu / %llu | "
+                  "%.1f | %.1f | %.1f | %.1f |\n",
                   row.pass, static_cast<unsigned long long>(row.first_frame),
                   static_cast<unsigned long long>(row.first_frame + row.frames - 1),
                   static_cast<unsigned long long>(row.lost),
                   static_cast<unsigned long long>(row.evicted), row.blocks_resident,
                   row.block_capacity, row.blocks_high_water, row.octree_nodes, row.free_space_nodes,
-                  row.rss_mb, row.peak_rss_mb, row.median_ms, row.p99_ms);
+                  static_cast<unsigned long long>(row.refusals + row.free_space_refusals),
+                  static_cast<unsigned long long>(row.finest_refusals),
+                  static_cast<unsigned long long>(row.mid_refusals), row.rss_mb, row.peak_rss_mb,
+                  row.median_ms, row.p99_ms);
     md << line;
   }
   if (run.passes > run.row_count) {
@@ -568,11 +584,13 @@ int run_soak(const SoakOptions& soak) {
   }
 
   std::ostringstream md;
-  std::snprintf(text, sizeof(text),
-                "Soak: %s, %ld frames, %g mm voxels, %d thread(s); the source replayed in a loop, "
-                "relocalised to the first frame's pose at the start of each pass.\n",
-                soak.source_spec.c_str(), soak.frames,
-                static_cast<double>(soak.voxel_size_m) * 1000.0, soak.threads);
+  std::snprintf(
+      text, sizeof(text),
+      "Soak: %s, %ld frames, %g mm voxels, %s map, %s poses, %d thread(s); the source "
+      "replayed in a loop, relocalised to the first frame's pose at the start of each "
+      "pass.\n",
+      soak.source_spec.c_str(), soak.frames, static_cast<double>(soak.voxel_size_m) * 1000.0,
+      examples::map_option_name(soak.map_kind), pose_source_name(soak.pose_source), soak.threads);
   md << text;
   for (const SoakRun& run : runs) md << run_table(run);
   std::snprintf(text, sizeof(text),
@@ -608,6 +626,8 @@ int run_soak(const SoakOptions& soak) {
   json.key("frames").value(static_cast<std::int64_t>(soak.frames));
   json.key("voxel_size_m").value(static_cast<double>(soak.voxel_size_m));
   json.key("threads").value(soak.threads);
+  json.key("map").value(examples::map_option_name(soak.map_kind));
+  json.key("poses").value(pose_source_name(soak.pose_source));
   json.key("rss_tolerance_mb").value(soak.rss_tolerance_mb);
   json.key("runs").begin_array();
   for (const SoakRun& run : runs) write_run_json(json, run, soak.rss_tolerance_mb);

@@ -6,6 +6,9 @@
 
 #include <string>
 
+#include "octofuse/map/map_config.hpp"
+#include "octofuse/pipeline/pipeline.hpp"
+
 namespace octofuse::bench {
 
 struct SoakOptions {
@@ -16,6 +19,8 @@ struct SoakOptions {
   double rss_tolerance_mb = 1.0;        // allowed growth of resident memory after the first pass
   float voxel_size_m = 0.01f;
   int threads = 1;
+  MapKind map_kind = MapKind::multires;        // both runs' map (the first of --maps)
+  PoseSource pose_source = PoseSource::track;  // the first of --poses: ICP, or ground truth
   std::string out_dir = "bench-out";
   // --soak-map-file: the capped run keeps evicted blocks in this store (emptied first).
   std::string map_file;

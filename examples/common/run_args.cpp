@@ -184,8 +184,9 @@ const RunOption kRunOptions[] = {
        return true;
      }},
     {"map-memory", "MB",
-     "memory for blocks and their finest and mid levels, when --max-blocks\n"
-     "is not given (default 1024)",
+     "the map's memory: blocks, their finest and mid levels, inner nodes and\n"
+     "hash (stats.json map_bytes_reserved), when --max-blocks is not given\n"
+     "(default 1024)",
      [](RunOptions& o, const std::string& v) {
        return set_float(v, 1.0, 1e6, &o.map_memory_mb, " needs megabytes in [1, 1e6]");
      },

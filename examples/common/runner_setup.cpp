@@ -186,21 +186,16 @@ struct PoolSizes {
   std::uint32_t mid = 0;     // 0: one per block
 };
 
-// Pool capacities from --max-blocks, or from --map-memory. A multires block takes its finest level
+// Pool capacities that split `bytes` of blocks and levels. A multires block takes its finest level
 // (8^3 voxels) only when it integrates at scale 0, i.e. closer than kScale0MaxRatio * fx * voxel:
 // when that covers most of the depth range (1 cm at QVGA: 3.9 m of 4) any block may need one;
 // otherwise (2 mm: 0.8 m) half the memory goes to blocks (with their mid levels; as many as
 // 32-bit voxels would take) and the rest to finest levels, so far, coarse blocks do not pay for a
 // finest level they never use.
 template <typename VoxelT>
-PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camera) {
+PoolSizes split_pools(const RunOptions& options, const PinholeCamera& input_camera, double bytes) {
   PoolSizes sizes;
-  if (options.max_blocks != 0) {
-    sizes.blocks = options.max_blocks;
-    return sizes;
-  }
   constexpr double kMaxBlocks = 4.0e6;
-  const double bytes = options.map_memory_mb * 1048576.0;
   const PipelineConfig defaults = default_pipeline_config(
       input_camera, options.voxel_size_m, kMinVoxelDepth, 1, Eigen::Vector3f::Zero());
   const double working_fx = input_camera.fx / defaults.preprocess.downsample_factor;
@@ -211,8 +206,8 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
   // the finest pool integrate at scale 1, the farthest give theirs back).
   if (!Map::kSplitFinest ||
       (!options.eviction.enabled && scale0_max_depth_m >= 0.5 * defaults.fusion.far_m)) {
-    sizes.blocks = static_cast<std::uint32_t>(
-        std::min(kMaxBlocks, bytes / static_cast<double>(Map::kBytesPerBlockWorstCase)));
+    sizes.blocks = static_cast<std::uint32_t>(std::max(
+        1.0, std::min(kMaxBlocks, bytes / static_cast<double>(Map::kBytesPerBlockWorstCase))));
     return sizes;
   }
   // Mid levels (scale 1) for the share of blocks that may integrate that fine: with eviction,
@@ -236,15 +231,96 @@ PoolSizes pool_sizes(const RunOptions& options, const PinholeCamera& input_camer
                                               static_cast<double>(sizeof(typename Wide::Mid)));
   const double own_block_bytes = block_bytes(static_cast<double>(sizeof(typename Map::Block)),
                                              static_cast<double>(sizeof(typename Map::Mid)));
-  sizes.blocks = static_cast<std::uint32_t>(std::min(kMaxBlocks, 0.5 * bytes / wide_block_bytes));
+  sizes.blocks = static_cast<std::uint32_t>(
+      std::max(1.0, std::min(kMaxBlocks, 0.5 * bytes / wide_block_bytes)));
   sizes.mid = mid_share >= 1.0 ? 0
                                : std::max<std::uint32_t>(
                                      1, static_cast<std::uint32_t>(mid_share * sizes.blocks));
   const double saved = static_cast<double>(sizes.blocks) * (wide_block_bytes - own_block_bytes);
-  sizes.finest = static_cast<std::uint32_t>(
-      std::min(static_cast<double>(sizes.blocks),
-               (0.5 * bytes + saved) / static_cast<double>(sizeof(typename Map::Finest))));
+  // At least one: 0 would mean one per block.
+  sizes.finest = static_cast<std::uint32_t>(std::max(
+      1.0, std::min(static_cast<double>(sizes.blocks),
+                    (0.5 * bytes + saved) / static_cast<double>(sizeof(typename Map::Finest)))));
   return sizes;
+}
+
+// What the octree reserves for `sizes` (MapMemory::bytes_reserved): the pools, the inner nodes,
+// the hash and the scratch, the last three growing with the block capacity.
+template <typename VoxelT>
+std::size_t map_bytes_for(const RunOptions& options, const PinholeCamera& input_camera,
+                          const PoolSizes& sizes) {
+  MapConfig map = default_pipeline_config(input_camera, options.voxel_size_m, kMinVoxelDepth,
+                                          sizes.blocks, Eigen::Vector3f::Zero())
+                      .map;
+  map.finest_capacity = sizes.finest;
+  map.mid_capacity = sizes.mid;
+  return Octree<VoxelT>::bytes_required(map);
+}
+
+// The bytes to split between blocks and levels so that all the octree of VoxelT reserves fits
+// in `cap`; 0 when not even one block does.
+template <typename VoxelT>
+double fitted_split_bytes(const RunOptions& options, const PinholeCamera& input_camera,
+                          double cap) {
+  using Map = Octree<VoxelT>;
+  double bytes = cap;
+  for (int step = 0; step < 100; ++step) {
+    const PoolSizes sizes = split_pools<VoxelT>(options, input_camera, bytes);
+    const double reserved =
+        static_cast<double>(map_bytes_for<VoxelT>(options, input_camera, sizes));
+    if (reserved > 0.0 && reserved <= cap) return bytes;
+    if (reserved <= 0.0 || sizes.blocks <= 1) break;
+    MapConfig pools;
+    pools.block_capacity = sizes.blocks;
+    pools.finest_capacity = sizes.finest;
+    pools.mid_capacity = sizes.mid;
+    double pool_bytes = static_cast<double>(pools.block_capacity) * sizeof(typename Map::Block);
+    if constexpr (Map::kSplitFinest) {
+      pool_bytes +=
+          static_cast<double>(pools.effective_finest_capacity()) * sizeof(typename Map::Finest) +
+          static_cast<double>(pools.effective_mid_capacity()) * sizeof(typename Map::Mid);
+    }
+    // The cap less the octree's own part at this capacity (which only shrinks with the blocks);
+    // where rounding leaves the pools a little over, less that too.
+    const double next = cap - (reserved - pool_bytes);
+    bytes = next < bytes ? next : bytes - (reserved - cap);
+  }
+  return 0.0;
+}
+
+// Pool capacities from --max-blocks, or from --map-memory, which bounds everything the octree
+// reserves (stats.json's map_bytes_reserved), not only its blocks and levels: what it takes
+// beside them (inner nodes, hash, scratch, the pools' free lists: about 3 % at 1 cm) grows with
+// the capacities and comes off the split's bytes first. A 16-bit map gets the float map's
+// blocks and mid levels and as many finest levels as then fit. False with `error` when the cap
+// cannot hold a map.
+template <typename VoxelT>
+bool pool_sizes(const RunOptions& options, const PinholeCamera& input_camera, PoolSizes* sizes,
+                std::string* error) {
+  using Map = Octree<VoxelT>;
+  if (options.max_blocks != 0) {
+    *sizes = PoolSizes();
+    sizes->blocks = options.max_blocks;
+    return true;
+  }
+  const double cap = static_cast<double>(options.map_memory_mb) * 1048576.0;
+  using Sized = std::conditional_t<Map::kSplitFinest, MultiresVoxel, VoxelT>;
+  const double bytes = fitted_split_bytes<Sized>(options, input_camera, cap);
+  *sizes = split_pools<VoxelT>(options, input_camera, bytes > 0.0 ? bytes : 1.0);
+  double reserved = static_cast<double>(map_bytes_for<VoxelT>(options, input_camera, *sizes));
+  while (bytes > 0.0 && reserved > cap && sizes->finest > 1) {
+    const double over_levels = std::ceil((reserved - cap) / sizeof(typename Map::Finest));
+    sizes->finest -=
+        static_cast<std::uint32_t>(std::min(over_levels, static_cast<double>(sizes->finest - 1)));
+    reserved = static_cast<double>(map_bytes_for<VoxelT>(options, input_camera, *sizes));
+  }
+  if (bytes > 0.0 && reserved <= cap) return true;
+  char text[160];
+  std::snprintf(text, sizeof(text),
+                "--map-memory %g MB cannot hold the map's fixed part (%.2f MB with one block)",
+                static_cast<double>(options.map_memory_mb), reserved / 1048576.0);
+  *error = text;
+  return false;
 }
 
 // Opens (or creates) the store at `path` for a map of `geometry`: the store, or null with a
@@ -347,7 +423,11 @@ int init_pipeline(const RunOptions& options, const RunInputs& inputs, const Se3d
   const float side_m = options.voxel_size_m * static_cast<float>(1 << depth);
   const Eigen::Vector3f centre_W =
       (T_W_C0.translation() + T_W_C0.linear().col(2) * (0.25 * side_m)).cast<float>();
-  const PoolSizes pools = pool_sizes<VoxelT>(options, input_camera);
+  PoolSizes pools;
+  std::string pool_error;
+  if (!pool_sizes<VoxelT>(options, input_camera, &pools, &pool_error)) {
+    return error_exit(pool_error);
+  }
   PipelineConfig config =
       default_pipeline_config(input_camera, options.voxel_size_m, depth, pools.blocks, centre_W);
   config.map.finest_capacity = pools.finest;

@@ -87,27 +87,29 @@ TEST_CASE(
   const double blocks = json_number(wide, "pool_block_capacity");
   CHECK(json_number(narrow, "pool_block_capacity") == blocks);
   CHECK(json_number(narrow, "pool_mid_capacity") == json_number(wide, "pool_mid_capacity"));
-  // Half the cap in finest levels for the float map; for the 16-bit one half the cap and what its
-  // blocks and mid levels save on the float's (72 + 512 bytes each), in its smaller levels.
+  // The cap bounds all the octree reserves (inner nodes, hash and scratch too), and is used.
   const double cap = 16.0 * 1048576.0;
+  for (const std::string* stats : {&wide, &narrow}) {
+    const double reserved = json_number(*stats, "map_bytes_reserved");
+    CHECK(reserved <= cap);
+    CHECK(reserved >= 0.99 * cap);
+  }
+  // Half the bytes go to finest levels; the 16-bit map spends what its blocks and mid levels
+  // save on the float's there too, in levels half as large.
   const double mids = json_number(wide, "pool_mid_capacity");
   const double wide_finest = json_number(wide, "pool_finest_capacity");
   const double narrow_finest = json_number(narrow, "pool_finest_capacity");
   using WideBlock = VoxelBlock<MultiresVoxel>;
   using NarrowBlock = VoxelBlock<Multires16Voxel>;
-  const double saved = blocks * static_cast<double>(sizeof(WideBlock) - sizeof(NarrowBlock)) +
-                       mids * static_cast<double>(sizeof(MidLevel<MultiresVoxel>) -
-                                                  sizeof(MidLevel<Multires16Voxel>));
-  CHECK(wide_finest == std::floor(0.5 * cap / sizeof(FinestLevel<MultiresVoxel>)));
-  CHECK(narrow_finest == std::floor((0.5 * cap + saved) / sizeof(FinestLevel<Multires16Voxel>)));
+  const double wide_pools = blocks * sizeof(WideBlock) + mids * sizeof(MidLevel<MultiresVoxel>) +
+                            wide_finest * sizeof(FinestLevel<MultiresVoxel>);
+  const double narrow_pools = blocks * sizeof(NarrowBlock) +
+                              mids * sizeof(MidLevel<Multires16Voxel>) +
+                              narrow_finest * sizeof(FinestLevel<Multires16Voxel>);
+  CHECK(wide_finest * sizeof(FinestLevel<MultiresVoxel>) ==
+        Approx(0.5 * wide_pools).epsilon(0.01));
+  CHECK(narrow_pools == Approx(wide_pools).epsilon(0.01));
   CHECK(narrow_finest > 2.9 * wide_finest);
-  // Both maps' pools within the cap.
-  CHECK(blocks * sizeof(WideBlock) + mids * sizeof(MidLevel<MultiresVoxel>) +
-            wide_finest * sizeof(FinestLevel<MultiresVoxel>) <=
-        cap);
-  CHECK(blocks * sizeof(NarrowBlock) + mids * sizeof(MidLevel<Multires16Voxel>) +
-            narrow_finest * sizeof(FinestLevel<Multires16Voxel>) <=
-        cap);
 }
 
 }  // namespace

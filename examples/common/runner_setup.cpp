@@ -221,8 +221,8 @@ PoolSizes split_pools(const RunOptions& options, const PinholeCamera& input_came
           : 1.0;
   // The blocks a view needs depend on the scene and the voxel size, not on the voxel's width: the
   // block pool is sized as for 32-bit voxels, and what narrower voxels save on those blocks goes
-  // to finest levels (a 16-bit map under 16 MB at 1 cm: 6 765 blocks and 6 025 finest levels
-  // instead of 12 787 and 4 096, where a 7-Scenes view fuses up to 3 700 blocks at scale 0).
+  // to finest levels (a 16-bit map under 16 MB at 1 cm: 6 477 blocks and 5 769 finest levels,
+  // where a 7-Scenes view fuses up to 3 700 blocks at scale 0).
   using Wide = Octree<MultiresVoxel>;
   const auto block_bytes = [mid_share](double block, double mid) {
     return block + mid_share * mid;

@@ -106,10 +106,34 @@ TEST_CASE(
   const double narrow_pools = blocks * sizeof(NarrowBlock) +
                               mids * sizeof(MidLevel<Multires16Voxel>) +
                               narrow_finest * sizeof(FinestLevel<Multires16Voxel>);
-  CHECK(wide_finest * sizeof(FinestLevel<MultiresVoxel>) ==
-        Approx(0.5 * wide_pools).epsilon(0.01));
+  CHECK(wide_finest * sizeof(FinestLevel<MultiresVoxel>) == Approx(0.5 * wide_pools).epsilon(0.01));
   CHECK(narrow_pools == Approx(wide_pools).epsilon(0.01));
   CHECK(narrow_finest > 2.9 * wide_finest);
+}
+
+TEST_CASE("--map-memory bounds all the octree reserves, for every map kind and voxel size",
+          "[programs][multires16]") {
+  const std::string dir = test::make_test_dir("replay-map-memory-cap");
+  int run_index = 0;
+  for (const char* kind : {"multires", "multires16", "single"}) {
+    for (const char* voxel : {"0.01", "0.004"}) {
+      for (const char* megabytes : {"1", "5"}) {
+        const std::string out = dir + "/run" + std::to_string(run_index++);
+        const test::RunResult run =
+            test::run_replay({"--map", kind, "--frames", "2", "--gt-poses", "--voxel-size", voxel,
+                              "--map-memory", megabytes, "--out", out, "--no-mesh", "--quiet"},
+                             out + ".log");
+        INFO(kind << " " << voxel << " m, " << megabytes << " MB: " << run.output);
+        REQUIRE(run.exit_status == 0);
+        const std::string stats = test::read_file(out + "/stats.json");
+        const double cap = std::atof(megabytes) * 1048576.0;
+        const double reserved = json_number(stats, "map_bytes_reserved");
+        CHECK(reserved <= cap);
+        CHECK(reserved >= 0.98 * cap);
+        CHECK(json_number(stats, "pool_block_capacity") >= 100.0);
+      }
+    }
+  }
 }
 
 }  // namespace

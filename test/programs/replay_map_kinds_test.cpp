@@ -114,24 +114,26 @@ TEST_CASE(
 TEST_CASE("--map-memory bounds all the octree reserves, for every map kind and voxel size",
           "[programs][multires16]") {
   const std::string dir = test::make_test_dir("replay-map-memory-cap");
+  struct Setting {
+    const char* voxel;
+    const char* megabytes;
+  };
   int run_index = 0;
   for (const char* kind : {"multires", "multires16", "single"}) {
-    for (const char* voxel : {"0.01", "0.004"}) {
-      for (const char* megabytes : {"1", "5"}) {
-        const std::string out = dir + "/run" + std::to_string(run_index++);
-        const test::RunResult run =
-            test::run_replay({"--map", kind, "--frames", "2", "--gt-poses", "--voxel-size", voxel,
-                              "--map-memory", megabytes, "--out", out, "--no-mesh", "--quiet"},
-                             out + ".log");
-        INFO(kind << " " << voxel << " m, " << megabytes << " MB: " << run.output);
-        REQUIRE(run.exit_status == 0);
-        const std::string stats = test::read_file(out + "/stats.json");
-        const double cap = std::atof(megabytes) * 1048576.0;
-        const double reserved = json_number(stats, "map_bytes_reserved");
-        CHECK(reserved <= cap);
-        CHECK(reserved >= 0.98 * cap);
-        CHECK(json_number(stats, "pool_block_capacity") >= 100.0);
-      }
+    for (const Setting& setting : {Setting{"0.01", "1"}, Setting{"0.004", "5"}}) {
+      const std::string out = dir + "/run" + std::to_string(run_index++);
+      const test::RunResult run = test::run_replay(
+          {"--map", kind, "--frames", "2", "--gt-poses", "--voxel-size", setting.voxel,
+           "--map-memory", setting.megabytes, "--out", out, "--no-mesh", "--quiet"},
+          out + ".log");
+      INFO(kind << " " << setting.voxel << " m, " << setting.megabytes << " MB: " << run.output);
+      REQUIRE(run.exit_status == 0);
+      const std::string stats = test::read_file(out + "/stats.json");
+      const double cap = std::atof(setting.megabytes) * 1048576.0;
+      const double reserved = json_number(stats, "map_bytes_reserved");
+      CHECK(reserved <= cap);
+      CHECK(reserved >= 0.98 * cap);
+      CHECK(json_number(stats, "pool_block_capacity") >= 100.0);
     }
   }
 }

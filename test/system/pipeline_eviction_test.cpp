@@ -4,6 +4,7 @@
 #include "octofuse/pipeline/pipeline.hpp"
 
 #include <catch2/catch.hpp>
+#include <limits>
 
 #include "system/pipeline_support.hpp"
 
@@ -212,6 +213,16 @@ TEST_CASE("the eviction budget bounds each frame's evictions and says so") {
   bad = config;
   bad.budget.max_evictions = 0;
   CHECK(bytes_required(bad) == 0u);
+  for (const float share : {-0.01f, 1.01f, std::numeric_limits<float>::quiet_NaN()}) {
+    bad = config;
+    bad.budget.store_read_share_integration = share;
+    CHECK(bytes_required(bad) == 0u);
+  }
+  for (const float share : {0.0f, 1.0f}) {
+    bad = config;
+    bad.budget.store_read_share_integration = share;
+    CHECK(bytes_required(bad) > 0u);
+  }
 }
 
 }  // namespace

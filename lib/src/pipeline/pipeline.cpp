@@ -136,6 +136,10 @@ Status validate(const PipelineConfig& config, ErrorText* error) {
   if (e.enabled && !(e.low_water > 0.0f && e.low_water < e.high_water && e.high_water <= 1.0f)) {
     return bad("eviction marks must satisfy 0 < low_water < high_water <= 1");
   }
+  const float share = config.budget.store_read_share_integration;
+  if (!(share >= 0.0f && share <= 1.0f)) {
+    return bad("budget.store_read_share_integration must be in [0, 1]");
+  }
   if (e.enabled && config.budget.max_evictions == 0) {
     return bad("budget.max_evictions must be >= 1 when eviction is enabled");
   }
@@ -954,12 +958,17 @@ void Pipeline<VoxelT>::reload_stored(StoreReport& report) {
   // send blocks just read back (in view, but not yet updated) out again, frame after frame.
   const std::uint32_t used = map_.memory().blocks_used;
   const std::uint32_t room = evict_high_blocks_ > used ? evict_high_blocks_ - used : 0;
-  const std::uint32_t budget = std::min(room, config_.budget.max_store_reads);
+  // What integration may need is kept back: the rest is the read-ahead's.
+  const std::uint32_t kept =
+      static_cast<std::uint32_t>(static_cast<double>(config_.budget.max_store_reads) *
+                                 static_cast<double>(config_.budget.store_read_share_integration));
+  const std::uint32_t ahead = config_.budget.max_store_reads - kept;
+  const std::uint32_t budget = std::min(room, ahead);
   std::uint32_t restored = 0;
   for (std::uint32_t i = 0; i < candidates; ++i) {
     if (report.read + report.read_failed + report.remapped == budget) {
       report.waiting = candidates - i;
-      if (budget == config_.budget.max_store_reads) report.budget_hit = true;
+      if (budget == ahead) report.budget_hit = true;
       break;
     }
     const std::uint64_t key = eviction_candidates_[i].morton;

@@ -84,6 +84,11 @@ struct PipelineBudget {
   // the next frame) and read back per frame, step (2) of the degradation order.
   std::uint32_t max_store_writes = 2048;
   std::uint32_t max_store_reads = 512;
+  // The share of max_store_reads the view's read-ahead (before tracking) leaves to the stored
+  // blocks this frame's integration is about to allocate: a block it needs and the budget leaves
+  // unread misses the frame's data (deferred), one the read-ahead does not reach is read when
+  // needed. In [0, 1]; 0: the read-ahead may spend it all.
+  float store_read_share_integration = 0.25f;
   // Index 0 = finest level. When tracking, at least one level must iterate (init() returns
   // invalid_argument otherwise): no iteration would report every frame tracked, unchecked.
   // The defaults are TrackConfig's (lib/README.md, "Tracking", says why two at the finest level).

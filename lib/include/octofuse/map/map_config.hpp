@@ -32,13 +32,14 @@ struct MapConfig {
   Eigen::Vector3f origin_W = Eigen::Vector3f::Zero();
   std::uint32_t block_capacity = 4096;  // voxel blocks in the pool
   std::uint32_t node_capacity = 4096;   // inner octree nodes in the pool (the root included)
-  // Multires maps: finest levels (8^3 voxels of TSDF and weight: 4 KiB float, 2 KiB 16-bit) lent to blocks integrated at scale 0;
-  // a block refused one stays at scale 1. 0 = block_capacity (never refuses, reserves the worst
-  // case, which stays untouched until used). Single-resolution maps ignore it.
+  // Multires maps: finest levels (8^3 voxels of TSDF and weight: 4 KiB float, 2 KiB 16-bit) lent to
+  // blocks integrated at scale 0; a block refused one stays at scale 1. 0 = block_capacity (never
+  // refuses, reserves the worst case, which stays untouched until used). Single-resolution maps
+  // ignore it.
   std::uint32_t finest_capacity = 0;
-  // Multires maps: mid levels (scale 1: 4^3 voxels, 1 KiB float, 512 B 16-bit) lent to blocks integrated at
-  // scale 1 or finer (a finest level comes with one); a block refused one stays at scale 2.
-  // 0 = block_capacity (never refuses). Single-resolution maps ignore it.
+  // Multires maps: mid levels (scale 1: 4^3 voxels, 1 KiB float, 512 B 16-bit) lent to blocks
+  // integrated at scale 1 or finer (a finest level comes with one); a block refused one stays at
+  // scale 2. 0 = block_capacity (never refuses). Single-resolution maps ignore it.
   std::uint32_t mid_capacity = 0;
 
   int voxels_per_side() const { return 1 << voxel_depth; }

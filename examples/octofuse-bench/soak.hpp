@@ -6,7 +6,6 @@
 
 #include <string>
 
-#include "octofuse/map/map_config.hpp"
 #include "octofuse/pipeline/pipeline.hpp"
 
 namespace octofuse::bench {
